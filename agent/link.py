@@ -1,0 +1,180 @@
+"""The agent's connection to the fusion server: a ZeroMQ DEALER with heartbeats.
+
+Synchronous sockets in the capture thread on purpose: Windows sensor PCs run a Proactor event
+loop that pyzmq's asyncio support handles poorly (``shared/conventions.md`` §4).
+
+Rules (``docs/protocol.md``):
+
+- Register with ``hello``; frames are sent only while registered, and never queued beyond
+  :data:`~protocol.constants.AGENT_SEND_HWM` (IMMEDIATE=1, small HWM, non-blocking sends), so a
+  server outage never turns into a stale backlog: frames that cannot go out are dropped and
+  counted.
+- Silence from the server for ``HEARTBEAT_LIVENESS`` intervals, or an ``error`` with code
+  ``not_registered`` (the server restarted), sends us back to registering.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import zmq
+
+from protocol.constants import AGENT_SEND_HWM, HEARTBEAT_INTERVAL_S, HEARTBEAT_LIVENESS
+from protocol.errors import DecodeError
+from protocol.wire import (
+    Bye,
+    ErrorMessage,
+    Frame,
+    Heartbeat,
+    Hello,
+    Message,
+    Request,
+    Response,
+    Welcome,
+    decode,
+    encode,
+)
+
+logger = logging.getLogger(__name__)
+
+RequestHandler = Callable[[dict[str, Any]], Any]
+
+
+@dataclass(slots=True)
+class LinkStats:
+    frames_sent: int = 0
+    frames_dropped: int = 0
+    registrations: int = 0
+    server_errors: dict[str, int] = field(default_factory=dict)
+
+
+class AgentLink:
+    """Owns one DEALER socket; call :meth:`poll` often and :meth:`send_frame` per capture."""
+
+    def __init__(
+        self,
+        endpoint: str,
+        hello: Callable[[], Hello],
+        *,
+        context: zmq.Context[Any] | None = None,
+        heartbeat_interval_s: float = HEARTBEAT_INTERVAL_S,
+        liveness: int = HEARTBEAT_LIVENESS,
+        handlers: dict[str, RequestHandler] | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self._endpoint = endpoint
+        self._make_hello = hello
+        self._own_context = context is None
+        self._context = context or zmq.Context()
+        self._interval = heartbeat_interval_s
+        self._liveness = liveness
+        self._handlers = handlers or {}
+        self._clock = clock
+        self.stats = LinkStats()
+        self.registered = False
+        self._last_heard = -float("inf")
+        self._last_sent = -float("inf")
+        self._last_hello = -float("inf")
+        self._socket = self._open()
+
+    def _open(self) -> zmq.Socket[Any]:
+        socket = self._context.socket(zmq.DEALER)
+        socket.linger = 0
+        socket.sndhwm = AGENT_SEND_HWM
+        socket.rcvhwm = 100
+        socket.setsockopt(zmq.IMMEDIATE, 1)
+        socket.setsockopt(zmq.RECONNECT_IVL, 100)
+        socket.setsockopt(zmq.RECONNECT_IVL_MAX, 2000)
+        socket.connect(self._endpoint)
+        return socket
+
+    # --- sending ---------------------------------------------------------------------------
+
+    def _send(self, message: Message) -> bool:
+        try:
+            self._socket.send(encode(message), zmq.NOBLOCK)
+        except zmq.Again:
+            return False
+        self._last_sent = self._clock()
+        return True
+
+    def send_frame(self, frame: Frame) -> bool:
+        """Send one frame now or drop it (never blocks, never queues a backlog)."""
+        if not self.registered or not self._send(frame):
+            self.stats.frames_dropped += 1
+            return False
+        self.stats.frames_sent += 1
+        return True
+
+    # --- receiving and timers ----------------------------------------------------------------
+
+    def poll(self, timeout_s: float = 0.0) -> None:
+        """Handle everything the server sent, then heartbeats and re-registration."""
+        deadline_ms = int(timeout_s * 1000)
+        while self._socket.poll(deadline_ms, zmq.POLLIN):
+            deadline_ms = 0
+            self._handle(self._socket.recv())
+        now = self._clock()
+        if self.registered and now - self._last_heard > self._interval * self._liveness:
+            logger.warning("server silent for %.1f s; registering again", now - self._last_heard)
+            self.registered = False
+        if not self.registered and now - self._last_hello >= self._interval:
+            self._last_hello = now
+            self._send(self._make_hello())
+        elif self.registered and now - self._last_sent >= self._interval:
+            self._send(Heartbeat(t_ns=time.time_ns()))
+
+    def _handle(self, payload: bytes) -> None:
+        try:
+            message = decode(payload)
+        except DecodeError as exc:
+            logger.warning("dropped a malformed message from the server: %s", exc)
+            return
+        self._last_heard = self._clock()
+        match message:
+            case Welcome():
+                if not self.registered:
+                    self.stats.registrations += 1
+                    logger.info(
+                        "registered with server %s (%s)", self._endpoint, message.server_version
+                    )
+                self.registered = True
+            case ErrorMessage(code=code):
+                self.stats.server_errors[code] = self.stats.server_errors.get(code, 0) + 1
+                if code == "not_registered":
+                    self.registered = False
+                    self._last_hello = -float("inf")
+                else:
+                    logger.warning("server refused a message: %s: %s", code, message.message)
+            case Request():
+                self._send(self._answer(message))
+            case Heartbeat():
+                pass
+            case _:
+                logger.debug("ignored unexpected %s from server", type(message).__name__)
+
+    def _answer(self, request: Request) -> Response:
+        handler = self._handlers.get(request.method)
+        if handler is None:
+            return Response(
+                request.request_id,
+                ok=False,
+                error=f"method {request.method!r} not supported by this agent",
+            )
+        try:
+            return Response(request.request_id, ok=True, result=handler(request.params))
+        except Exception as exc:  # a failing handler must not kill the capture loop
+            logger.exception("request %s failed", request.method)
+            return Response(request.request_id, ok=False, error=f"{type(exc).__name__}: {exc}")
+
+    def close(self) -> None:
+        """Say goodbye (best effort) and release the socket."""
+        said_bye = self.registered and self._send(Bye())
+        # A short linger lets the bye leave; nothing else can be queued (frames are dropped).
+        self._socket.close(linger=200 if said_bye else 0)
+        if self._own_context:
+            self._context.term()

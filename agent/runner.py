@@ -1,0 +1,69 @@
+"""The agent's main loop: read the source, send frames, keep the link alive."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+from agent import __version__
+from agent.link import AgentLink
+from agent.sources.base import SkeletonSource
+from protocol.wire import Frame, Hello
+
+logger = logging.getLogger(__name__)
+
+
+def make_hello(sensor_id: str, source: SkeletonSource) -> Hello:
+    hint = source.pose_hint()
+    return Hello(
+        sensor_id=sensor_id,
+        sensor_type=source.sensor_type,
+        agent_version=__version__,
+        fps=source.fps,
+        t_ns=time.time_ns(),
+        pose_hint=hint[0] if hint else None,
+        pose_hint_source=hint[1] if hint else None,
+    )
+
+
+def run_agent(
+    sensor_id: str,
+    source: SkeletonSource,
+    server_endpoint: str,
+    *,
+    stop: threading.Event | None = None,
+    duration_s: float | None = None,
+) -> AgentLink:
+    """Stream ``source`` to the server until ``stop`` is set or ``duration_s`` has passed.
+
+    Survives server restarts (the link re-registers by itself). Returns the closed link, whose
+    ``stats`` say how many frames went out and how many were dropped.
+    """
+    stop = stop or threading.Event()
+    link = AgentLink(server_endpoint, lambda: make_hello(sensor_id, source))
+    deadline = None if duration_s is None else time.monotonic() + duration_s
+    seq = 0
+    last_report = time.monotonic()
+    try:
+        link.poll()
+        while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
+            capture = source.next_capture(timeout_s=0.1)
+            link.poll()
+            if capture is None:
+                continue
+            seq += 1
+            link.send_frame(Frame(seq, capture.t_capture_ns, capture.bodies, capture.floor))
+            if time.monotonic() - last_report > 10.0:
+                last_report = time.monotonic()
+                logger.info(
+                    "%s: %d frames sent, %d dropped, registered=%s",
+                    sensor_id,
+                    link.stats.frames_sent,
+                    link.stats.frames_dropped,
+                    link.registered,
+                )
+    finally:
+        link.close()
+        source.close()
+    return link

@@ -1,0 +1,1 @@
+"""Simulated sensors and performers for demos, tests and benchmarks."""

@@ -1,0 +1,49 @@
+"""The seam between sensors and the agent's sender.
+
+Every source (simulator, recording, Kinect v2 SDK, Azure/Femto body tracking) delivers captures
+in the Kinect v2 joint set, metres, in its own camera frame: the conversion from an SDK's native
+skeleton happens inside the source, so the rest of the agent and the server see one format.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+from protocol.transform import Matrix4
+from protocol.wire import Body
+
+
+class SensorError(Exception):
+    """A source failed (device unplugged, SDK missing, recording unreadable...)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Capture:
+    """One sensor frame: bodies in the sensor frame, capture time on this PC's wall clock."""
+
+    t_capture_ns: int
+    bodies: tuple[Body, ...]
+    floor: tuple[float, float, float, float] | None = None
+
+
+class SkeletonSource(Protocol):
+    """What the agent needs from a sensor."""
+
+    @property
+    def sensor_type(self) -> str:
+        """Wire ``sensor_type``: kinect_v2, azure_kinect, femto, sim or replay."""
+        ...
+
+    @property
+    def fps(self) -> float: ...
+
+    def pose_hint(self) -> tuple[Matrix4, str] | None:
+        """A ``T_world_from_sensor`` the source knows (and its source tag), or None."""
+        ...
+
+    def next_capture(self, timeout_s: float) -> Capture | None:
+        """Block until the next frame (None if none came within ``timeout_s``)."""
+        ...
+
+    def close(self) -> None: ...

@@ -1,0 +1,27 @@
+"""Shared skeleton model and agent <-> server wire protocol. Depends on numpy and msgpack only."""
+
+from protocol.constants import PROTOCOL_VERSION
+from protocol.errors import DecodeError, ProtocolError, VersionMismatch
+from protocol.skeleton import (
+    BONES,
+    JOINT_COUNT,
+    JOINT_NAMES,
+    PARENTS,
+    SKELETON_NAME,
+    JointId,
+    TrackingState,
+)
+
+__all__ = [
+    "BONES",
+    "JOINT_COUNT",
+    "JOINT_NAMES",
+    "PARENTS",
+    "PROTOCOL_VERSION",
+    "SKELETON_NAME",
+    "DecodeError",
+    "JointId",
+    "ProtocolError",
+    "TrackingState",
+    "VersionMismatch",
+]

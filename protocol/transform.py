@@ -1,0 +1,74 @@
+"""Rigid transforms as 4×4 float64 matrices.
+
+Naming: ``T_b_from_a`` maps points expressed in frame ``a`` into frame ``b``
+(``p_b = T_b_from_a @ p_a``), so compositions read right to left.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+Matrix4 = npt.NDArray[np.float64]
+
+
+def pose_from_position_yaw_pitch(
+    position_m: tuple[float, float, float], yaw_deg: float, pitch_deg: float = 0.0
+) -> Matrix4:
+    """``T_world_from_sensor`` of a sensor placed in the room.
+
+    World: right-handed, +Y up, metres, floor at y = 0. Sensor frame (Kinect v2 camera space):
+    +X sensor-left, +Y up, +Z forward. Yaw is a right-handed turn about world +Y (yaw 0 looks
+    along +Z, yaw 90 along +X); positive pitch tilts the sensor down.
+    """
+    yaw = np.radians(yaw_deg)
+    pitch = np.radians(pitch_deg)
+    cy, sy = np.cos(yaw), np.sin(yaw)
+    cp, sp = np.cos(pitch), np.sin(pitch)
+    rot_yaw = np.array([[cy, 0.0, sy], [0.0, 1.0, 0.0], [-sy, 0.0, cy]])
+    # About the sensor's +X (its left): +pitch sends the forward axis (0, 0, 1) to (0, -sin, cos).
+    rot_pitch = np.array([[1.0, 0.0, 0.0], [0.0, cp, -sp], [0.0, sp, cp]])
+    transform = np.eye(4)
+    transform[:3, :3] = rot_yaw @ rot_pitch
+    transform[:3, 3] = position_m
+    return transform
+
+
+def look_at_pose(
+    position_m: tuple[float, float, float], target_m: tuple[float, float, float]
+) -> Matrix4:
+    """``T_world_from_sensor`` for a level-rolled sensor at ``position_m`` aimed at ``target_m``."""
+    direction = np.asarray(target_m, dtype=np.float64) - np.asarray(position_m, dtype=np.float64)
+    horizontal = float(np.hypot(direction[0], direction[2]))
+    yaw = float(np.degrees(np.arctan2(direction[0], direction[2])))
+    pitch = float(np.degrees(np.arctan2(-direction[1], horizontal)))
+    return pose_from_position_yaw_pitch(position_m, yaw, pitch)
+
+
+def invert(transform: Matrix4) -> Matrix4:
+    """Inverse of a rigid transform (exact, no general matrix inverse)."""
+    rotation = transform[:3, :3]
+    inverse = np.eye(4)
+    inverse[:3, :3] = rotation.T
+    inverse[:3, 3] = -rotation.T @ transform[:3, 3]
+    return inverse
+
+
+def apply(transform: Matrix4, points: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """Apply ``transform`` to (..., 3) points; NaN stays NaN."""
+    pts = np.asarray(points, dtype=np.float64)
+    out: npt.NDArray[np.float64] = pts @ transform[:3, :3].T + transform[:3, 3]
+    return out
+
+
+def is_rigid(transform: npt.ArrayLike, atol: float = 1e-6) -> bool:
+    """True when ``transform`` is a 4×4 proper rigid transform (rotation + translation)."""
+    matrix = np.asarray(transform, dtype=np.float64)
+    if matrix.shape != (4, 4) or not np.isfinite(matrix).all():
+        return False
+    rotation = matrix[:3, :3]
+    return bool(
+        np.allclose(rotation @ rotation.T, np.eye(3), atol=atol)
+        and np.linalg.det(rotation) > 0
+        and np.allclose(matrix[3], [0.0, 0.0, 0.0, 1.0], atol=atol)
+    )

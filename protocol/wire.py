@@ -1,0 +1,431 @@
+"""Agent <-> server messages, version 1: msgpack maps in single ZeroMQ frames.
+
+``encode(message) -> bytes`` and ``decode(buf) -> message`` are the only way messages cross the
+wire, on both sides. ``decode`` is the trust boundary: everything it returns has been checked
+(version, types, shapes, finite values, ranges, sizes), and everything it refuses raises
+:class:`~protocol.errors.DecodeError` with a short ``reason`` used for counting.
+
+The byte-level format is specified in ``docs/protocol.md``; keep the two in step.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Final
+
+import msgpack
+import numpy as np
+import numpy.typing as npt
+
+from protocol.constants import MAX_BODIES, MAX_COORDINATE_M, MAX_MESSAGE_BYTES, PROTOCOL_VERSION
+from protocol.errors import DecodeError, VersionMismatch
+from protocol.skeleton import JOINT_COUNT, SKELETON_NAME, TrackingState
+
+SENSOR_ID_PATTERN: Final = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
+SENSOR_TYPES: Final = frozenset({"kinect_v2", "azure_kinect", "femto", "sim", "replay"})
+POSE_HINT_SOURCES: Final = frozenset({"sim_truth", "manual"})
+_JOINT_BYTES: Final = JOINT_COUNT * 3 * 4
+_UINT64_MAX: Final = 2**64 - 1
+_INT64_MAX: Final = 2**63 - 1
+
+
+# --- messages ---------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class Body:
+    """One body in one sensor frame.
+
+    tracking_id: the SDK's id for this body (uint64); stable while the sensor keeps tracking it.
+    joints_m: (25, 3) float32, metres, the sensor's own camera frame (+X sensor-left, +Y up,
+        +Z forward). Positions of NOT_TRACKED joints carry no meaning (may be NaN).
+    states: (25,) uint8 :class:`~protocol.skeleton.TrackingState` per joint.
+    """
+
+    tracking_id: int
+    joints_m: npt.NDArray[np.float32]
+    states: npt.NDArray[np.uint8]
+
+
+@dataclass(frozen=True, slots=True)
+class Hello:
+    """Agent registration; the first message of every connection (and after a server restart).
+
+    pose_hint: optional ``T_world_from_sensor`` (4×4 float64) the agent believes in, with its
+        ``pose_hint_source``: ``sim_truth`` (the simulator's true pose) or ``manual``. The server
+        uses it only for a sensor that has no stored calibration.
+    """
+
+    sensor_id: str
+    sensor_type: str
+    agent_version: str
+    fps: float
+    t_ns: int
+    skeleton: str = SKELETON_NAME
+    pose_hint: npt.NDArray[np.float64] | None = None
+    pose_hint_source: str | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Welcome:
+    """Server's answer to :class:`Hello`."""
+
+    server_version: str
+    heartbeat_interval_s: float
+    t_ns: int
+
+
+@dataclass(frozen=True, slots=True)
+class Frame:
+    """One captured sensor frame.
+
+    seq: per-connection frame counter, +1 per captured frame (gaps mean frames were dropped).
+    t_capture_ns: capture instant on the agent's clock, nanoseconds since the Unix epoch.
+    floor: the SDK's floor plane (a, b, c, d) in the sensor frame, ``a·x + b·y + c·z + d = 0``
+        with (a, b, c) a unit normal pointing up, or None.
+    """
+
+    seq: int
+    t_capture_ns: int
+    bodies: tuple[Body, ...]
+    floor: tuple[float, float, float, float] | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Heartbeat:
+    """Liveness in either direction; ``t_ns`` is the sender's clock."""
+
+    t_ns: int
+
+
+@dataclass(frozen=True, slots=True)
+class Request:
+    """Server -> agent request (e.g. a depth capture for calibration)."""
+
+    request_id: int
+    method: str
+    params: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, slots=True)
+class Response:
+    """Agent -> server answer to a :class:`Request`: ``result`` when ``ok``, else ``error``."""
+
+    request_id: int
+    ok: bool
+    result: Any = None
+    error: str | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class ErrorMessage:
+    """Server -> agent: why a message was refused. ``code`` ``not_registered`` asks for Hello."""
+
+    code: str
+    message: str
+
+
+@dataclass(frozen=True, slots=True)
+class Bye:
+    """Agent -> server: a clean shutdown, so the sensor shows offline at once."""
+
+
+Message = Hello | Welcome | Frame | Heartbeat | Request | Response | ErrorMessage | Bye
+
+
+# --- encoding ---------------------------------------------------------------------------------
+
+
+def encode(message: Message) -> bytes:
+    """Serialise a message to its wire bytes (deterministic: same message, same bytes)."""
+    body: dict[str, Any]
+    match message:
+        case Frame():
+            body = {
+                "type": "frame",
+                "seq": message.seq,
+                "t_capture_ns": message.t_capture_ns,
+                "bodies": [_encode_body(b) for b in message.bodies],
+                "floor": list(message.floor) if message.floor is not None else None,
+            }
+        case Heartbeat():
+            body = {"type": "heartbeat", "t_ns": message.t_ns}
+        case Hello():
+            body = {
+                "type": "hello",
+                "sensor_id": message.sensor_id,
+                "sensor_type": message.sensor_type,
+                "skeleton": message.skeleton,
+                "agent_version": message.agent_version,
+                "fps": float(message.fps),
+                "t_ns": message.t_ns,
+            }
+            if message.pose_hint is not None:
+                body["pose_hint"] = {
+                    "T_world_from_sensor": [float(x) for x in message.pose_hint.reshape(16)],
+                    "source": message.pose_hint_source or "manual",
+                }
+        case Welcome():
+            body = {
+                "type": "welcome",
+                "server_version": message.server_version,
+                "heartbeat_interval_s": float(message.heartbeat_interval_s),
+                "t_ns": message.t_ns,
+            }
+        case Request():
+            body = {
+                "type": "request",
+                "id": message.request_id,
+                "method": message.method,
+                "params": message.params,
+            }
+        case Response():
+            body = {"type": "response", "id": message.request_id, "ok": message.ok}
+            if message.ok:
+                body["result"] = message.result
+            else:
+                body["error"] = message.error or "unspecified error"
+        case ErrorMessage():
+            body = {"type": "error", "code": message.code, "message": message.message}
+        case Bye():
+            body = {"type": "bye"}
+    packed: bytes = msgpack.packb({"v": PROTOCOL_VERSION, **body}, use_bin_type=True)
+    return packed
+
+
+def _encode_body(body: Body) -> dict[str, Any]:
+    joints = np.ascontiguousarray(body.joints_m, dtype="<f4")
+    states = np.ascontiguousarray(body.states, dtype=np.uint8)
+    if joints.shape != (JOINT_COUNT, 3) or states.shape != (JOINT_COUNT,):
+        raise ValueError(
+            f"a body needs (25, 3) joints and (25,) states, got {joints.shape} and {states.shape}"
+        )
+    return {"id": body.tracking_id, "joints": joints.tobytes(), "states": states.tobytes()}
+
+
+# --- decoding (the trust boundary) ------------------------------------------------------------
+
+
+def decode(buf: bytes) -> Message:
+    """Parse and validate one message.
+
+    Raises:
+        DecodeError: with ``reason`` ``too_large``, ``malformed``, ``version``, ``unknown_type``,
+            ``bad_field``, ``bad_shape``, ``non_finite`` or ``out_of_range``.
+    """
+    if len(buf) > MAX_MESSAGE_BYTES:
+        raise DecodeError("too_large", f"message of {len(buf)} bytes > {MAX_MESSAGE_BYTES}")
+    try:
+        raw = msgpack.unpackb(
+            buf,
+            raw=False,
+            strict_map_key=True,
+            max_array_len=64,
+            max_map_len=32,
+            max_str_len=4096,
+            max_bin_len=4096,
+            max_ext_len=0,
+        )
+    except (ValueError, msgpack.UnpackException) as exc:  # limits, garbage, trailing bytes
+        raise DecodeError("malformed", f"not a msgpack message: {exc}") from exc
+    if not isinstance(raw, dict):
+        raise DecodeError("malformed", f"message must be a map, got {type(raw).__name__}")
+    version = raw.get("v")
+    if version != PROTOCOL_VERSION or isinstance(version, bool):
+        raise VersionMismatch(version, PROTOCOL_VERSION)
+    kind = raw.get("type")
+    decoder = _DECODERS.get(kind) if isinstance(kind, str) else None
+    if decoder is None:
+        raise DecodeError("unknown_type", f"unknown message type {kind!r}")
+    return decoder(raw)
+
+
+def _field(raw: dict[str, Any], name: str, kind: type | tuple[type, ...]) -> Any:
+    if name not in raw:
+        raise DecodeError("bad_field", f"missing field {name!r} in {raw.get('type')!r} message")
+    value = raw[name]
+    # bool is an int subclass; a True where a number belongs is a bug on the other side.
+    if isinstance(value, bool) and bool not in (kind if isinstance(kind, tuple) else (kind,)):
+        raise DecodeError("bad_field", f"field {name!r} must be {kind}, got bool")
+    if not isinstance(value, kind):
+        raise DecodeError("bad_field", f"field {name!r} must be {kind}, got {type(value).__name__}")
+    return value
+
+
+def _uint(raw: dict[str, Any], name: str, maximum: int = _INT64_MAX) -> int:
+    value: int = _field(raw, name, int)
+    if not 0 <= value <= maximum:
+        raise DecodeError("out_of_range", f"field {name!r} = {value} out of range 0..{maximum}")
+    return value
+
+
+def _finite_float(raw: dict[str, Any], name: str) -> float:
+    value = float(_field(raw, name, (int, float)))
+    if not math.isfinite(value):
+        raise DecodeError("non_finite", f"field {name!r} must be finite, got {value}")
+    return value
+
+
+def _decode_frame(raw: dict[str, Any]) -> Frame:
+    seq = _uint(raw, "seq")
+    t_capture_ns = _uint(raw, "t_capture_ns")
+    bodies_raw = _field(raw, "bodies", list)
+    if len(bodies_raw) > MAX_BODIES:
+        raise DecodeError("bad_shape", f"{len(bodies_raw)} bodies > {MAX_BODIES}")
+    bodies = tuple(_decode_body(b, i) for i, b in enumerate(bodies_raw))
+    if len({b.tracking_id for b in bodies}) != len(bodies):
+        raise DecodeError("bad_field", "two bodies share one tracking id")
+    floor_raw = raw.get("floor")
+    floor: tuple[float, float, float, float] | None = None
+    if floor_raw is not None:
+        if not isinstance(floor_raw, list) or len(floor_raw) != 4:
+            raise DecodeError("bad_shape", "floor must be [a, b, c, d] or nil")
+        values = tuple(_finite_float({"floor": x}, "floor") for x in floor_raw)
+        normal = math.sqrt(sum(v * v for v in values[:3]))
+        if abs(normal - 1.0) > 1e-3:
+            raise DecodeError("out_of_range", f"floor normal must be a unit vector, |n| = {normal}")
+        floor = (values[0], values[1], values[2], values[3])
+    return Frame(seq=seq, t_capture_ns=t_capture_ns, bodies=bodies, floor=floor)
+
+
+def _decode_body(raw: object, index: int) -> Body:
+    if not isinstance(raw, dict):
+        raise DecodeError("bad_field", f"body {index} must be a map")
+    tracking_id = _uint(raw, "id", _UINT64_MAX)
+    joints_buf = _field(raw, "joints", bytes)
+    states_buf = _field(raw, "states", bytes)
+    if len(joints_buf) != _JOINT_BYTES:
+        raise DecodeError(
+            "bad_shape",
+            f"body {index}: joints must be {_JOINT_BYTES} bytes (25×3 float32), "
+            f"got {len(joints_buf)}",
+        )
+    if len(states_buf) != JOINT_COUNT:
+        raise DecodeError(
+            "bad_shape", f"body {index}: states must be 25 bytes, got {len(states_buf)}"
+        )
+    # Copy: frombuffer views are read-only and tied to the message buffer.
+    joints = np.frombuffer(joints_buf, dtype="<f4").reshape(JOINT_COUNT, 3).astype(np.float32)
+    states = np.frombuffer(states_buf, dtype=np.uint8).copy()
+    if states.max() > TrackingState.TRACKED:
+        raise DecodeError("out_of_range", f"body {index}: tracking state {states.max()} > 2")
+    seen = states != TrackingState.NOT_TRACKED
+    seen_joints = joints[seen]
+    if not np.isfinite(seen_joints).all():
+        raise DecodeError("non_finite", f"body {index}: NaN or infinity in a tracked joint")
+    if np.isinf(joints).any():
+        raise DecodeError("non_finite", f"body {index}: infinity in joints")
+    if seen_joints.size and np.abs(seen_joints).max() > MAX_COORDINATE_M:
+        raise DecodeError(
+            "out_of_range", f"body {index}: a joint is more than {MAX_COORDINATE_M} m away"
+        )
+    # NOT_TRACKED positions carry no meaning; normalise them so nothing downstream uses them.
+    joints[~seen] = np.nan
+    return Body(tracking_id=tracking_id, joints_m=joints, states=states)
+
+
+def _decode_hello(raw: dict[str, Any]) -> Hello:
+    sensor_id = _field(raw, "sensor_id", str)
+    if not SENSOR_ID_PATTERN.match(sensor_id):
+        raise DecodeError(
+            "bad_field",
+            f"sensor_id {sensor_id[:80]!r} must be 1-64 characters of A-Z a-z 0-9 . _ - "
+            "starting with a letter or digit",
+        )
+    sensor_type = _field(raw, "sensor_type", str)
+    if sensor_type not in SENSOR_TYPES:
+        raise DecodeError(
+            "bad_field", f"sensor_type {sensor_type[:40]!r} not one of {sorted(SENSOR_TYPES)}"
+        )
+    skeleton = _field(raw, "skeleton", str)
+    if skeleton != SKELETON_NAME:
+        raise DecodeError(
+            "bad_field", f"skeleton {skeleton[:40]!r} not supported (agents send {SKELETON_NAME})"
+        )
+    fps = _finite_float(raw, "fps")
+    if not 0 < fps <= 240:
+        raise DecodeError("out_of_range", f"fps {fps} out of range (0, 240]")
+    pose_hint = None
+    pose_source = None
+    hint = raw.get("pose_hint")
+    if hint is not None:
+        if not isinstance(hint, dict):
+            raise DecodeError("bad_field", "pose_hint must be a map")
+        matrix = _field(hint, "T_world_from_sensor", list)
+        pose_source = _field(hint, "source", str)
+        if pose_source not in POSE_HINT_SOURCES:
+            raise DecodeError("bad_field", f"pose_hint source must be one of {POSE_HINT_SOURCES}")
+        if len(matrix) != 16 or not all(
+            isinstance(x, int | float) and not isinstance(x, bool) for x in matrix
+        ):
+            raise DecodeError("bad_shape", "pose_hint T_world_from_sensor must be 16 numbers")
+        pose_hint = np.asarray(matrix, dtype=np.float64).reshape(4, 4)
+        if not np.isfinite(pose_hint).all():
+            raise DecodeError("non_finite", "pose_hint has NaN or infinity")
+        rotation = pose_hint[:3, :3]
+        if (
+            not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-4)
+            or not np.allclose(pose_hint[3], [0, 0, 0, 1])
+            or np.linalg.det(rotation) < 0
+        ):
+            raise DecodeError("bad_field", "pose_hint is not a rigid transform")
+    return Hello(
+        sensor_id=sensor_id,
+        sensor_type=sensor_type,
+        agent_version=_field(raw, "agent_version", str)[:64],
+        fps=fps,
+        t_ns=_uint(raw, "t_ns"),
+        skeleton=skeleton,
+        pose_hint=pose_hint,
+        pose_hint_source=pose_source,
+    )
+
+
+def _decode_welcome(raw: dict[str, Any]) -> Welcome:
+    return Welcome(
+        server_version=_field(raw, "server_version", str),
+        heartbeat_interval_s=_finite_float(raw, "heartbeat_interval_s"),
+        t_ns=_uint(raw, "t_ns"),
+    )
+
+
+def _decode_heartbeat(raw: dict[str, Any]) -> Heartbeat:
+    return Heartbeat(t_ns=_uint(raw, "t_ns"))
+
+
+def _decode_request(raw: dict[str, Any]) -> Request:
+    return Request(
+        request_id=_uint(raw, "id"),
+        method=_field(raw, "method", str),
+        params=_field(raw, "params", dict),
+    )
+
+
+def _decode_response(raw: dict[str, Any]) -> Response:
+    ok = _field(raw, "ok", bool)
+    if ok:
+        return Response(request_id=_uint(raw, "id"), ok=True, result=raw.get("result"))
+    return Response(request_id=_uint(raw, "id"), ok=False, error=_field(raw, "error", str))
+
+
+def _decode_error(raw: dict[str, Any]) -> ErrorMessage:
+    return ErrorMessage(code=_field(raw, "code", str), message=_field(raw, "message", str))
+
+
+def _decode_bye(raw: dict[str, Any]) -> Bye:
+    return Bye()
+
+
+_DECODERS: Final[dict[str, Callable[[dict[str, Any]], Message]]] = {
+    "frame": _decode_frame,
+    "heartbeat": _decode_heartbeat,
+    "hello": _decode_hello,
+    "welcome": _decode_welcome,
+    "request": _decode_request,
+    "response": _decode_response,
+    "error": _decode_error,
+    "bye": _decode_bye,
+}

@@ -1,0 +1,174 @@
+"""The FastAPI application: REST, the WebSocket feed, the viewer, and the background tasks."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from pathlib import Path
+from typing import Any, Literal
+
+import zmq
+import zmq.asyncio
+from fastapi import FastAPI, Query, WebSocket, WebSocketDisconnect
+from fastapi.responses import FileResponse
+from fastapi.staticfiles import StaticFiles
+
+from calibration.store import CalibrationStore
+from protocol.skeleton import skeleton_definition
+from server import __version__
+from server.broadcast import Broadcaster, Variant, encode_message, pump
+from server.hub import FusionHub, person_json
+from server.ingest import fusion_loop, ingest_loop, liveness_loop, open_router
+from server.settings import Settings
+
+logger = logging.getLogger(__name__)
+STATIC_DIR = Path(__file__).parent / "static"
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """Build the server. Sockets open and tasks start in the lifespan (on server start-up)."""
+    settings = settings or Settings()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        calibration = CalibrationStore(settings.data_dir).load()
+        if calibration is not None:
+            logger.info(
+                "loaded calibration v%d for %s",
+                calibration.version,
+                ", ".join(sorted(calibration.sensors)) or "no sensors",
+            )
+        hub = FusionHub(settings, calibration)
+        broadcaster = Broadcaster(settings.ws_queue_size)
+        context = zmq.asyncio.Context()
+        socket = open_router(context, settings.zmq_endpoint)
+        app.state.hub = hub
+        app.state.broadcaster = broadcaster
+        app.state.zmq_endpoint = socket.getsockopt_string(zmq.LAST_ENDPOINT)
+        logger.info("agents connect to %s", app.state.zmq_endpoint)
+        tasks = [
+            asyncio.create_task(ingest_loop(socket, hub), name="ingest"),
+            asyncio.create_task(
+                liveness_loop(socket, hub, settings.heartbeat_interval_s), name="liveness"
+            ),
+            asyncio.create_task(fusion_loop(hub, broadcaster), name="fusion"),
+        ]
+        try:
+            yield
+        finally:
+            for task in tasks:
+                task.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+            socket.close(linger=0)
+            context.term()
+
+    app = FastAPI(
+        title="skelfuse fusion server",
+        version=__version__,
+        description="Fused multi-sensor skeletons: REST for state and control; the live feed "
+        "is the WebSocket `/ws/skeletons` (see docs/api.md).",
+        lifespan=lifespan,
+    )
+    app.state.settings = settings
+
+    def hub_of(request_app: Any) -> FusionHub:
+        hub: FusionHub = request_app.state.hub
+        return hub
+
+    @app.get("/api/health", tags=["status"])
+    async def health() -> dict[str, object]:
+        hub = hub_of(app)
+        latest = hub.latest
+        return {
+            "status": "ok",
+            "version": __version__,
+            "uptime_s": round(time.time() - hub.started_s, 3),
+            "sensors_online": sum(s.connected for s in hub.sensors.values()),
+            "sensors_known": len(hub.sensors),
+            "persons": 0 if latest is None else len(latest.persons),
+            "fused_frames": 0 if latest is None else latest.seq,
+            "ws_clients": len(app.state.broadcaster.clients),
+            "zmq_endpoint": app.state.zmq_endpoint,
+        }
+
+    @app.get("/api/sensors", tags=["status"])
+    async def sensors() -> dict[str, object]:
+        hub = hub_of(app)
+        return {
+            "sensors": hub.sensor_summary(time.monotonic()),
+            "rejected_unregistered": dict(hub.rejected_unregistered),
+        }
+
+    @app.get("/api/persons", tags=["status"])
+    async def persons() -> dict[str, object]:
+        latest = hub_of(app).latest
+        if latest is None:
+            return {"seq": 0, "t": None, "persons": []}
+        return {
+            "seq": latest.seq,
+            "t": round(latest.t_s, 6),
+            "persons": [person_json(p) for p in latest.persons],
+        }
+
+    @app.get("/api/skeleton", tags=["status"])
+    async def skeleton() -> dict[str, object]:
+        return skeleton_definition()
+
+    @app.get("/api/clients", tags=["status"])
+    async def clients() -> dict[str, object]:
+        broadcaster: Broadcaster = app.state.broadcaster
+        return {"clients": broadcaster.stats(), "evicted": broadcaster.evicted}
+
+    @app.websocket("/ws/skeletons")
+    async def skeletons(
+        websocket: WebSocket,
+        format: Literal["json", "msgpack"] = Query("json"),
+        raw: bool = Query(False),
+    ) -> None:
+        await websocket.accept()
+        broadcaster: Broadcaster = app.state.broadcaster
+        binary = format == "msgpack"
+        client = broadcaster.add(Variant(binary, raw), str(websocket.client), time.time())
+
+        async def send(payload: bytes | str) -> None:
+            if isinstance(payload, bytes):
+                await websocket.send_bytes(payload)
+            else:
+                await websocket.send_text(payload)
+
+        sender = asyncio.create_task(pump(client, send, settings.ws_send_timeout_s))
+        try:
+            await send(encode_message(skeleton_definition(), binary))
+            receiver = asyncio.create_task(_drain(websocket))
+            done, _ = await asyncio.wait({sender, receiver}, return_when=asyncio.FIRST_COMPLETED)
+            receiver.cancel()
+            if sender in done and isinstance(sender.exception(), TimeoutError):
+                broadcaster.evicted += 1
+                logger.warning("WebSocket client %s stalled; disconnected", client.remote)
+                with contextlib.suppress(Exception):
+                    await websocket.close(code=1008, reason="client too slow")
+        except (WebSocketDisconnect, RuntimeError):
+            pass
+        finally:
+            sender.cancel()
+            await asyncio.gather(sender, return_exceptions=True)
+            broadcaster.remove(client)
+
+    @app.get("/", include_in_schema=False)
+    async def index() -> FileResponse:
+        return FileResponse(STATIC_DIR / "index.html")
+
+    app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
+    return app
+
+
+async def _drain(websocket: WebSocket) -> None:
+    """Read (and ignore) what the client sends, so a disconnect is noticed."""
+    while True:
+        message = await websocket.receive()
+        if message["type"] == "websocket.disconnect":
+            return

@@ -1,0 +1,284 @@
+"""The server's state machine: sessions, frames, calibration and the fusion step.
+
+Socket-free so it can be driven directly in tests: :mod:`server.ingest` feeds it raw messages
+and sends back what it returns; the fusion loop calls :meth:`FusionHub.fuse_step`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections import Counter
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from calibration.store import Calibration
+from protocol.errors import DecodeError
+from protocol.transform import Matrix4, apply
+from protocol.wire import (
+    Bye,
+    ErrorMessage,
+    Frame,
+    Heartbeat,
+    Hello,
+    Message,
+    Response,
+    Welcome,
+    decode,
+)
+from server import __version__
+from server.sensors import SensorState, bodies_at, new_sensor
+from server.settings import Settings
+from server.tracking import FusedPerson, PersonTracker, View
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class FusedFrame:
+    """One fusion step's result.
+
+    t_s: the instant fused (capture time on the server's clock, Unix seconds).
+    fused_at_s: when fusion ran (server clock).
+    raw: every sensor's bodies at ``t_s`` in the world frame (for viewers and debugging).
+    """
+
+    seq: int
+    t_s: float
+    fused_at_s: float
+    persons: tuple[FusedPerson, ...]
+    raw: tuple[View, ...]
+
+
+class FusionHub:
+    def __init__(self, settings: Settings, calibration: Calibration | None = None) -> None:
+        self.settings = settings
+        self.calibration = calibration
+        self.sensors: dict[str, SensorState] = {}
+        self._by_routing: dict[bytes, str] = {}
+        self.rejected_unregistered: Counter[str] = Counter()
+        self.tracker = PersonTracker(settings.fusion)
+        self.latest: FusedFrame | None = None
+        self.frame_arrived = asyncio.Event()
+        self._seq = 0
+        self._last_fused_t: float = 0.0
+        self.started_s = time.time()
+
+    # --- sessions and messages ----------------------------------------------------------------
+
+    def handle_message(
+        self, routing_id: bytes, parts: list[bytes], now_s: float, now_mono: float
+    ) -> list[Message]:
+        """Process one message from an agent; returns the replies to send back to it."""
+        sensor = self._sensor_for(routing_id)
+        if len(parts) != 1:
+            self._reject(sensor, "malformed")
+            return []
+        try:
+            message = decode(parts[0])
+        except DecodeError as exc:
+            self._reject(sensor, exc.reason)
+            logger.debug("rejected message from %s: %s", sensor and sensor.sensor_id, exc)
+            return []
+        if isinstance(message, Hello):
+            return [self._register(message, routing_id, now_mono)]
+        if sensor is None:
+            self.rejected_unregistered["not_registered"] += 1
+            return [ErrorMessage("not_registered", "send hello first (did the server restart?)")]
+        sensor.last_heard_mono = now_mono
+        sensor.connected = True
+        match message:
+            case Frame():
+                if sensor.last_seq is not None and message.seq <= sensor.last_seq:
+                    self._reject(sensor, "replayed_seq")
+                    return []
+                sensor.add_frame(message, now_s, now_mono)
+                self.frame_arrived.set()
+            case Heartbeat():
+                pass
+            case Bye():
+                sensor.connected = False
+                self._by_routing.pop(routing_id, None)
+            case Response():
+                pass  # request/response calls are used by calibration (later versions)
+            case _:
+                self._reject(sensor, "unexpected_type")
+        return []
+
+    def _sensor_for(self, routing_id: bytes) -> SensorState | None:
+        sensor_id = self._by_routing.get(routing_id)
+        return self.sensors.get(sensor_id) if sensor_id is not None else None
+
+    def _reject(self, sensor: SensorState | None, reason: str) -> None:
+        if sensor is None:
+            self.rejected_unregistered[reason] += 1
+        else:
+            sensor.frames_rejected[reason] += 1
+
+    def _register(self, hello: Hello, routing_id: bytes, now_mono: float) -> Message:
+        existing = self.sensors.get(hello.sensor_id)
+        liveness_s = self.settings.heartbeat_interval_s * 3
+        if (
+            existing is not None
+            and existing.connected
+            and existing.routing_id != routing_id
+            and now_mono - existing.last_heard_mono < liveness_s
+        ):
+            self.rejected_unregistered["sensor_id_in_use"] += 1
+            return ErrorMessage(
+                "sensor_id_in_use",
+                f"sensor id {hello.sensor_id!r} is in use by another live agent; "
+                "give each agent its own --id",
+            )
+        old_routing = self._by_routing.pop(existing.routing_id, None) if existing else None
+        del old_routing
+        sensor = new_sensor(hello, routing_id, now_mono)
+        if existing is not None:
+            # Keep the counters across reconnects: they describe the sensor, not the session.
+            sensor.frames_received = existing.frames_received
+            sensor.frames_rejected = existing.frames_rejected
+            sensor.sequence_gaps = existing.sequence_gaps
+        self.sensors[hello.sensor_id] = sensor
+        self._by_routing[routing_id] = hello.sensor_id
+        logger.info(
+            "sensor %s registered (%s, agent %s)",
+            hello.sensor_id,
+            hello.sensor_type,
+            hello.agent_version,
+        )
+        return Welcome(__version__, self.settings.heartbeat_interval_s, time.time_ns())
+
+    def check_liveness(self, now_mono: float) -> list[SensorState]:
+        """Mark silent sensors offline; returns the sensors still online."""
+        liveness_s = self.settings.heartbeat_interval_s * 3
+        online = []
+        for sensor in self.sensors.values():
+            if sensor.connected and now_mono - sensor.last_heard_mono > liveness_s:
+                logger.warning("sensor %s went silent; marked offline", sensor.sensor_id)
+                sensor.connected = False
+                self._by_routing.pop(sensor.routing_id, None)
+            if sensor.connected:
+                online.append(sensor)
+        return online
+
+    # --- calibration ----------------------------------------------------------------------
+
+    def pose_of(self, sensor_id: str) -> tuple[Matrix4 | None, str]:
+        """``T_world_from_sensor`` and where it comes from: stored, sim_truth, manual, or none."""
+        if self.calibration is not None and sensor_id in self.calibration.sensors:
+            return self.calibration.sensors[sensor_id].T_world_from_sensor, "stored"
+        sensor = self.sensors.get(sensor_id)
+        if sensor is not None and sensor.pose_hint is not None:
+            return sensor.pose_hint, sensor.pose_hint_source or "manual"
+        return None, "uncalibrated"
+
+    # --- fusion ---------------------------------------------------------------------------
+
+    def fuse_step(self, now_s: float) -> FusedFrame | None:
+        """Fuse the newest instant every live sensor has data for; None if nothing new.
+
+        The instant is the oldest of the sensors' newest frames, so each sensor contributes a
+        real or interpolated sample, except that a sensor more than ``max_wait_s`` behind is
+        left out rather than holding everyone back.
+        """
+        s = self.settings
+        newest = [
+            t
+            for sensor in self.sensors.values()
+            if sensor.connected
+            and (t := sensor.latest_time()) is not None
+            and t >= now_s - s.max_wait_s
+        ]
+        if not newest:
+            return None
+        t_target = min(newest)
+        if t_target <= self._last_fused_t:
+            return None
+        self._last_fused_t = t_target
+        views: list[View] = []
+        for sensor in self.sensors.values():
+            if not sensor.connected:
+                continue
+            pose, _ = self.pose_of(sensor.sensor_id)
+            if pose is None:
+                continue
+            max_age = 1.5 / max(sensor.nominal_fps, 1.0)
+            bodies = bodies_at(sensor.frames, t_target, s.interpolation_gap_s, max_age)
+            for body in bodies or ():
+                joints_world = apply(pose, body.joints_m)
+                views.append(View(sensor.sensor_id, body.tracking_id, joints_world, body.states))
+        persons = self.tracker.update(views, t_target)
+        self._seq += 1
+        fused = FusedFrame(self._seq, t_target, now_s, tuple(persons), tuple(views))
+        self.latest = fused
+        return fused
+
+    # --- views for the API ------------------------------------------------------------------
+
+    def sensor_summary(self, now_mono: float) -> list[dict[str, object]]:
+        rows: list[dict[str, object]] = []
+        for sensor in sorted(self.sensors.values(), key=lambda x: x.sensor_id):
+            pose, state = self.pose_of(sensor.sensor_id)
+            age = None if sensor.last_frame_mono is None else now_mono - sensor.last_frame_mono
+            rows.append(
+                {
+                    "id": sensor.sensor_id,
+                    "type": sensor.sensor_type,
+                    "agent_version": sensor.agent_version,
+                    "connected": sensor.connected,
+                    "fps": round(sensor.fps(now_mono), 2) if sensor.connected else 0.0,
+                    "last_frame_age_s": None if age is None else round(age, 4),
+                    "bodies": sensor.bodies_last if sensor.connected else 0,
+                    "frames_received": sensor.frames_received,
+                    "frames_rejected": dict(sensor.frames_rejected),
+                    "sequence_gaps": sensor.sequence_gaps,
+                    "clock_offset_s": sensor.clock_offset_s,
+                    "calibration": {
+                        "state": state,
+                        "T_world_from_sensor": None if pose is None else pose.tolist(),
+                    },
+                }
+            )
+        return rows
+
+
+def person_json(person: FusedPerson, decimals: int = 4) -> dict[str, object]:
+    """A fused person as apps receive it: NaN never leaves the server (null instead)."""
+    return {
+        "id": person.person_id,
+        "joints": joints_json(person.joints, decimals),
+        "confidence": [round(float(c), 3) for c in person.confidence],
+        "sources": list(person.sources),
+    }
+
+
+def joints_json(joints: npt.NDArray[np.floating], decimals: int = 4) -> list[list[float] | None]:
+    rounded = np.round(np.asarray(joints, dtype=np.float64), decimals)
+    finite = np.isfinite(rounded).all(axis=1)
+    return [row.tolist() if finite[i] else None for i, row in enumerate(rounded)]
+
+
+def view_json(view: View, decimals: int = 4) -> dict[str, object]:
+    return {
+        "sensor": view.sensor_id,
+        "tracking_id": str(view.tracking_id),  # uint64 does not fit a JavaScript number
+        "joints": joints_json(view.joints_world, decimals),
+        "states": [int(s) for s in view.states],
+    }
+
+
+def frame_json(frame: FusedFrame, include_raw: bool) -> dict[str, object]:
+    message: dict[str, object] = {
+        "type": "frame",
+        "v": 1,
+        "seq": frame.seq,
+        "t": round(frame.t_s, 6),
+        "t_sent": round(time.time(), 6),
+        "persons": [person_json(p) for p in frame.persons],
+    }
+    if include_raw:
+        message["raw"] = [view_json(v) for v in frame.raw]
+    return message

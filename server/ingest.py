@@ -1,0 +1,85 @@
+"""ZeroMQ side of the server: the ROUTER socket, the liveness timer and the fusion loop.
+
+One task owns the socket (receiving and replying); nothing else touches it. A message that
+fails validation is counted against its sensor and dropped; the loop never dies of bad input.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from typing import Any
+
+import zmq
+import zmq.asyncio
+
+from protocol.constants import MAX_MESSAGE_BYTES
+from protocol.wire import Heartbeat, Message, encode
+from server.broadcast import Broadcaster
+from server.hub import FusionHub
+
+logger = logging.getLogger(__name__)
+
+# Messages past our own limit are still received (and counted as too_large) up to this size;
+# only beyond it does libzmq drop the connection, which the agent then re-opens.
+SOCKET_MAX_MESSAGE_BYTES = 16 * MAX_MESSAGE_BYTES
+
+
+def open_router(context: zmq.asyncio.Context, endpoint: str) -> zmq.asyncio.Socket:
+    socket = context.socket(zmq.ROUTER)
+    socket.linger = 0
+    socket.rcvhwm = 10_000
+    socket.sndhwm = 1_000
+    socket.setsockopt(zmq.MAXMSGSIZE, SOCKET_MAX_MESSAGE_BYTES)
+    socket.setsockopt(zmq.ROUTER_HANDOVER, 1)  # a reconnecting agent may reuse its identity
+    try:
+        socket.bind(endpoint)
+    except zmq.ZMQError as exc:
+        socket.close(linger=0)
+        raise OSError(f"cannot bind the agent endpoint {endpoint}: {exc}") from exc
+    return socket
+
+
+async def _send(socket: zmq.asyncio.Socket, routing_id: bytes, message: Message) -> None:
+    with contextlib.suppress(zmq.Again, zmq.ZMQError):
+        # ROUTER drops what it cannot route; never let one agent block the loop.
+        await socket.send_multipart([routing_id, encode(message)], flags=zmq.NOBLOCK)
+
+
+async def ingest_loop(socket: zmq.asyncio.Socket, hub: FusionHub) -> None:
+    while True:
+        parts: list[Any] = await socket.recv_multipart(copy=True)
+        routing_id, payload = parts[0], parts[1:]
+        try:
+            replies = hub.handle_message(routing_id, payload, time.time(), time.monotonic())
+        except Exception:  # a bug in handling one message must not stop ingest
+            logger.exception("failed to handle a message; dropped")
+            hub.rejected_unregistered["internal_error"] += 1
+            continue
+        for reply in replies:
+            await _send(socket, routing_id, reply)
+
+
+async def liveness_loop(socket: zmq.asyncio.Socket, hub: FusionHub, interval_s: float) -> None:
+    """Heartbeat every live agent and mark silent ones offline."""
+    while True:
+        await asyncio.sleep(interval_s / 2)
+        for sensor in hub.check_liveness(time.monotonic()):
+            await _send(socket, sensor.routing_id, Heartbeat(time.time_ns()))
+
+
+async def fusion_loop(hub: FusionHub, broadcaster: Broadcaster) -> None:
+    """Fuse as soon as every live sensor has moved on; publish to WebSocket clients."""
+    while True:
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(hub.frame_arrived.wait(), timeout=0.05)
+        hub.frame_arrived.clear()
+        try:
+            fused = hub.fuse_step(time.time())
+        except Exception:
+            logger.exception("fusion step failed; skipped")
+            continue
+        if fused is not None:
+            broadcaster.publish(fused)

@@ -1,0 +1,3 @@
+from skelfuse.cli import main
+
+raise SystemExit(main())

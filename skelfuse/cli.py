@@ -1,0 +1,228 @@
+"""``skelfuse`` command line. Imports stay inside the subcommands so that an agent-only install
+(numpy, pyzmq, msgpack) never touches the server's dependencies."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+from collections.abc import Sequence
+from pathlib import Path
+
+from protocol.constants import DEFAULT_HTTP_PORT, DEFAULT_ZMQ_PORT
+
+
+class UsageError(Exception):
+    """A command-line value that cannot be used; the message says what to type instead."""
+
+
+def parse_pose(text: str) -> tuple[tuple[float, float, float], float, float]:
+    """``X,Y,Z,YAW_DEG[,PITCH_DEG]`` -> position, yaw, pitch."""
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError as exc:
+        raise UsageError(f"--pose {text!r}: expected numbers X,Y,Z,YAW_DEG[,PITCH_DEG]") from exc
+    if len(values) not in (4, 5) or not all(map(_finite, values)):
+        raise UsageError(
+            f"--pose {text!r}: expected 4 or 5 finite numbers X,Y,Z,YAW_DEG[,PITCH_DEG]"
+        )
+    pitch = values[4] if len(values) == 5 else 0.0
+    if not -90.0 <= pitch <= 90.0:
+        raise UsageError(f"--pose pitch {pitch} must be within -90..90 degrees")
+    return (values[0], values[1], values[2]), values[3], pitch
+
+
+def _finite(x: float) -> bool:
+    return x == x and abs(x) != float("inf")
+
+
+def parse_host_port(text: str, default_port: int) -> tuple[str, int]:
+    host, sep, port = text.rpartition(":")
+    if not sep:
+        return text, default_port
+    try:
+        number = int(port)
+    except ValueError as exc:
+        raise UsageError(f"{text!r}: the port must be a number") from exc
+    if not 0 < number < 65536:
+        raise UsageError(f"{text!r}: port out of range")
+    return host.strip("[]") or "127.0.0.1", number
+
+
+def _configure_logging(level: str) -> None:
+    logging.basicConfig(
+        level=getattr(logging, level.upper(), logging.INFO),
+        format="%(asctime)s %(levelname)-7s %(name)s: %(message)s",
+        datefmt="%H:%M:%S",
+    )
+
+
+def _stop_on_signals() -> threading.Event:
+    stop = threading.Event()
+
+    def handler(signum: int, frame: object) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGTERM, handler)
+    return stop
+
+
+# --- subcommands ----------------------------------------------------------------------------
+
+
+def cmd_server(args: argparse.Namespace) -> int:
+    try:
+        import uvicorn
+
+        from server.app import create_app
+        from server.settings import Settings
+    except ImportError as exc:
+        raise UsageError(
+            f"the server needs its extra dependencies ({exc.name} is missing): "
+            "pip install 'skelfuse[server]'"
+        ) from exc
+    host, port = parse_host_port(args.http, DEFAULT_HTTP_PORT)
+    settings = Settings(
+        http_host=host, http_port=port, zmq_endpoint=args.zmq, data_dir=Path(args.data)
+    )
+    config = uvicorn.Config(
+        create_app(settings),
+        host=host,
+        port=port,
+        log_level=args.log_level.lower(),
+        ws_max_size=64 * 1024,
+        lifespan="on",
+    )
+    server = uvicorn.Server(config)
+    server.run()
+    return 0 if server.started else 1
+
+
+def cmd_agent(args: argparse.Namespace) -> int:
+    import time
+
+    from agent.runner import run_agent
+
+    if args.source != "sim":
+        raise UsageError(f"source {args.source!r} is not available in this version (use sim)")
+    from agent.sim.performer import ProceduralPerformer
+    from agent.sources.sim import SimSource
+    from protocol.transform import pose_from_position_yaw_pitch
+
+    position, yaw, pitch = parse_pose(args.pose)
+    if not 1 <= args.persons <= 6:
+        raise UsageError("--persons must be 1..6")
+    seed = args.seed if args.seed is not None else sum(args.id.encode())
+    source = SimSource(
+        ProceduralPerformer(args.persons),
+        pose_from_position_yaw_pitch(position, yaw, pitch),
+        seed=seed,
+        clock_offset_ns=int(args.clock_offset_ms * 1e6),
+    )
+    stop = _stop_on_signals()
+    started = time.monotonic()
+    link = run_agent(args.id, source, args.server, stop=stop, duration_s=args.duration)
+    logging.getLogger("skelfuse.agent").info(
+        "%s stopped after %.0f s: %d frames sent, %d dropped",
+        args.id,
+        time.monotonic() - started,
+        link.stats.frames_sent,
+        link.stats.frames_dropped,
+    )
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from skelfuse.demo import run_demo
+
+    return run_demo(
+        sensors=args.sensors,
+        persons=args.persons,
+        http=parse_host_port(args.http, DEFAULT_HTTP_PORT),
+        zmq_port=args.zmq_port,
+        data_dir=Path(args.data) if args.data else None,
+        duration_s=args.duration,
+        log_level=args.log_level,
+    )
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="skelfuse",
+        description="Markerless multi-sensor motion capture: agents, fusion server, live demo.",
+    )
+    parser.add_argument("--log-level", default="INFO", help="DEBUG, INFO, WARNING (default INFO)")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    server = sub.add_parser("server", help="run the fusion server")
+    server.add_argument(
+        "--http",
+        default=f"127.0.0.1:{DEFAULT_HTTP_PORT}",
+        help="HOST:PORT for REST, WebSocket and the viewer (default %(default)s)",
+    )
+    server.add_argument(
+        "--zmq",
+        default=f"tcp://*:{DEFAULT_ZMQ_PORT}",
+        help="ZeroMQ endpoint agents connect to (default %(default)s)",
+    )
+    server.add_argument(
+        "--data",
+        default="skelfuse-data",
+        help="folder for calibration and recordings (default %(default)s)",
+    )
+    server.set_defaults(func=cmd_server)
+
+    agent = sub.add_parser("agent", help="run a capture agent for one sensor")
+    agent.add_argument("--source", default="sim", choices=["sim"], help="sensor source")
+    agent.add_argument(
+        "--server",
+        default=f"tcp://127.0.0.1:{DEFAULT_ZMQ_PORT}",
+        help="the server's ZeroMQ endpoint, tcp://HOST:PORT (default %(default)s)",
+    )
+    agent.add_argument("--id", required=True, help="this sensor's unique id, e.g. kinect-front")
+    agent.add_argument(
+        "--pose",
+        default="0,1.0,3.0,180",
+        help="sim: X,Y,Z,YAW_DEG[,PITCH_DEG] of the simulated sensor in the room "
+        "(metres, Y up; yaw 0 looks along +Z, 90 along +X; +pitch looks down); "
+        "write --pose=-2,1,3,90 when X is negative",
+    )
+    agent.add_argument("--persons", type=int, default=2, help="sim: people in the room (1-6)")
+    agent.add_argument("--seed", type=int, default=None, help="sim: noise seed (default: from id)")
+    agent.add_argument(
+        "--clock-offset-ms",
+        type=float,
+        default=0.0,
+        help="sim: pretend this PC's clock is off by this much",
+    )
+    agent.add_argument("--duration", type=float, default=None, help="stop after N seconds")
+    agent.set_defaults(func=cmd_agent)
+
+    demo = sub.add_parser("demo", help="server + simulated sensors + viewer on this machine")
+    demo.add_argument("--sensors", type=int, default=3, help="simulated sensors (1-8)")
+    demo.add_argument("--persons", type=int, default=2, help="simulated people (1-6)")
+    demo.add_argument("--http", default=f"127.0.0.1:{DEFAULT_HTTP_PORT}", help="HOST:PORT")
+    demo.add_argument("--zmq-port", type=int, default=DEFAULT_ZMQ_PORT, help="agent port")
+    demo.add_argument("--data", default=None, help="data folder (default: a temporary one)")
+    demo.add_argument("--duration", type=float, default=None, help="stop after N seconds")
+    demo.set_defaults(func=cmd_demo)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    _configure_logging(args.log_level)
+    try:
+        result: int = args.func(args)
+    except UsageError as exc:
+        print(f"skelfuse: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"skelfuse: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        return 130
+    return result

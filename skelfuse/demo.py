@@ -1,0 +1,158 @@
+"""``skelfuse demo``: the fusion server and N simulated Kinects as separate processes.
+
+Everything talks over real sockets exactly as on a real rig: agents -> ZeroMQ -> server ->
+WebSocket -> viewer. Sensors stand evenly around the room looking at the performers.
+Calibration: the simulated agents tell the server their true pose (``pose_hint`` with source
+``sim_truth``), which the server uses for any sensor without a stored calibration.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+logger = logging.getLogger("skelfuse.demo")
+
+SENSOR_RING_RADIUS_M = 3.0
+SENSOR_HEIGHT_M = 1.0
+SENSOR_PITCH_DEG = 5.0
+
+
+def sensor_layout(count: int) -> list[tuple[str, str]]:
+    """(sensor id, pose argument) for ``count`` sensors evenly around the origin."""
+    layout = []
+    for i in range(count):
+        angle = math.radians(360.0 * i / count + 15.0)
+        x = SENSOR_RING_RADIUS_M * math.sin(angle)
+        z = SENSOR_RING_RADIUS_M * math.cos(angle)
+        yaw = (math.degrees(angle) + 360.0) % 360.0 - 180.0  # look back at the origin
+        layout.append(
+            (f"sim-{i + 1}", f"{x:.3f},{SENSOR_HEIGHT_M},{z:.3f},{yaw:.2f},{SENSOR_PITCH_DEG}")
+        )
+    return layout
+
+
+def _wait_healthy(url: str, server: subprocess.Popen[bytes], timeout_s: float) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if server.poll() is not None:
+            return False
+        try:
+            with urllib.request.urlopen(url + "/api/health", timeout=1.0) as response:
+                if json.load(response).get("status") == "ok":
+                    return True
+        except (urllib.error.URLError, OSError, ValueError):
+            pass
+        time.sleep(0.2)
+    return False
+
+
+def _terminate(processes: list[subprocess.Popen[bytes]], timeout_s: float = 5.0) -> None:
+    for process in processes:
+        if process.poll() is None:
+            process.send_signal(signal.SIGINT)
+    deadline = time.monotonic() + timeout_s
+    for process in processes:
+        try:
+            process.wait(timeout=max(0.1, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+
+
+def run_demo(
+    *,
+    sensors: int = 3,
+    persons: int = 2,
+    http: tuple[str, int] = ("127.0.0.1", 8000),
+    zmq_port: int = 5555,
+    data_dir: Path | None = None,
+    duration_s: float | None = None,
+    log_level: str = "INFO",
+) -> int:
+    """Run until Ctrl-C (or ``duration_s``); returns the exit status."""
+    if not 1 <= sensors <= 8:
+        logger.error("--sensors must be 1..8")
+        return 2
+    if not 1 <= persons <= 6:
+        logger.error("--persons must be 1..6")
+        return 2
+    host, port = http
+    temporary = None
+    if data_dir is None:
+        temporary = tempfile.TemporaryDirectory(prefix="skelfuse-demo-")
+        data_dir = Path(temporary.name)
+    python = [sys.executable, "-m", "skelfuse", "--log-level", log_level]
+    zmq_bind = (
+        f"tcp://{host}:{zmq_port}" if host not in ("0.0.0.0", "::") else f"tcp://*:{zmq_port}"
+    )
+    agent_host = "127.0.0.1" if host in ("0.0.0.0", "::") else host
+    server = subprocess.Popen(
+        [*python, "server", "--http", f"{host}:{port}", "--zmq", zmq_bind, "--data", str(data_dir)]
+    )
+    processes: list[subprocess.Popen[bytes]] = [server]
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: object) -> None:
+        stop.set()
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    url = f"http://{agent_host}:{port}"
+    try:
+        if not _wait_healthy(url, server, timeout_s=30.0):
+            logger.error(
+                "the server did not start (is port %d or %d already in use?)", port, zmq_port
+            )
+            return 1
+        for sensor_id, pose in sensor_layout(sensors):
+            processes.append(
+                subprocess.Popen(
+                    [
+                        *python,
+                        "agent",
+                        "--source",
+                        "sim",
+                        "--id",
+                        sensor_id,
+                        f"--pose={pose}",
+                        "--persons",
+                        str(persons),
+                        "--server",
+                        f"tcp://{agent_host}:{zmq_port}",
+                    ]
+                )
+            )
+        logger.info("demo running: %d simulated sensors, %d people", sensors, persons)
+        logger.info("open the viewer at %s/  (REST docs at %s/docs) - Ctrl-C to stop", url, url)
+        deadline = None if duration_s is None else time.monotonic() + duration_s
+        while not stop.is_set():
+            if deadline is not None and time.monotonic() >= deadline:
+                break
+            dead = [p for p in processes if p.poll() is not None]
+            if dead:
+                logger.error(
+                    "a demo process exited unexpectedly (%s); stopping",
+                    dead[0].args,
+                )
+                return 1
+            stop.wait(0.5)
+        return 0
+    finally:
+        # Agents first (they say bye), then the server.
+        _terminate(processes[1:])
+        _terminate([server])
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        if temporary is not None:
+            temporary.cleanup()
+        logger.info("demo stopped")
