@@ -256,8 +256,8 @@ def person_json(person: FusedPerson, decimals: int = 4) -> dict[str, object]:
 
 
 def joints_json(joints: npt.NDArray[np.floating], decimals: int = 4) -> list[list[float] | None]:
-    rounded = np.round(np.asarray(joints, dtype=np.float64), decimals)
-    finite = np.isfinite(rounded).all(axis=1)
+    rounded = np.round(np.asarray(joints, dtype=np.float64), decimals).reshape(-1, 3)
+    finite = np.isfinite(rounded).all(axis=1).reshape(-1)
     return [row.tolist() if finite[i] else None for i, row in enumerate(rounded)]
 
 
