@@ -1,0 +1,83 @@
+"""Shared fixtures: free loopback ports, the shared data folder, and a running demo stack."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import urllib.request
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from tests.support import free_port, wait_until
+
+PROJECT_ROOT = Path(__file__).resolve().parents[1]
+SHARED_DATA = PROJECT_ROOT.parent / "shared" / "data"
+CMU_DIR = SHARED_DATA / "cmu-mocap"
+
+
+@pytest.fixture
+def cmu_dir() -> Path:
+    """The CMU mocap samples; skips with a visible reason when ../shared/data is absent."""
+    if not (CMU_DIR / "scaled_131_01.bvh").is_file():
+        if os.environ.get("CI"):
+            pytest.fail(f"CI must provide the shared data at {CMU_DIR}")
+        pytest.skip(f"shared mocap data not found at {CMU_DIR}")
+    return CMU_DIR
+
+
+@dataclass(frozen=True)
+class DemoStack:
+    http_url: str
+    ws_url: str
+    zmq_port: int
+    sensors: int
+    persons: int
+    process: subprocess.Popen[bytes]
+    log_path: Path
+
+    def get_json(self, path: str) -> dict[str, object]:
+        with urllib.request.urlopen(self.http_url + path, timeout=5) as response:
+            data: dict[str, object] = json.load(response)
+            return data
+
+
+@pytest.fixture(scope="module")
+def demo_stack(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DemoStack]:
+    """``skelfuse demo`` exactly as a user runs it (server + 3 sim agents as processes),
+    on free loopback ports; stopped with Ctrl-C (SIGINT) at the end."""
+    http_port, zmq_port = free_port(), free_port()
+    log_path = tmp_path_factory.mktemp("demo") / "demo.log"
+    log = log_path.open("wb")
+    process = subprocess.Popen(
+        [sys.executable, "-m", "skelfuse", "demo", "--sensors", "3", "--persons", "2",
+         "--http", f"127.0.0.1:{http_port}", "--zmq-port", str(zmq_port), "--duration", "300"],
+        stdout=log, stderr=subprocess.STDOUT, cwd=PROJECT_ROOT,
+    )  # fmt: skip
+    stack = DemoStack(f"http://127.0.0.1:{http_port}", f"ws://127.0.0.1:{http_port}", zmq_port,
+                      3, 2, process, log_path)  # fmt: skip
+
+    def fused() -> bool:
+        health = stack.get_json("/api/health")
+        return health["sensors_online"] == 3 and int(str(health["persons"])) >= 1
+
+    try:
+        if not wait_until(fused, timeout_s=60):
+            process.send_signal(signal.SIGINT)
+            process.wait(timeout=20)
+            pytest.fail("the demo did not start fusing within 60 s:\n" + log_path.read_text())
+        yield stack
+    finally:
+        if process.poll() is None:
+            process.send_signal(signal.SIGINT)
+            try:
+                process.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+        log.close()

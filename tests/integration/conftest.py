@@ -1,0 +1,123 @@
+"""A real uvicorn server with the real ZeroMQ ingest, on loopback, in a background thread."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+import uvicorn
+
+from agent.runner import run_agent
+from agent.sim.performer import ProceduralPerformer
+from agent.sources.sim import SimSource
+from protocol.transform import look_at_pose
+from server.app import create_app
+from server.settings import Settings
+from tests.support import free_port
+
+
+@dataclass
+class LiveServer:
+    settings: Settings
+    server: uvicorn.Server
+    thread: threading.Thread
+
+    @property
+    def http_url(self) -> str:
+        return f"http://127.0.0.1:{self.settings.http_port}"
+
+    @property
+    def ws_url(self) -> str:
+        return f"ws://127.0.0.1:{self.settings.http_port}"
+
+    @property
+    def zmq_url(self) -> str:
+        return self.settings.zmq_endpoint
+
+    def stop(self) -> None:
+        self.server.should_exit = True
+        self.thread.join(timeout=10)
+
+
+def start_server(settings: Settings) -> LiveServer:
+    config = uvicorn.Config(
+        create_app(settings), host="127.0.0.1", port=settings.http_port, log_level="warning",
+        lifespan="on", ws_max_size=64 * 1024,
+    )  # fmt: skip
+    server = uvicorn.Server(config)
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 15
+    while not server.started:
+        if time.monotonic() > deadline or not thread.is_alive():
+            raise RuntimeError("uvicorn did not start")
+        time.sleep(0.02)
+    return LiveServer(settings, server, thread)
+
+
+@pytest.fixture
+def server_factory(tmp_path: Path) -> Iterator[Callable[..., LiveServer]]:
+    started: list[LiveServer] = []
+    ports = {"http": free_port(), "zmq": free_port()}
+
+    def make(**overrides: object) -> LiveServer:
+        settings = Settings(
+            http_host="127.0.0.1", http_port=ports["http"],
+            zmq_endpoint=f"tcp://127.0.0.1:{ports['zmq']}", data_dir=tmp_path / "data",
+            **overrides,  # type: ignore[arg-type]
+        )  # fmt: skip
+        live = start_server(settings)
+        started.append(live)
+        return live
+
+    yield make
+    for live in started:
+        live.stop()
+
+
+@pytest.fixture
+def live_server(server_factory: Callable[..., LiveServer]) -> LiveServer:
+    return server_factory()
+
+
+@dataclass
+class AgentThread:
+    sensor_id: str
+    stop: threading.Event
+    thread: threading.Thread
+    source: SimSource
+
+    def halt(self) -> None:
+        self.stop.set()
+        self.thread.join(timeout=10)
+
+
+@pytest.fixture
+def agent_factory() -> Iterator[Callable[..., AgentThread]]:
+    agents: list[AgentThread] = []
+
+    def make(
+        endpoint: str, sensor_id: str, position: tuple[float, float, float] = (0.0, 1.0, 3.0),
+        persons: int = 1, clock_offset_ns: int = 0,
+    ) -> AgentThread:  # fmt: skip
+        source = SimSource(
+            ProceduralPerformer(persons), look_at_pose(position, (0.0, 1.0, 0.0)),
+            seed=len(agents) + 1, clock_offset_ns=clock_offset_ns,
+        )  # fmt: skip
+        stop = threading.Event()
+        thread = threading.Thread(
+            target=run_agent, args=(sensor_id, source, endpoint), kwargs={"stop": stop},
+            daemon=True,
+        )  # fmt: skip
+        thread.start()
+        agent = AgentThread(sensor_id, stop, thread, source)
+        agents.append(agent)
+        return agent
+
+    yield make
+    for agent in agents:
+        agent.halt()
