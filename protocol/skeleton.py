@@ -101,7 +101,7 @@ def _mirror_permutation() -> tuple[int, ...]:
 
 
 MIRROR_PERMUTATION: Final[tuple[int, ...]] = _mirror_permutation()
-"""``joints[MIRROR_PERMUTATION]`` swaps every left joint with its right counterpart."""
+"""``joints[list(MIRROR_PERMUTATION)]`` swaps every left joint with its right counterpart."""
 
 
 def skeleton_definition() -> dict[str, object]:

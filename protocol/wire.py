@@ -146,10 +146,10 @@ def encode(message: Message) -> bytes:
         case Frame():
             body = {
                 "type": "frame",
-                "seq": message.seq,
-                "t_capture_ns": message.t_capture_ns,
+                "seq": int(message.seq),
+                "t_capture_ns": int(message.t_capture_ns),
                 "bodies": [_encode_body(b) for b in message.bodies],
-                "floor": list(message.floor) if message.floor is not None else None,
+                "floor": [float(x) for x in message.floor] if message.floor is not None else None,
             }
         case Heartbeat():
             body = {"type": "heartbeat", "t_ns": message.t_ns}
@@ -203,7 +203,7 @@ def _encode_body(body: Body) -> dict[str, Any]:
         raise ValueError(
             f"a body needs (25, 3) joints and (25,) states, got {joints.shape} and {states.shape}"
         )
-    return {"id": body.tracking_id, "joints": joints.tobytes(), "states": states.tobytes()}
+    return {"id": int(body.tracking_id), "joints": joints.tobytes(), "states": states.tobytes()}
 
 
 # --- decoding (the trust boundary) ------------------------------------------------------------
@@ -234,7 +234,8 @@ def decode(buf: bytes) -> Message:
     if not isinstance(raw, dict):
         raise DecodeError("malformed", f"message must be a map, got {type(raw).__name__}")
     version = raw.get("v")
-    if version != PROTOCOL_VERSION or isinstance(version, bool):
+    # Not isinstance: True and 1.0 both compare equal to 1.
+    if type(version) is not int or version != PROTOCOL_VERSION:
         raise VersionMismatch(version, PROTOCOL_VERSION)
     kind = raw.get("type")
     decoder = _DECODERS.get(kind) if isinstance(kind, str) else None
@@ -329,7 +330,7 @@ def _decode_body(raw: object, index: int) -> Body:
 
 def _decode_hello(raw: dict[str, Any]) -> Hello:
     sensor_id = _field(raw, "sensor_id", str)
-    if not SENSOR_ID_PATTERN.match(sensor_id):
+    if not SENSOR_ID_PATTERN.fullmatch(sensor_id):  # match() + "$" accepts a final "\n"
         raise DecodeError(
             "bad_field",
             f"sensor_id {sensor_id[:80]!r} must be 1-64 characters of A-Z a-z 0-9 . _ - "
@@ -366,6 +367,8 @@ def _decode_hello(raw: dict[str, Any]) -> Hello:
         if not np.isfinite(pose_hint).all():
             raise DecodeError("non_finite", "pose_hint has NaN or infinity")
         rotation = pose_hint[:3, :3]
+        if np.abs(rotation).max() > 1.001:  # also keeps the products below from overflowing
+            raise DecodeError("bad_field", "pose_hint is not a rigid transform")
         if (
             not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-4)
             or not np.allclose(pose_hint[3], [0, 0, 0, 1])

@@ -101,12 +101,14 @@ async def test_stalled_websocket_client_does_not_delay_others(
     live_server: LiveServer, agent_factory: Callable[..., AgentThread]
 ) -> None:
     start_two(live_server, agent_factory)
-    async with connect(live_server.ws_url + "/ws/skeletons"):  # never reads
-        async with connect(live_server.ws_url + "/ws/skeletons") as healthy:
-            await healthy.recv()
-            started = time.monotonic()
-            received = [json.loads(await healthy.recv()) for _ in range(90)]
-            elapsed = time.monotonic() - started
+    async with (
+        connect(live_server.ws_url + "/ws/skeletons"),  # never reads
+        connect(live_server.ws_url + "/ws/skeletons") as healthy,
+    ):
+        await healthy.recv()
+        started = time.monotonic()
+        received = [json.loads(await healthy.recv()) for _ in range(90)]
+        elapsed = time.monotonic() - started
     assert elapsed < 6.0, f"90 frames took {elapsed:.1f} s next to a stalled client"
     assert received[-1]["seq"] > received[0]["seq"]
 

@@ -1,0 +1,153 @@
+"""Fusion math and person tracking: pure functions and the tracker, no sockets."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from agent.sim.performer import ProceduralPerformer
+from protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION, TrackingState
+from server.fusion import fuse_views, mpjpe, state_weights, trunk_distance
+from server.settings import FusionSettings
+from server.tracking import PersonTracker, View
+
+TRACKED = np.full(JOINT_COUNT, TrackingState.TRACKED, np.uint8)
+
+
+def standing(x: float = 0.0, z: float = 0.0) -> np.ndarray:
+    joints = ProceduralPerformer(1).joints_at(20.0)[0]  # standing still in the routine
+    joints = joints - joints[0] * [1, 0, 1]
+    return joints + [x, 0.0, z]
+
+
+# --- fuse_views ---------------------------------------------------------------------------
+
+
+def test_identical_views_fuse_to_the_view() -> None:
+    view = standing()
+    fused, confidence = fuse_views(np.stack([view, view, view]), np.full((3, JOINT_COUNT), 0.7))
+    np.testing.assert_allclose(fused, view, atol=1e-12)
+    np.testing.assert_allclose(confidence, 1 - 0.3**3)
+
+
+def test_weighted_mean_follows_report_a_equation_2() -> None:
+    a, b = np.zeros((JOINT_COUNT, 3)), np.ones((JOINT_COUNT, 3))
+    weights = np.array([np.full(JOINT_COUNT, 0.7), np.full(JOINT_COUNT, 0.3)])
+    fused, _ = fuse_views(np.stack([a, b]), weights)
+    np.testing.assert_allclose(fused, 0.3, atol=1e-12)
+
+
+def test_nan_joint_never_leaks_and_other_view_fills_it() -> None:
+    a, b = standing(), standing() + 0.1
+    a[5] = np.nan
+    fused, confidence = fuse_views(np.stack([a, b]), np.full((2, JOINT_COUNT), 0.7))
+    np.testing.assert_allclose(fused[5], b[5])
+    assert confidence[5] == pytest.approx(0.7)
+    assert np.isfinite(fused).all()
+
+
+@pytest.mark.parametrize("views", [0, 1])
+def test_all_missing_gives_nan_with_zero_confidence(views: int) -> None:
+    joints = np.full((views, JOINT_COUNT, 3), np.nan)
+    fused, confidence = fuse_views(joints, np.full((views, JOINT_COUNT), 0.7))
+    assert np.isnan(fused).all() and (confidence == 0).all()
+
+
+def test_zero_weight_view_is_ignored() -> None:
+    a, b = standing(), standing() + 5.0
+    weights = np.stack([np.full(JOINT_COUNT, 0.3), np.zeros(JOINT_COUNT)])
+    fused, _ = fuse_views(np.stack([a, b]), weights)
+    np.testing.assert_allclose(fused, a)
+
+
+def test_fuse_rejects_bad_shapes() -> None:
+    with pytest.raises(ValueError, match="expected joints"):
+        fuse_views(np.zeros((2, JOINT_COUNT, 2)), np.zeros((2, JOINT_COUNT)))
+
+
+def test_state_weights_table() -> None:
+    states = np.array([[0, 1, 2]])
+    np.testing.assert_allclose(state_weights(states, (0.0, 0.3, 0.7)), [[0.0, 0.3, 0.7]])
+
+
+def test_trunk_distance_ignores_left_right_swap() -> None:
+    body = standing()
+    assert trunk_distance(body, body[list(MIRROR_PERMUTATION)]) == pytest.approx(0.0)
+    assert trunk_distance(body, body + [1.0, 0, 0]) == pytest.approx(1.0)
+    assert trunk_distance(body, np.full_like(body, np.nan)) == float("inf")
+
+
+def test_mpjpe_skips_missing_joints() -> None:
+    truth = standing()
+    estimate = truth + [0.0, 0.01, 0.0]
+    estimate[:5] = np.nan
+    error, count = mpjpe(estimate, truth)
+    assert error == pytest.approx(0.01) and count == JOINT_COUNT - 5
+
+
+# --- PersonTracker ----------------------------------------------------------------------------
+
+
+def views_for(people: list[np.ndarray], sensors: int, t_ids: int = 100) -> list[View]:
+    return [
+        View(f"s{s}", t_ids * s + p, person, TRACKED)
+        for s in range(sensors)
+        for p, person in enumerate(people)
+    ]
+
+
+def test_one_person_seen_by_three_sensors_is_one_person() -> None:
+    tracker = PersonTracker(FusionSettings(track_min_frames=1))
+    person = standing()
+    out = tracker.update(views_for([person], 3), 0.0)
+    assert len(out) == 1 and out[0].sources == ("s0", "s1", "s2")
+
+
+def test_ids_are_stable_and_people_are_not_merged() -> None:
+    tracker = PersonTracker(FusionSettings(track_min_frames=1))
+    ids_seen: list[tuple[int, ...]] = []
+    for step in range(60):
+        t = step / 30
+        a, b = standing(-1.0 + 0.01 * step), standing(1.0, 0.5)
+        out = tracker.update(views_for([a, b], 2), t)
+        ids_seen.append(tuple(p.person_id for p in out))
+        assert len(out) == 2
+    assert len(set(ids_seen)) == 1
+
+
+def test_tracking_id_change_keeps_person_id() -> None:
+    """A sensor re-acquiring a body under a new tracking id must not create a new person."""
+    tracker = PersonTracker(FusionSettings(track_min_frames=1))
+    person = standing()
+    first = tracker.update(views_for([person], 2), 0.0)[0].person_id
+    renamed = [View(v.sensor_id, v.tracking_id + 7, v.joints_world, v.states)
+               for v in views_for([person], 2)]  # fmt: skip
+    assert [p.person_id for p in tracker.update(renamed, 1 / 30)] == [first]
+
+
+def test_new_person_waits_for_min_frames() -> None:
+    tracker = PersonTracker(FusionSettings(track_min_frames=3))
+    person = standing()
+    published = [len(tracker.update(views_for([person], 1), i / 30)) for i in range(4)]
+    assert published == [0, 0, 1, 1]
+
+
+def test_person_dies_after_timeout_and_returns_with_new_id() -> None:
+    tracker = PersonTracker(FusionSettings(track_min_frames=1, track_timeout_s=0.5))
+    person = standing()
+    first = tracker.update(views_for([person], 1), 0.0)[0].person_id
+    tracker.update([], 0.3)
+    assert tracker.track_count == 1
+    tracker.update([], 0.6)
+    assert tracker.track_count == 0
+    again = tracker.update(views_for([person], 1), 0.7)[0].person_id
+    assert again != first
+
+
+def test_one_sensor_never_gives_one_person_two_bodies() -> None:
+    tracker = PersonTracker(FusionSettings(track_min_frames=1))
+    person = standing()
+    views = [View("s0", 1, person, TRACKED), View("s0", 2, person + 0.05, TRACKED)]
+    out = tracker.update(views, 0.0)
+    assert len(out) == 2
+    assert all(len(p.views) == 1 for p in out)
