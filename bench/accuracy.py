@@ -157,12 +157,12 @@ def main(argv: list[str] | None = None) -> int:
     params = KinectV2Params()
     started = time.perf_counter()
     results: dict[str, list[dict[str, dict[str, float]]]] = {}
-    groups: dict[str, list[str]] = {"CMU walks (6 clips × directions)": [], "built-in routine": []}
+    groups: dict[str, list[str]] = {"CMU walks (2 clips × 3 directions)": [], "built-in routine": []}
     for name, performer, duration in scenarios(include_cmu):
         group = (
             "built-in routine"
             if name.startswith("built-in")
-            else "CMU walks (6 clips × directions)"
+            else "CMU walks (2 clips × 3 directions)"
         )
         groups[group].append(name)
         results[name] = [run_once(performer, duration, seed, params) for seed in range(args.runs)]

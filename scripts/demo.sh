@@ -1,0 +1,11 @@
+#!/usr/bin/env bash
+# Install skelfuse (server extras) into ./.venv and run the live demo:
+# the fusion server, simulated Kinect agents and the browser viewer. Ctrl-C stops everything.
+# Extra arguments go to `skelfuse demo` (e.g. --sensors 4 --persons 3).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+. scripts/venv.sh
+ensure_venv
+echo "==> installing skelfuse with the server extras"
+"$VENV/bin/pip" install --quiet --disable-pip-version-check -e '.[server]'
+exec "$VENV/bin/skelfuse" demo "$@"
