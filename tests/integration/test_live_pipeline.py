@@ -229,3 +229,12 @@ async def test_agent_clock_offset_is_absorbed(
     assert len(both) > 30, "both sensors should contribute to the same person"
     assert all(len(f["persons"]) == 1 for f in frames[10:]), "no duplicate person"
     assert abs(frames[-1]["t"] - time.time()) < 0.5
+
+
+async def test_websocket_rejects_an_unknown_format(live_server: LiveServer) -> None:
+    from websockets.exceptions import InvalidStatus
+
+    with pytest.raises(InvalidStatus) as info:
+        async with connect(live_server.ws_url + "/ws/skeletons?format=xml"):
+            pass
+    assert info.value.response.status_code == 403
