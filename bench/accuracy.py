@@ -157,13 +157,10 @@ def main(argv: list[str] | None = None) -> int:
     params = KinectV2Params()
     started = time.perf_counter()
     results: dict[str, list[dict[str, dict[str, float]]]] = {}
-    groups: dict[str, list[str]] = {"CMU walks (2 clips × 3 directions)": [], "built-in routine": []}
+    cmu_group = "CMU walks (2 clips × 3 directions)"
+    groups: dict[str, list[str]] = {cmu_group: [], "built-in routine": []}
     for name, performer, duration in scenarios(include_cmu):
-        group = (
-            "built-in routine"
-            if name.startswith("built-in")
-            else "CMU walks (2 clips × 3 directions)"
-        )
+        group = "built-in routine" if name.startswith("built-in") else cmu_group
         groups[group].append(name)
         results[name] = [run_once(performer, duration, seed, params) for seed in range(args.runs)]
     elapsed = time.perf_counter() - started

@@ -21,8 +21,9 @@ from calibration.store import CalibrationStore
 from protocol.skeleton import skeleton_definition
 from server import __version__
 from server.broadcast import Broadcaster, Variant, encode_message, pump
-from server.hub import FusionHub, person_json
+from server.hub import FusionHub
 from server.ingest import fusion_loop, ingest_loop, liveness_loop, open_router
+from server.messages import person_json
 from server.settings import Settings
 
 logger = logging.getLogger(__name__)

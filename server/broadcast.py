@@ -18,7 +18,8 @@ from typing import Any
 
 import msgpack
 
-from server.hub import FusedFrame, frame_json
+from server.hub import FusedFrame
+from server.messages import frame_json
 
 logger = logging.getLogger(__name__)
 

@@ -12,9 +12,6 @@ import time
 from collections import Counter
 from dataclasses import dataclass
 
-import numpy as np
-import numpy.typing as npt
-
 from calibration.store import Calibration
 from protocol.errors import DecodeError
 from protocol.transform import Matrix4, apply
@@ -209,7 +206,9 @@ class FusionHub:
             bodies = bodies_at(sensor.frames, t_target, s.interpolation_gap_s, max_age)
             for body in bodies or ():
                 joints_world = apply(pose, body.joints_m)
-                views.append(View(sensor.sensor_id, body.tracking_id, joints_world, body.states))
+                views.append(
+                    View(sensor.sensor_id, body.tracking_id, joints_world, body.states, pose[:3, 3])
+                )
         persons = self.tracker.update(views, t_target)
         self._seq += 1
         fused = FusedFrame(self._seq, t_target, now_s, tuple(persons), tuple(views))
@@ -243,42 +242,3 @@ class FusionHub:
                 }
             )
         return rows
-
-
-def person_json(person: FusedPerson, decimals: int = 4) -> dict[str, object]:
-    """A fused person as apps receive it: NaN never leaves the server (null instead)."""
-    return {
-        "id": person.person_id,
-        "joints": joints_json(person.joints, decimals),
-        "confidence": [round(float(c), 3) for c in person.confidence],
-        "sources": list(person.sources),
-    }
-
-
-def joints_json(joints: npt.NDArray[np.floating], decimals: int = 4) -> list[list[float] | None]:
-    rounded = np.round(np.asarray(joints, dtype=np.float64), decimals).reshape(-1, 3)
-    finite = np.isfinite(rounded).all(axis=1).reshape(-1)
-    return [row.tolist() if finite[i] else None for i, row in enumerate(rounded)]
-
-
-def view_json(view: View, decimals: int = 4) -> dict[str, object]:
-    return {
-        "sensor": view.sensor_id,
-        "tracking_id": str(view.tracking_id),  # uint64 does not fit a JavaScript number
-        "joints": joints_json(view.joints_world, decimals),
-        "states": [int(s) for s in view.states],
-    }
-
-
-def frame_json(frame: FusedFrame, include_raw: bool) -> dict[str, object]:
-    message: dict[str, object] = {
-        "type": "frame",
-        "v": 1,
-        "seq": frame.seq,
-        "t": round(frame.t_s, 6),
-        "t_sent": round(time.time(), 6),
-        "persons": [person_json(p) for p in frame.persons],
-    }
-    if include_raw:
-        message["raw"] = [view_json(v) for v in frame.raw]
-    return message

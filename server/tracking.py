@@ -35,12 +35,14 @@ class View:
 
     joints_world: (25, 3) float64, metres, world frame, NaN where NotTracked.
     states: (25,) uint8 TrackingState.
+    sensor_position: (3,) float64, where the sensor stands in the world (metres), if known.
     """
 
     sensor_id: str
     tracking_id: int
     joints_world: FloatArray
     states: npt.NDArray[np.uint8]
+    sensor_position: FloatArray | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -15,7 +15,8 @@ from calibration.store import CalibrationFileError, CalibrationStore, SensorCali
 from protocol.skeleton import JOINT_COUNT
 from protocol.transform import pose_from_position_yaw_pitch
 from protocol.wire import Body, ErrorMessage, Frame, Heartbeat, Hello, Welcome, encode
-from server.hub import FusionHub, frame_json
+from server.hub import FusionHub
+from server.messages import frame_json
 from server.sensors import SlidingMinimum, TimedFrame, bodies_at
 from server.settings import Settings
 from skelfuse.cli import UsageError, parse_host_port, parse_pose
