@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import time
 from collections import Counter
 from dataclasses import dataclass
@@ -175,11 +176,13 @@ class FusionHub:
     # --- fusion ---------------------------------------------------------------------------
 
     def fuse_step(self, now_s: float) -> FusedFrame | None:
-        """Fuse the newest instant every live sensor has data for; None if nothing new.
+        """Fuse the next instant of the output grid once every live sensor has data past it.
 
-        The instant is the oldest of the sensors' newest frames, so each sensor contributes a
-        real or interpolated sample, except that a sensor more than ``max_wait_s`` behind is
-        left out rather than holding everyone back.
+        Output instants lie on a fixed grid (``output_hz``, on the server clock), so the output
+        rate is the sensors' rate however many sensors there are, and each sensor contributes
+        a sample interpolated to exactly that instant. A sensor more than ``max_wait_s`` behind
+        is left out rather than holding everyone back; after a stall the grid jumps to the
+        newest ready instant instead of fusing stale ones. None when nothing is ready.
         """
         s = self.settings
         newest = [
@@ -191,9 +194,14 @@ class FusionHub:
         ]
         if not newest:
             return None
-        t_target = min(newest)
-        if t_target <= self._last_fused_t:
+        ready_until = min(newest)
+        period = 1.0 / s.output_hz
+        next_t = self._last_fused_t + period
+        if next_t < ready_until - 2 * period:
+            next_t = math.floor(ready_until / period) * period  # start, or resync after a stall
+        if next_t > ready_until:
             return None
+        t_target = next_t
         self._last_fused_t = t_target
         views: list[View] = []
         for sensor in self.sensors.values():

@@ -10,7 +10,12 @@ from protocol.constants import DEFAULT_HTTP_PORT, DEFAULT_ZMQ_PORT, HEARTBEAT_IN
 
 @dataclass(frozen=True, slots=True)
 class FusionSettings:
-    """Parameters of fusion and tracking (see ``docs/fusion.md``)."""
+    """Parameters of fusion and tracking (see ``docs/fusion.md``).
+
+    The defaults are the full method. The benchmark's method ladder (tracking-state weights only,
+    + bone length, + range of motion, + mirrored-view correction, + filter) switches terms off
+    with ``dataclasses.replace``.
+    """
 
     state_weights: tuple[float, float, float] = (0.0, 0.3, 0.7)
     """Confidence of a NotTracked / Inferred / Tracked joint (report A's values)."""
@@ -21,6 +26,56 @@ class FusionSettings:
     track_min_frames: int = 3
     """A new person is published after this many consecutive fused frames (no one-frame ghosts)."""
 
+    # --- body-based confidence (server/confidence.py) ------------------------------------------
+    use_bone_length: bool = True
+    """Multiply in the bone-length term (report A), propagated outward from SpineBase."""
+    bone_length_scale_m: float = 0.03
+    """Bone-length term ``exp(−|l − l_ref| / scale)``: 0.37 at 3 cm off, 0.04 at 10 cm."""
+    bone_estimate_window: int = 300
+    """Online reference lengths: median of the last this many good observations per bone."""
+    bone_estimate_min_samples: int = 30
+    """An online reference bone length is used once it has this many observations."""
+    use_range_of_motion: bool = True
+    """Multiply in the range-of-motion term (anatomical limits table in server/confidence.py)."""
+    rom_scale_deg: float = 15.0
+    """Range-of-motion term ``exp(−excess / scale)`` for an angle ``excess`` degrees outside."""
+    use_facing: bool = True
+    """Multiply in how frontally the person faces each sensor."""
+    facing_power: float = 2.0
+    """Facing term ``floor + (1 − floor)·((1 + cos θ) / 2)^power`` (θ: person's yaw off the sensor)."""
+    facing_floor: float = 0.05
+    use_distance: bool = True
+    """Multiply in the distance term: 1 inside ``distance_best_m``, Gaussian fall-off outside."""
+    distance_best_m: tuple[float, float] = (1.5, 3.0)
+    distance_scale_m: float = 1.0
+    outlier_scale_m: float = 0.0
+    """Robust re-weighting (Cauchy, one pass) of views far from the weighted mean; 0 = off."""
+
+    # --- mirrored views (server/mirror.py) ----------------------------------------------------
+    use_mirror_correction: bool = True
+    """Detect views whose left and right are swapped (person facing away) and swap them back."""
+    mirror_geometry_weight_m: float = 0.15
+    """Cost (metres of disagreement) of a labelling that contradicts where the person faces."""
+    mirror_hysteresis_m: float = 0.05
+    """Extra cost of changing a view's labelling from the previous step."""
+    mirror_track_weight: float = 1.0
+    """Weight of the agreement with the person's previous fused skeleton."""
+
+    # --- temporal filter (server/filters.py) --------------------------------------------------
+    filter: str = "one_euro"
+    """``none``, ``one_euro`` (default) or ``kalman``; applied per person after fusion."""
+    one_euro_min_cutoff_hz: float = 1.0
+    one_euro_beta: float = 4.0
+    one_euro_d_cutoff_hz: float = 1.0
+    kalman_accel_std: float = 8.0
+    """Constant-velocity Kalman: white acceleration noise, m/s² (per axis)."""
+    kalman_meas_std_m: float = 0.03
+    """Constant-velocity Kalman: measurement noise of a fused joint, metres (per axis)."""
+    kalman_predict_s: float = 0.0
+    """Extrapolate the Kalman output this far ahead (compensates latency; adds overshoot)."""
+    enforce_bone_lengths: bool = True
+    """Rescale each fused bone to the person's reference length (directions kept)."""
+
 
 @dataclass(frozen=True, slots=True)
 class Settings:
@@ -29,6 +84,8 @@ class Settings:
     zmq_endpoint: str = f"tcp://*:{DEFAULT_ZMQ_PORT}"
     data_dir: Path = Path("skelfuse-data")
     fusion: FusionSettings = field(default_factory=FusionSettings)
+    output_hz: float = 30.0
+    """Fused frames per second: instants on a fixed grid of the server clock."""
     max_wait_s: float = 0.1
     """Fusion waits at most this long for a late sensor before fusing without it."""
     interpolation_gap_s: float = 0.1

@@ -32,11 +32,15 @@ def start_two(
 ) -> None:
     agent_factory(live.zmq_url, "cam-a", (0.0, 1.0, 3.0), persons)
     agent_factory(live.zmq_url, "cam-b", (2.6, 1.0, -1.5), persons)
-    assert wait_until(
-        lambda: all(s["connected"] and s["frames_received"] > 30
-                    for s in sensors_by_id(live).values()) and len(sensors_by_id(live)) == 2,
-        timeout_s=20,
-    ), sensors_by_id(live)  # fmt: skip
+
+    def streaming() -> bool:
+        sensors = sensors_by_id(live)
+        return len(sensors) == 2 and all(
+            s["connected"] and s["frames_received"] > 30 and s["fps"] > 20 for s in sensors.values()
+        )
+
+    # Polled, not timed: the machine is shared, so only the end state is asserted.
+    assert wait_until(streaming, timeout_s=20), sensors_by_id(live)
 
 
 def test_sensors_and_persons_over_rest(
@@ -46,7 +50,7 @@ def test_sensors_and_persons_over_rest(
     sensors = sensors_by_id(live_server)
     for row in sensors.values():
         assert row["type"] == "sim"
-        assert 20 < row["fps"] < 40, row
+        assert row["fps"] < 40, row
         assert row["last_frame_age_s"] < 0.5
         assert row["calibration"]["state"] == "sim_truth"
         assert np.asarray(row["calibration"]["T_world_from_sensor"]).shape == (4, 4)
