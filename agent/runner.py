@@ -41,7 +41,8 @@ def run_agent(
     ``stats`` say how many frames went out and how many were dropped.
     """
     stop = stop or threading.Event()
-    link = AgentLink(server_endpoint, lambda: make_hello(sensor_id, source))
+    handlers = getattr(source, "request_handlers", dict)()
+    link = AgentLink(server_endpoint, lambda: make_hello(sensor_id, source), handlers=handlers)
     deadline = None if duration_s is None else time.monotonic() + duration_s
     seq = 0
     last_report = time.monotonic()

@@ -1,35 +1,44 @@
 """Persisted calibration: each sensor's ``T_world_from_sensor``, versioned, crash-safe.
 
-The active calibration lives in ``<data_dir>/calibration.json``. Every save writes a new
-version: the file is written to a temporary name, fsync'ed, renamed over the old one and the
-folder fsync'ed, so a crash leaves either the old or the new version, never half of one. The
-previous versions are kept in ``<data_dir>/calibration-history/``.
+Layout of the data folder::
+
+    calibration.json                 the active version (what the server loads at start-up)
+    calibration-history/v000007.json every version ever saved, the active one included
+
+Every save writes a new version. Each file is written to a temporary name, fsync'ed, renamed
+over its target and the folder fsync'ed, and the history copy is written before the active
+file, so a crash leaves either the old or the new version active, never half of one.
+Rolling back re-saves an old version as a new one: history only grows.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import re
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from calibration.errors import CalibrationError
 from protocol.transform import Matrix4, is_rigid
 
 FILE_NAME = "calibration.json"
+HISTORY_DIR = "calibration-history"
 FORMAT_VERSION = 1
-
-
-class CalibrationError(Exception):
-    """Base class of calibration errors."""
+_HISTORY_FILE = re.compile(r"^v(\d{6,})\.json$")
 
 
 class CalibrationFileError(CalibrationError):
-    """The stored calibration cannot be read; the message says which file and why."""
+    """A stored or imported calibration cannot be read; the message says which and why."""
+
+
+class UnknownVersion(CalibrationError):
+    """A version that is not in the history."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -39,6 +48,7 @@ class SensorCalibration:
     T_world_from_sensor: Matrix4
     method: str
     residual_mm: float | None = None
+    details: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True, slots=True)
@@ -46,17 +56,20 @@ class Calibration:
     version: int
     created_unix_s: float
     sensors: dict[str, SensorCalibration]
+    note: str = ""
 
     def to_json(self) -> dict[str, Any]:
         return {
             "format": FORMAT_VERSION,
             "version": self.version,
             "created_unix_s": self.created_unix_s,
+            "note": self.note,
             "sensors": {
                 sensor_id: {
                     "T_world_from_sensor": s.T_world_from_sensor.tolist(),
                     "method": s.method,
                     "residual_mm": s.residual_mm,
+                    "details": s.details,
                 }
                 for sensor_id, s in sorted(self.sensors.items())
             },
@@ -64,26 +77,45 @@ class Calibration:
 
     @staticmethod
     def from_json(data: Any, origin: str) -> Calibration:
+        """Parse and validate; raises :class:`CalibrationFileError` naming ``origin``."""
         if not isinstance(data, dict) or data.get("format") != FORMAT_VERSION:
             raise CalibrationFileError(
-                f"{origin}: not a calibration file of format {FORMAT_VERSION}"
+                f"{origin}: not a skelfuse calibration (expected an object with format "
+                f"{FORMAT_VERSION})"
             )
+        raw_sensors = data.get("sensors", {})
+        if not isinstance(raw_sensors, dict):
+            raise CalibrationFileError(f"{origin}: 'sensors' must be an object of sensor ids")
         sensors: dict[str, SensorCalibration] = {}
-        for sensor_id, entry in dict(data.get("sensors", {})).items():
-            matrix = np.asarray(entry.get("T_world_from_sensor"), dtype=np.float64)
+        for sensor_id, entry in raw_sensors.items():
+            if not isinstance(entry, dict):
+                raise CalibrationFileError(f"{origin}: sensor {sensor_id!r} must be an object")
+            try:
+                matrix = np.asarray(entry.get("T_world_from_sensor"), dtype=np.float64)
+            except (TypeError, ValueError) as exc:
+                raise CalibrationFileError(
+                    f"{origin}: sensor {sensor_id!r}: T_world_from_sensor is not a 4×4 matrix"
+                ) from exc
             if not is_rigid(matrix, atol=1e-5):
                 raise CalibrationFileError(
-                    f"{origin}: sensor {sensor_id!r}: T_world_from_sensor is not a rigid 4×4"
+                    f"{origin}: sensor {sensor_id!r}: T_world_from_sensor is not a rigid 4×4 "
+                    "transform (row-major, metres, last row 0 0 0 1)"
                 )
             residual = entry.get("residual_mm")
+            if residual is not None and not isinstance(residual, int | float):
+                raise CalibrationFileError(f"{origin}: sensor {sensor_id!r}: bad residual_mm")
+            details = entry.get("details", {})
             sensors[str(sensor_id)] = SensorCalibration(
                 matrix,
                 str(entry.get("method", "unknown")),
                 None if residual is None else float(residual),
+                details if isinstance(details, dict) else {},
             )
-        return Calibration(
-            int(data.get("version", 0)), float(data.get("created_unix_s", 0)), sensors
-        )
+        version = data.get("version", 0)
+        created = data.get("created_unix_s", 0.0)
+        if not isinstance(version, int) or not isinstance(created, int | float):
+            raise CalibrationFileError(f"{origin}: bad version or created_unix_s")
+        return Calibration(version, float(created), sensors, str(data.get("note", "")))
 
 
 class CalibrationStore:
@@ -96,33 +128,72 @@ class CalibrationStore:
     def path(self) -> Path:
         return self.data_dir / FILE_NAME
 
+    @property
+    def history_dir(self) -> Path:
+        return self.data_dir / HISTORY_DIR
+
     def load(self) -> Calibration | None:
         """The active calibration, or None if none was ever saved."""
+        return self._read(self.path)
+
+    def _read(self, path: Path) -> Calibration | None:
         try:
-            text = self.path.read_text(encoding="utf-8")
+            text = path.read_text(encoding="utf-8")
         except FileNotFoundError:
             return None
         try:
             data = json.loads(text)
         except json.JSONDecodeError as exc:
-            raise CalibrationFileError(f"{self.path}: not valid JSON ({exc})") from exc
-        return Calibration.from_json(data, str(self.path))
+            raise CalibrationFileError(f"{path}: not valid JSON ({exc})") from exc
+        return Calibration.from_json(data, str(path))
 
-    def save(self, sensors: dict[str, SensorCalibration]) -> Calibration:
-        """Write a new version atomically and return it."""
-        current = self.load()
-        calibration = Calibration(
-            version=(current.version + 1) if current else 1,
-            created_unix_s=time.time(),
-            sensors=dict(sensors),
-        )
-        self.data_dir.mkdir(parents=True, exist_ok=True)
-        if current is not None:
-            history = self.data_dir / "calibration-history"
-            history.mkdir(exist_ok=True)
-            _atomic_write(history / f"v{current.version:06d}.json", current.to_json())
-        _atomic_write(self.path, calibration.to_json())
+    def versions(self) -> list[int]:
+        """Every saved version number, oldest first."""
+        if not self.history_dir.is_dir():
+            return []
+        found = (_HISTORY_FILE.match(p.name) for p in self.history_dir.iterdir())
+        return sorted(int(m.group(1)) for m in found if m)
+
+    def get(self, version: int) -> Calibration:
+        calibration = self._read(self.history_dir / f"v{version:06d}.json")
+        if calibration is None:
+            raise UnknownVersion(
+                f"calibration version {version} does not exist (saved: {self.versions() or 'none'})"
+            )
         return calibration
+
+    def history(self) -> list[Calibration]:
+        return [self.get(v) for v in self.versions()]
+
+    def save(self, sensors: dict[str, SensorCalibration], note: str = "") -> Calibration:
+        """Write a new version atomically, make it active, and return it."""
+        current = self.load()
+        latest = max([*self.versions(), current.version if current else 0])
+        calibration = Calibration(latest + 1, time.time(), dict(sensors), note)
+        self.history_dir.mkdir(parents=True, exist_ok=True)
+        payload = calibration.to_json()
+        _atomic_write(self.history_dir / f"v{calibration.version:06d}.json", payload)
+        _atomic_write(self.path, payload)
+        return calibration
+
+    def rollback(self, version: int) -> Calibration:
+        """Make an old version active again (saved as a new version)."""
+        old = self.get(version)
+        return self.save(old.sensors, note=f"rollback to v{version}")
+
+    def import_json(self, data: Any, note: str = "imported") -> Calibration:
+        """Validate an exported calibration and save it as a new active version."""
+        parsed = Calibration.from_json(data, "imported calibration")
+        return self.save(parsed.sensors, note=note)
+
+
+def merge(
+    base: Calibration | None, updates: dict[str, SensorCalibration]
+) -> dict[str, SensorCalibration]:
+    """Sensors of ``base`` with ``updates`` applied on top (sensors not updated are kept)."""
+    merged = dict(base.sensors) if base else {}
+    merged.update(updates)
+    return merged
 
 
 def _atomic_write(path: Path, data: dict[str, Any]) -> None:

@@ -17,6 +17,9 @@ MAX_BODIES: Final = 6
 """Kinect v2 and k4abt both track at most six bodies."""
 MAX_MESSAGE_BYTES: Final = 64 * 1024
 """Six bodies of 25 joints are about 2.5 KB; anything near this limit is garbage."""
+MAX_RESPONSE_BYTES: Final = 4 * 1024 * 1024
+"""Limit for an agent's answer to a request the server made (a depth point cloud is ~250 KB);
+the server allows it only from a sensor it is waiting on."""
 MAX_COORDINATE_M: Final = 50.0
 """A joint farther than this from its sensor is not a measurement."""
 

@@ -209,15 +209,18 @@ def _encode_body(body: Body) -> dict[str, Any]:
 # --- decoding (the trust boundary) ------------------------------------------------------------
 
 
-def decode(buf: bytes) -> Message:
+def decode(buf: bytes, max_bytes: int = MAX_MESSAGE_BYTES) -> Message:
     """Parse and validate one message.
+
+    ``max_bytes`` may be raised (up to ``MAX_RESPONSE_BYTES``) by a server that is waiting
+    for an agent's answer to a request; the larger limit applies to ``response`` messages only.
 
     Raises:
         DecodeError: with ``reason`` ``too_large``, ``malformed``, ``version``, ``unknown_type``,
             ``bad_field``, ``bad_shape``, ``non_finite`` or ``out_of_range``.
     """
-    if len(buf) > MAX_MESSAGE_BYTES:
-        raise DecodeError("too_large", f"message of {len(buf)} bytes > {MAX_MESSAGE_BYTES}")
+    if len(buf) > max_bytes:
+        raise DecodeError("too_large", f"message of {len(buf)} bytes > {max_bytes}")
     try:
         raw = msgpack.unpackb(
             buf,
@@ -226,7 +229,7 @@ def decode(buf: bytes) -> Message:
             max_array_len=64,
             max_map_len=32,
             max_str_len=4096,
-            max_bin_len=4096,
+            max_bin_len=max(4096, max_bytes if max_bytes > MAX_MESSAGE_BYTES else 0),
             max_ext_len=0,
         )
     except (ValueError, msgpack.UnpackException) as exc:  # limits, garbage, trailing bytes
@@ -241,6 +244,8 @@ def decode(buf: bytes) -> Message:
     decoder = _DECODERS.get(kind) if isinstance(kind, str) else None
     if decoder is None:
         raise DecodeError("unknown_type", f"unknown message type {kind!r}")
+    if kind != "response" and len(buf) > MAX_MESSAGE_BYTES:
+        raise DecodeError("too_large", f"{kind} message of {len(buf)} bytes > {MAX_MESSAGE_BYTES}")
     return decoder(raw)
 
 

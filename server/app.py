@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import math
 import time
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -13,16 +14,19 @@ from typing import Any, Literal
 
 import zmq
 import zmq.asyncio
-from fastapi import FastAPI, Query, WebSocket, WebSocketDisconnect
-from fastapi.responses import FileResponse
+from fastapi import FastAPI, Query, Request, WebSocket, WebSocketDisconnect
+from fastapi.encoders import jsonable_encoder
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 
 from calibration.store import CalibrationStore
 from protocol.skeleton import skeleton_definition
-from server import __version__
+from server import __version__, routes_calibration
 from server.broadcast import Broadcaster, Variant, encode_message, pump
+from server.calibration_runs import CalibrationService
 from server.hub import FusionHub
-from server.ingest import fusion_loop, ingest_loop, liveness_loop, open_router
+from server.ingest import fusion_loop, ingest_loop, liveness_loop, open_router, send_to
 from server.messages import person_json
 from server.settings import Settings
 
@@ -36,7 +40,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        calibration = CalibrationStore(settings.data_dir).load()
+        store = CalibrationStore(settings.data_dir)
+        calibration = store.load()
         if calibration is not None:
             logger.info(
                 "loaded calibration v%d for %s",
@@ -47,7 +52,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         broadcaster = Broadcaster(settings.ws_queue_size)
         context = zmq.asyncio.Context()
         socket = open_router(context, settings.zmq_endpoint)
+        hub.send = lambda routing_id, message: send_to(socket, routing_id, message)
         app.state.hub = hub
+        app.state.calibration = CalibrationService(hub, store)
         app.state.broadcaster = broadcaster
         app.state.zmq_endpoint = socket.getsockopt_string(zmq.LAST_ENDPOINT)
         logger.info("agents connect to %s", app.state.zmq_endpoint)
@@ -75,6 +82,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         lifespan=lifespan,
     )
     app.state.settings = settings
+
+    @app.exception_handler(RequestValidationError)
+    async def invalid_request(request: Request, exc: RequestValidationError) -> JSONResponse:
+        # FastAPI echoes the offending input; a NaN in it would make the 422 itself fail.
+        detail = _finite_json(jsonable_encoder(exc.errors()))
+        return JSONResponse(status_code=422, content={"detail": detail})
 
     def hub_of(request_app: Any) -> FusionHub:
         hub: FusionHub = request_app.state.hub
@@ -159,12 +172,25 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             await asyncio.gather(sender, return_exceptions=True)
             broadcaster.remove(client)
 
+    app.include_router(routes_calibration.router)
+
     @app.get("/", include_in_schema=False)
     async def index() -> FileResponse:
         return FileResponse(STATIC_DIR / "index.html")
 
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
     return app
+
+
+def _finite_json(value: Any) -> Any:
+    """Replace NaN and infinities (which JSON cannot carry) by their names as strings."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    if isinstance(value, dict):
+        return {k: _finite_json(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite_json(v) for v in value]
+    return value
 
 
 async def _drain(websocket: WebSocket) -> None:

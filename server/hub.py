@@ -7,13 +7,17 @@ and sends back what it returns; the fusion loop calls :meth:`FusionHub.fuse_step
 from __future__ import annotations
 
 import asyncio
+import itertools
 import logging
 import math
 import time
 from collections import Counter
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
+from typing import Any
 
 from calibration.store import Calibration
+from protocol.constants import MAX_MESSAGE_BYTES, MAX_RESPONSE_BYTES
 from protocol.errors import DecodeError
 from protocol.transform import Matrix4, apply
 from protocol.wire import (
@@ -23,6 +27,7 @@ from protocol.wire import (
     Heartbeat,
     Hello,
     Message,
+    Request,
     Response,
     Welcome,
     decode,
@@ -33,6 +38,17 @@ from server.settings import Settings
 from server.tracking import FusedPerson, PersonTracker, View
 
 logger = logging.getLogger(__name__)
+
+
+class SensorUnavailable(Exception):
+    """The sensor is unknown or offline; the message says which."""
+
+
+class AgentRequestFailed(Exception):
+    """An agent answered a request with an error, or did not answer in time."""
+
+
+SendFunction = Callable[[bytes, Message], Awaitable[None]]
 
 
 @dataclass(frozen=True, slots=True)
@@ -64,6 +80,10 @@ class FusionHub:
         self._seq = 0
         self._last_fused_t: float = 0.0
         self.started_s = time.time()
+        self.send: SendFunction | None = None
+        """Set by the ingest side: sends one message to the agent with this routing id."""
+        self._pending: dict[int, tuple[str, asyncio.Future[Response]]] = {}
+        self._request_ids = itertools.count(1)
 
     # --- sessions and messages ----------------------------------------------------------------
 
@@ -75,8 +95,11 @@ class FusionHub:
         if len(parts) != 1:
             self._reject(sensor, "malformed")
             return []
+        waiting = sensor is not None and any(
+            sensor_id == sensor.sensor_id for sensor_id, _ in self._pending.values()
+        )
         try:
-            message = decode(parts[0])
+            message = decode(parts[0], MAX_RESPONSE_BYTES if waiting else MAX_MESSAGE_BYTES)
         except DecodeError as exc:
             self._reject(sensor, exc.reason)
             logger.debug("rejected message from %s: %s", sensor and sensor.sensor_id, exc)
@@ -101,7 +124,11 @@ class FusionHub:
                 sensor.connected = False
                 self._by_routing.pop(routing_id, None)
             case Response():
-                pass  # request/response calls are used by calibration (later versions)
+                pending = self._pending.get(message.request_id)
+                if pending is None or pending[0] != sensor.sensor_id:
+                    self._reject(sensor, "unexpected_response")
+                elif not pending[1].done():
+                    pending[1].set_result(message)
             case _:
                 self._reject(sensor, "unexpected_type")
         return []
@@ -161,6 +188,39 @@ class FusionHub:
             if sensor.connected:
                 online.append(sensor)
         return online
+
+    # --- requests to agents ----------------------------------------------------------------
+
+    async def request(
+        self, sensor_id: str, method: str, params: dict[str, Any], timeout_s: float
+    ) -> Any:
+        """Ask one agent to do something (e.g. capture a depth point cloud) and await its result.
+
+        Raises:
+            SensorUnavailable: the sensor is unknown or offline.
+            AgentRequestFailed: the agent refused, failed, or did not answer within
+                ``timeout_s``.
+        """
+        sensor = self.sensors.get(sensor_id)
+        if sensor is None or not sensor.connected:
+            raise SensorUnavailable(f"sensor {sensor_id!r} is not connected")
+        if self.send is None:
+            raise SensorUnavailable("the server's agent socket is not running")
+        request_id = next(self._request_ids)
+        future: asyncio.Future[Response] = asyncio.get_running_loop().create_future()
+        self._pending[request_id] = (sensor_id, future)
+        try:
+            await self.send(sensor.routing_id, Request(request_id, method, params))
+            response = await asyncio.wait_for(future, timeout=timeout_s)
+        except TimeoutError as exc:
+            raise AgentRequestFailed(
+                f"sensor {sensor_id!r} did not answer {method!r} within {timeout_s:.0f} s"
+            ) from exc
+        finally:
+            self._pending.pop(request_id, None)
+        if not response.ok:
+            raise AgentRequestFailed(f"sensor {sensor_id!r} refused {method!r}: {response.error}")
+        return response.result
 
     # --- calibration ----------------------------------------------------------------------
 

@@ -42,7 +42,7 @@ def open_router(context: zmq.asyncio.Context, endpoint: str) -> zmq.asyncio.Sock
     return socket
 
 
-async def _send(socket: zmq.asyncio.Socket, routing_id: bytes, message: Message) -> None:
+async def send_to(socket: zmq.asyncio.Socket, routing_id: bytes, message: Message) -> None:
     with contextlib.suppress(zmq.Again, zmq.ZMQError):
         # ROUTER drops what it cannot route; never let one agent block the loop.
         await socket.send_multipart([routing_id, encode(message)], flags=zmq.NOBLOCK)
@@ -59,7 +59,7 @@ async def ingest_loop(socket: zmq.asyncio.Socket, hub: FusionHub) -> None:
             hub.rejected_unregistered["internal_error"] += 1
             continue
         for reply in replies:
-            await _send(socket, routing_id, reply)
+            await send_to(socket, routing_id, reply)
 
 
 async def liveness_loop(socket: zmq.asyncio.Socket, hub: FusionHub, interval_s: float) -> None:
@@ -67,7 +67,7 @@ async def liveness_loop(socket: zmq.asyncio.Socket, hub: FusionHub, interval_s: 
     while True:
         await asyncio.sleep(interval_s / 2)
         for sensor in hub.check_liveness(time.monotonic()):
-            await _send(socket, sensor.routing_id, Heartbeat(time.time_ns()))
+            await send_to(socket, sensor.routing_id, Heartbeat(time.time_ns()))
 
 
 async def fusion_loop(hub: FusionHub, broadcaster: Broadcaster) -> None:

@@ -121,6 +121,7 @@ def cmd_agent(args: argparse.Namespace) -> int:
         pose_from_position_yaw_pitch(position, yaw, pitch),
         seed=seed,
         clock_offset_ns=int(args.clock_offset_ms * 1e6),
+        send_pose_hint=args.pose_hint,
     )
     stop = _stop_on_signals()
     started = time.monotonic()
@@ -146,6 +147,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         data_dir=Path(args.data) if args.data else None,
         duration_s=args.duration,
         log_level=args.log_level,
+        calibration=args.calibration,
     )
 
 
@@ -198,6 +200,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=0.0,
         help="sim: pretend this PC's clock is off by this much",
     )
+    agent.add_argument(
+        "--no-pose-hint",
+        dest="pose_hint",
+        action="store_false",
+        help="sim: do not tell the server the true pose (calibrate instead)",
+    )
     agent.add_argument("--duration", type=float, default=None, help="stop after N seconds")
     agent.set_defaults(func=cmd_agent)
 
@@ -207,6 +215,13 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--http", default=f"127.0.0.1:{DEFAULT_HTTP_PORT}", help="HOST:PORT")
     demo.add_argument("--zmq-port", type=int, default=DEFAULT_ZMQ_PORT, help="agent port")
     demo.add_argument("--data", default=None, help="data folder (default: a temporary one)")
+    demo.add_argument(
+        "--calibration",
+        choices=["auto", "truth"],
+        default="auto",
+        help="auto: calibrate through the REST API as a user would (default); truth: use the "
+        "simulator's true sensor poses",
+    )
     demo.add_argument("--duration", type=float, default=None, help="stop after N seconds")
     demo.set_defaults(func=cmd_demo)
     return parser

@@ -2,8 +2,11 @@
 
 Everything talks over real sockets exactly as on a real rig: agents -> ZeroMQ -> server ->
 WebSocket -> viewer. Sensors stand evenly around the room looking at the performers.
-Calibration: the simulated agents tell the server their true pose (``pose_hint`` with source
-``sim_truth``), which the server uses for any sensor without a stored calibration.
+
+Calibration (default ``auto``): the demo calibrates itself through the REST API exactly as a
+user would with curl (README): start an ``auto`` run while the simulated people walk, wait,
+commit. With ``truth`` the agents instead tell the server their true poses (``pose_hint`` with
+source ``sim_truth``).
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ import time
 import urllib.error
 import urllib.request
 from pathlib import Path
+from typing import Any
 
 logger = logging.getLogger("skelfuse.demo")
 
@@ -57,6 +61,59 @@ def _wait_healthy(url: str, server: subprocess.Popen[bytes], timeout_s: float) -
     return False
 
 
+def _api(url: str, method: str = "GET", body: dict[str, Any] | None = None) -> Any:
+    data = None if body is None else json.dumps(body).encode()
+    request = urllib.request.Request(
+        url, data=data, method=method, headers={"Content-Type": "application/json"}
+    )
+    try:
+        with urllib.request.urlopen(request, timeout=10) as response:
+            return json.load(response)
+    except urllib.error.HTTPError as exc:
+        detail = exc.read().decode(errors="replace")
+        raise RuntimeError(f"{method} {url}: HTTP {exc.code}: {detail}") from exc
+
+
+def calibrate(url: str, sensors: int, stop: threading.Event, attempts: int = 3) -> bool:
+    """Wait for the agents, run ``auto`` calibration and commit it; True on success."""
+    deadline = time.monotonic() + 60
+    while not stop.is_set():
+        rows = _api(url + "/api/sensors")["sensors"]
+        if sum(r["connected"] for r in rows) == sensors:
+            break
+        if time.monotonic() > deadline:
+            logger.error("only %d of %d sensors connected after 60 s", len(rows), sensors)
+            return False
+        stop.wait(0.5)
+    for attempt in range(1, attempts + 1):
+        if stop.is_set():
+            return False
+        logger.info("calibrating (auto: skeleton while the people walk, then ICP on depth, "
+                    "then the floor); attempt %d of %d", attempt, attempts)  # fmt: skip
+        run = _api(url + "/api/calibration/runs", "POST", {"method": "auto"})
+        last_stage = ""
+        while run["state"] in ("capturing", "solving") and not stop.is_set():
+            if run["stage"] != last_stage:
+                last_stage = run["stage"]
+                logger.info("calibration: %s (%.0f%%)", last_stage, run["progress"] * 100)
+            stop.wait(0.5)
+            run = _api(f"{url}/api/calibration/runs/{run['id']}")
+        if run["state"] == "done":
+            committed = _api(f"{url}/api/calibration/runs/{run['id']}/commit", "POST", {})
+            for sensor_id, result in sorted(run["results"].items()):
+                logger.info(
+                    "  %s: %s, residual %s mm%s",
+                    sensor_id,
+                    result["method"],
+                    result["residual_mm"],
+                    f" ({'; '.join(result['warnings'])})" if result["warnings"] else "",
+                )
+            logger.info("calibration v%d committed; fusing", committed["version"])
+            return True
+        logger.warning("calibration failed: %s", run.get("error"))
+    return False
+
+
 def _terminate(processes: list[subprocess.Popen[bytes]], timeout_s: float = 5.0) -> None:
     for process in processes:
         if process.poll() is None:
@@ -79,6 +136,7 @@ def run_demo(
     data_dir: Path | None = None,
     duration_s: float | None = None,
     log_level: str = "INFO",
+    calibration: str = "auto",
 ) -> int:
     """Run until Ctrl-C (or ``duration_s``); returns the exit status."""
     if not 1 <= sensors <= 8:
@@ -129,12 +187,18 @@ def run_demo(
                         str(persons),
                         "--server",
                         f"tcp://{agent_host}:{zmq_port}",
+                        *(["--no-pose-hint"] if calibration == "auto" else []),
                     ]
                 )
             )
         logger.info("demo running: %d simulated sensors, %d people", sensors, persons)
         logger.info("open the viewer at %s/  (REST docs at %s/docs) - Ctrl-C to stop", url, url)
         deadline = None if duration_s is None else time.monotonic() + duration_s
+        if calibration == "auto" and not calibrate(url, sensors, stop):
+            if stop.is_set():
+                return 0
+            logger.error("automatic calibration failed; try --calibration truth")
+            return 1
         while not stop.is_set():
             if deadline is not None and time.monotonic() >= deadline:
                 break

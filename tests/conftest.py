@@ -11,9 +11,14 @@ import urllib.request
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
+import numpy as np
 import pytest
 
+from protocol.transform import invert, pose_from_position_yaw_pitch
+from skelfuse.cli import parse_pose
+from skelfuse.demo import sensor_layout
 from tests.support import free_port, wait_until
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
@@ -41,10 +46,21 @@ class DemoStack:
     process: subprocess.Popen[bytes]
     log_path: Path
 
-    def get_json(self, path: str) -> dict[str, object]:
+    def get_json(self, path: str) -> dict[str, Any]:
         with urllib.request.urlopen(self.http_url + path, timeout=5) as response:
-            data: dict[str, object] = json.load(response)
+            data: dict[str, Any] = json.load(response)
             return data
+
+    def T_sim_from_world(self) -> np.ndarray:
+        """Maps the calibrated world (which the demo found by itself) into the simulator's
+        world, where the ground truth lives, through the reference sensor sim-1."""
+        layout = dict(sensor_layout(self.sensors))
+        position, yaw, pitch = parse_pose(layout["sim-1"])
+        T_sim_from_ref = pose_from_position_yaw_pitch(position, yaw, pitch)
+        calibration = self.get_json("/api/calibration")
+        T_world_from_ref = np.asarray(calibration["sensors"]["sim-1"]["T_world_from_sensor"])
+        result: np.ndarray = T_sim_from_ref @ invert(T_world_from_ref)
+        return result
 
 
 @pytest.fixture(scope="module")
@@ -67,10 +83,11 @@ def demo_stack(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DemoStack]:
         return health["sensors_online"] == 3 and int(str(health["persons"])) >= 1
 
     try:
-        if not wait_until(fused, timeout_s=60):
+        # The demo calibrates itself first (about 25 s: 15 s of walking, then ICP).
+        if not wait_until(fused, timeout_s=120):
             process.send_signal(signal.SIGINT)
             process.wait(timeout=20)
-            pytest.fail("the demo did not start fusing within 60 s:\n" + log_path.read_text())
+            pytest.fail("the demo did not start fusing within 120 s:\n" + log_path.read_text())
         yield stack
     finally:
         if process.poll() is None:

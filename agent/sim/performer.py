@@ -173,6 +173,17 @@ def pose_joints(
     return world
 
 
+def standing_pose(height_m: float = 1.75) -> npt.NDArray[np.float64]:
+    """(25, 3) a person standing at the origin facing +Z, arms relaxed (world frame, metres)."""
+    relaxed = Pose(
+        shoulder_abd_l=math.radians(6.0),
+        shoulder_abd_r=math.radians(6.0),
+        elbow_flex_l=math.radians(15.0),
+        elbow_flex_r=math.radians(15.0),
+    )
+    return pose_joints(BodyShape(height_m), relaxed, (0.0, 0.0), 0.0)
+
+
 # --- choreography ------------------------------------------------------------------------------
 
 _HEIGHTS_M: Final = (1.75, 1.62, 1.85, 1.70, 1.58, 1.80)
@@ -190,14 +201,20 @@ def _window(t: float, start: float, end: float, ramp: float = 0.6) -> float:
 
 @dataclass(frozen=True, slots=True)
 class Choreography:
-    """One person's looping routine (seconds)."""
+    """One person's looping routine (seconds).
+
+    Walk a lap of the circle, turn one and a half times on the spot (every sensor sees the
+    back), walk the lap back the other way, raise the arms, squat twice, turn back to face the
+    starting direction. Half the loop is walking, so any 15 s window has people moving about.
+    """
 
     radius_m: float = 1.0
     clockwise: bool = False
     walk_speed_mps: float = 0.9
-    turn_s: float = 8.0
-    arms_s: float = 6.0
-    squat_s: float = 6.0
+    turn_s: float = 6.0
+    arms_s: float = 5.0
+    squat_s: float = 5.0
+    turn_back_s: float = 2.0
 
     @property
     def walk_s(self) -> float:
@@ -205,7 +222,12 @@ class Choreography:
 
     @property
     def loop_s(self) -> float:
-        return self.walk_s + self.turn_s + self.arms_s + self.squat_s
+        return 2 * self.walk_s + self.turn_s + self.arms_s + self.squat_s + self.turn_back_s
+
+
+def _tangent_heading(angle: float, direction: float) -> float:
+    """Heading (0 faces +Z) of someone walking the circle at ``angle`` in ``direction``."""
+    return math.atan2(-math.sin(angle) * direction, math.cos(angle) * direction)
 
 
 def choreography_state(
@@ -214,19 +236,34 @@ def choreography_state(
     """Pose, pelvis position (x, z) and heading of one person at ``t_s`` (loops forever)."""
     t = t_s % routine.loop_s
     direction = -1.0 if routine.clockwise else 1.0
-    walk_end = routine.walk_s
-    turn_end = walk_end + routine.turn_s
-    arms_end = turn_end + routine.arms_s
+    walk_s = routine.walk_s
+    turn_end = walk_s + routine.turn_s
+    walk2_end = turn_end + walk_s
+    arms_end = walk2_end + routine.arms_s
+    squat_end = arms_end + routine.squat_s
+    start_heading = _tangent_heading(0.0, direction)
 
-    # Walk one full lap, so the loop closes where it started.
-    lap = min(t, walk_end) / walk_end
-    angle = direction * 2.0 * math.pi * lap
+    if t < walk_s:  # lap one
+        angle = direction * 2.0 * math.pi * t / walk_s
+        heading = _tangent_heading(angle, direction)
+    elif t < turn_end:  # one and a half turns on the spot
+        angle = 0.0
+        u = _smoothstep((t - walk_s) / routine.turn_s)
+        heading = start_heading + direction * 3.0 * math.pi * u
+    elif t < walk2_end:  # the lap back
+        angle = -direction * 2.0 * math.pi * (t - turn_end) / walk_s
+        heading = _tangent_heading(angle, -direction)
+    elif t < squat_end:
+        angle = 0.0
+        heading = start_heading + math.pi
+    else:  # turn back to the starting heading, closing the loop
+        angle = 0.0
+        u = _smoothstep((t - squat_end) / routine.turn_back_s)
+        heading = start_heading + math.pi + direction * math.pi * u
     x = routine.radius_m * math.cos(angle)
     z = routine.radius_m * math.sin(angle)
-    # Tangent of (cos a, sin a) turning with `direction`; heading 0 faces +Z.
-    tangent = (-math.sin(angle) * direction, math.cos(angle) * direction)
-    heading = math.atan2(tangent[0], tangent[1])
-    walking = _window(t, 0.0, walk_end)
+
+    walking = _window(t, 0.0, walk_s) + _window(t, turn_end, walk2_end)
     cadence_hz = routine.walk_speed_mps / 1.3  # one gait cycle per 1.3 m (two steps)
     phase = 2.0 * math.pi * cadence_hz * t
     gait = math.sin(phase)
@@ -234,12 +271,8 @@ def choreography_state(
     knee_l = math.radians(5.0 + 40.0 * max(0.0, math.sin(phase + 1.2))) * walking
     knee_r = math.radians(5.0 + 40.0 * max(0.0, math.sin(phase + 1.2 + math.pi))) * walking
 
-    # Turn on the spot once around, showing each sensor the back.
-    turning = min(max((t - walk_end) / routine.turn_s, 0.0), 1.0)
-    heading += direction * 2.0 * math.pi * _smoothstep(turning)
-
     # Arm raises: sideways up above the head, then forwards.
-    arms_t = t - turn_end
+    arms_t = t - walk2_end
     side_raise = _window(arms_t, 0.3, routine.arms_s / 2 - 0.3, ramp=1.2)
     front_raise = _window(arms_t, routine.arms_s / 2 + 0.3, routine.arms_s - 0.3, ramp=1.0)
     abd = math.radians(160.0) * side_raise

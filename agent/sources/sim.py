@@ -4,9 +4,13 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from typing import Any
+
+import numpy as np
 
 from agent.sim.kinect_model import KinectV2Params, SimulatedKinect
 from agent.sim.performer import Performer
+from agent.sim.room import KINECT_V2_DEPTH, Room, capture_point_cloud, default_room
 from agent.sources.base import Capture
 from protocol.transform import Matrix4
 from protocol.wire import Body
@@ -29,8 +33,13 @@ class SimSource:
         clock_offset_ns: int = 0,
         wall_clock_ns: Callable[[], int] = time.time_ns,
         sleep: Callable[[float], None] = time.sleep,
+        room: Room | None = None,
+        send_pose_hint: bool = True,
     ) -> None:
         self._performer = performer
+        self._room = room or default_room()
+        self._depth_rng = np.random.default_rng(seed + 7919)
+        self._send_pose_hint = send_pose_hint
         self._kinect = SimulatedKinect(T_world_from_sensor, params, seed=seed)
         self._clock_offset_ns = clock_offset_ns
         self._wall_clock_ns = wall_clock_ns
@@ -51,7 +60,47 @@ class SimSource:
         return self._kinect
 
     def pose_hint(self) -> tuple[Matrix4, str] | None:
+        if not self._send_pose_hint:
+            return None
         return self._kinect.T_world_from_sensor.copy(), "sim_truth"
+
+    def request_handlers(self) -> dict[str, Callable[[dict[str, Any]], Any]]:
+        """What the server may ask this sensor for (see docs/protocol.md, requests)."""
+        return {"depth_cloud": self.depth_cloud}
+
+    def depth_cloud(self, params: dict[str, Any]) -> dict[str, Any]:
+        """Render one depth frame of the room and the performers now, back-projected.
+
+        Blocks the capture loop for the rendering time (a few hundred ms): frames due meanwhile
+        are skipped, as a real agent busy with a depth capture would.
+        """
+        max_points = params.get("max_points", 20000)
+        if not isinstance(max_points, int) or not 1000 <= max_points <= 60000:
+            raise ValueError("max_points must be an integer in 1000..60000")
+        true_ns = self._wall_clock_ns() - self._clock_offset_ns
+        persons = self._performer.joints_at(true_ns / 1e9)
+        points = capture_point_cloud(
+            self._room,
+            persons,
+            self._kinect.T_world_from_sensor,
+            self._depth_rng,
+            max_points=max_points,
+        )
+        intrinsics = KINECT_V2_DEPTH
+        return {
+            "points": np.ascontiguousarray(points, dtype="<f4").tobytes(),
+            "count": len(points),
+            "frame": "sensor",
+            "t_capture_ns": true_ns + self._clock_offset_ns,
+            "intrinsics": {
+                "width": intrinsics.width,
+                "height": intrinsics.height,
+                "fx": intrinsics.fx,
+                "fy": intrinsics.fy,
+                "cx": intrinsics.cx,
+                "cy": intrinsics.cy,
+            },
+        }
 
     def capture_at(self, true_ns: int) -> Capture:
         """Render the frame captured at true time ``true_ns`` (no pacing)."""

@@ -11,6 +11,7 @@ from websockets.asyncio.client import connect
 
 from agent.sim.performer import ProceduralPerformer
 from protocol.skeleton import JOINT_COUNT, JointId
+from protocol.transform import apply
 from tests.conftest import DemoStack
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(180)]
@@ -31,6 +32,7 @@ async def test_demo_fuses_close_to_ground_truth(demo_stack: DemoStack) -> None:
     frames = await collect(demo_stack, 8.0)
     assert len(frames) > 8.0 * 25, f"expected ~30 fused frames/s, got {len(frames)} in 8 s"
     truth_model = ProceduralPerformer(demo_stack.persons)
+    T_sim_from_world = demo_stack.T_sim_from_world()
     errors, pelvis_errors, people_per_frame = [], [], []
     ids: set[int] = set()
     for frame in frames:
@@ -42,6 +44,7 @@ async def test_demo_fuses_close_to_ground_truth(demo_stack: DemoStack) -> None:
             ids.add(person["id"])
             joints = np.array([j if j is not None else [np.nan] * 3 for j in person["joints"]])
             assert joints.shape == (JOINT_COUNT, 3)
+            joints = apply(T_sim_from_world, joints)
             # Score against whichever true person this fused person is.
             per_truth = [np.nanmean(np.linalg.norm(joints - t, axis=1)) for t in truth]
             match = int(np.argmin(per_truth))
@@ -62,9 +65,16 @@ def test_demo_reports_sensors_and_health(demo_stack: DemoStack) -> None:
     for sensor in sensors:
         assert sensor["connected"]
         assert 25 < sensor["fps"] < 35
-        assert sensor["calibration"]["state"] == "sim_truth"
+        assert sensor["calibration"]["state"] == "stored", "the demo calibrates itself"
         assert sensor["frames_rejected"] == {}
         assert sensor["sequence_gaps"] == 0
+    calibration = demo_stack.get_json("/api/calibration")
+    assert calibration["version"] == 1
+    assert "auto" in calibration["note"]
+    # The calibrated floor is the simulator's floor: y = 0 maps to y = 0.
+    T = demo_stack.T_sim_from_world()
+    assert abs(T[1, 3]) < 0.03
+    assert np.degrees(np.arccos(np.clip(T[1, 1], -1, 1))) < 1.0
     health = demo_stack.get_json("/api/health")
     assert health["status"] == "ok"
     assert health["sensors_online"] == 3

@@ -217,3 +217,91 @@ def test_parse_host_port() -> None:
     assert parse_host_port("myhost", 8000) == ("myhost", 8000)
     with pytest.raises(UsageError):
         parse_host_port("h:99999", 8000)
+
+
+# --- requests to agents ---------------------------------------------------------------------
+
+
+def test_large_response_only_when_the_server_is_waiting() -> None:
+    from protocol.constants import MAX_MESSAGE_BYTES, MAX_RESPONSE_BYTES
+    from protocol.errors import DecodeError
+    from protocol.wire import Response, decode
+
+    cloud = Response(1, ok=True, result={"points": b"\0" * (300 * 1024)})
+    payload = encode(cloud)
+    with pytest.raises(DecodeError) as info:
+        decode(payload)
+    assert info.value.reason == "too_large"
+    assert decode(payload, MAX_RESPONSE_BYTES) == cloud
+    import msgpack
+
+    padded_frame = msgpack.packb(
+        {
+            "v": 1,
+            "type": "frame",
+            "seq": 1,
+            "t_capture_ns": 1,
+            "bodies": [],
+            "pad": b"\0" * (2 * MAX_MESSAGE_BYTES),
+        }
+    )
+    with pytest.raises(DecodeError) as info:  # other types never get the larger limit
+        decode(padded_frame, MAX_RESPONSE_BYTES)
+    assert info.value.reason == "too_large"
+
+
+async def test_hub_request_round_trip_and_refusals() -> None:
+    import asyncio
+
+    from protocol.wire import Request, Response, decode
+    from server.hub import AgentRequestFailed, SensorUnavailable
+
+    hub = FusionHub(Settings())
+    hub.handle_message(b"r", [hello()], 0.0, 0.0)
+    sent: list[Request] = []
+
+    async def send(routing_id: bytes, message: object) -> None:
+        assert routing_id == b"r"
+        assert isinstance(message, Request)
+        sent.append(message)
+
+    hub.send = send  # type: ignore[assignment]
+    task = asyncio.create_task(hub.request("cam", "depth_cloud", {"max_points": 5000}, 5.0))
+    await asyncio.sleep(0.01)
+    (request,) = sent
+    big = encode(Response(request.request_id, ok=True, result={"points": b"\1" * 200_000}))
+    hub.handle_message(b"r", [big], 0.0, 0.1)  # 200 KB: accepted because we are waiting
+    result = await task
+    assert len(result["points"]) == 200_000
+    hub.handle_message(b"r", [big], 0.0, 0.2)  # nobody waits any more
+    assert hub.sensors["cam"].frames_rejected["too_large"] == 1
+
+    task = asyncio.create_task(hub.request("cam", "nope", {}, 5.0))
+    await asyncio.sleep(0.01)
+    refusal = Response(sent[-1].request_id, ok=False, error="method 'nope' not supported")
+    hub.handle_message(b"r", [encode(refusal)], 0.0, 0.3)
+    with pytest.raises(AgentRequestFailed, match="not supported"):
+        await task
+    with pytest.raises(AgentRequestFailed, match="did not answer"):
+        await hub.request("cam", "slow", {}, 0.05)
+    with pytest.raises(SensorUnavailable):
+        await hub.request("ghost", "depth_cloud", {}, 1.0)
+    assert decode(encode(sent[0])) == sent[0]
+
+
+def test_sim_agent_answers_depth_cloud_in_its_own_frame() -> None:
+    from agent.sim.performer import ProceduralPerformer
+    from agent.sources.sim import SimSource
+    from protocol.transform import apply as apply_pose
+
+    pose = pose_from_position_yaw_pitch((0.0, 1.2, 3.0), 180.0, 10.0)
+    source = SimSource(ProceduralPerformer(1), pose, seed=2)
+    result = source.request_handlers()["depth_cloud"]({"max_points": 8000})
+    points = np.frombuffer(result["points"], dtype="<f4").reshape(-1, 3)
+    assert result["count"] == len(points) <= 8000
+    assert len(points) > 2000
+    world = apply_pose(pose, points)
+    # The floor is there: a good share of points lies at y ≈ 0 in the world.
+    assert np.mean(np.abs(world[:, 1]) < 0.03) > 0.15
+    with pytest.raises(ValueError, match="max_points"):
+        source.depth_cloud({"max_points": 10})

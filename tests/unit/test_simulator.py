@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from agent.sim.kinect_model import KinectV2Params, SimulatedKinect
-from agent.sim.performer import ProceduralPerformer
+from agent.sim.performer import ProceduralPerformer, standing_pose
 from protocol.skeleton import JOINT_COUNT, JointId, TrackingState, bone_lengths
 from protocol.transform import apply, look_at_pose, pose_from_position_yaw_pitch
 
@@ -53,8 +53,7 @@ def facing(body: np.ndarray, heading: float) -> np.ndarray:
 
 
 def standing_body() -> np.ndarray:
-    body = ProceduralPerformer(1).joints_at(20.0)[0]
-    return body - body[J.SPINE_BASE] * [1, 0, 1]
+    return standing_pose()
 
 
 def test_frontal_person_is_tracked_and_close_to_truth() -> None:

@@ -1,0 +1,370 @@
+"""ICP refinement of a sensor pose on depth point clouds (open3d, point-to-plane).
+
+open3d is heavy (≈100 MB) and only needed on the server, so it is imported inside the
+functions. Clouds are float arrays; nothing here touches files or sockets.
+
+Method (per call of :func:`refine_icp`):
+
+1. Coarse to fine: for each voxel size (default 10, 5, 2.5 cm) both clouds are voxel-averaged,
+   the target's normals are estimated (hybrid KD-tree search, radius 2.5 voxels, ≤ 30
+   neighbours), and point-to-plane ICP with a Tukey robust kernel (k = one voxel) runs from the
+   previous level's result, accepting correspondences up to ``max_correspondence_factor``
+   voxels apart (default 2: 20, 10, 5 cm).
+2. Judged at the finest level with ``evaluate_registration``: *fitness* (share of source points
+   with a target point within the finest distance) and *inlier RMSE*. The refinement is applied
+   only if it does not make the truncated cost ``fitness·rmse² + (1 − fitness)·d_max²`` (every
+   source point pays its squared distance, capped at ``d_max``) worse than at the initial guess;
+   otherwise the initial guess is returned with ``applied = False`` and a warning.
+3. *overlap*: share of the source points (finest level) within two finest voxels of the target
+   after the accepted transform. Below ``min_overlap`` a warning says the result rests on a
+   small shared surface.
+4. Degeneracy-aware update: where the shared surfaces do not determine a direction of the
+   pose (only floor and a person in common: yaw and horizontal position slide), the ICP
+   correction along it is dropped and the initial guess kept (eigen-decomposition of the
+   point-to-plane normal matrix, threshold :data:`MIN_EIGEN_RATIO`), with a warning. Without
+   this, ICP drifts by centimetres along the floor while its fitness looks fine.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Final
+
+import numpy as np
+import numpy.typing as npt
+
+from calibration.errors import InvalidInput, NoOverlap
+from calibration.rigid import rotation_angle_deg
+from protocol.transform import Matrix4, apply, is_rigid
+
+FloatArray = npt.NDArray[np.float64]
+
+DEFAULT_VOXELS_M: Final = (0.10, 0.05, 0.025)
+MIN_COARSE_FITNESS: Final = 0.02
+"""Below this share of source points with a neighbour at the coarsest level: :class:`NoOverlap`."""
+MIN_EIGEN_RATIO: Final = 0.1
+"""A direction of the pose is "constrained" when its point-to-plane eigenvalue is at least this
+share of the largest (see :func:`_constrained_update`); with only the floor shared, yaw and the
+horizontal position fall to 1–5 % and are left to the initial guess."""
+
+
+@dataclass(frozen=True, slots=True)
+class IcpResult:
+    """Result of :func:`refine_icp`.
+
+    ``T_target_from_source``: (4, 4) float64, the refined pose if ``applied``, else the initial
+    guess. ``fitness`` / ``inlier_rmse_m``: at the finest level for the returned transform;
+    ``initial_fitness`` / ``initial_rmse_m``: the same for the initial guess. ``overlap``: see
+    the module docstring. ``correction_deg`` / ``correction_mm``: how far ICP moved the pose
+    (0 when not applied). ``constrained_dofs``: how many of the 6 pose directions the shared
+    surfaces determine; ICP corrected only those (the rest keep the initial guess).
+    """
+
+    T_target_from_source: Matrix4
+    fitness: float
+    inlier_rmse_m: float
+    overlap: float
+    applied: bool
+    warnings: list[str] = field(default_factory=list)
+    initial_fitness: float = 0.0
+    initial_rmse_m: float = 0.0
+    correction_deg: float = 0.0
+    correction_mm: float = 0.0
+    constrained_dofs: int = 6
+
+
+def _cloud_array(points: npt.ArrayLike, name: str) -> FloatArray:
+    array = np.asarray(points, dtype=np.float64)
+    if array.ndim != 2 or array.shape[1] != 3:
+        raise InvalidInput(f"{name}: expected an (N, 3) point cloud, got shape {array.shape}")
+    if len(array) == 0:
+        raise InvalidInput(f"{name}: the point cloud is empty; capture depth again")
+    if not np.isfinite(array).all():
+        bad = int((~np.isfinite(array).all(axis=1)).sum())
+        raise InvalidInput(f"{name}: {bad} of {len(array)} points are NaN/inf; drop them first")
+    return array
+
+
+def _to_o3d(points: FloatArray) -> Any:
+    import open3d as o3d
+
+    cloud = o3d.geometry.PointCloud()
+    cloud.points = o3d.utility.Vector3dVector(points)
+    return cloud
+
+
+def _truncated_cost(fitness: float, rmse: float, max_distance: float) -> float:
+    return fitness * rmse**2 + (1.0 - fitness) * max_distance**2
+
+
+def _rotvec_to_matrix(rotvec: FloatArray) -> FloatArray:
+    angle = float(np.linalg.norm(rotvec))
+    if angle < 1e-12:
+        return np.eye(3)
+    k = rotvec / angle
+    cross = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    rotation: FloatArray = np.eye(3) + np.sin(angle) * cross + (1 - np.cos(angle)) * cross @ cross
+    return rotation
+
+
+def _matrix_to_rotvec(rotation: FloatArray) -> FloatArray:
+    angle = np.radians(rotation_angle_deg(rotation))
+    if angle < 1e-12:
+        return np.zeros(3)
+    axis = np.array(
+        [
+            rotation[2, 1] - rotation[1, 2],
+            rotation[0, 2] - rotation[2, 0],
+            rotation[1, 0] - rotation[0, 1],
+        ]
+    )
+    norm = float(np.linalg.norm(axis))
+    if norm < 1e-9:  # angle near 180°: take the axis from R + I
+        sym = rotation + np.eye(3)
+        axis = sym[:, int(np.argmax(np.linalg.norm(sym, axis=0)))]
+        norm = float(np.linalg.norm(axis))
+    rotvec: FloatArray = axis / norm * angle
+    return rotvec
+
+
+def _constrained_update(
+    source: FloatArray,
+    target: FloatArray,
+    target_normals: FloatArray,
+    init: Matrix4,
+    result: Matrix4,
+    distance: float,
+    min_ratio: float,
+) -> tuple[Matrix4, int]:
+    """Keep only the part of the ICP correction that the shared surfaces determine.
+
+    Builds the point-to-plane normal matrix at ``result`` (rotation about the matched source
+    centroid, scaled by the cloud's RMS radius so that rotation and translation compare) and
+    projects the correction ``result·init⁻¹`` onto its eigenvectors whose eigenvalue is at least
+    ``min_ratio`` of the largest: directions along which the surfaces slide (e.g. yaw and
+    horizontal position when only the floor is shared) keep the initial guess.
+
+    Returns:
+        the projected transform and the number of constrained directions (0..6).
+    """
+    from scipy.spatial import cKDTree
+
+    moved = source @ result[:3, :3].T + result[:3, 3]
+    dist, index = cKDTree(target).query(moved, distance_upper_bound=distance)
+    matched = np.isfinite(dist)
+    if matched.sum() < 6:
+        return init.copy(), 0
+    points, normals = moved[matched], target_normals[index[matched]]
+    centre = points.mean(axis=0)
+    centred = points - centre
+    scale = max(float(np.sqrt((centred**2).sum(axis=1).mean())), 1e-6)
+    jacobian = np.hstack([np.cross(centred, normals) / scale, normals])
+    eigenvalues, eigenvectors = np.linalg.eigh(jacobian.T @ jacobian)
+    strong = eigenvalues >= min_ratio * eigenvalues[-1]
+    correction = result @ np.linalg.inv(init)  # target frame
+    rot = correction[:3, :3]
+    twist = np.concatenate(
+        [_matrix_to_rotvec(rot) * scale, rot @ centre + correction[:3, 3] - centre]
+    )
+    basis = eigenvectors[:, strong]
+    kept = basis @ (basis.T @ twist)
+    rot_kept = _rotvec_to_matrix(kept[:3] / scale)
+    update = np.eye(4)
+    update[:3, :3] = rot_kept
+    update[:3, 3] = centre + kept[3:] - rot_kept @ centre
+    projected: Matrix4 = update @ init
+    return projected, int(strong.sum())
+
+
+def refine_icp(
+    source_points: npt.ArrayLike,
+    target_points: npt.ArrayLike,
+    T_target_from_source_init: npt.ArrayLike,
+    *,
+    voxel_sizes: Sequence[float] = DEFAULT_VOXELS_M,
+    max_correspondence_factor: float = 2.0,
+    max_iterations: int = 40,
+    min_overlap: float = 0.3,
+    min_eigen_ratio: float = MIN_EIGEN_RATIO,
+) -> IcpResult:
+    """Refine ``T_target_from_source`` by point-to-plane ICP, coarse to fine.
+
+    Args:
+        source_points: (N, 3) cloud in the source sensor's frame, metres.
+        target_points: (M, 3) cloud in the target frame (the reference sensor or the world).
+        T_target_from_source_init: (4, 4) initial guess (skeleton, points or a previous run).
+        voxel_sizes: voxel edge per level, coarse to fine (metres).
+        max_correspondence_factor: correspondence distance per level, in voxels.
+        max_iterations: ICP iterations per level.
+        min_overlap: warn below this overlap (share of source points on the target surface).
+        min_eigen_ratio: see :data:`MIN_EIGEN_RATIO`; 0 applies the full ICP correction.
+
+    Returns:
+        :class:`IcpResult`.
+
+    Raises:
+        InvalidInput: empty clouds, NaN/inf, wrong shapes, a non-rigid initial guess, no levels.
+        NoOverlap: (almost) no source point near the target at the coarsest level.
+    """
+    import open3d as o3d
+
+    reg = o3d.pipelines.registration
+    src_all = _cloud_array(source_points, "source_points")
+    tgt_all = _cloud_array(target_points, "target_points")
+    init = np.asarray(T_target_from_source_init, dtype=np.float64)
+    if not is_rigid(init, atol=1e-5):
+        raise InvalidInput("T_target_from_source_init must be a finite rigid 4×4 transform")
+    if not voxel_sizes or min(voxel_sizes) <= 0:
+        raise InvalidInput(f"voxel_sizes must be positive, got {list(voxel_sizes)}")
+    src_cloud, tgt_cloud = _to_o3d(src_all), _to_o3d(tgt_all)
+    warnings: list[str] = []
+    transform = init.copy()
+    level: tuple[Any, Any, float] | None = None
+    for number, voxel in enumerate(voxel_sizes):
+        src = src_cloud.voxel_down_sample(voxel)
+        tgt = tgt_cloud.voxel_down_sample(voxel)
+        tgt.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2.5 * voxel, max_nn=30))
+        distance = max_correspondence_factor * voxel
+        if number == 0:
+            coarse = reg.evaluate_registration(src, tgt, distance, init)
+            if coarse.fitness < MIN_COARSE_FITNESS:
+                raise NoOverlap(
+                    f"at the initial guess only {coarse.fitness:.1%} of the source points are "
+                    f"within {distance * 100:.0f} cm of the target cloud: the sensors do not see "
+                    "the same surfaces, or the initial guess is far off (recalibrate with "
+                    "skeletons or points first)"
+                )
+        estimation = reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=voxel))
+        criteria = reg.ICPConvergenceCriteria(
+            relative_fitness=1e-7, relative_rmse=1e-7, max_iteration=max_iterations
+        )
+        result = reg.registration_icp(src, tgt, distance, transform, estimation, criteria)
+        transform = np.asarray(result.transformation, dtype=np.float64).copy()
+        level = (src, tgt, distance)
+    assert level is not None  # voxel_sizes is non-empty
+    src, tgt, distance = level
+    transform, dofs = _constrained_update(
+        np.asarray(src.points),
+        np.asarray(tgt.points),
+        np.asarray(tgt.normals),
+        init,
+        transform,
+        distance,
+        min_eigen_ratio,
+    )
+    before = reg.evaluate_registration(src, tgt, distance, init)
+    after = reg.evaluate_registration(src, tgt, distance, transform)
+    cost_before = _truncated_cost(before.fitness, before.inlier_rmse, distance)
+    cost_after = _truncated_cost(after.fitness, after.inlier_rmse, distance)
+    applied = bool(np.isfinite(transform).all()) and cost_after <= cost_before * (1 + 1e-9)
+    if not applied:
+        warnings.append(
+            "ICP made the fit worse (fitness "
+            f"{before.fitness:.2f}→{after.fitness:.2f}, RMSE {before.inlier_rmse * 1000:.1f}→"
+            f"{after.inlier_rmse * 1000:.1f} mm): kept the initial pose"
+        )
+        transform, final = init.copy(), before
+    else:
+        final = after
+    finest = float(min(voxel_sizes))
+    overlap = float(reg.evaluate_registration(src, tgt, 2 * finest, transform).fitness)
+    if overlap < min_overlap:
+        warnings.append(
+            f"small overlap ({overlap:.0%} of this sensor's points lie on surfaces the target "
+            f"sees, below {min_overlap:.0%}): the refinement rests on little shared surface; "
+            "check the result, or add a sensor in between"
+        )
+    if dofs < 6:
+        warnings.append(
+            f"the shared surfaces determine only {dofs} of the 6 pose directions (e.g. mostly "
+            "floor): ICP corrected those (tilt and height when it is the floor) and kept the "
+            "initial guess for the rest"
+        )
+    correction = np.linalg.inv(init) @ transform
+    return IcpResult(
+        transform,
+        float(final.fitness),
+        float(final.inlier_rmse),
+        overlap,
+        applied,
+        warnings,
+        float(before.fitness),
+        float(before.inlier_rmse),
+        rotation_angle_deg(correction) if applied else 0.0,
+        float(np.linalg.norm(transform[:3, 3] - init[:3, 3])) * 1000.0 if applied else 0.0,
+        dofs if applied else 0,
+    )
+
+
+def refine_all(
+    clouds_sensor: Mapping[str, npt.ArrayLike],
+    T_world_from_sensor_init: Mapping[str, npt.ArrayLike],
+    reference: str,
+    *,
+    second_pass: bool = True,
+    **icp_options: Any,
+) -> dict[str, IcpResult]:
+    """Refine every non-reference sensor's pose against the others' clouds in the world.
+
+    Pass 1 refines each sensor against the reference sensor's cloud alone (the reference never
+    moves; this cannot drift). Pass 2 (``second_pass``) refines each sensor again against the
+    union of all other sensors' clouds placed with the poses from pass 1: a sensor that shares
+    little with the reference but much with a neighbour gets constrained too. A sensor that
+    has no overlap with the reference in pass 1 goes straight to pass 2. Each pass keeps its
+    result only if it does not make that sensor's fit worse (see :func:`refine_icp`).
+
+    Args:
+        clouds_sensor: sensor id → (N, 3) cloud in that sensor's frame, metres.
+        T_world_from_sensor_init: sensor id → (4, 4) initial pose (same keys).
+        reference: the sensor whose pose is kept as is.
+        second_pass: run pass 2.
+        icp_options: passed to :func:`refine_icp`.
+
+    Returns:
+        sensor id → :class:`IcpResult` for every non-reference sensor (``T_target_from_source``
+        is its refined ``T_world_from_sensor``).
+
+    Raises:
+        InvalidInput: missing keys or reference, bad clouds.
+        NoOverlap: a sensor overlaps neither the reference nor any other sensor.
+    """
+    if reference not in clouds_sensor:
+        raise InvalidInput(f"reference {reference!r} has no cloud; got {sorted(clouds_sensor)}")
+    missing = set(clouds_sensor) - set(T_world_from_sensor_init)
+    if missing:
+        raise InvalidInput(f"no initial pose for {sorted(missing)}")
+    clouds = {k: _cloud_array(v, f"cloud of {k}") for k, v in clouds_sensor.items()}
+    poses = {k: np.asarray(T_world_from_sensor_init[k], dtype=np.float64) for k in clouds}
+    results: dict[str, IcpResult] = {}
+    target_ref = apply(poses[reference], clouds[reference])
+    pending: list[str] = []
+    for sensor in sorted(clouds):
+        if sensor == reference:
+            continue
+        try:
+            results[sensor] = refine_icp(clouds[sensor], target_ref, poses[sensor], **icp_options)
+        except NoOverlap:
+            pending.append(sensor)
+            continue
+        poses[sensor] = results[sensor].T_target_from_source
+    if second_pass or pending:
+        for sensor in sorted(clouds):
+            if sensor == reference or (not second_pass and sensor not in pending):
+                continue
+            target = np.concatenate(
+                [apply(poses[k], clouds[k]) for k in sorted(clouds) if k != sensor]
+            )
+            previous = results.get(sensor)
+            try:
+                refined = refine_icp(clouds[sensor], target, poses[sensor], **icp_options)
+            except NoOverlap:
+                if previous is None:
+                    raise
+                continue
+            if previous is None or refined.applied:
+                if previous is not None:
+                    refined.warnings[:0] = [w for w in previous.warnings if "overlap" in w]
+                results[sensor] = refined
+                poses[sensor] = refined.T_target_from_source
+    return results

@@ -1,0 +1,204 @@
+"""REST for calibration: runs, commit, the active version, history, rollback, export/import.
+
+Bad input is refused with a 4xx whose ``detail`` says what to do; nothing is half-applied:
+a run's result only reaches fusion through an explicit commit, which writes a new version.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from fastapi import APIRouter, Body, HTTPException, Request
+from fastapi.responses import JSONResponse
+from pydantic import BaseModel, ConfigDict, Field
+
+from calibration.errors import CalibrationError
+from calibration.store import Calibration, UnknownVersion
+from server.calibration_runs import (
+    CalibrationRequestError,
+    CalibrationService,
+    PointPairs,
+    RunSpec,
+)
+
+router = APIRouter(prefix="/api/calibration", tags=["calibration"])
+
+Point = tuple[float, float, float]
+
+
+class PointPair(BaseModel):
+    model_config = ConfigDict(allow_inf_nan=False, extra="forbid")
+    sensor: Point = Field(description="the point in the sensor's camera frame (metres)")
+    reference: Point = Field(
+        description="the same point in the reference sensor's frame, or in the world when "
+        "reference is 'world' (metres)"
+    )
+
+
+class SensorPoints(BaseModel):
+    model_config = ConfigDict(allow_inf_nan=False, extra="forbid")
+    sensor: str
+    pairs: list[PointPair] = Field(max_length=1000)
+
+
+class RunRequest(BaseModel):
+    """Start a calibration run."""
+
+    model_config = ConfigDict(allow_inf_nan=False, extra="forbid")
+    method: Literal["auto", "skeleton", "points", "icp"] = "auto"
+    reference: str | None = Field(
+        None,
+        description="sensor whose frame anchors the world (default: the first sensor by id); "
+        "'world' for points given in world coordinates",
+    )
+    sensors: list[str] | None = Field(
+        None, description="sensors to calibrate (default: every connected sensor)"
+    )
+    duration_s: float = Field(15.0, ge=3.0, le=120.0, description="skeleton capture time")
+    points: list[SensorPoints] | None = Field(None, description="method points: the pairs")
+    min_overlap: float = Field(0.3, gt=0.0, le=1.0, description="icp: warn below this overlap")
+
+
+class RollbackRequest(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    version: int = Field(ge=1)
+
+
+def _service(request: Request) -> CalibrationService:
+    service: CalibrationService = request.app.state.calibration
+    return service
+
+
+def _http(exc: CalibrationRequestError) -> HTTPException:
+    return HTTPException(status_code=exc.status, detail=str(exc))
+
+
+def calibration_json(calibration: Calibration | None) -> dict[str, Any]:
+    if calibration is None:
+        return {"version": None, "created_unix_s": None, "note": "", "sensors": {}}
+    return calibration.to_json()
+
+
+@router.post("/runs", status_code=202)
+async def start_run(body: RunRequest, request: Request) -> dict[str, Any]:
+    """Start a run (``auto`` by default). Poll ``GET /api/calibration/runs/{id}``."""
+    service = _service(request)
+    hub = service.hub
+    if body.sensors is not None:
+        sensors = tuple(dict.fromkeys(body.sensors))
+    elif body.method == "points":
+        sensors = tuple(dict.fromkeys(p.sensor for p in body.points or ()))
+    else:
+        sensors = tuple(sorted(s for s, state in hub.sensors.items() if state.connected))
+    if not sensors:
+        raise HTTPException(409, "no sensors to calibrate: connect at least one agent")
+    reference = body.reference or sensors[0]
+    points = tuple(
+        PointPairs(
+            entry.sensor,
+            np.array([p.sensor for p in entry.pairs], dtype=np.float64).reshape(-1, 3),
+            np.array([p.reference for p in entry.pairs], dtype=np.float64).reshape(-1, 3),
+        )
+        for entry in body.points or ()
+    )
+    spec = RunSpec(body.method, reference, sensors, body.duration_s, points, body.min_overlap)
+    try:
+        run = service.start(spec)
+    except CalibrationRequestError as exc:
+        raise _http(exc) from exc
+    return run.to_json()
+
+
+@router.get("/runs")
+async def list_runs(request: Request) -> dict[str, Any]:
+    runs = sorted(_service(request).runs.values(), key=lambda r: r.created_unix_s)
+    return {"runs": [r.to_json() for r in runs]}
+
+
+@router.get("/runs/{run_id}")
+async def get_run(run_id: str, request: Request) -> dict[str, Any]:
+    run = _service(request).runs.get(run_id)
+    if run is None:
+        raise HTTPException(404, f"no calibration run {run_id!r}")
+    return run.to_json()
+
+
+@router.post("/runs/{run_id}/commit")
+async def commit_run(run_id: str, request: Request) -> dict[str, Any]:
+    """Make the run's result the active calibration (a new version); fusion uses it at once."""
+    try:
+        calibration = _service(request).commit(run_id)
+    except CalibrationRequestError as exc:
+        raise _http(exc) from exc
+    return calibration_json(calibration)
+
+
+@router.get("")
+async def active(request: Request) -> dict[str, Any]:
+    """The active stored calibration, plus what fusion uses for every known sensor."""
+    service = _service(request)
+    effective = {}
+    for sensor_id in sorted(service.hub.sensors):
+        pose, state = service.hub.pose_of(sensor_id)
+        effective[sensor_id] = {
+            "state": state,
+            "T_world_from_sensor": None if pose is None else pose.tolist(),
+        }
+    return {**calibration_json(service.hub.calibration), "effective": effective}
+
+
+@router.get("/history")
+async def history(request: Request) -> dict[str, Any]:
+    service = _service(request)
+    active_version = service.hub.calibration.version if service.hub.calibration else None
+    return {
+        "active": active_version,
+        "versions": [
+            {
+                "version": c.version,
+                "created_unix_s": c.created_unix_s,
+                "note": c.note,
+                "sensors": {
+                    k: {"method": v.method, "residual_mm": v.residual_mm}
+                    for k, v in sorted(c.sensors.items())
+                },
+            }
+            for c in service.store.history()
+        ],
+    }
+
+
+@router.post("/rollback")
+async def rollback(body: RollbackRequest, request: Request) -> dict[str, Any]:
+    """Make an earlier version active again (saved as a new version)."""
+    try:
+        calibration = _service(request).rollback(body.version)
+    except UnknownVersion as exc:
+        raise HTTPException(404, str(exc)) from exc
+    return calibration_json(calibration)
+
+
+@router.get("/export")
+async def export(request: Request) -> JSONResponse:
+    calibration = _service(request).hub.calibration
+    if calibration is None:
+        raise HTTPException(404, "nothing to export: no calibration has been committed yet")
+    return JSONResponse(
+        calibration.to_json(),
+        headers={
+            "Content-Disposition": f'attachment; filename="calibration-v{calibration.version}.json"'
+        },
+    )
+
+
+@router.post("/import")
+async def import_calibration(
+    request: Request, body: Annotated[dict[str, Any], Body(description="an exported file")]
+) -> dict[str, Any]:
+    """Validate an exported calibration and make it active (a new version)."""
+    try:
+        calibration = _service(request).import_json(body)
+    except CalibrationError as exc:
+        raise HTTPException(422, str(exc)) from exc
+    return calibration_json(calibration)
