@@ -19,6 +19,7 @@ from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
+from prometheus_client import CollectorRegistry, make_asgi_app
 
 from calibration.store import CalibrationStore
 from protocol.skeleton import skeleton_definition
@@ -28,6 +29,7 @@ from server.calibration_runs import CalibrationService
 from server.hub import FusionHub
 from server.ingest import fusion_loop, ingest_loop, liveness_loop, open_router, send_to
 from server.messages import person_json
+from server.metrics import SkelfuseCollector
 from server.settings import Settings
 
 logger = logging.getLogger(__name__)
@@ -37,6 +39,7 @@ STATIC_DIR = Path(__file__).parent / "static"
 def create_app(settings: Settings | None = None) -> FastAPI:
     """Build the server. Sockets open and tasks start in the lifespan (on server start-up)."""
     settings = settings or Settings()
+    registry = CollectorRegistry()  # per app, so tests can run several servers in one process
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -55,6 +58,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         hub.send = lambda routing_id, message: send_to(socket, routing_id, message)
         app.state.hub = hub
         app.state.calibration = CalibrationService(hub, store)
+        registry.register(SkelfuseCollector(hub, broadcaster))
         app.state.broadcaster = broadcaster
         app.state.zmq_endpoint = socket.getsockopt_string(zmq.LAST_ENDPOINT)
         logger.info("agents connect to %s", app.state.zmq_endpoint)
@@ -173,6 +177,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             broadcaster.remove(client)
 
     app.include_router(routes_calibration.router)
+    app.mount("/metrics", make_asgi_app(registry))
 
     @app.get("/", include_in_schema=False)
     async def index() -> FileResponse:

@@ -35,6 +35,7 @@ from protocol.wire import (
 from server import __version__
 from server.sensors import SensorState, bodies_at, new_sensor
 from server.settings import Settings
+from server.stats import RollingStats
 from server.tracking import FusedPerson, PersonTracker, View
 
 logger = logging.getLogger(__name__)
@@ -83,6 +84,10 @@ class FusionHub:
         self.send: SendFunction | None = None
         """Set by the ingest side: sends one message to the agent with this routing id."""
         self._pending: dict[int, tuple[str, asyncio.Future[Response]]] = {}
+        self.fusion_timing = RollingStats()
+        """Seconds of compute per fusion step."""
+        self.fusion_lag = RollingStats()
+        """Server time when fusing minus the fused instant (the deliberate alignment wait)."""
         self._request_ids = itertools.count(1)
 
     # --- sessions and messages ----------------------------------------------------------------
@@ -263,6 +268,7 @@ class FusionHub:
             return None
         t_target = next_t
         self._last_fused_t = t_target
+        started = time.perf_counter()
         views: list[View] = []
         for sensor in self.sensors.values():
             if not sensor.connected:
@@ -281,6 +287,8 @@ class FusionHub:
         self._seq += 1
         fused = FusedFrame(self._seq, t_target, now_s, tuple(persons), tuple(views))
         self.latest = fused
+        self.fusion_timing.add(time.perf_counter() - started)
+        self.fusion_lag.add(now_s - t_target)
         return fused
 
     # --- views for the API ------------------------------------------------------------------

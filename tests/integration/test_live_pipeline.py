@@ -242,3 +242,21 @@ async def test_websocket_rejects_an_unknown_format(live_server: LiveServer) -> N
         async with connect(live_server.ws_url + "/ws/skeletons?format=xml"):
             pass
     assert info.value.response.status_code == 403
+
+
+def test_metrics_expose_sensors_fusion_and_clients(
+    live_server: LiveServer, agent_factory: Callable[..., AgentThread]
+) -> None:
+    start_two(live_server, agent_factory)
+    assert wait_until(
+        lambda: httpx.get(live_server.http_url + "/api/health").json()["fused_frames"] > 10, 10
+    )
+    text = httpx.get(live_server.http_url + "/metrics/").text
+    lines = {line.split(" ")[0]: line.split(" ")[-1] for line in text.splitlines()
+             if line and not line.startswith("#")}  # fmt: skip
+    assert float(lines['skelfuse_sensor_frames_total{sensor="cam-a"}']) > 30
+    assert lines['skelfuse_sensor_connected{sensor="cam-b"}'] == "1.0"
+    assert float(lines["skelfuse_fused_frames_total"]) > 10
+    assert float(lines['skelfuse_fusion_compute_seconds{stat="median"}']) > 0
+    assert 0 <= float(lines["skelfuse_fusion_lag_seconds"]) < 0.2
+    assert "skelfuse_ws_clients_evicted_total" in lines
