@@ -19,9 +19,11 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import zmq
+import zmq.auth
 
 from protocol.constants import AGENT_SEND_HWM, HEARTBEAT_INTERVAL_S, HEARTBEAT_LIVENESS
 from protocol.errors import DecodeError
@@ -42,6 +44,26 @@ from protocol.wire import (
 logger = logging.getLogger(__name__)
 
 RequestHandler = Callable[[dict[str, Any]], Any]
+
+
+@dataclass(frozen=True, slots=True)
+class CurveKeys:
+    """This agent's key pair file and the server's public key file (docs/security.md)."""
+
+    agent_secret_file: Path
+    server_public_file: Path
+
+    def apply(self, socket: zmq.Socket[Any]) -> None:
+        for path in (self.agent_secret_file, self.server_public_file):
+            if not path.is_file():
+                raise FileNotFoundError(f"key file {path} not found (see 'skelfuse keys')")
+        public, secret = zmq.auth.load_certificate(self.agent_secret_file)
+        if secret is None:
+            raise ValueError(f"{self.agent_secret_file} holds no secret key: pass the .key_secret")
+        server_public, _ = zmq.auth.load_certificate(self.server_public_file)
+        socket.curve_publickey = public
+        socket.curve_secretkey = secret
+        socket.curve_serverkey = server_public
 
 
 @dataclass(slots=True)
@@ -65,6 +87,7 @@ class AgentLink:
         liveness: int = HEARTBEAT_LIVENESS,
         handlers: dict[str, RequestHandler] | None = None,
         clock: Callable[[], float] = time.monotonic,
+        curve: CurveKeys | None = None,
     ) -> None:
         self._endpoint = endpoint
         self._make_hello = hello
@@ -74,6 +97,7 @@ class AgentLink:
         self._liveness = liveness
         self._handlers = handlers or {}
         self._clock = clock
+        self._curve = curve
         self.stats = LinkStats()
         self.registered = False
         self._last_heard = -float("inf")
@@ -83,6 +107,8 @@ class AgentLink:
 
     def _open(self) -> zmq.Socket[Any]:
         socket = self._context.socket(zmq.DEALER)
+        if self._curve is not None:
+            self._curve.apply(socket)
         socket.linger = 0
         socket.sndhwm = AGENT_SEND_HWM
         socket.rcvhwm = 100

@@ -7,7 +7,7 @@ import threading
 import time
 
 from agent import __version__
-from agent.link import AgentLink
+from agent.link import AgentLink, CurveKeys, RequestHandler
 from agent.sources.base import SkeletonSource
 from protocol.wire import Frame, Hello
 
@@ -34,6 +34,7 @@ def run_agent(
     *,
     stop: threading.Event | None = None,
     duration_s: float | None = None,
+    curve: CurveKeys | None = None,
 ) -> AgentLink:
     """Stream ``source`` to the server until ``stop`` is set or ``duration_s`` has passed.
 
@@ -41,8 +42,11 @@ def run_agent(
     ``stats`` say how many frames went out and how many were dropped.
     """
     stop = stop or threading.Event()
-    handlers = getattr(source, "request_handlers", dict)()
-    link = AgentLink(server_endpoint, lambda: make_hello(sensor_id, source), handlers=handlers)
+    # Sources that can do more than stream (e.g. capture depth) say so with request_handlers().
+    handlers: dict[str, RequestHandler] = getattr(source, "request_handlers", dict)()
+    link = AgentLink(
+        server_endpoint, lambda: make_hello(sensor_id, source), handlers=handlers, curve=curve
+    )
     deadline = None if duration_s is None else time.monotonic() + duration_s
     seq = 0
     last_report = time.monotonic()

@@ -24,12 +24,14 @@ from prometheus_client import CollectorRegistry, make_asgi_app
 from calibration.store import CalibrationStore
 from protocol.skeleton import skeleton_definition
 from server import __version__, routes_calibration
+from server.auth import SensorAuthenticator
 from server.broadcast import Broadcaster, Variant, encode_message, pump
 from server.calibration_runs import CalibrationService
 from server.hub import FusionHub
 from server.ingest import fusion_loop, ingest_loop, liveness_loop, open_router, send_to
 from server.messages import person_json
 from server.metrics import SkelfuseCollector
+from server.security import HttpGuard, origin_ok, token_ok
 from server.settings import Settings
 
 logger = logging.getLogger(__name__)
@@ -54,7 +56,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         hub = FusionHub(settings, calibration)
         broadcaster = Broadcaster(settings.ws_queue_size)
         context = zmq.asyncio.Context()
-        socket = open_router(context, settings.zmq_endpoint)
+        authenticator = None
+        if settings.curve:
+            authenticator = SensorAuthenticator(context, settings.data_dir)
+            authenticator.start()
+        socket = open_router(
+            context, settings.zmq_endpoint, settings.data_dir if settings.curve else None
+        )
         hub.send = lambda routing_id, message: send_to(socket, routing_id, message)
         app.state.hub = hub
         app.state.calibration = CalibrationService(hub, store)
@@ -63,7 +71,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.zmq_endpoint = socket.getsockopt_string(zmq.LAST_ENDPOINT)
         logger.info("agents connect to %s", app.state.zmq_endpoint)
         tasks = [
-            asyncio.create_task(ingest_loop(socket, hub), name="ingest"),
+            asyncio.create_task(ingest_loop(socket, hub, settings.curve), name="ingest"),
             asyncio.create_task(
                 liveness_loop(socket, hub, settings.heartbeat_interval_s), name="liveness"
             ),
@@ -76,6 +84,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 task.cancel()
             await asyncio.gather(*tasks, return_exceptions=True)
             socket.close(linger=0)
+            if authenticator is not None:
+                authenticator.stop()
             context.term()
 
     app = FastAPI(
@@ -146,7 +156,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         websocket: WebSocket,
         format: Literal["json", "msgpack"] = Query("json"),
         raw: bool = Query(False),
+        token: str | None = Query(None),
     ) -> None:
+        if not token_ok(settings.api_token, token):
+            await websocket.close(code=1008, reason="missing or wrong token")
+            return
+        origin = websocket.headers.get("origin")
+        if not origin_ok(origin, websocket.headers.get("host"), settings.allowed_origins):
+            await websocket.close(code=1008, reason="origin not allowed")
+            return
         await websocket.accept()
         broadcaster: Broadcaster = app.state.broadcaster
         binary = format == "msgpack"
@@ -177,6 +195,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             broadcaster.remove(client)
 
     app.include_router(routes_calibration.router)
+    app.add_middleware(HttpGuard, settings=settings)
     app.mount("/metrics", make_asgi_app(registry))
 
     @app.get("/", include_in_schema=False)

@@ -93,9 +93,18 @@ class FusionHub:
     # --- sessions and messages ----------------------------------------------------------------
 
     def handle_message(
-        self, routing_id: bytes, parts: list[bytes], now_s: float, now_mono: float
+        self,
+        routing_id: bytes,
+        parts: list[bytes],
+        now_s: float,
+        now_mono: float,
+        user_id: str | None = None,
     ) -> list[Message]:
-        """Process one message from an agent; returns the replies to send back to it."""
+        """Process one message from an agent; returns the replies to send back to it.
+
+        ``user_id`` is the sensor id the connection authenticated as (CurveZMQ), if any: such a
+        connection may register only that sensor id.
+        """
         sensor = self._sensor_for(routing_id)
         if len(parts) != 1:
             self._reject(sensor, "malformed")
@@ -110,6 +119,15 @@ class FusionHub:
             logger.debug("rejected message from %s: %s", sensor and sensor.sensor_id, exc)
             return []
         if isinstance(message, Hello):
+            if user_id is not None and message.sensor_id != user_id:
+                self.rejected_unregistered["key_mismatch"] += 1
+                return [
+                    ErrorMessage(
+                        "key_mismatch",
+                        f"this agent's key belongs to sensor {user_id!r}, not "
+                        f"{message.sensor_id!r}: run it with --id {user_id}",
+                    )
+                ]
             return [self._register(message, routing_id, now_mono)]
         if sensor is None:
             self.rejected_unregistered["not_registered"] += 1

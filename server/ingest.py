@@ -10,6 +10,7 @@ import asyncio
 import contextlib
 import logging
 import time
+from pathlib import Path
 from typing import Any
 
 import zmq
@@ -17,6 +18,7 @@ import zmq.asyncio
 
 from protocol.constants import MAX_MESSAGE_BYTES
 from protocol.wire import Heartbeat, Message, encode
+from server.auth import secure_router
 from server.broadcast import Broadcaster
 from server.hub import FusionHub
 
@@ -27,8 +29,14 @@ logger = logging.getLogger(__name__)
 SOCKET_MAX_MESSAGE_BYTES = 16 * MAX_MESSAGE_BYTES
 
 
-def open_router(context: zmq.asyncio.Context, endpoint: str) -> zmq.asyncio.Socket:
+def open_router(
+    context: zmq.asyncio.Context, endpoint: str, curve_data_dir: Path | None = None
+) -> zmq.asyncio.Socket:
+    """Bind the agents' ROUTER socket; with ``curve_data_dir``, only CurveZMQ-authenticated
+    agents can connect (docs/security.md)."""
     socket = context.socket(zmq.ROUTER)
+    if curve_data_dir is not None:
+        secure_router(socket, curve_data_dir)
     socket.linger = 0
     socket.rcvhwm = 10_000
     socket.sndhwm = 1_000
@@ -48,12 +56,17 @@ async def send_to(socket: zmq.asyncio.Socket, routing_id: bytes, message: Messag
         await socket.send_multipart([routing_id, encode(message)], flags=zmq.NOBLOCK)
 
 
-async def ingest_loop(socket: zmq.asyncio.Socket, hub: FusionHub) -> None:
+async def ingest_loop(socket: zmq.asyncio.Socket, hub: FusionHub, authenticated: bool) -> None:
     while True:
-        parts: list[Any] = await socket.recv_multipart(copy=True)
-        routing_id, payload = parts[0], parts[1:]
+        frames: list[Any] = await socket.recv_multipart(copy=False)
+        routing_id = frames[0].bytes
+        payload = [frame.bytes for frame in frames[1:]]
+        # With CurveZMQ, the ZAP handler names the sensor this connection's key belongs to.
+        user_id = frames[1].get("User-Id") if authenticated and len(frames) > 1 else None
         try:
-            replies = hub.handle_message(routing_id, payload, time.time(), time.monotonic())
+            replies = hub.handle_message(
+                routing_id, payload, time.time(), time.monotonic(), user_id=user_id
+            )
         except Exception:  # a bug in handling one message must not stop ingest
             logger.exception("failed to handle a message; dropped")
             hub.rejected_unregistered["internal_error"] += 1

@@ -29,8 +29,8 @@ class FusionSettings:
     # --- body-based confidence (server/confidence.py) ------------------------------------------
     use_bone_length: bool = True
     """Multiply in the bone-length term (report A), propagated outward from SpineBase."""
-    bone_length_scale_m: float = 0.03
-    """Bone-length term ``exp(−|l − l_ref| / scale)``: 0.37 at 3 cm off, 0.04 at 10 cm."""
+    bone_length_scale_m: float = 0.08
+    """Bone-length term ``exp(−|l − l_ref| / scale)``: 0.88 at 1 cm off, 0.29 at 10 cm."""
     bone_estimate_window: int = 300
     """Online reference lengths: median of the last this many good observations per bone."""
     bone_estimate_min_samples: int = 30
@@ -42,8 +42,15 @@ class FusionSettings:
     use_facing: bool = True
     """Multiply in how frontally the person faces each sensor."""
     facing_power: float = 2.0
-    """Facing term ``floor + (1 − floor)·((1 + cos θ) / 2)^power`` (θ: person's yaw off the sensor)."""
-    facing_floor: float = 0.05
+    """Facing term ``floor + (1 − floor)·|cos θ|^power`` (θ: person's yaw off the sensor)."""
+    facing_floor: float = 0.1
+    facing_back_factor: float = 0.5
+    """The facing term is multiplied by this when the sensor sees the person's back."""
+    correct_view_yaw: bool = False
+    """Turn each view about the vertical to the facing of the views seen most frontally
+    (removes each sensor's bias of turning the skeleton towards itself)."""
+    yaw_max_deg: float = 60.0
+    """Views needing a larger turn are left as they are."""
     use_distance: bool = True
     """Multiply in the distance term: 1 inside ``distance_best_m``, Gaussian fall-off outside."""
     distance_best_m: tuple[float, float] = (1.5, 3.0)
@@ -60,12 +67,15 @@ class FusionSettings:
     """Extra cost of changing a view's labelling from the previous step."""
     mirror_track_weight: float = 1.0
     """Weight of the agreement with the person's previous fused skeleton."""
+    mirror_anatomy_weight_m: float = 0.1
+    """Cost per joint out of its range of motion under a labelling (bent knees look
+    hyperextended and feet point backwards when left and right are swapped)."""
 
     # --- temporal filter (server/filters.py) --------------------------------------------------
     filter: str = "one_euro"
     """``none``, ``one_euro`` (default) or ``kalman``; applied per person after fusion."""
-    one_euro_min_cutoff_hz: float = 1.0
-    one_euro_beta: float = 4.0
+    one_euro_min_cutoff_hz: float = 1.5
+    one_euro_beta: float = 10.0
     one_euro_d_cutoff_hz: float = 1.0
     kalman_accel_std: float = 8.0
     """Constant-velocity Kalman: white acceleration noise, m/s² (per axis)."""
@@ -95,3 +105,12 @@ class Settings:
     """Frames queued per WebSocket client; the oldest is dropped when a client falls behind."""
     ws_send_timeout_s: float = 5.0
     """A client that cannot take one message in this long is disconnected."""
+    api_token: str | None = None
+    """When set, REST mutations need ``Authorization: Bearer <token>`` and the WebSocket needs
+    ``?token=<token>``; reads (GET) stay open."""
+    allowed_origins: tuple[str, ...] = ()
+    """Browser origins (``http://host:port``) allowed on the WebSocket besides the server's own."""
+    max_body_bytes: int = 1024 * 1024
+    """Larger HTTP request bodies are refused with 413 before they are read."""
+    curve: bool = False
+    """Authenticate agents with CurveZMQ (keys under ``<data_dir>/keys``, see docs/security.md)."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import signal
 import sys
 import threading
@@ -85,9 +86,27 @@ def cmd_server(args: argparse.Namespace) -> int:
             "pip install 'skelfuse[server]'"
         ) from exc
     host, port = parse_host_port(args.http, DEFAULT_HTTP_PORT)
+    token = args.token or os.environ.get("SKELFUSE_TOKEN") or None
+    if args.curve:
+        from server.auth import KeysMissing, server_keys
+
+        try:
+            server_keys(Path(args.data))  # fail closed, and say how to fix it
+        except KeysMissing as exc:
+            raise UsageError(str(exc)) from exc
     settings = Settings(
-        http_host=host, http_port=port, zmq_endpoint=args.zmq, data_dir=Path(args.data)
+        http_host=host,
+        http_port=port,
+        zmq_endpoint=args.zmq,
+        data_dir=Path(args.data),
+        api_token=token,
+        allowed_origins=tuple(args.allow_origin or ()),
+        curve=args.curve,
     )
+    if token is None and host not in ("127.0.0.1", "localhost", "::1"):
+        logging.getLogger("skelfuse").warning(
+            "serving %s without --token: anyone on the network can change calibration", host
+        )
     config = uvicorn.Config(
         create_app(settings),
         host=host,
@@ -123,9 +142,18 @@ def cmd_agent(args: argparse.Namespace) -> int:
         clock_offset_ns=int(args.clock_offset_ms * 1e6),
         send_pose_hint=args.pose_hint,
     )
+    curve = None
+    if args.key or args.server_key:
+        if not (args.key and args.server_key):
+            raise UsageError(
+                "CurveZMQ needs both --key (this agent's .key_secret) and --server-key"
+            )
+        from agent.link import CurveKeys
+
+        curve = CurveKeys(Path(args.key), Path(args.server_key))
     stop = _stop_on_signals()
     started = time.monotonic()
-    link = run_agent(args.id, source, args.server, stop=stop, duration_s=args.duration)
+    link = run_agent(args.id, source, args.server, stop=stop, duration_s=args.duration, curve=curve)
     logging.getLogger("skelfuse.agent").info(
         "%s stopped after %.0f s: %d frames sent, %d dropped",
         args.id,
@@ -133,6 +161,38 @@ def cmd_agent(args: argparse.Namespace) -> int:
         link.stats.frames_sent,
         link.stats.frames_dropped,
     )
+    return 0
+
+
+def cmd_keys(args: argparse.Namespace) -> int:
+    from server.auth import (
+        KeysMissing,
+        allowed_agents,
+        create_agent_keys,
+        create_server_keys,
+        key_paths,
+    )
+
+    data = Path(args.data)
+    paths = key_paths(data)
+    if args.action == "create":
+        try:
+            create_server_keys(data)
+            made = [create_agent_keys(data, sensor_id) for sensor_id in args.agent]
+        except KeysMissing as exc:
+            raise UsageError(str(exc)) from exc
+        print(f"server key pair: {paths.server_secret} (public: {paths.server_public})")
+        for path in made:
+            print(f"agent {path.stem}: copy {path} and {paths.server_public} to its PC, then run")
+            print(f"  skelfuse agent --id {path.stem} --key {path.name} --server-key server.key")
+        print("start the server with --curve (restart it after adding or removing agents)")
+        return 0
+    if not paths.server_public.exists():
+        print(f"no keys in {paths.root} (create them with 'skelfuse keys create')")
+        return 1
+    print(f"server public key: {paths.server_public}")
+    for public, sensor_id in sorted(allowed_agents(data).items(), key=lambda kv: kv[1]):
+        print(f"  {sensor_id:<24} {public}")
     return 0
 
 
@@ -175,6 +235,23 @@ def build_parser() -> argparse.ArgumentParser:
         default="skelfuse-data",
         help="folder for calibration and recordings (default %(default)s)",
     )
+    server.add_argument(
+        "--token",
+        default=None,
+        help="require this token for REST changes and the WebSocket (or set SKELFUSE_TOKEN)",
+    )
+    server.add_argument(
+        "--allow-origin",
+        action="append",
+        default=None,
+        metavar="ORIGIN",
+        help="another browser origin allowed on the WebSocket (repeatable)",
+    )
+    server.add_argument(
+        "--curve",
+        action="store_true",
+        help="authenticate agents with CurveZMQ keys from <data>/keys ('skelfuse keys create')",
+    )
     server.set_defaults(func=cmd_server)
 
     agent = sub.add_parser("agent", help="run a capture agent for one sensor")
@@ -206,8 +283,24 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_false",
         help="sim: do not tell the server the true pose (calibrate instead)",
     )
+    agent.add_argument("--key", default=None, help="CurveZMQ: this agent's <id>.key_secret file")
+    agent.add_argument(
+        "--server-key", default=None, help="CurveZMQ: the server's public key file (server.key)"
+    )
     agent.add_argument("--duration", type=float, default=None, help="stop after N seconds")
     agent.set_defaults(func=cmd_agent)
+
+    keys = sub.add_parser("keys", help="create and list CurveZMQ keys for the server and agents")
+    keys.add_argument("action", choices=["create", "list"])
+    keys.add_argument("--data", default="skelfuse-data", help="the server's data folder")
+    keys.add_argument(
+        "--agent",
+        action="append",
+        default=[],
+        metavar="SENSOR_ID",
+        help="create: a key pair for this sensor id (repeatable)",
+    )
+    keys.set_defaults(func=cmd_keys)
 
     demo = sub.add_parser("demo", help="server + simulated sensors + viewer on this machine")
     demo.add_argument("--sensors", type=int, default=3, help="simulated sensors (1-8)")

@@ -1,0 +1,82 @@
+"""HTTP-side protection: API token, browser origins, request size.
+
+- **Token**: when ``Settings.api_token`` is set, every REST request that changes something
+  (POST, PUT, PATCH, DELETE) needs ``Authorization: Bearer <token>``, and the WebSocket feed
+  needs ``?token=<token>`` (browsers cannot set headers on a WebSocket). Reads stay open so
+  dashboards and health checks keep working. Tokens are compared in constant time.
+- **Origins**: a browser page from another site must not read the feed through a visitor's
+  browser. A WebSocket handshake whose ``Origin`` is neither the server's own host nor in
+  ``Settings.allowed_origins`` is refused; clients that send no Origin (apps, scripts) pass.
+- **Size**: bodies larger than ``Settings.max_body_bytes`` are refused with 413 before they are
+  read (uvicorn bounds WebSocket messages separately with ``ws_max_size``).
+"""
+
+from __future__ import annotations
+
+import hmac
+from urllib.parse import urlsplit
+
+from starlette.datastructures import Headers
+from starlette.responses import JSONResponse
+from starlette.types import ASGIApp, Receive, Scope, Send
+
+from server.settings import Settings
+
+MUTATING_METHODS = frozenset({"POST", "PUT", "PATCH", "DELETE"})
+
+
+def token_ok(expected: str | None, presented: str | None) -> bool:
+    if expected is None:
+        return True
+    return presented is not None and hmac.compare_digest(expected.encode(), presented.encode())
+
+
+def bearer(headers: Headers) -> str | None:
+    value = headers.get("authorization", "")
+    scheme, _, token = value.partition(" ")
+    return token.strip() if scheme.lower() == "bearer" and token.strip() else None
+
+
+def origin_ok(origin: str | None, host: str | None, allowed: tuple[str, ...]) -> bool:
+    """True for non-browser clients, the server's own pages, and allow-listed origins."""
+    if origin is None:
+        return True
+    if origin.rstrip("/") in {a.rstrip("/") for a in allowed}:
+        return True
+    return host is not None and urlsplit(origin).netloc.lower() == host.lower()
+
+
+class HttpGuard:
+    """ASGI middleware enforcing the token on REST mutations and the body size limit."""
+
+    def __init__(self, app: ASGIApp, settings: Settings) -> None:
+        self.app = app
+        self.settings = settings
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        headers = Headers(scope=scope)
+        length = headers.get("content-length")
+        if length is not None and (
+            not length.isdigit() or int(length) > self.settings.max_body_bytes
+        ):
+            response = JSONResponse(
+                {"detail": f"request body larger than {self.settings.max_body_bytes} bytes"},
+                status_code=413,
+            )
+            await response(scope, receive, send)
+            return
+        if scope["method"] in MUTATING_METHODS and not token_ok(
+            self.settings.api_token, bearer(headers)
+        ):
+            response = JSONResponse(
+                {"detail": "this server needs a token: send 'Authorization: Bearer <token>' "
+                 "(the token is printed when the server starts)"},
+                status_code=401,
+                headers={"WWW-Authenticate": "Bearer"},
+            )  # fmt: skip
+            await response(scope, receive, send)
+            return
+        await self.app(scope, receive, send)
