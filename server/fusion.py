@@ -2,8 +2,10 @@
 
 Report A (``shared/papers.md``): sensor k sees joint n at J_kn with confidence C_kn; the fused
 joint is the confidence-weighted mean ``J_n = Σ_k C_kn·J_kn / Σ_k C_kn`` with C from the tracking
-state (NotTracked 0, Inferred 0.3, Tracked 0.7). The body-based terms (bone length, range of
-motion, facing) multiply into the same weights in a later version.
+state (NotTracked 0, Inferred 0.3, Tracked 0.7) times the body-based terms of
+:mod:`server.confidence` (bone length, range of motion, facing, distance). After fusion,
+:func:`robust_reweight` can discount views far from the consensus and
+:func:`enforce_bone_lengths` gives the skeleton the person's reference bone lengths.
 
 Shapes: S views of one person, J = 25 joints. Positions in metres, world frame.
 """
@@ -15,7 +17,8 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from protocol.skeleton import JOINT_COUNT, JointId
+from protocol.skeleton import BONES, JOINT_COUNT, JointId
+from server.confidence import CHAIN_ORDER
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -101,3 +104,76 @@ def mpjpe(estimate: npt.ArrayLike, truth: npt.ArrayLike) -> tuple[float, int]:
     if not present.any():
         return float("nan"), 0
     return float(err[present].mean()), int(present.sum())
+
+
+def robust_reweight(
+    joints: npt.ArrayLike, weights: npt.ArrayLike, fused: npt.ArrayLike, scale_m: float
+) -> FloatArray:
+    """One Cauchy re-weighting pass: views far from the weighted mean count less.
+
+    Args:
+        joints: (S, J, 3) views, metres; weights: (S, J); fused: (J, 3) their weighted mean.
+        scale_m: distance at which a view's weight is halved.
+
+    Returns:
+        (S, J) weights × ``1 / (1 + (d / scale)²)``, d the view's distance to ``fused``.
+    """
+    views = np.asarray(joints, dtype=np.float64)
+    d = np.linalg.norm(views - np.asarray(fused, dtype=np.float64)[None], axis=-1)
+    factor = np.where(np.isfinite(d), 1.0 / (1.0 + (d / scale_m) ** 2), 1.0)
+    result: FloatArray = np.asarray(weights, dtype=np.float64) * factor
+    return result
+
+
+def contributors(weights: npt.ArrayLike, min_share: float = 0.05) -> npt.NDArray[np.int64]:
+    """Which views contributed to each joint, as a bitmask (bit k: view k).
+
+    Args:
+        weights: (S, J) final fusion weights (0 where a view has no position).
+        min_share: a view counts when it carries at least this share of the joint's weight.
+
+    Returns:
+        (J,) int64 bitmasks; 0 where no view has the joint.
+    """
+    w = np.asarray(weights, dtype=np.float64)
+    total = w.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        share = np.where(total > 0, w / total, 0.0)
+    bits = (share >= min_share) & (w > 0)
+    mask: npt.NDArray[np.int64] = (bits.astype(np.int64) << np.arange(w.shape[0])[:, None]).sum(
+        axis=0
+    )
+    return mask
+
+
+def enforce_bone_lengths(joints: npt.ArrayLike, reference: npt.ArrayLike) -> FloatArray:
+    """Give a skeleton the reference bone lengths, keeping every bone's direction.
+
+    Walks outward from SpineBase: each child is put at ``parent' + unit(child − parent)·l_ref``
+    where ``parent'`` is the already-corrected parent. A bone whose reference is unknown (NaN)
+    keeps its measured offset; NaN joints stay NaN.
+
+    Args:
+        joints: (25, 3) metres; reference: (24,) metres in :data:`BONES` order.
+
+    Returns:
+        (25, 3) float64.
+    """
+    original = np.asarray(joints, dtype=np.float64)
+    ref = np.asarray(reference, dtype=np.float64)
+    out = original.copy()
+    length_of = {child: ref[k] for k, (_, child) in enumerate(BONES)}
+    parent_of = {child: parent for parent, child in BONES}
+    for joint in CHAIN_ORDER:
+        parent = parent_of.get(joint)
+        if parent is None:
+            continue
+        if not np.isfinite(out[parent]).all():
+            continue  # nothing to hang it on: keep the joint as measured
+        offset = original[joint] - original[parent]
+        norm = float(np.linalg.norm(offset))
+        target = length_of[joint]
+        if np.isfinite(target) and np.isfinite(norm) and norm > 1e-9:
+            offset = offset * (target / norm)
+        out[joint] = out[parent] + offset
+    return out

@@ -22,6 +22,9 @@ def person_json(person: FusedPerson, decimals: int = 4) -> dict[str, object]:
         "joints": joints_json(person.joints, decimals),
         "confidence": [round(float(c), 3) for c in person.confidence],
         "sources": list(person.sources),
+        # Per joint, bit k set when sources[k] contributed (≥ 5 % of the joint's weight).
+        "joint_sources": [int(m) for m in person.joint_sources],
+        "mirrored": list(person.mirrored),
     }
 
 

@@ -1,32 +1,72 @@
 """People across views and over time: one fused skeleton and one stable id per person.
 
 Each fusion step receives every sensor's bodies at one instant, already in the world frame
-(:class:`View`). :class:`PersonTracker` groups them into persons and keeps ids stable:
+(:class:`View`). :class:`PersonTracker` groups them into persons, keeps ids stable and fuses
+each person (docs/fusion.md):
 
 1. **Sticky**: a body a sensor keeps tracking (same sensor, same tracking id) stays with the
-   person it belonged to, while it stays within twice the gate of that person.
+   person it belonged to, while it stays within twice the gate of that person's predicted
+   position (constant-velocity prediction of the trunk).
 2. **Assignment**: other bodies are matched to existing persons, one sensor at a time, by the
-   Hungarian algorithm on midline-joint distance, gated (a sensor never gives one person two
-   bodies).
-3. **Birth**: bodies left over are grouped across sensors (gated) into new persons.
-4. **Death**: a person no sensor has seen for ``track_timeout_s`` is dropped.
+   Hungarian algorithm on midline-joint distance to the predicted position, gated (a sensor
+   never gives one person two bodies).
+3. **Birth**: bodies left over are grouped across sensors (gated) into new persons; a new
+   person is published only after ``track_min_frames`` consecutive steps.
+4. **No duplicates**: two persons whose views come from different sensors and whose trunks are
+   within half the gate are one person seen twice; the younger is merged into the older.
+5. **Death**: a person no sensor has seen for ``track_timeout_s`` is dropped.
 
-A new person is published only after ``track_min_frames`` consecutive steps, so a one-frame
-glitch never appears as a ghost. State is in memory only; nothing here does I/O.
+Then, per person: mirrored views are swapped back (:mod:`server.mirror`), each joint of each
+view gets a weight (tracking state × bone length × range of motion × facing × distance,
+:mod:`server.confidence`), views are fused (:func:`server.fusion.fuse_views`), filtered over
+time (:mod:`server.filters`) and given the person's reference bone lengths. Reference lengths
+are set through the API or estimated online from good views (:class:`BoneModel`).
+
+State is in memory only; nothing here does I/O.
 """
 
 from __future__ import annotations
 
+import warnings
+from collections import deque
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 import numpy.typing as npt
 from scipy.optimize import linear_sum_assignment
 
-from server.fusion import fuse_views, state_weights, trunk_distance
+from protocol.skeleton import BONES, JOINT_COUNT, TrackingState
+from server.confidence import (
+    align_yaw,
+    bone_length_factors,
+    distance_factors,
+    facing_cosines,
+    facing_direction,
+    facing_factors,
+    propagate,
+    range_of_motion_factors,
+)
+from server.filters import JointFilter, make_filter
+from server.fusion import (
+    contributors,
+    enforce_bone_lengths,
+    fuse_views,
+    robust_reweight,
+    state_weights,
+    trunk_distance,
+)
+from server.mirror import MAX_VIEWS, PERMUTATION, choose_labelling
 from server.settings import FusionSettings
 
 FloatArray = npt.NDArray[np.float64]
+BONE_COUNT = len(BONES)
+_BONE_PARENT = np.array([p for p, _ in BONES])
+_BONE_CHILD = np.array([c for _, c in BONES])
+MAX_SPEED_MPS = 3.0
+"""Trunk speed used for prediction is clipped to this (a person, not a glitch)."""
+GOOD_VIEW_COS = 0.5
+"""A view feeds the online bone-length estimate only if the person faces it within 60°."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -47,13 +87,72 @@ class View:
 
 @dataclass(frozen=True, slots=True)
 class FusedPerson:
-    """One person's fused skeleton (world frame, metres; NaN and confidence 0 where unknown)."""
+    """One person's fused skeleton (world frame, metres; NaN and confidence 0 where unknown).
+
+    joint_sources: (25,) int64 bitmask per joint: bit k set when ``sources[k]`` contributed at
+        least 5 % of that joint's weight.
+    mirrored: the sensors whose view of this person was swapped back (left ↔ right).
+    """
 
     person_id: int
     joints: FloatArray
     confidence: FloatArray
     sources: tuple[str, ...]
     views: tuple[View, ...]
+    joint_sources: npt.NDArray[np.int64] = field(
+        default_factory=lambda: np.zeros(JOINT_COUNT, dtype=np.int64)
+    )
+    mirrored: tuple[str, ...] = ()
+
+
+BoneSource = Literal["set", "estimated", "none"]
+
+
+class BoneModel:
+    """A person's reference bone lengths: set by hand, or estimated online.
+
+    The online estimate is the per-bone median of the last ``window`` observations from good
+    views (both ends Tracked, the person facing the sensor within 60°, after mirror
+    correction); a bone is used once it has ``min_samples`` observations.
+    """
+
+    def __init__(self, window: int = 300, min_samples: int = 30) -> None:
+        self.set_lengths: FloatArray | None = None
+        self.min_samples = min_samples
+        self._samples: deque[FloatArray] = deque(maxlen=window)
+        self._estimate = np.full(BONE_COUNT, np.nan)
+        self._since_update = 0
+
+    @property
+    def source(self) -> BoneSource:
+        if self.set_lengths is not None:
+            return "set"
+        return "estimated" if np.isfinite(self._estimate).any() else "none"
+
+    @property
+    def estimate(self) -> FloatArray:
+        """(24,) online estimate, metres; NaN for bones without enough observations."""
+        return self._estimate.copy()
+
+    def reference(self) -> FloatArray:
+        """(24,) the lengths fusion uses: the set ones, else the estimate (NaN: unknown)."""
+        return self.set_lengths.copy() if self.set_lengths is not None else self.estimate
+
+    def observe(self, lengths: FloatArray) -> None:
+        """Add one step's observed lengths (24,), NaN for bones not observed well."""
+        if not np.isfinite(lengths).any():
+            return
+        self._samples.append(lengths)
+        self._since_update += 1
+        if self._since_update >= 10 or len(self._samples) == self.min_samples:
+            self._since_update = 0
+            data = np.stack(self._samples)
+            counts = np.isfinite(data).sum(axis=0)
+            enough = counts >= self.min_samples
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN bones stay NaN
+                median = np.nanmedian(np.where(enough[None, :], data, np.nan), axis=0)
+            self._estimate = np.where(enough, median, np.nan)
 
 
 @dataclass(slots=True)
@@ -61,9 +160,21 @@ class _Track:
     person_id: int
     joints: FloatArray
     last_seen_s: float
+    born_s: float
+    filter: JointFilter
+    bones: BoneModel
     hits: int = 0
     published: bool = False
     members: set[tuple[str, int]] = field(default_factory=set)
+    velocity: FloatArray = field(default_factory=lambda: np.zeros(3))
+    mirror_memory: dict[tuple[str, int], bool] = field(default_factory=dict)
+    fused_once: bool = False
+
+    def predicted(self, t_s: float) -> FloatArray:
+        """Joints moved by the trunk's velocity to ``t_s`` (association only)."""
+        dt = min(max(t_s - self.last_seen_s, 0.0), 0.5)
+        moved: FloatArray = self.joints + self.velocity * dt
+        return moved
 
 
 class PersonTracker:
@@ -73,6 +184,8 @@ class PersonTracker:
         self.settings = settings or FusionSettings()
         self._tracks: dict[int, _Track] = {}
         self._next_id = 1
+        self.default_bone_lengths: FloatArray | None = None
+        """(24,) lengths every new person starts with as "set" (None: estimate online)."""
 
     @property
     def track_count(self) -> int:
@@ -81,17 +194,98 @@ class PersonTracker:
     def reset(self) -> None:
         self._tracks.clear()
 
+    # --- reference bone lengths (REST: server/routes_fusion.py) --------------------------------
+
+    def person_ids(self) -> list[int]:
+        """Ids of the persons currently published."""
+        return sorted(pid for pid, t in self._tracks.items() if t.published)
+
+    def bone_model(self, person_id: int) -> BoneModel | None:
+        track = self._tracks.get(person_id)
+        return None if track is None else track.bones
+
+    def set_bone_lengths(self, person_id: int, lengths: FloatArray | None) -> bool:
+        """Set (or with None, clear back to automatic) a person's reference lengths.
+
+        Args:
+            lengths: (24,) metres in :data:`BONES` order, or None.
+
+        Returns:
+            False if there is no such person.
+        """
+        track = self._tracks.get(person_id)
+        if track is None:
+            return False
+        track.bones.set_lengths = None if lengths is None else np.array(lengths, dtype=float)
+        return True
+
+    # --- the step ------------------------------------------------------------------------------
+
     def update(self, views: list[View], t_s: float) -> list[FusedPerson]:
         """Fuse the views of one instant; returns the published persons, by id."""
+        clusters = self._associate(views, t_s)
+        self._merge_duplicates(clusters)
+        published: list[FusedPerson] = []
+        for person_id, cluster in sorted(clusters.items()):
+            track = self._tracks[person_id]
+            person = self._fuse(track, cluster, t_s)
+            track.hits += 1
+            track.members = {(v.sensor_id, v.tracking_id) for v in cluster}
+            if track.hits >= self.settings.track_min_frames:
+                track.published = True
+            if track.published and person is not None:
+                published.append(person)
+
+        # Deaths; a track that missed a step starts its confirmation over if unpublished.
+        for person_id, track in list(self._tracks.items()):
+            if person_id in clusters:
+                continue
+            if not track.published:
+                track.hits = 0
+            if t_s - track.last_seen_s > self.settings.track_timeout_s:
+                del self._tracks[person_id]
+        return published
+
+    def _new_track(self, joints: FloatArray, t_s: float) -> _Track:
+        s = self.settings
+        person_id = self._next_id
+        self._next_id += 1
+        bones = BoneModel(s.bone_estimate_window, s.bone_estimate_min_samples)
+        if self.default_bone_lengths is not None:
+            bones.set_lengths = self.default_bone_lengths.copy()
+        track = _Track(
+            person_id,
+            joints.copy(),
+            t_s,
+            t_s,
+            make_filter(
+                s.filter,
+                min_cutoff_hz=s.one_euro_min_cutoff_hz,
+                beta=s.one_euro_beta,
+                d_cutoff_hz=s.one_euro_d_cutoff_hz,
+                accel_std=s.kalman_accel_std,
+                meas_std_m=s.kalman_meas_std_m,
+                predict_s=s.kalman_predict_s,
+            ),
+            bones,
+        )
+        self._tracks[person_id] = track
+        return track
+
+    def _associate(self, views: list[View], t_s: float) -> dict[int, list[View]]:
         gate = self.settings.association_gate_m
         clusters: dict[int, list[View]] = {}
         remaining: list[View] = []
+        predicted = {pid: t.predicted(t_s) for pid, t in self._tracks.items()}
 
         # 1. Sticky membership.
         for view in views:
             key = (view.sensor_id, view.tracking_id)
             track = next((t for t in self._tracks.values() if key in t.members), None)
-            if track is None or trunk_distance(view.joints_world, track.joints) > 2 * gate:
+            if (
+                track is None
+                or trunk_distance(view.joints_world, predicted[track.person_id]) > 2 * gate
+            ):
                 remaining.append(view)
                 continue
             cluster = clusters.setdefault(track.person_id, [])
@@ -113,8 +307,9 @@ class PersonTracker:
                 leftovers.extend(mine)
                 continue
             cost = np.array(
-                [[trunk_distance(v.joints_world, t.joints) for t in free] for v in mine]
-            )
+                [[trunk_distance(v.joints_world, predicted[t.person_id]) for t in free]
+                 for v in mine]
+            )  # fmt: skip
             cost_finite = np.where(np.isfinite(cost), cost, 1e6)
             rows, cols = linear_sum_assignment(cost_finite)
             taken = set()
@@ -141,43 +336,166 @@ class PersonTracker:
             else:
                 best.append(view)
         for cluster in new_clusters:
-            person_id = self._next_id
-            self._next_id += 1
-            self._tracks[person_id] = _Track(person_id, cluster[0].joints_world, t_s)
-            clusters[person_id] = cluster
+            track = self._new_track(cluster[0].joints_world, t_s)
+            clusters[track.person_id] = cluster
+        return clusters
 
-        # Fuse each cluster and update its track.
-        published: list[FusedPerson] = []
-        for person_id, cluster in sorted(clusters.items()):
-            track = self._tracks[person_id]
-            joints = np.stack([v.joints_world for v in cluster])
-            weights = state_weights(
-                np.stack([v.states for v in cluster]), self.settings.state_weights
-            )
-            fused, confidence = fuse_views(joints, weights)
-            track.joints = np.where(np.isfinite(fused), fused, track.joints)
-            track.last_seen_s = t_s
-            track.hits += 1
-            track.members = {(v.sensor_id, v.tracking_id) for v in cluster}
-            if track.hits >= self.settings.track_min_frames:
-                track.published = True
-            if track.published and np.isfinite(fused).any():
-                published.append(
-                    FusedPerson(
-                        person_id=person_id,
-                        joints=fused,
-                        confidence=confidence,
-                        sources=tuple(sorted({v.sensor_id for v in cluster})),
-                        views=tuple(cluster),
-                    )
-                )
-
-        # 4. Deaths; a track that missed a step starts its confirmation over if unpublished.
-        for person_id, track in list(self._tracks.items()):
-            if person_id in clusters:
+    def _merge_duplicates(self, clusters: dict[int, list[View]]) -> None:
+        """Merge persons that are one person seen by disjoint sets of sensors (older id wins)."""
+        half_gate = self.settings.association_gate_m / 2
+        ids = sorted(clusters)
+        for i, older in enumerate(ids):
+            if older not in clusters:
                 continue
-            if not track.published:
-                track.hits = 0
-            if t_s - track.last_seen_s > self.settings.track_timeout_s:
-                del self._tracks[person_id]
-        return published
+            for younger in ids[i + 1 :]:
+                if younger not in clusters:
+                    continue
+                a, b = clusters[older], clusters[younger]
+                if {v.sensor_id for v in a} & {v.sensor_id for v in b}:
+                    continue
+                distance = np.mean(
+                    [trunk_distance(x.joints_world, y.joints_world) for x in a for y in b]
+                )
+                if distance <= half_gate:
+                    a.extend(b)
+                    del clusters[younger]
+                    young, old = self._tracks[younger], self._tracks[older]
+                    if young.published and not old.published:
+                        old.published = True
+                    del self._tracks[younger]
+
+    # --- fusing one person -----------------------------------------------------------------------
+
+    def _fuse(self, track: _Track, cluster: list[View], t_s: float) -> FusedPerson | None:
+        s = self.settings
+        cluster = cluster[:MAX_VIEWS]
+        joints = np.stack([v.joints_world for v in cluster]).astype(np.float64)
+        states = np.stack([v.states for v in cluster])
+        sensors = np.stack(
+            [
+                np.full(3, np.nan) if v.sensor_position is None else v.sensor_position
+                for v in cluster
+            ]
+        ).astype(np.float64)
+        keys = [(v.sensor_id, v.tracking_id) for v in cluster]
+
+        # Mirrored views: swap labels back before anything looks at left or right.
+        mirrored = np.zeros(len(cluster), dtype=bool)
+        if s.use_mirror_correction:
+            previous = np.array([int(track.mirror_memory.get(k, -1)) for k in keys])
+            mirrored = choose_labelling(
+                joints,
+                sensors,
+                track.joints if track.fused_once else None,
+                previous,
+                geometry_weight_m=s.mirror_geometry_weight_m,
+                hysteresis_m=s.mirror_hysteresis_m,
+                track_weight=s.mirror_track_weight,
+                anatomy_weight_m=s.mirror_anatomy_weight_m,
+                rom_scale_deg=s.rom_scale_deg,
+            )
+            track.mirror_memory = {k: bool(m) for k, m in zip(keys, mirrored, strict=True)}
+            joints[mirrored] = joints[mirrored][:, PERMUTATION]
+            states[mirrored] = states[mirrored][:, PERMUTATION]
+
+        # Body-based confidence, propagated outward from SpineBase.
+        weights = state_weights(states, s.state_weights)
+        local = np.ones(joints.shape[:2])
+        reference = track.bones.reference()
+        if s.use_bone_length and np.isfinite(reference).any():
+            local *= bone_length_factors(joints, reference, s.bone_length_scale_m)
+        if s.use_range_of_motion:
+            local *= range_of_motion_factors(joints, s.rom_scale_deg)
+        weights = weights * propagate(local)
+        fused, confidence = fuse_views(joints, weights)
+
+        # Facing and distance: per view, from where the person stands and faces.
+        facing = facing_direction(track.joints if track.fused_once else fused)
+        body = fused[0] if np.isfinite(fused[0]).all() else np.nanmean(joints[:, 0], axis=0)
+        cosines = facing_cosines(facing, body, sensors)
+        per_view = np.ones(len(cluster))
+        if s.use_facing:
+            per_view *= facing_factors(
+                cosines, s.facing_power, s.facing_floor, s.facing_back_factor
+            )
+        if s.use_distance:
+            per_view *= distance_factors(body, sensors, s.distance_best_m, s.distance_scale_m)
+        if s.correct_view_yaw and len(cluster) > 1:
+            # The person's facing from the views seen most squarely (least turned by their
+            # sensor's bias), then every view turned to it.
+            frontal = np.nan_to_num(np.abs(cosines), nan=0.5) ** 4 + 1e-6
+            own = np.stack([facing_direction(v) for v in joints])
+            usable = np.isfinite(own).all(axis=1)
+            if usable.any():
+                mean = (frontal[usable, None] * own[usable]).sum(axis=0)
+                norm = float(np.linalg.norm(mean))
+                if norm > 1e-6:
+                    joints = align_yaw(joints, mean / norm, s.yaw_max_deg)
+        if s.use_facing or s.use_distance or s.correct_view_yaw:
+            weights = weights * per_view[:, None]
+            fused, confidence = fuse_views(joints, weights)
+        if s.outlier_scale_m > 0 and len(cluster) > 1:
+            weights = robust_reweight(joints, weights, fused, s.outlier_scale_m)
+            fused, confidence = fuse_views(joints, weights)
+
+        self._observe_bones(track, joints, states, cosines)
+        self._update_motion(track, fused, t_s)
+        if not np.isfinite(fused).any():
+            return None
+
+        output = track.filter(fused, t_s)
+        reference = track.bones.reference()
+        if s.enforce_bone_lengths and np.isfinite(reference).any():
+            output = enforce_bone_lengths(output, reference)
+
+        sources = tuple(sorted({v.sensor_id for v in cluster}))
+        mask = contributors(np.where(np.isfinite(joints).all(-1), weights, 0.0))
+        order = [sources.index(v.sensor_id) for v in cluster]
+        joint_sources = np.zeros(JOINT_COUNT, dtype=np.int64)
+        for k, slot in enumerate(order):
+            joint_sources |= ((mask >> k) & 1) << slot
+        return FusedPerson(
+            person_id=track.person_id,
+            joints=output,
+            confidence=confidence,
+            sources=sources,
+            views=tuple(cluster),
+            joint_sources=joint_sources,
+            mirrored=tuple(
+                sorted(v.sensor_id for v, m in zip(cluster, mirrored, strict=True) if m)
+            ),
+        )
+
+    def _observe_bones(
+        self, track: _Track, joints: FloatArray, states: npt.NDArray[np.uint8], cosines: FloatArray
+    ) -> None:
+        """Feed the online bone-length estimate with this step's good views."""
+        if track.bones.set_lengths is not None:
+            return
+        good_view = np.isfinite(cosines) & (cosines >= GOOD_VIEW_COS)
+        tracked = states == TrackingState.TRACKED
+        ok = tracked[:, _BONE_PARENT] & tracked[:, _BONE_CHILD] & good_view[:, None]
+        lengths = np.linalg.norm(joints[:, _BONE_CHILD] - joints[:, _BONE_PARENT], axis=-1)
+        lengths = np.where(ok & np.isfinite(lengths), lengths, np.nan)
+        if not np.isfinite(lengths).any():
+            return
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN bones stay NaN
+            per_bone = np.nanmedian(lengths, axis=0)
+        track.bones.observe(per_bone)
+
+    @staticmethod
+    def _update_motion(track: _Track, fused: FloatArray, t_s: float) -> None:
+        """Keep the last fused skeleton and the trunk's velocity for prediction."""
+        dt = t_s - track.last_seen_s
+        moving = np.isfinite(fused[0]).all() and np.isfinite(track.joints[0]).all()
+        if track.fused_once and 0 < dt < 0.5 and moving:
+            velocity = (fused[0] - track.joints[0]) / dt
+            velocity[1] = 0.0
+            track.velocity = 0.6 * track.velocity + 0.4 * velocity
+            speed = float(np.linalg.norm(track.velocity))
+            if speed > MAX_SPEED_MPS:
+                track.velocity *= MAX_SPEED_MPS / speed
+        track.joints = np.where(np.isfinite(fused), fused, track.joints)
+        track.last_seen_s = t_s
+        track.fused_once = True

@@ -151,3 +151,82 @@ def test_one_sensor_never_gives_one_person_two_bodies() -> None:
     out = tracker.update(views, 0.0)
     assert len(out) == 2
     assert all(len(p.views) == 1 for p in out)
+
+
+# --- the full method ----------------------------------------------------------------------------
+
+
+def test_mirrored_view_is_swapped_back_before_fusion() -> None:
+    from agent.sim.performer import BodyShape, Pose, pose_joints
+
+    walk = Pose(hip_flex_l=0.3, hip_flex_r=-0.3, knee_flex_l=0.6, knee_flex_r=0.1)
+    truth = pose_joints(BodyShape(1.75), walk, (0.0, 0.0), 0.0)  # faces +Z
+    back = truth[list(MIRROR_PERMUTATION)]
+    views = [
+        View("front", 1, truth, TRACKED, np.array([0.0, 1.0, 2.5])),
+        View("back", 2, back, TRACKED, np.array([0.0, 1.0, -2.5])),
+    ]
+    tracker = PersonTracker(FusionSettings(track_min_frames=1, filter="none"))
+    person = tracker.update(views, 0.0)[0]
+    assert person.mirrored == ("back",)
+    np.testing.assert_allclose(person.joints, truth, atol=1e-9)
+    baseline = PersonTracker(FusionSettings(track_min_frames=1, use_mirror_correction=False))
+    assert mpjpe(baseline.update(views, 0.0)[0].joints, truth)[0] > 0.05
+
+
+def test_joint_sources_name_the_contributing_sensors() -> None:
+    tracker = PersonTracker(FusionSettings(track_min_frames=1))
+    person = standing()
+    views = views_for([person], 2)
+    missing = person.copy()
+    missing[7] = np.nan
+    views[1] = View("s1", 100, missing, TRACKED)
+    out = tracker.update(views, 0.0)[0]
+    assert out.sources == ("s0", "s1")
+    assert out.joint_sources[0] == 0b11 and out.joint_sources[7] == 0b01
+
+
+def test_bone_lengths_are_estimated_online_and_can_be_set() -> None:
+    from protocol.skeleton import bone_lengths
+
+    tracker = PersonTracker(FusionSettings(track_min_frames=1, bone_estimate_min_samples=5))
+    from server.confidence import facing_direction
+
+    person = standing()
+    sensor = person[0] + 2.5 * facing_direction(person)  # in front of the person
+    for step in range(6):
+        out = tracker.update([View("s0", 1, person, TRACKED, sensor)], step / 30)
+    model = tracker.bone_model(out[0].person_id)
+    assert model is not None and model.source == "estimated"
+    np.testing.assert_allclose(model.reference(), bone_lengths(person), atol=1e-9)
+    assert tracker.set_bone_lengths(out[0].person_id, np.full(24, 0.3))
+    assert model.source == "set"
+    assert not tracker.set_bone_lengths(999, None)
+
+
+def test_crossing_people_keep_their_ids() -> None:
+    tracker = PersonTracker(FusionSettings(track_min_frames=1, filter="none"))
+    history: dict[int, set[int]] = {0: set(), 1: set()}
+    for step in range(90):
+        t = step / 30
+        a = standing(-1.5 + 1.0 * t, 0.15)
+        b = standing(1.5 - 1.0 * t, -0.15)
+        out = tracker.update(views_for([a, b], 2), t)
+        for p in out:
+            nearest = int(np.argmin([trunk_distance(p.joints, q) for q in (a, b)]))
+            history[nearest].add(p.person_id)
+    assert all(len(ids) == 1 for ids in history.values())
+    assert history[0] != history[1]
+
+
+def test_duplicate_person_from_disjoint_sensors_is_merged() -> None:
+    tracker = PersonTracker(FusionSettings(track_min_frames=1))
+    person = standing()
+    tracker.update([View("s0", 1, person, TRACKED)], 0.0)
+    tracker.update([View("s1", 2, person + [0.6, 0, 0], TRACKED)], 1 / 30)  # a second person
+    assert tracker.track_count == 2
+    # Both tracks now seen at the same place by different sensors: one person.
+    out = tracker.update(
+        [View("s0", 1, person, TRACKED), View("s1", 2, person + [0.05, 0, 0], TRACKED)], 2 / 30
+    )
+    assert len(out) == 1 and out[0].sources == ("s0", "s1")

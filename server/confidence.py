@@ -1,0 +1,374 @@
+"""Body-based confidence of each joint of each view: bone length, range of motion, facing, distance.
+
+Report A (``shared/papers.md``) multiplies body-based terms into the tracking-state weight of
+each joint of each view. Everything here is a pure function on arrays; the terms are combined in
+:mod:`server.tracking` and fused by :func:`server.fusion.fuse_views`.
+
+Shapes: S views of one person, 25 joints, 24 bones (:data:`protocol.skeleton.BONES` order).
+Positions in metres, world frame (+Y up). Every term is in (0, 1], 1 meaning "no doubt", and a
+NaN input gives 1 (no evidence either way: a missing joint already has weight 0).
+
+Bone length (report A, with the printed sign corrected)
+-------------------------------------------------------
+``f(Δl) = exp(−|Δl| / scale)``, Δl the difference between the length a view implies and the
+person's reference length. Chosen over ``1 / (1 + a·|Δl|)`` because it is the likelihood of a
+Laplace-distributed length error, so the product along a chain, ``exp(−Σ|Δl| / scale)``, is
+the likelihood of the whole chain; and because it decays fast enough that a glitch (a limb 15–40
+cm off while still Tracked) ends with a weight near 0 (``exp(−10)`` at 30 cm, where
+``1/(1 + a·|Δl|)`` would still give 0.09 with the same half-weight point).
+
+Each bone's factor lands on its child joint and is propagated multiplicatively outward from
+SpineBase along :data:`PARENTS` (:func:`propagate`): a doubtful elbow makes wrist, hand, hand tip
+and thumb doubtful too (report A: ``C_k(n+1) = C_kn · f(...)``).
+
+Range of motion
+---------------
+Angles are measured in the view's own body frame (left = hips and shoulders, up = SpineBase →
+SpineShoulder, forward = left × up), so they are independent of where the person stands and of
+the sensor. An angle ``excess`` degrees outside its range gives ``exp(−excess / scale)`` on the
+distal joint of the angle (and, by propagation, on everything beyond it). Limits (degrees;
+sources: AAOS, *Joint Motion: Method of Measuring and Recording*, 1965, the reference ranges
+reproduced in Norkin & White, *Measurement of Joint Motion: A Guide to Goniometry*, 5th ed.,
+2016; Soucie et al., "Range of motion measurements: reference values and a database for
+comparison studies", *Haemophilia* 17(3), 2011, for hyperextension in healthy adults):
+
+=================================  ============  ============================================
+angle (factor lands on)            range         notes
+=================================  ============  ============================================
+knee flexion (ankle)               −5 … 145      AAOS 0–135, Soucie ≈ 140; ≤ 5° hyperextension
+elbow flexion, unsigned (wrist)    0 … 150       AAOS 0–150; the hinge axis turns with the arm,
+                                                 so only the unsigned angle is checked
+hip flexion (knee)                 −30 … 130     AAOS flexion 120, extension 30; +10 because the
+                                                 trunk axis includes lumbar flexion (squats)
+hip abduction (knee)               −30 … 50      AAOS abduction 45, adduction 30
+shoulder extension (elbow)         ≤ 60          AAOS extension 60 (flexion/abduction to 180
+                                                 cover everything else)
+ankle: shank → foot (foot)         25 … 150      neutral ≈ 70–90 (where the sensor puts the foot
+                                                 joint), dorsiflexion 20, plantarflexion 50
+neck: trunk → head (head)          0 … 70        AAOS cervical flexion 45, extension 45, plus
+                                                 the SpineShoulder–Neck offset
+=================================  ============  ============================================
+
+Knee, hip and ankle are *signed* in the body frame, which is what makes the term see a skeleton
+whose left and right are swapped: its forward axis is reversed, so every bent knee looks
+hyperextended and every foot points backwards.
+
+Facing and distance
+-------------------
+A Kinect v2 is best when the person faces it at 1.5–3 m: it assumes the person faces it, turns
+the skeleton towards itself by about half the person's yaw relative to it (conventions.md §5),
+and its depth noise grows with distance. ``facing = floor + (1 − floor)·((1 + cos θ)/2)^p``,
+θ the angle between the person's forward direction and the direction to the sensor (1 facing
+it, 0.5^p side-on, ``floor`` from behind); ``distance = exp(−(d_out / scale)²)`` with ``d_out``
+how far the horizontal distance is outside the best band.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+
+from protocol.skeleton import BONES, JOINT_COUNT, PARENTS, JointId
+
+FloatArray = npt.NDArray[np.float64]
+J = JointId
+
+
+def _topological_order() -> tuple[int, ...]:
+    depth = [0] * JOINT_COUNT
+    for joint in range(JOINT_COUNT):
+        node, d = joint, 0
+        while PARENTS[node] >= 0:
+            node, d = PARENTS[node], d + 1
+        depth[joint] = d
+    return tuple(sorted(range(JOINT_COUNT), key=lambda j: (depth[j], j)))
+
+
+CHAIN_ORDER: Final[tuple[int, ...]] = _topological_order()
+"""Joints sorted so that every parent comes before its children (SpineBase first)."""
+
+_BONE_CHILD: Final = np.array([child for _, child in BONES])
+_BONE_PARENT: Final = np.array([parent for parent, _ in BONES])
+
+BONE_NAMES: Final[tuple[str, ...]] = tuple(
+    f"{JointId(p).name.lower()}-{JointId(c).name.lower()}" for p, c in BONES
+)
+"""Bone names for the API: ``parent-child`` in snake case, e.g. ``hip_right-knee_right``."""
+
+
+def propagate(local: npt.ArrayLike) -> FloatArray:
+    """Multiply per-joint factors outward along the kinematic chain from SpineBase.
+
+    Args:
+        local: (..., 25) factor of each joint alone (its bone, its angle).
+
+    Returns:
+        (..., 25) float64: each joint's factor times all its ancestors' factors.
+    """
+    out = np.array(local, dtype=np.float64, copy=True)
+    for joint in CHAIN_ORDER:
+        parent = PARENTS[joint]
+        if parent >= 0:
+            out[..., joint] *= out[..., parent]
+    return out
+
+
+def bone_length_factors(
+    views: npt.ArrayLike, reference: npt.ArrayLike, scale_m: float
+) -> FloatArray:
+    """Local bone-length factor of each joint (not yet propagated).
+
+    Args:
+        views: (S, 25, 3) joints, metres.
+        reference: (24,) reference length of each bone (metres), NaN where unknown.
+        scale_m: length difference that divides the factor by e.
+
+    Returns:
+        (S, 25) float64 in (0, 1]: ``exp(−|l − l_ref| / scale)`` on each bone's child joint;
+        1 on SpineBase and wherever the length or the reference is unknown.
+    """
+    joints = np.asarray(views, dtype=np.float64)
+    ref = np.asarray(reference, dtype=np.float64)
+    lengths = np.linalg.norm(joints[:, _BONE_CHILD] - joints[:, _BONE_PARENT], axis=-1)
+    diff = np.abs(lengths - ref[None, :])
+    factor_bones = np.where(np.isfinite(diff), np.exp(-diff / scale_m), 1.0)
+    out = np.ones(joints.shape[:2])
+    out[:, _BONE_CHILD] = factor_bones
+    return out
+
+
+# --- body frame and angles ----------------------------------------------------------------------
+
+
+def _unit(v: FloatArray) -> FloatArray:
+    norm = np.linalg.norm(v, axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        result: FloatArray = v / norm
+    return result
+
+
+def body_frame(views: npt.ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Each view's own body axes, from its labels.
+
+    Args:
+        views: (S, 25, 3) joints, metres, world frame.
+
+    Returns:
+        left, up, forward: (S, 3) unit vectors (NaN where the trunk is missing). ``left`` is the
+        mean of the hip and shoulder left-minus-right vectors made orthogonal to ``up``
+        (SpineBase → SpineShoulder); ``forward = left × up``.
+    """
+    joints = np.asarray(views, dtype=np.float64)
+    up = _unit(joints[:, J.SPINE_SHOULDER] - joints[:, J.SPINE_BASE])
+    hips = joints[:, J.HIP_LEFT] - joints[:, J.HIP_RIGHT]
+    shoulders = joints[:, J.SHOULDER_LEFT] - joints[:, J.SHOULDER_RIGHT]
+    lateral = np.where(np.isfinite(hips), hips, 0.0) + np.where(
+        np.isfinite(shoulders), shoulders, 0.0
+    )
+    lateral[~(np.isfinite(hips).all(-1) | np.isfinite(shoulders).all(-1))] = np.nan
+    lateral = lateral - (lateral * up).sum(-1, keepdims=True) * up
+    left = _unit(lateral)
+    forward = np.cross(left, up)
+    return left, up, forward
+
+
+def _signed_angle(a: FloatArray, b: FloatArray, axis: FloatArray) -> FloatArray:
+    """Angle from ``a`` to ``b`` (degrees), positive counter-clockwise about ``axis``."""
+    cross = (np.cross(a, b) * axis).sum(-1)
+    dot = (a * b).sum(-1)
+    angle: FloatArray = np.degrees(np.arctan2(cross, dot))
+    return angle
+
+
+def _unsigned_angle(a: FloatArray, b: FloatArray) -> FloatArray:
+    cos = (_unit(a) * _unit(b)).sum(-1)
+    angle: FloatArray = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    return angle
+
+
+ROM_LIMITS_DEG: Final[dict[str, tuple[float, float]]] = {
+    "knee_flexion": (-5.0, 145.0),
+    "elbow_flexion": (0.0, 150.0),
+    "hip_flexion": (-30.0, 130.0),
+    "hip_abduction": (-30.0, 50.0),
+    "shoulder_extension": (-180.0, 60.0),
+    "ankle_shank_foot": (25.0, 150.0),
+    "neck_flexion": (0.0, 70.0),
+}
+"""Anatomical range of each angle (degrees); sources and conventions in the module docstring."""
+
+
+def joint_angles(views: npt.ArrayLike) -> dict[str, tuple[FloatArray, int]]:
+    """The range-of-motion angles of each view (degrees) and the joint each one lands on.
+
+    Args:
+        views: (S, 25, 3) joints, metres, world frame.
+
+    Returns:
+        ``name_side`` → ((S,) angles in degrees, NaN where unknown; distal joint index).
+    """
+    joints = np.asarray(views, dtype=np.float64)
+    left, up, forward = body_frame(joints)
+    out: dict[str, tuple[FloatArray, int]] = {}
+    sides = (
+        ("left", 1.0, J.HIP_LEFT, J.KNEE_LEFT, J.ANKLE_LEFT, J.FOOT_LEFT,
+         J.SHOULDER_LEFT, J.ELBOW_LEFT, J.WRIST_LEFT),
+        ("right", -1.0, J.HIP_RIGHT, J.KNEE_RIGHT, J.ANKLE_RIGHT, J.FOOT_RIGHT,
+         J.SHOULDER_RIGHT, J.ELBOW_RIGHT, J.WRIST_RIGHT),
+    )  # fmt: skip
+    for side, sign, hip, knee, ankle, foot, shoulder, elbow, wrist in sides:
+        thigh = joints[:, knee] - joints[:, hip]
+        shank = joints[:, ankle] - joints[:, knee]
+        foot_v = joints[:, foot] - joints[:, ankle]
+        # Flexion swings the shank backwards: positive about the person's left axis.
+        out[f"knee_flexion_{side}"] = (_signed_angle(thigh, shank, left), int(ankle))
+        # Hip: thigh against the trunk's down axis; flexion forward, abduction outward.
+        down = -up
+        out[f"hip_flexion_{side}"] = (
+            np.degrees(np.arctan2((thigh * forward).sum(-1), (thigh * down).sum(-1))),
+            int(knee),
+        )
+        # Abduction: how far the thigh leaves the sagittal plane (outwards positive).
+        outwards = sign * (_unit(thigh) * left).sum(-1)
+        out[f"hip_abduction_{side}"] = (
+            np.degrees(np.arcsin(np.clip(outwards, -1.0, 1.0))),
+            int(knee),
+        )
+        # Foot points forward from the shank: positive about the person's right axis.
+        out[f"ankle_shank_foot_{side}"] = (_signed_angle(shank, foot_v, -left), int(foot))
+        upper = joints[:, elbow] - joints[:, shoulder]
+        fore = joints[:, wrist] - joints[:, elbow]
+        out[f"elbow_flexion_{side}"] = (_unsigned_angle(upper, fore), int(wrist))
+        # Shoulder extension: the arm behind the trunk while below shoulder height.
+        behind = -(upper * forward).sum(-1)
+        below = (upper * down).sum(-1)
+        extension = np.where(below > 0, np.degrees(np.arctan2(behind, below)), 0.0)
+        out[f"shoulder_extension_{side}"] = (extension, int(elbow))
+    neck = joints[:, J.HEAD] - joints[:, J.NECK]
+    out["neck_flexion"] = (_unsigned_angle(up, neck), int(J.HEAD))
+    return out
+
+
+def range_of_motion_factors(views: npt.ArrayLike, scale_deg: float) -> FloatArray:
+    """Local range-of-motion factor of each joint (not yet propagated).
+
+    Args:
+        views: (S, 25, 3) joints, metres, world frame.
+        scale_deg: degrees outside the range that divide the factor by e.
+
+    Returns:
+        (S, 25) float64 in (0, 1]; 1 where every angle landing on the joint is in range or
+        unknown.
+    """
+    joints = np.asarray(views, dtype=np.float64)
+    out = np.ones(joints.shape[:2])
+    for name, (angles, joint) in joint_angles(joints).items():
+        low, high = ROM_LIMITS_DEG[name.removesuffix("_left").removesuffix("_right")]
+        excess = np.maximum(low - angles, 0.0) + np.maximum(angles - high, 0.0)
+        out[:, joint] *= np.where(np.isfinite(excess), np.exp(-excess / scale_deg), 1.0)
+    return out
+
+
+def facing_direction(joints: npt.ArrayLike) -> FloatArray:
+    """Horizontal unit vector the person faces (3,), from one skeleton; NaN if unknown.
+
+    Args:
+        joints: (25, 3) joints, metres, world frame (+Y up).
+    """
+    _, _, forward = body_frame(np.asarray(joints, dtype=np.float64)[None])
+    horizontal = forward[0] * np.array([1.0, 0.0, 1.0])
+    if not np.isfinite(horizontal).all() or np.linalg.norm(horizontal) < 1e-6:
+        return np.full(3, np.nan)
+    result: FloatArray = horizontal / np.linalg.norm(horizontal)
+    return result
+
+
+def facing_cosines(
+    facing: npt.ArrayLike, body_position: npt.ArrayLike, sensor_positions: npt.ArrayLike
+) -> FloatArray:
+    """cos θ per view: θ between the person's facing and the horizontal direction to the sensor.
+
+    Args:
+        facing: (3,) horizontal unit vector (NaN if unknown).
+        body_position: (3,) a point on the person (SpineBase), metres, world.
+        sensor_positions: (S, 3) sensor positions, metres, world (NaN if unknown).
+
+    Returns:
+        (S,) float64 in [−1, 1]; NaN where unknown.
+    """
+    to_sensor = np.asarray(sensor_positions, dtype=np.float64) - np.asarray(body_position)
+    to_sensor = to_sensor * np.array([1.0, 0.0, 1.0])
+    cos: FloatArray = (_unit(to_sensor) * np.asarray(facing, dtype=np.float64)).sum(-1)
+    return cos
+
+
+def facing_factors(
+    cosines: npt.ArrayLike, power: float, floor: float, back_factor: float = 1.0
+) -> FloatArray:
+    """Facing term per view, (S,) in (0, 1]; 1 where the facing is unknown (NaN).
+
+    ``floor + (1 − floor)·|cos θ|^power``, times ``back_factor`` when the sensor is behind the
+    person (cos θ < 0). A sensor's own yaw bias grows with how far the person is turned from
+    *its axis*, front or back (a view from behind, once its labels are swapped back by
+    :mod:`server.mirror`, is fitted as a front view: conventions.md §5), so side views are the
+    least trusted; a back view also hides the arms in front of the body, hence ``back_factor``.
+    """
+    cos = np.asarray(cosines, dtype=np.float64)
+    value = floor + (1.0 - floor) * np.abs(np.clip(cos, -1.0, 1.0)) ** power
+    value = np.where(cos < 0, value * back_factor, value)
+    return np.where(np.isfinite(cos), value, 1.0)
+
+
+def align_yaw(views: npt.ArrayLike, target_facing: npt.ArrayLike, max_deg: float) -> FloatArray:
+    """Turn each view about the vertical through its SpineBase to face ``target_facing``.
+
+    Corrects each sensor's bias of turning the skeleton towards itself (conventions.md §5)
+    once the person's true facing is known from the views the person faces most directly.
+
+    Args:
+        views: (S, 25, 3) joints, metres, world frame (labels already corrected).
+        target_facing: (3,) horizontal unit vector (NaN: nothing is changed).
+        max_deg: larger corrections are not applied (the view is left as it is).
+
+    Returns:
+        (S, 25, 3) float64 turned views.
+    """
+    joints = np.array(views, dtype=np.float64, copy=True)
+    target = np.asarray(target_facing, dtype=np.float64)
+    if not np.isfinite(target).all():
+        return joints
+    for i in range(joints.shape[0]):
+        own = facing_direction(joints[i])
+        pivot = joints[i, J.SPINE_BASE]
+        if not (np.isfinite(own).all() and np.isfinite(pivot).all()):
+            continue
+        # Signed yaw from own to target about +Y (heading atan2(x, z) as in the simulator).
+        angle = math.atan2(target[0], target[2]) - math.atan2(own[0], own[2])
+        angle = (angle + math.pi) % (2 * math.pi) - math.pi
+        if abs(math.degrees(angle)) > max_deg:
+            continue
+        c, s_ = math.cos(angle), math.sin(angle)
+        rotation = np.array([[c, 0.0, s_], [0.0, 1.0, 0.0], [-s_, 0.0, c]])
+        joints[i] = (joints[i] - pivot) @ rotation.T + pivot
+    return joints
+
+
+def distance_factors(
+    body_position: npt.ArrayLike,
+    sensor_positions: npt.ArrayLike,
+    best_m: tuple[float, float],
+    scale_m: float,
+) -> FloatArray:
+    """Distance term per view, (S,) in (0, 1]: 1 inside ``best_m``, Gaussian fall-off outside.
+
+    Args:
+        body_position: (3,) SpineBase, metres, world.
+        sensor_positions: (S, 3) metres, world; NaN rows give 1.
+    """
+    delta = np.asarray(sensor_positions, dtype=np.float64) - np.asarray(body_position)
+    distance = np.linalg.norm(delta * np.array([1.0, 0.0, 1.0]), axis=-1)
+    outside = np.maximum(best_m[0] - distance, 0.0) + np.maximum(distance - best_m[1], 0.0)
+    return np.where(np.isfinite(outside), np.exp(-((outside / scale_m) ** 2)), 1.0)

@@ -1,0 +1,183 @@
+"""Temporal filters for fused skeletons: vectorised One Euro and constant-velocity Kalman.
+
+One filter object per person track, created at the track's birth (so a new person never
+inherits another's state); each call filters all 25×3 coordinates at once. Timestamps are the
+fusion instants (seconds, server clock), so irregular steps are handled.
+
+A joint that is NaN in the input is NaN in the output (nothing is invented) and its state is
+kept; when it comes back after more than ``reset_gap_s``, that joint restarts from the new
+measurement instead of being pulled towards where it was.
+
+- **One Euro** (Casiez, Roussel & Vogel, CHI 2012): a first-order low-pass whose cut-off rises
+  with speed, ``f_c = min_cutoff + beta·|dx/dt|``: smooth when still, little lag when moving.
+  Per coordinate, exactly as the authors' reference implementation (``OneEuroFilter`` 0.2.1),
+  which the unit tests use as an oracle in scalar form.
+- **Constant-velocity Kalman**: per coordinate, state (position, velocity), white-acceleration
+  process noise ``accel_std`` (m/s²), measurement noise ``meas_std_m``; optionally outputs the
+  state extrapolated ``predict_s`` ahead to cancel its own lag (and the pipeline's).
+
+Added latency of both, measured on ramps and steps, is in docs/fusion.md (``python
+bench/accuracy.py --latency``).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+FloatArray = npt.NDArray[np.float64]
+
+
+class JointFilter(Protocol):
+    """Filters one person's joints over time."""
+
+    def __call__(self, joints: FloatArray, t_s: float) -> FloatArray:
+        """Filter one sample: (..., 3) positions (NaN where unknown) at ``t_s`` seconds."""
+        ...
+
+
+class PassThrough:
+    """No filtering."""
+
+    def __call__(self, joints: FloatArray, t_s: float) -> FloatArray:
+        return np.array(joints, dtype=np.float64, copy=True)
+
+
+class OneEuroFilter:
+    """Vectorised One Euro filter over arrays of any fixed shape.
+
+    Args:
+        min_cutoff_hz: cut-off when still (Hz); lower is smoother and laggier.
+        beta: cut-off increase per unit of speed (Hz per m/s); higher follows fast moves better.
+        d_cutoff_hz: cut-off of the speed estimate (Hz).
+        reset_gap_s: a coordinate missing for longer than this restarts from its next sample.
+    """
+
+    def __init__(
+        self,
+        min_cutoff_hz: float = 1.0,
+        beta: float = 4.0,
+        d_cutoff_hz: float = 1.0,
+        reset_gap_s: float = 0.5,
+    ) -> None:
+        self.min_cutoff_hz = min_cutoff_hz
+        self.beta = beta
+        self.d_cutoff_hz = d_cutoff_hz
+        self.reset_gap_s = reset_gap_s
+        self._x: FloatArray | None = None
+        self._dx: FloatArray | None = None
+        self._t: FloatArray | None = None
+
+    def __call__(self, joints: FloatArray, t_s: float) -> FloatArray:
+        x = np.asarray(joints, dtype=np.float64)
+        if self._x is None or self._dx is None or self._t is None:
+            self._x, self._dx = x.copy(), np.zeros_like(x)
+            self._t = np.where(np.isfinite(x), t_s, -np.inf)
+            return x.copy()
+        present = np.isfinite(x)
+        dt = t_s - self._t
+        fresh = present & (~np.isfinite(self._x) | (dt > self.reset_gap_s))
+        step = present & ~fresh & (dt > 0)
+        safe_dt = np.where(step, dt, 1.0)
+        dx = np.where(step, (x - np.where(step, self._x, 0.0)) / safe_dt, 0.0)
+        alpha_d = 1.0 / (1.0 + 1.0 / (2.0 * math.pi * self.d_cutoff_hz * safe_dt))
+        dx_hat = alpha_d * dx + (1.0 - alpha_d) * self._dx
+        cutoff = self.min_cutoff_hz + self.beta * np.abs(dx_hat)
+        alpha = 1.0 / (1.0 + 1.0 / (2.0 * math.pi * cutoff * safe_dt))
+        x_hat = alpha * np.where(step, x, 0.0) + (1.0 - alpha) * np.where(step, self._x, 0.0)
+        self._x = np.where(step, x_hat, np.where(fresh, x, self._x))
+        self._dx = np.where(step, dx_hat, np.where(fresh, 0.0, self._dx))
+        self._t = np.where(present, t_s, self._t)
+        return np.where(present, self._x, np.nan)
+
+
+class ConstantVelocityKalman:
+    """Per-coordinate constant-velocity Kalman filter, vectorised over arrays of any shape.
+
+    Args:
+        accel_std: process noise, standard deviation of the white acceleration (m/s²).
+        meas_std_m: measurement noise standard deviation (metres).
+        predict_s: output the state extrapolated this far ahead (0: the filtered position).
+        reset_gap_s: a coordinate missing for longer than this restarts from its next sample.
+    """
+
+    def __init__(
+        self,
+        accel_std: float = 8.0,
+        meas_std_m: float = 0.03,
+        predict_s: float = 0.0,
+        reset_gap_s: float = 0.5,
+    ) -> None:
+        self.q = accel_std**2
+        self.r = meas_std_m**2
+        self.predict_s = predict_s
+        self.reset_gap_s = reset_gap_s
+        self._x: FloatArray | None = None  # (..., 2): position, velocity
+        self._p: FloatArray | None = None  # (..., 3): P00, P01, P11
+        self._t: FloatArray | None = None
+
+    def _init(self, z: FloatArray) -> tuple[FloatArray, FloatArray]:
+        x = np.stack([z, np.zeros_like(z)], axis=-1)
+        p = np.stack([np.full_like(z, self.r), np.zeros_like(z), np.full_like(z, 1.0)], axis=-1)
+        return x, p
+
+    def __call__(self, joints: FloatArray, t_s: float) -> FloatArray:
+        z = np.asarray(joints, dtype=np.float64)
+        present = np.isfinite(z)
+        if self._x is None or self._p is None or self._t is None:
+            self._x, self._p = self._init(z)
+            self._t = np.where(present, t_s, -np.inf)
+            return z.copy()
+        dt = t_s - self._t
+        fresh = present & (~np.isfinite(self._x[..., 0]) | (dt > self.reset_gap_s))
+        step = present & ~fresh & (dt > 0)
+        h = np.where(step, dt, 0.0)
+        pos, vel = self._x[..., 0], self._x[..., 1]
+        p00, p01, p11 = self._p[..., 0], self._p[..., 1], self._p[..., 2]
+        # Predict: F = [[1, h], [0, 1]], Q from white acceleration.
+        pos_p = pos + h * vel
+        q = self.q
+        p00_p = p00 + 2 * h * p01 + h * h * p11 + q * h**4 / 4
+        p01_p = p01 + h * p11 + q * h**3 / 2
+        p11_p = p11 + q * h**2
+        # Update with the position measurement.
+        s = p00_p + self.r
+        k0, k1 = p00_p / s, p01_p / s
+        innovation = np.where(step, z, 0.0) - np.where(step, pos_p, 0.0)
+        pos_u = pos_p + k0 * innovation
+        vel_u = vel + k1 * innovation
+        new_p = np.stack([(1 - k0) * p00_p, (1 - k0) * p01_p, p11_p - k1 * p01_p], axis=-1)
+        new_x = np.stack([pos_u, vel_u], axis=-1)
+        init_x, init_p = self._init(np.where(fresh, z, 0.0))
+        self._x = np.where(step[..., None], new_x, np.where(fresh[..., None], init_x, self._x))
+        self._p = np.where(step[..., None], new_p, np.where(fresh[..., None], init_p, self._p))
+        self._t = np.where(present, t_s, self._t)
+        out = self._x[..., 0] + self.predict_s * self._x[..., 1]
+        return np.where(present, out, np.nan)
+
+
+def make_filter(
+    kind: str,
+    *,
+    min_cutoff_hz: float = 1.0,
+    beta: float = 4.0,
+    d_cutoff_hz: float = 1.0,
+    accel_std: float = 8.0,
+    meas_std_m: float = 0.03,
+    predict_s: float = 0.0,
+) -> JointFilter:
+    """A new filter by name: ``none``, ``one_euro`` or ``kalman``.
+
+    Raises:
+        ValueError: for any other name.
+    """
+    if kind == "none":
+        return PassThrough()
+    if kind == "one_euro":
+        return OneEuroFilter(min_cutoff_hz, beta, d_cutoff_hz)
+    if kind == "kalman":
+        return ConstantVelocityKalman(accel_std, meas_std_m, predict_s)
+    raise ValueError(f"unknown filter {kind!r}: use 'none', 'one_euro' or 'kalman'")

@@ -1,0 +1,125 @@
+"""REST for fusion parameters a user sets per person: reference bone lengths.
+
+Report A measures each person's bone lengths beforehand (standing in front of one sensor for a
+few seconds); without that, the server estimates them online (docs/fusion.md). These routes show
+both and let an application set, or clear, a person's lengths:
+
+- ``GET /api/persons/{id}/bones``: ``source`` (``set``, ``estimated`` or ``none``), the
+  ``reference`` lengths fusion uses and the current online ``estimate``, by bone name (metres,
+  ``null`` where unknown).
+- ``PUT /api/persons/{id}/bones``: body ``{"lengths": {"hip_right-knee_right": 0.43, ...}}``
+  with all 24 bones, each finite and within 0.02–1.0 m; 422 with the offending names otherwise.
+- ``DELETE /api/persons/{id}/bones``: back to the online estimate.
+- ``PUT /api/bones/default`` / ``DELETE /api/bones/default``: lengths every *new* person starts
+  with (useful with a single known performer).
+
+Include with ``app.include_router(router)``; the routes read ``request.app.state.hub.tracker``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+from fastapi import APIRouter, HTTPException, Request
+from pydantic import BaseModel
+
+from server.confidence import BONE_NAMES
+from server.tracking import PersonTracker
+
+router = APIRouter(tags=["fusion"])
+
+MIN_BONE_M = 0.02
+MAX_BONE_M = 1.0
+
+
+class BoneLengths(BaseModel):
+    """Reference bone lengths by name (metres): all 24 of ``GET /api/skeleton``'s bones."""
+
+    lengths: dict[str, float]
+
+
+def _tracker(request: Request) -> PersonTracker:
+    tracker: PersonTracker = request.app.state.hub.tracker
+    return tracker
+
+
+def _by_name(values: npt.NDArray[np.float64]) -> dict[str, float | None]:
+    return {
+        name: (round(float(v), 4) if math.isfinite(float(v)) else None)
+        for name, v in zip(BONE_NAMES, values, strict=True)
+    }
+
+
+def _validated(body: BoneLengths) -> npt.NDArray[np.float64]:
+    unknown = sorted(set(body.lengths) - set(BONE_NAMES))
+    missing = [name for name in BONE_NAMES if name not in body.lengths]
+    bad = sorted(
+        name
+        for name, value in body.lengths.items()
+        if name in BONE_NAMES and not (math.isfinite(value) and MIN_BONE_M <= value <= MAX_BONE_M)
+    )
+    problems = []
+    if unknown:
+        problems.append(f"unknown bones {unknown}")
+    if missing:
+        problems.append(f"missing bones {missing}")
+    if bad:
+        problems.append(f"lengths must be finite and within {MIN_BONE_M}–{MAX_BONE_M} m: {bad}")
+    if problems:
+        raise HTTPException(
+            status_code=422,
+            detail="; ".join(problems) + f". Expected all of {list(BONE_NAMES)} in metres.",
+        )
+    return np.array([body.lengths[name] for name in BONE_NAMES], dtype=np.float64)
+
+
+def _person(request: Request, person_id: int) -> dict[str, object]:
+    model = _tracker(request).bone_model(person_id)
+    if model is None:
+        raise HTTPException(status_code=404, detail=f"no person with id {person_id}")
+    return {
+        "id": person_id,
+        "source": model.source,
+        "reference": _by_name(model.reference()),
+        "estimate": _by_name(model.estimate),
+        "units": "m",
+    }
+
+
+@router.get("/api/persons/{person_id}/bones")
+async def get_bones(request: Request, person_id: int) -> dict[str, object]:
+    """A person's reference bone lengths, where they come from, and the online estimate."""
+    return _person(request, person_id)
+
+
+@router.put("/api/persons/{person_id}/bones")
+async def put_bones(request: Request, person_id: int, body: BoneLengths) -> dict[str, object]:
+    """Set a person's reference bone lengths (all 24, metres)."""
+    lengths = _validated(body)
+    if not _tracker(request).set_bone_lengths(person_id, lengths):
+        raise HTTPException(status_code=404, detail=f"no person with id {person_id}")
+    return _person(request, person_id)
+
+
+@router.delete("/api/persons/{person_id}/bones")
+async def delete_bones(request: Request, person_id: int) -> dict[str, object]:
+    """Forget the set lengths: fusion goes back to the online estimate."""
+    if not _tracker(request).set_bone_lengths(person_id, None):
+        raise HTTPException(status_code=404, detail=f"no person with id {person_id}")
+    return _person(request, person_id)
+
+
+@router.put("/api/bones/default")
+async def put_default_bones(request: Request, body: BoneLengths) -> dict[str, object]:
+    """Lengths every new person starts with (as ``set``); existing persons are unchanged."""
+    _tracker(request).default_bone_lengths = _validated(body)
+    return {"default": _by_name(_validated(body))}
+
+
+@router.delete("/api/bones/default")
+async def delete_default_bones(request: Request) -> dict[str, object]:
+    """New persons go back to online estimation."""
+    _tracker(request).default_bone_lengths = None
+    return {"default": None}

@@ -1,0 +1,96 @@
+"""Body-based confidence terms: bone length with chain propagation, range of motion, facing."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from agent.sim.performer import BodyShape, Pose, pose_joints
+from protocol.skeleton import BONES, MIRROR_PERMUTATION, PARENTS, JointId, bone_lengths
+from server.confidence import (
+    CHAIN_ORDER,
+    bone_length_factors,
+    distance_factors,
+    facing_cosines,
+    facing_direction,
+    facing_factors,
+    joint_angles,
+    propagate,
+    range_of_motion_factors,
+)
+
+J = JointId
+
+
+def body(pose: Pose | None = None, heading: float = 0.0) -> np.ndarray:
+    return pose_joints(BodyShape(1.75), pose or Pose(), (0.0, 0.0), heading)
+
+
+def test_chain_order_puts_parents_first() -> None:
+    seen: set[int] = set()
+    for joint in CHAIN_ORDER:
+        assert PARENTS[joint] < 0 or PARENTS[joint] in seen
+        seen.add(joint)
+
+
+def test_bone_length_exact_is_one_and_falls_with_the_error() -> None:
+    view = body()
+    reference = bone_lengths(view)
+    assert np.allclose(bone_length_factors(view[None], reference, 0.05), 1.0)
+    longer = bone_length_factors(view[None], reference - 0.05, 0.05)[0]
+    child = BONES.index((J.ELBOW_RIGHT, J.WRIST_RIGHT))
+    assert longer[J.WRIST_RIGHT] == pytest.approx(np.exp(-1.0))
+    assert child >= 0
+    # Unknown reference: no evidence either way.
+    assert np.allclose(bone_length_factors(view[None], np.full(24, np.nan), 0.05), 1.0)
+
+
+def test_doubtful_elbow_makes_the_wrist_and_hand_doubtful() -> None:
+    view = body()
+    reference = bone_lengths(view)
+    view[J.ELBOW_RIGHT] += [0.0, -0.10, 0.0]  # upper arm 10 cm longer, forearm 10 cm shorter
+    local = bone_length_factors(view[None], reference, 0.05)
+    chained = propagate(local)[0]
+    assert chained[J.ELBOW_RIGHT] < 0.5
+    for joint in (J.WRIST_RIGHT, J.HAND_RIGHT, J.HAND_TIP_RIGHT, J.THUMB_RIGHT):
+        assert chained[joint] <= chained[J.ELBOW_RIGHT] + 1e-12
+    assert chained[J.WRIST_LEFT] == pytest.approx(1.0)
+    assert chained[J.SPINE_BASE] == pytest.approx(1.0)
+
+
+def test_true_poses_are_within_range_of_motion() -> None:
+    for pose in (Pose(), Pose(knee_flex_l=1.5, hip_flex_l=1.2), Pose(elbow_flex_r=2.0),
+                 Pose(shoulder_abd_l=2.8, shoulder_abd_r=2.8)):  # fmt: skip
+        assert np.allclose(range_of_motion_factors(body(pose)[None], 15.0), 1.0)
+
+
+def test_knee_angle_is_signed_and_mirroring_makes_it_hyperextended() -> None:
+    view = body(Pose(knee_flex_l=0.8, knee_flex_r=0.8), heading=1.0)
+    angles = joint_angles(view[None])
+    assert angles["knee_flexion_left"][0][0] == pytest.approx(np.degrees(0.8), abs=1e-6)
+    mirrored = view[list(MIRROR_PERMUTATION)][None]
+    assert joint_angles(mirrored)["knee_flexion_left"][0][0] < -40
+    factors = range_of_motion_factors(mirrored, 15.0)[0]
+    assert factors[J.ANKLE_LEFT] < 0.1 and factors[J.FOOT_LEFT] < 0.1
+
+
+def test_hyperextended_knee_is_penalised_smoothly() -> None:
+    view = body(Pose(knee_flex_l=-np.radians(20.0)))
+    factor = range_of_motion_factors(view[None], 15.0)[0, J.ANKLE_LEFT]
+    assert factor == pytest.approx(np.exp(-15.0 / 15.0), rel=1e-6)
+
+
+def test_facing_and_distance_terms() -> None:
+    view = body(heading=0.0)  # faces +Z
+    facing = facing_direction(view)
+    np.testing.assert_allclose(facing, [0.0, 0.0, 1.0], atol=1e-9)
+    sensors = np.array([[0.0, 1.0, 2.5], [2.5, 1.0, 0.0], [0.0, 1.0, -2.5], [np.nan] * 3])
+    cos = facing_cosines(facing, view[J.SPINE_BASE], sensors)
+    np.testing.assert_allclose(cos[:3], [1.0, 0.0, -1.0], atol=1e-9)
+    f = facing_factors(cos, 2.0, 0.1, 0.5)
+    assert f[0] == pytest.approx(1.0) and f[1] == pytest.approx(0.1)
+    assert f[2] == pytest.approx(0.5) and f[3] == 1.0
+    d = distance_factors(view[J.SPINE_BASE], sensors, (1.5, 3.0), 1.0)
+    assert np.allclose(d[:3], 1.0)
+    far = distance_factors(view[J.SPINE_BASE], np.array([[0.0, 1.0, 4.0]]), (1.5, 3.0), 1.0)
+    assert far[0] == pytest.approx(np.exp(-1.0))

@@ -1,0 +1,56 @@
+"""Mirrored-view detection: which views have left and right swapped."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from agent.sim.performer import BodyShape, Pose, pose_joints
+from protocol.skeleton import MIRROR_PERMUTATION
+from server.mirror import choose_labelling
+
+WALK = Pose(hip_flex_l=0.3, hip_flex_r=-0.3, knee_flex_l=0.6, knee_flex_r=0.1,
+            shoulder_flex_l=-0.3, shoulder_flex_r=0.3)  # fmt: skip
+FRONT = np.array([0.0, 1.0, 2.5])  # the person faces +Z
+BACK = np.array([0.0, 1.0, -2.5])
+SIDE = np.array([2.5, 1.0, 0.0])
+
+
+def person(pose: Pose = WALK) -> np.ndarray:
+    return pose_joints(BodyShape(1.75), pose, (0.0, 0.0), 0.0)
+
+
+def mirrored(joints: np.ndarray) -> np.ndarray:
+    return joints[list(MIRROR_PERMUTATION)]
+
+
+def test_back_view_is_found_among_front_and_side() -> None:
+    truth = person()
+    views = np.stack([truth, mirrored(truth), truth])
+    result = choose_labelling(views, np.stack([FRONT, BACK, SIDE]))
+    assert result.tolist() == [False, True, False]
+
+
+def test_a_single_back_view_is_found_from_anatomy() -> None:
+    truth = person()
+    assert choose_labelling(mirrored(truth)[None], BACK[None]).tolist() == [True]
+    assert choose_labelling(truth[None], FRONT[None]).tolist() == [False]
+
+
+def test_all_views_from_behind_are_corrected_with_a_track() -> None:
+    truth = person()
+    views = np.stack([mirrored(truth), mirrored(truth)])
+    sensors = np.stack([BACK, BACK + [1.0, 0.0, 0.0]])
+    result = choose_labelling(views, sensors, reference=truth)
+    assert result.tolist() == [True, True]
+
+
+def test_hysteresis_keeps_an_ambiguous_decision() -> None:
+    standing = person(Pose())
+    # Side-on, standing still: both labellings are nearly as good; keep the previous one.
+    views = np.stack([standing, standing])
+    result = choose_labelling(views, np.stack([SIDE, SIDE]), previous=np.array([0, 0]))
+    assert result.tolist() == [False, False]
+
+
+def test_no_views() -> None:
+    assert choose_labelling(np.zeros((0, 25, 3)), np.zeros((0, 3))).shape == (0,)
