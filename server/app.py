@@ -23,7 +23,7 @@ from prometheus_client import CollectorRegistry, make_asgi_app
 
 from calibration.store import CalibrationStore
 from protocol.skeleton import skeleton_definition
-from server import __version__, routes_calibration
+from server import __version__, routes_calibration, routes_fusion, routes_recordings
 from server.auth import SensorAuthenticator
 from server.broadcast import Broadcaster, Variant, encode_message, pump
 from server.calibration_runs import CalibrationService
@@ -80,6 +80,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         try:
             yield
         finally:
+            active = app.state.recording
+            if active is not None:  # close the file properly, with its end record
+                hub.recorder = None
+                active[1].close()
             for task in tasks:
                 task.cancel()
             await asyncio.gather(*tasks, return_exceptions=True)
@@ -96,6 +100,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         lifespan=lifespan,
     )
     app.state.settings = settings
+    app.state.recording = None
 
     @app.exception_handler(RequestValidationError)
     async def invalid_request(request: Request, exc: RequestValidationError) -> JSONResponse:
@@ -195,6 +200,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             broadcaster.remove(client)
 
     app.include_router(routes_calibration.router)
+    app.include_router(routes_recordings.router)
+    app.include_router(routes_fusion.router)
     app.add_middleware(HttpGuard, settings=settings)
     app.mount("/metrics", make_asgi_app(registry))
 

@@ -14,7 +14,7 @@ import time
 from collections import Counter
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from calibration.store import Calibration
 from protocol.constants import MAX_MESSAGE_BYTES, MAX_RESPONSE_BYTES
@@ -37,6 +37,9 @@ from server.sensors import SensorState, bodies_at, new_sensor
 from server.settings import Settings
 from server.stats import RollingStats
 from server.tracking import FusedPerson, PersonTracker, View
+
+if TYPE_CHECKING:
+    from recording.recorder import Recorder
 
 logger = logging.getLogger(__name__)
 
@@ -84,6 +87,8 @@ class FusionHub:
         self.send: SendFunction | None = None
         """Set by the ingest side: sends one message to the agent with this routing id."""
         self._pending: dict[int, tuple[str, asyncio.Future[Response]]] = {}
+        self.recorder: Recorder | None = None
+        """While a recording runs: every accepted hello and frame, as received."""
         self.fusion_timing = RollingStats()
         """Seconds of compute per fusion step."""
         self.fusion_lag = RollingStats()
@@ -128,7 +133,10 @@ class FusionHub:
                         f"{message.sensor_id!r}: run it with --id {user_id}",
                     )
                 ]
-            return [self._register(message, routing_id, now_mono)]
+            reply = self._register(message, routing_id, now_mono)
+            if isinstance(reply, Welcome) and self.recorder is not None:
+                self.recorder.on_hello(message.sensor_id, parts[0], now_s)
+            return [reply]
         if sensor is None:
             self.rejected_unregistered["not_registered"] += 1
             return [ErrorMessage("not_registered", "send hello first (did the server restart?)")]
@@ -140,6 +148,8 @@ class FusionHub:
                     self._reject(sensor, "replayed_seq")
                     return []
                 sensor.add_frame(message, now_s, now_mono)
+                if self.recorder is not None:
+                    self.recorder.on_frame(sensor.sensor_id, parts[0], now_s)
                 self.frame_arrived.set()
             case Heartbeat():
                 pass

@@ -12,6 +12,7 @@ import threading
 from collections.abc import Sequence
 from pathlib import Path
 
+from agent.sources.registry import SOURCE_KINDS
 from protocol.constants import DEFAULT_HTTP_PORT, DEFAULT_ZMQ_PORT
 
 
@@ -124,24 +125,10 @@ def cmd_agent(args: argparse.Namespace) -> int:
     import time
 
     from agent.runner import run_agent
+    from skelfuse.cli_ext import source_from_args
 
-    if args.source != "sim":
-        raise UsageError(f"source {args.source!r} is not available in this version (use sim)")
-    from agent.sim.performer import ProceduralPerformer
-    from agent.sources.sim import SimSource
-    from protocol.transform import pose_from_position_yaw_pitch
-
-    position, yaw, pitch = parse_pose(args.pose)
-    if not 1 <= args.persons <= 6:
-        raise UsageError("--persons must be 1..6")
-    seed = args.seed if args.seed is not None else sum(args.id.encode())
-    source = SimSource(
-        ProceduralPerformer(args.persons),
-        pose_from_position_yaw_pitch(position, yaw, pitch),
-        seed=seed,
-        clock_offset_ns=int(args.clock_offset_ms * 1e6),
-        send_pose_hint=args.pose_hint,
-    )
+    args.pose_given = args.pose is not None
+    source = source_from_args(args)
     curve = None
     if args.key or args.server_key:
         if not (args.key and args.server_key):
@@ -255,7 +242,12 @@ def build_parser() -> argparse.ArgumentParser:
     server.set_defaults(func=cmd_server)
 
     agent = sub.add_parser("agent", help="run a capture agent for one sensor")
-    agent.add_argument("--source", default="sim", choices=["sim"], help="sensor source")
+    agent.add_argument(
+        "--source",
+        default="sim",
+        choices=list(SOURCE_KINDS),
+        help="sensor source; 'skelfuse doctor' says which can run on this PC",
+    )
     agent.add_argument(
         "--server",
         default=f"tcp://127.0.0.1:{DEFAULT_ZMQ_PORT}",
@@ -264,8 +256,9 @@ def build_parser() -> argparse.ArgumentParser:
     agent.add_argument("--id", required=True, help="this sensor's unique id, e.g. kinect-front")
     agent.add_argument(
         "--pose",
-        default="0,1.0,3.0,180",
-        help="sim: X,Y,Z,YAW_DEG[,PITCH_DEG] of the simulated sensor in the room "
+        default=None,
+        help="X,Y,Z,YAW_DEG[,PITCH_DEG]: sim: where the simulated sensor stands (default "
+        "0,1.0,3.0,180); real sensors: a hand-measured pose sent as a hint until calibrated "
         "(metres, Y up; yaw 0 looks along +Z, 90 along +X; +pitch looks down); "
         "write --pose=-2,1,3,90 when X is negative",
     )
@@ -289,6 +282,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     agent.add_argument("--duration", type=float, default=None, help="stop after N seconds")
     agent.set_defaults(func=cmd_agent)
+
+    from skelfuse import cli_ext
+
+    cli_ext.add_source_arguments(agent)
 
     keys = sub.add_parser("keys", help="create and list CurveZMQ keys for the server and agents")
     keys.add_argument("action", choices=["create", "list"])
@@ -317,6 +314,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     demo.add_argument("--duration", type=float, default=None, help="stop after N seconds")
     demo.set_defaults(func=cmd_demo)
+    cli_ext.register(sub)
     return parser
 
 

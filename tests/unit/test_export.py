@@ -1,0 +1,150 @@
+"""Exports: BVH round trip, CSV/JSON tables, C3D (Z up, mm, residual −1 for missing)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from agent.sim.mocap import load_asf_amc, load_bvh
+from agent.sim.performer import ProceduralPerformer
+from protocol.skeleton import JOINT_NAMES
+from recording.export_bvh import (
+    NODES,
+    bvh_from_joints,
+    euler_zxy_deg,
+    read_bvh,
+    roundtrip_errors_m,
+)
+from recording.export_c3d import export_c3d, read_c3d, z_up_mm
+from recording.export_table import csv_header, export_csv, export_json
+from recording.take import PersonTrack, Take, TakeError, resample, take_from_jsonl
+
+
+def _track(
+    joints: np.ndarray, fps: float = 30.0, person_id: int = 1, first: int = 0
+) -> PersonTrack:
+    times = 1_800_000_000.0 + (first + np.arange(joints.shape[0])) / fps
+    confidence = np.where(np.isfinite(joints).all(axis=2), 0.9, 0.0)
+    return PersonTrack(person_id, times, joints, confidence)
+
+
+def test_bvh_round_trip_within_1_cm_on_cmu_motion(cmu_dir: Path) -> None:
+    for clip in (load_bvh(cmu_dir / "scaled_131_01.bvh"),
+                 load_asf_amc(cmu_dir / "02.asf", cmu_dir / "02_01.amc")):  # fmt: skip
+        joints = clip.joints_m.astype(np.float64)[::2]
+        errors = roundtrip_errors_m(joints, bvh_from_joints(joints, clip.fps / 2))
+        assert errors.max() < 0.01, f"{clip.name}: max {errors.max() * 1000:.1f} mm"
+
+
+def test_bvh_round_trip_on_the_simulator_routine_with_missing_joints() -> None:
+    performer = ProceduralPerformer(1)
+    joints = np.stack([performer.joints_at(t)[0] for t in np.arange(0, 27, 1 / 15)])
+    joints[10:14, 7] = np.nan  # a hand lost for a few frames
+    joints[40, :] = np.nan  # a whole frame lost
+    text = bvh_from_joints(joints, 15.0)
+    errors = roundtrip_errors_m(joints, text)
+    assert errors.max() < 0.01 and errors.size == np.isfinite(joints[..., 0]).sum()
+    bvh = read_bvh(text)
+    assert [j.name for j in bvh.joints if j.name in JOINT_NAMES] == [
+        n.name for n in NODES if n.child is None
+    ]
+    assert bvh.motion.shape[0] == joints.shape[0] and bvh.frame_time_s == pytest.approx(1 / 15)
+
+
+def test_bvh_stretch_mode_reproduces_noisy_bone_lengths() -> None:
+    performer = ProceduralPerformer(1)
+    rng = np.random.default_rng(0)
+    joints = np.stack([performer.joints_at(t)[0] for t in np.arange(0, 5, 1 / 30)])
+    joints += rng.normal(scale=0.01, size=joints.shape)
+    assert roundtrip_errors_m(joints, bvh_from_joints(joints, 30, stretch=True)).max() < 1e-4
+
+
+def test_euler_zxy_inverts_rotation_matrices() -> None:
+    from recording.export_bvh import _axis_matrix
+
+    rng = np.random.default_rng(2)
+    q = rng.normal(size=(50, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    w, x, y, z = q.T
+    rotation = np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+    ], axis=1)  # fmt: skip
+    angles = euler_zxy_deg(rotation)
+    rebuilt = (_axis_matrix("Z", angles[:, 0]) @ _axis_matrix("X", angles[:, 1])
+               @ _axis_matrix("Y", angles[:, 2]))  # fmt: skip
+    np.testing.assert_allclose(rebuilt, rotation, atol=1e-9)
+
+
+def test_resample_interpolates_and_leaves_gaps_empty() -> None:
+    joints = np.zeros((4, 25, 3))
+    joints[:, :, 0] = np.arange(4)[:, None]
+    track = PersonTrack(1, np.array([0.0, 0.1, 0.2, 1.0]), joints, np.ones((4, 25)))
+    times, out, confidence = resample(track, 20.0)
+    assert times.size == 21
+    assert out[1, 0, 0] == pytest.approx(0.5) and np.isnan(out[10, 0, 0])
+    assert confidence[10, 0] == 0 and out[20, 0, 0] == 3
+
+
+def _take() -> Take:
+    performer = ProceduralPerformer(2)
+    joints = np.stack([performer.joints_at(t) for t in np.arange(0, 2, 1 / 30)])
+    a, b = joints[:, 0].copy(), joints[:, 1].copy()
+    a[5, 3] = np.nan
+    return Take({1: _track(a, person_id=1), 4: _track(b[10:], person_id=4, first=10)})
+
+
+def test_csv_and_json_carry_positions_and_confidences(tmp_path: Path) -> None:
+    take = _take()
+    rows = export_csv(take, tmp_path / "t.csv")
+    with (tmp_path / "t.csv").open() as handle:
+        table = list(csv.DictReader(handle))
+    assert rows == len(table) == 60 + 50 and list(table[0]) == csv_header()
+    row = next(r for r in table if r["person_id"] == "1" and float(r["t_s"]) > 1_800_000_000.16)
+    assert row["Head_x"] == "" and row["Head_c"] == "0"
+    assert float(row["SpineBase_c"]) == pytest.approx(0.9)
+    export_json(take, tmp_path / "t.json")
+    data = json.loads((tmp_path / "t.json").read_text())
+    assert [p["id"] for p in data["persons"]] == [1, 4] and data["persons"][0]["joints"][5][
+        3
+    ] is None
+
+
+def test_c3d_is_z_up_millimetres_with_invalid_markers(tmp_path: Path) -> None:
+    take = _take()
+    frames = export_c3d(take, tmp_path / "t.c3d", fps=30.0)
+    data = read_c3d(tmp_path / "t.c3d")
+    assert frames == 60 and data.rate_hz == 30.0 and len(data.labels) == 50
+    assert data.labels[0] == "P1_SpineBase" and data.labels[25] == "P4_SpineBase"
+    expected = z_up_mm(take.persons[1].joints[0, 0])
+    np.testing.assert_allclose(data.points[0, 0], expected, atol=0.01)
+    assert expected[2] > 500  # height is +Z
+    assert np.isnan(data.points[5, 3]).all()  # unknown joint: residual -1
+    assert np.isnan(data.points[:10, 25:]).all()  # person 4 not there yet
+    c3d = pytest.importorskip("c3d")  # independent reader, when installed
+    with (tmp_path / "t.c3d").open("rb") as handle, warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # "No analog data found"
+        reader = c3d.Reader(handle)
+        points = [p for _, p, _ in reader.read_frames()]
+    assert len(points) == 60 and points[5][3][3] == -1
+    np.testing.assert_allclose(points[0][0][:3], expected, atol=0.01)
+
+
+def test_take_from_jsonl_and_empty_takes(tmp_path: Path) -> None:
+    lines = [
+        {"type": "skeleton"},
+        {"type": "frame", "t": 1.0, "persons": [{"id": 2, "joints": [[0, 1, 2]] + [None] * 24,
+                                                  "confidence": [1.0] + [0.0] * 24}]},
+    ]  # fmt: skip
+    path = tmp_path / "live.jsonl"
+    path.write_text("\n".join(json.dumps(x) for x in lines))
+    take = take_from_jsonl(path)
+    assert take.main_person().person_id == 2 and np.isnan(take.persons[2].joints[0, 1]).all()
+    with pytest.raises(TakeError, match="nobody"):
+        Take({}).main_person()

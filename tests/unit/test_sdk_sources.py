@@ -1,0 +1,213 @@
+"""SDK sources against fakes of their Python APIs (tests/fakes): no hardware here."""
+
+from __future__ import annotations
+
+import importlib
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+import pytest
+
+from agent.sources.base import SensorError
+from agent.sources.registry import SOURCE_KINDS, check_sources, make_source
+from protocol.constants import MAX_RESPONSE_BYTES
+from protocol.skeleton import AZURE_JOINT_COUNT, azure_to_kinect_v2
+from protocol.wire import Frame, Response, decode, encode
+
+FAKES = Path(__file__).resolve().parents[1] / "fakes"
+
+
+def _forget(prefix: str) -> None:
+    for name in [m for m in sys.modules if m == prefix or m.startswith(prefix + ".")]:
+        del sys.modules[name]
+
+
+@pytest.fixture
+def fake_pykinect2(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    from agent.sources.kinect_v2 import PyKinect2Fixer
+
+    monkeypatch.syspath_prepend(str(FAKES))
+    _forget("pykinect2")
+    yield
+    _forget("pykinect2")
+    sys.meta_path[:] = [f for f in sys.meta_path if not isinstance(f, PyKinect2Fixer)]
+
+
+@pytest.fixture
+def fake_k4a(monkeypatch: pytest.MonkeyPatch) -> Iterator[ModuleType]:
+    monkeypatch.syspath_prepend(str(FAKES))
+    _forget("pykinect_azure")
+    module = importlib.import_module("pykinect_azure")
+    module.SCRIPT.clear()
+    module.CALLS.clear()
+    yield module
+    _forget("pykinect_azure")
+
+
+class FakeClock:
+    def __init__(self, start_ns: int = 1_800_000_000_000_000_000) -> None:
+        self.now = start_ns
+
+    def __call__(self) -> int:
+        return self.now
+
+
+# --- Kinect v2 ---------------------------------------------------------------------------------
+
+
+def test_patch_fixes_each_known_line_and_leaves_others() -> None:
+    from agent.sources.kinect_v2 import patch_pykinect_source
+
+    source = (
+        "assert sizeof(tagSTATSTG) == 72, sizeof(tagSTATSTG)\n"
+        "from comtypes import _check_version; _check_version('')\nx = 1\n"
+    )
+    patched, applied = patch_pykinect_source("pykinect2.PyKinectV2", source)
+    assert "in (72, 80)" in patched and "_check_version('')" not in patched
+    assert "x = 1" in patched and len(applied) == 2
+    runtime = "t = time.clock()\na = numpy.ndarray((6), dtype=numpy.object)\n"
+    patched, applied = patch_pykinect_source("pykinect2.PyKinectRuntime", runtime)
+    assert "time.perf_counter()" in patched and "dtype=object" in patched
+    assert patch_pykinect_source("pykinect2.PyKinectV2", "fixed fork\n") == ("fixed fork\n", [])
+
+
+def test_unpatched_fake_fails_like_the_real_pykinect2(fake_pykinect2: None) -> None:
+    if sys.maxsize <= 2**32:
+        pytest.skip("the tagSTATSTG size bug only shows on 64-bit Python")
+    with pytest.raises(AssertionError, match="80"):
+        importlib.import_module("pykinect2.PyKinectV2")
+
+
+def _kinect_frame(runtime: Any, relative: int, floor: tuple[float, ...]) -> Any:
+    joints = np.arange(75, dtype=np.float64).reshape(25, 3) / 100.0
+    states = [2] * 25
+    states[7] = 1
+    states[21] = 0
+    body = runtime.KinectBody(72057594037928141, joints, states)
+    return runtime.KinectBodyFrameData([runtime.KinectBody(), body], floor, relative)
+
+
+def test_kinect_v2_source_maps_joints_states_floor_and_time(fake_pykinect2: None) -> None:
+    from agent.sources.kinect_v2 import KinectV2Source, import_pykinect2
+
+    _, runtime = import_pykinect2()  # the fake, loaded through skelfuse's fixes
+    clock = FakeClock()
+    source = KinectV2Source(wall_clock_ns=clock, sleep=lambda s: None)
+    runtime.SCRIPT[:] = [
+        _kinect_frame(runtime, 10_000_000, (0.0, 0.99, 0.14, 1.0)),
+        _kinect_frame(runtime, 10_333_333, (0.0, 0.0, 0.0, 0.0)),
+    ]
+    first = source.next_capture(0.1)
+    clock.now += 40_000_000  # the PC saw it 40 ms later; the device says 33.3 ms
+    second = source.next_capture(0.1)
+    assert first is not None and second is not None
+    assert len(first.bodies) == 1
+    body = first.bodies[0]
+    assert body.tracking_id == 72057594037928141
+    np.testing.assert_allclose(body.joints_m[1], [0.03, 0.04, 0.05], atol=1e-6)
+    assert body.states[7] == 1 and body.states[21] == 0 and body.states[0] == 2
+    assert first.floor is not None and abs(np.linalg.norm(first.floor[:3]) - 1) < 1e-6
+    assert second.floor is None  # (0, 0, 0, 0): the SDK has not found the floor
+    assert second.t_capture_ns - first.t_capture_ns == 33_333_300  # device spacing kept
+    assert source.last_relative_time == 10_333_333
+    assert source.next_capture(0.0) is None
+    source.close()
+    assert runtime.OPENED[-1].closed
+    encode(Frame(1, first.t_capture_ns, first.bodies, first.floor))  # wire-valid
+
+
+# --- Azure Kinect / Femto ----------------------------------------------------------------------
+
+
+def _azure_body(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    joints = rng.uniform(-800, 800, size=(AZURE_JOINT_COUNT, 3))
+    joints[:, 2] = rng.uniform(1500, 3000, size=AZURE_JOINT_COUNT)
+    levels = rng.integers(0, 3, size=AZURE_JOINT_COUNT)
+    return joints, levels
+
+
+def test_azure_source_maps_32_joints_mm_ydown_and_confidence(fake_k4a: ModuleType) -> None:
+    from agent.sources.azure_kinect import AzureKinectSource
+
+    rng = np.random.default_rng(1)
+    joints, levels = _azure_body(rng)
+    fake_k4a.SCRIPT[:] = [(1_000_000, [(7, joints, levels)], None),
+                          (1_033_333, [], None)]  # fmt: skip
+    clock = FakeClock()
+    source = AzureKinectSource(wall_clock_ns=clock)
+    assert ("initialize_libraries", None, None, True) in fake_k4a.CALLS
+    assert ("start_device", 0, fake_k4a.K4A_DEPTH_MODE_NFOV_UNBINNED, 0) in fake_k4a.CALLS
+    first = source.next_capture(0.1)
+    clock.now += 50_000_000
+    second = source.next_capture(0.1)
+    assert first is not None and second is not None
+    expected_joints, expected_states = azure_to_kinect_v2(joints.astype(np.float32), levels)
+    np.testing.assert_allclose(first.bodies[0].joints_m, expected_joints, atol=1e-6)
+    np.testing.assert_array_equal(first.bodies[0].states, expected_states)
+    # Y down, mm -> Y up, m: the pelvis seen at +y (below the camera) comes out at -y.
+    assert first.bodies[0].joints_m[0, 1] == pytest.approx(-joints[0, 1] / 1000, abs=1e-5)
+    assert first.bodies[0].tracking_id == 7 and first.floor is None
+    assert second.t_capture_ns - first.t_capture_ns == 33_333_000
+    assert source.last_device_timestamp_us == 1_033_333
+    assert source.next_capture(0.01) is None  # the SDK timed out: no frame, no crash
+    source.close()
+
+
+def test_femto_passes_the_orbbec_wrapper_library(fake_k4a: ModuleType) -> None:
+    from agent.sources.azure_kinect import AzureKinectSource
+
+    source = AzureKinectSource(
+        "femto", k4a_path="/opt/orbbec/libk4a.so", depth_mode="WFOV_2X2BINNED"
+    )
+    assert source.sensor_type == "femto"
+    assert ("initialize_libraries", "/opt/orbbec/libk4a.so", None, True) in fake_k4a.CALLS
+    assert fake_k4a.CALLS[-1][2] == fake_k4a.K4A_DEPTH_MODE_WFOV_2X2BINNED
+    with pytest.raises(SensorError, match="depth mode"):
+        AzureKinectSource(depth_mode="HUGE")
+
+
+def test_depth_cloud_is_in_our_sensor_frame_and_fits_one_message(fake_k4a: ModuleType) -> None:
+    from agent.sources.azure_kinect import AzureKinectSource
+
+    cloud = np.zeros((20_000, 3), dtype=np.int16)
+    cloud[:, 0] = 100
+    cloud[:, 1] = -200  # above the camera in Azure's Y-down frame
+    cloud[:, 2] = 2000
+    cloud[::2, 2] = 0  # no depth
+    fake_k4a.SCRIPT[:] = [(5, [], cloud)]
+    source = AzureKinectSource()
+    with pytest.raises(SensorError, match="no depth"):
+        source.depth_cloud({})
+    source.next_capture(0.1)
+    result = source.depth_cloud({})
+    points = np.frombuffer(result["points"], dtype="<f4").reshape(-1, 3)
+    assert result["count"] == points.shape[0] and 0 < points.shape[0] <= 10_000
+    np.testing.assert_allclose(points[0], [-0.1, 0.2, 2.0], atol=1e-6)
+    assert source.request_handlers()["depth_cloud"] == source.depth_cloud
+    message = encode(Response(1, True, result))
+    decoded = decode(message, MAX_RESPONSE_BYTES)  # the server's limit while it waits
+    assert isinstance(decoded, Response) and decoded.result["count"] == result["count"]
+
+
+# --- registry ----------------------------------------------------------------------------------
+
+
+def test_check_sources_says_why_each_sdk_source_cannot_run_here() -> None:
+    checks = {c.kind: c for c in check_sources()}
+    assert tuple(checks) == SOURCE_KINDS
+    assert checks["sim"].available and checks["replay"].available
+    for kind in ("kinect_v2", "azure_kinect", "femto"):
+        assert checks[kind].reason
+    if sys.platform != "win32":
+        assert not checks["kinect_v2"].available and "Windows" in checks["kinect_v2"].reason
+
+
+def test_make_source_refuses_unknown_kinds_and_missing_files() -> None:
+    with pytest.raises(SensorError, match="unknown source"):
+        make_source("kinect_v3", {})
+    with pytest.raises(SensorError, match="--file"):
+        make_source("replay", {})
