@@ -25,6 +25,8 @@ import urllib.request
 from pathlib import Path
 from typing import Any
 
+from server.auth import create_agent_keys, create_server_keys, key_paths
+
 logger = logging.getLogger("skelfuse.demo")
 
 SENSOR_RING_RADIUS_M = 3.0
@@ -155,9 +157,17 @@ def run_demo(
         f"tcp://{host}:{zmq_port}" if host not in ("0.0.0.0", "::") else f"tcp://*:{zmq_port}"
     )
     agent_host = "127.0.0.1" if host in ("0.0.0.0", "::") else host
+    # Secure like a real rig: every simulated agent gets its own CurveZMQ key (docs/security.md).
+    layout = sensor_layout(sensors)
+    keys = key_paths(data_dir)
+    create_server_keys(data_dir)
+    agent_keys = {sensor_id: create_agent_keys(data_dir, sensor_id) for sensor_id, _ in layout}
     server = subprocess.Popen(
-        [*python, "server", "--http", f"{host}:{port}", "--zmq", zmq_bind, "--data", str(data_dir)]
-    )
+        [
+            *python, "server", "--http", f"{host}:{port}", "--zmq", zmq_bind,
+            "--data", str(data_dir), "--curve",
+        ]
+    )  # fmt: skip
     processes: list[subprocess.Popen[bytes]] = [server]
     stop = threading.Event()
 
@@ -172,7 +182,7 @@ def run_demo(
                 "the server did not start (is port %d or %d already in use?)", port, zmq_port
             )
             return 1
-        for sensor_id, pose in sensor_layout(sensors):
+        for sensor_id, pose in layout:
             processes.append(
                 subprocess.Popen(
                     [
@@ -188,6 +198,8 @@ def run_demo(
                         "--server",
                         f"tcp://{agent_host}:{zmq_port}",
                         *(["--no-pose-hint"] if calibration == "auto" else []),
+                        f"--key={agent_keys[sensor_id]}",
+                        f"--server-key={keys.server_public}",
                     ]
                 )
             )
