@@ -52,7 +52,7 @@ from calibration.errors import CalibrationError
 from calibration.floor import fit_floor, floor_error, floor_from_kinect_plane
 from calibration.icp import IcpResult, refine_all
 from calibration.rigid import fit_rigid, pose_error
-from calibration.skeleton_pose import solve_from_skeletons
+from calibration.skeleton_pose import SKELETON_ERROR_BOUND, solve_from_skeletons
 from protocol.transform import Matrix4, apply, invert, look_at_pose
 
 F64 = npt.NDArray[np.float64]
@@ -198,7 +198,10 @@ def run(layouts: int, seed: int, seconds: float) -> dict[str, dict[str, list[flo
             started = time.perf_counter()
             usable = {k: v for k, v in clouds.items() if k in inits[method]}
             try:
-                results: dict[str, IcpResult] = refine_all(usable, inits[method], "s0")
+                cap = SKELETON_ERROR_BOUND if method == "skeleton" else None
+                results: dict[str, IcpResult] = refine_all(
+                    usable, inits[method], "s0", max_correction=cap
+                )
             except CalibrationError as exc:
                 print(f"layout {index} {method}→ICP: {exc}", file=sys.stderr)
                 results = {}

@@ -187,6 +187,7 @@ def refine_icp(
     max_iterations: int = 40,
     min_overlap: float = 0.3,
     min_eigen_ratio: float = MIN_EIGEN_RATIO,
+    max_correction: tuple[float, float] | None = None,
 ) -> IcpResult:
     """Refine ``T_target_from_source`` by point-to-plane ICP, coarse to fine.
 
@@ -199,6 +200,10 @@ def refine_icp(
         max_iterations: ICP iterations per level.
         min_overlap: warn below this overlap (share of source points on the target surface).
         min_eigen_ratio: see :data:`MIN_EIGEN_RATIO`; 0 applies the full ICP correction.
+        max_correction: (degrees, millimetres): refuse a refinement that moves the pose
+            further than this from the initial guess. Pass the initial guess's plausible
+            error (e.g. a skeleton estimate's p95): a better-scoring fit that far away is ICP
+            locking onto the wrong surfaces, not a correction.
 
     Returns:
         :class:`IcpResult`.
@@ -267,6 +272,17 @@ def refine_icp(
         transform, final = init.copy(), before
     else:
         final = after
+        if max_correction is not None:
+            moved_deg = rotation_angle_deg(np.linalg.inv(init) @ transform)
+            moved_mm = float(np.linalg.norm(transform[:3, 3] - init[:3, 3])) * 1000.0
+            if moved_deg > max_correction[0] or moved_mm > max_correction[1]:
+                warnings.append(
+                    f"ICP wanted to move the pose by {moved_deg:.1f}° / {moved_mm:.0f} mm, more "
+                    f"than the initial guess can be off ({max_correction[0]:.1f}° / "
+                    f"{max_correction[1]:.0f} mm): kept the initial pose"
+                )
+                applied = False
+                transform, final = init.copy(), before
     finest = float(min(voxel_sizes))
     overlap = float(reg.evaluate_registration(src, tgt, 2 * finest, transform).fitness)
     if overlap < min_overlap:

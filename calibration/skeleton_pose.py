@@ -74,6 +74,12 @@ MIN_FRAMES: Final = 30
 MIN_SPREAD_M: Final = 0.25
 
 
+SKELETON_ERROR_BOUND: Final = (2.5, 75.0)
+"""(degrees, millimetres) a skeleton estimate is rarely further off than (about twice the p95
+measured by bench/calibration.py): ICP refinements that move a skeleton estimate further are
+refused (``refine_icp(max_correction=...)``)."""
+
+
 @dataclass(frozen=True, slots=True)
 class SkeletonFit:
     """Result of :func:`solve_from_skeletons`.

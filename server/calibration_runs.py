@@ -32,7 +32,7 @@ from calibration.errors import CalibrationError, NotEnoughCorrespondences
 from calibration.floor import FloorFit, fit_floor, floor_from_kinect_plane, level_to_floor
 from calibration.icp import refine_all
 from calibration.rigid import fit_rigid, pose_error
-from calibration.skeleton_pose import SkeletonFit, solve_from_skeletons
+from calibration.skeleton_pose import SKELETON_ERROR_BOUND, SkeletonFit, solve_from_skeletons
 from calibration.store import Calibration, CalibrationStore, SensorCalibration, merge
 from protocol.skeleton import JointId
 from protocol.transform import Matrix4, invert
@@ -397,7 +397,14 @@ class CalibrationService:
         run: CalibrationRun,
     ) -> dict[str, SensorResult]:
         init_poses = {s: initial[s].T_world_from_sensor for s in spec.sensors}
-        refined = refine_all(clouds, init_poses, spec.reference, min_overlap=spec.min_overlap)
+        from_skeleton = any(r.method == "skeleton" for r in initial.values())
+        refined = refine_all(
+            clouds,
+            init_poses,
+            spec.reference,
+            min_overlap=spec.min_overlap,
+            max_correction=SKELETON_ERROR_BOUND if from_skeleton else None,
+        )
         results: dict[str, SensorResult] = {}
         for sensor_id in spec.sensors:
             before = initial[sensor_id]
