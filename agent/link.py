@@ -18,6 +18,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -88,6 +89,7 @@ class AgentLink:
         handlers: dict[str, RequestHandler] | None = None,
         clock: Callable[[], float] = time.monotonic,
         curve: CurveKeys | None = None,
+        wall_clock_ns: Callable[[], int] = time.time_ns,
     ) -> None:
         self._endpoint = endpoint
         self._make_hello = hello
@@ -98,6 +100,9 @@ class AgentLink:
         self._handlers = handlers or {}
         self._clock = clock
         self._curve = curve
+        self._wall_clock_ns = wall_clock_ns
+        self._workers = ThreadPoolExecutor(max_workers=1, thread_name_prefix="agent-request")
+        self._running: list[tuple[Request, Future[Any]]] = []
         self.stats = LinkStats()
         self.registered = False
         self._last_heard = -float("inf")
@@ -144,6 +149,7 @@ class AgentLink:
         while self._socket.poll(deadline_ms, zmq.POLLIN):
             deadline_ms = 0
             self._handle(self._socket.recv())
+        self._finish_requests()
         now = self._clock()
         if self.registered and now - self._last_heard > self._interval * self._liveness:
             logger.warning("server silent for %.1f s; registering again", now - self._last_heard)
@@ -152,7 +158,7 @@ class AgentLink:
             self._last_hello = now
             self._send(self._make_hello())
         elif self.registered and now - self._last_sent >= self._interval:
-            self._send(Heartbeat(t_ns=time.time_ns()))
+            self._send(Heartbeat(t_ns=self._wall_clock_ns()))
 
     def _handle(self, payload: bytes) -> None:
         try:
@@ -177,28 +183,53 @@ class AgentLink:
                 else:
                     logger.warning("server refused a message: %s: %s", code, message.message)
             case Request():
-                self._send(self._answer(message))
+                self._start(message)
+            case Heartbeat(echo_ns=None):
+                # Answer at once with the server's stamp: it measures round trip and offset.
+                self._send(Heartbeat(t_ns=self._wall_clock_ns(), echo_ns=message.t_ns))
             case Heartbeat():
                 pass
             case _:
                 logger.debug("ignored unexpected %s from server", type(message).__name__)
 
-    def _answer(self, request: Request) -> Response:
+    def _start(self, request: Request) -> None:
+        """Run a request's handler in a worker thread: a depth capture can take a second under
+        load, and the capture loop must keep streaming and heartbeating meanwhile."""
         handler = self._handlers.get(request.method)
         if handler is None:
-            return Response(
-                request.request_id,
-                ok=False,
-                error=f"method {request.method!r} not supported by this agent",
+            self._send(
+                Response(
+                    request.request_id,
+                    ok=False,
+                    error=f"method {request.method!r} not supported by this agent",
+                )
             )
-        try:
-            return Response(request.request_id, ok=True, result=handler(request.params))
-        except Exception as exc:  # a failing handler must not kill the capture loop
-            logger.exception("request %s failed", request.method)
-            return Response(request.request_id, ok=False, error=f"{type(exc).__name__}: {exc}")
+            return
+        self._running.append((request, self._workers.submit(handler, request.params)))
+
+    def _finish_requests(self) -> None:
+        """Send the answers of finished requests (from the capture thread, which owns the
+        socket)."""
+        still_running = []
+        for request, future in self._running:
+            if not future.done():
+                still_running.append((request, future))
+                continue
+            exc = future.exception()
+            if exc is None:
+                response = Response(request.request_id, ok=True, result=future.result())
+            else:  # a failing handler must not kill the capture loop
+                logger.error("request %s failed: %s", request.method, exc)
+                response = Response(
+                    request.request_id, ok=False, error=f"{type(exc).__name__}: {exc}"
+                )
+            if not self._send(response):
+                logger.warning("could not send the answer to %s; dropped", request.method)
+        self._running = still_running
 
     def close(self) -> None:
         """Say goodbye (best effort) and release the socket."""
+        self._workers.shutdown(wait=False, cancel_futures=True)
         said_bye = self.registered and self._send(Bye())
         # A short linger lets the bye leave; nothing else can be queued (frames are dropped).
         self._socket.close(linger=200 if said_bye else 0)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Callable
 
 from agent import __version__
 from agent.link import AgentLink, CurveKeys, RequestHandler
@@ -44,8 +45,15 @@ def run_agent(
     stop = stop or threading.Event()
     # Sources that can do more than stream (e.g. capture depth) say so with request_handlers().
     handlers: dict[str, RequestHandler] = getattr(source, "request_handlers", dict)()
+    # Heartbeats must carry the same clock as the capture stamps (the server's round-trip
+    # offset estimate maps one onto the other); sources with their own clock say so.
+    clock: Callable[[], int] = getattr(source, "wall_clock_ns", time.time_ns)
     link = AgentLink(
-        server_endpoint, lambda: make_hello(sensor_id, source), handlers=handlers, curve=curve
+        server_endpoint,
+        lambda: make_hello(sensor_id, source),
+        handlers=handlers,
+        curve=curve,
+        wall_clock_ns=clock,
     )
     deadline = None if duration_s is None else time.monotonic() + duration_s
     seq = 0

@@ -96,9 +96,14 @@ class Frame:
 
 @dataclass(frozen=True, slots=True)
 class Heartbeat:
-    """Liveness in either direction; ``t_ns`` is the sender's clock."""
+    """Liveness in either direction; ``t_ns`` is the sender's clock (Unix ns).
+
+    ``echo_ns``: an agent answering a server heartbeat echoes the server's ``t_ns`` here, at
+    once, so the server can measure the round trip and the agent's clock offset (NTP-style).
+    """
 
     t_ns: int
+    echo_ns: int | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -152,7 +157,9 @@ def encode(message: Message) -> bytes:
                 "floor": [float(x) for x in message.floor] if message.floor is not None else None,
             }
         case Heartbeat():
-            body = {"type": "heartbeat", "t_ns": message.t_ns}
+            body = {"type": "heartbeat", "t_ns": int(message.t_ns)}
+            if message.echo_ns is not None:
+                body["echo_ns"] = int(message.echo_ns)
         case Hello():
             body = {
                 "type": "hello",
@@ -401,7 +408,8 @@ def _decode_welcome(raw: dict[str, Any]) -> Welcome:
 
 
 def _decode_heartbeat(raw: dict[str, Any]) -> Heartbeat:
-    return Heartbeat(t_ns=_uint(raw, "t_ns"))
+    echo = _uint(raw, "echo_ns") if raw.get("echo_ns") is not None else None
+    return Heartbeat(t_ns=_uint(raw, "t_ns"), echo_ns=echo)
 
 
 def _decode_request(raw: dict[str, Any]) -> Request:

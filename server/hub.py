@@ -53,6 +53,7 @@ class AgentRequestFailed(Exception):
 
 
 SendFunction = Callable[[bytes, Message], Awaitable[None]]
+OFFLINE_AFTER_INTERVALS = 2.8
 
 
 @dataclass(frozen=True, slots=True)
@@ -133,7 +134,7 @@ class FusionHub:
                         f"{message.sensor_id!r}: run it with --id {user_id}",
                     )
                 ]
-            reply = self._register(message, routing_id, now_mono)
+            reply = self._register(message, routing_id, now_mono, authenticated=user_id is not None)
             if isinstance(reply, Welcome) and self.recorder is not None:
                 self.recorder.on_hello(message.sensor_id, parts[0], now_s)
             return [reply]
@@ -147,10 +148,16 @@ class FusionHub:
                 if sensor.last_seq is not None and message.seq <= sensor.last_seq:
                     self._reject(sensor, "replayed_seq")
                     return []
+                problem = sensor.frame_time_problem(message, now_s)
+                if problem is not None:
+                    self._reject(sensor, problem)
+                    return []
                 sensor.add_frame(message, now_s, now_mono)
                 if self.recorder is not None:
                     self.recorder.on_frame(sensor.sensor_id, parts[0], now_s)
                 self.frame_arrived.set()
+            case Heartbeat(echo_ns=echo) if echo is not None:
+                sensor.round_trip.add(echo / 1e9, message.t_ns / 1e9, now_s)
             case Heartbeat():
                 pass
             case Bye():
@@ -176,11 +183,16 @@ class FusionHub:
         else:
             sensor.frames_rejected[reason] += 1
 
-    def _register(self, hello: Hello, routing_id: bytes, now_mono: float) -> Message:
+    def _register(
+        self, hello: Hello, routing_id: bytes, now_mono: float, authenticated: bool = False
+    ) -> Message:
         existing = self.sensors.get(hello.sensor_id)
         liveness_s = self.settings.heartbeat_interval_s * 3
+        # An authenticated agent holds the sensor's own key: a second connection with it is the
+        # same agent restarted (after a crash, with no bye), so it takes over at once.
         if (
-            existing is not None
+            not authenticated
+            and existing is not None
             and existing.connected
             and existing.routing_id != routing_id
             and now_mono - existing.last_heard_mono < liveness_s
@@ -210,11 +222,20 @@ class FusionHub:
         return Welcome(__version__, self.settings.heartbeat_interval_s, time.time_ns())
 
     def check_liveness(self, now_mono: float) -> list[SensorState]:
-        """Mark silent sensors offline; returns the sensors still online."""
-        liveness_s = self.settings.heartbeat_interval_s * 3
+        """Mark silent sensors offline; returns the sensors still online.
+
+        Silent means nothing heard for ``OFFLINE_AFTER_INTERVALS`` heartbeat intervals (a little
+        under the protocol's 3, so that with checks every 0.2 s a dead agent is offline within
+        3 s).
+        """
+        liveness_s = self.settings.heartbeat_interval_s * OFFLINE_AFTER_INTERVALS
         online = []
+        waited_on = {sensor_id for sensor_id, _ in self._pending.values()}
         for sensor in self.sensors.values():
-            if sensor.connected and now_mono - sensor.last_heard_mono > liveness_s:
+            # An agent busy answering our request (a depth capture) gets until the request's
+            # own timeout before it counts as gone.
+            limit = liveness_s if sensor.sensor_id not in waited_on else 10 * liveness_s
+            if sensor.connected and now_mono - sensor.last_heard_mono > limit:
                 logger.warning("sensor %s went silent; marked offline", sensor.sensor_id)
                 sensor.connected = False
                 self._by_routing.pop(sensor.routing_id, None)
@@ -339,6 +360,10 @@ class FusionHub:
                     "frames_rejected": dict(sensor.frames_rejected),
                     "sequence_gaps": sensor.sequence_gaps,
                     "clock_offset_s": sensor.clock_offset_s,
+                    "clock_source": sensor.clock_source,
+                    "round_trip_ms": None
+                    if sensor.round_trip.rtt_s is None
+                    else round(sensor.round_trip.rtt_s * 1000, 3),
                     "calibration": {
                         "state": state,
                         "T_world_from_sensor": None if pose is None else pose.tolist(),

@@ -1,11 +1,20 @@
 """What the server knows about each sensor: session, health counters, clock offset, frames.
 
-Clock assumption (protocol v1): an agent stamps ``t_capture_ns`` with its own wall clock, which
-may be off by any amount. The server maps it onto its own clock with an offset estimated as the
-minimum, over the last :data:`OFFSET_WINDOW_S`, of (server receive time − capture stamp): the
-frame that arrived fastest bounds the offset, and the minimum network + processing delay it
-includes is assumed small and equal across agents (sub-millisecond on a LAN). Offsets that
-drift are followed as the window slides. A later protocol version measures round trips instead.
+Clocks: an agent stamps ``t_capture_ns`` with its own wall clock, which may be off by seconds
+and drift. The server maps stamps onto its own clock with an offset it measures itself:
+
+- **Round trip (NTP-style), preferred.** The server's heartbeats carry its clock; the agent
+  echoes the stamp at once with its own clock (``echo_ns``). Each echo gives a round-trip time
+  and an offset sample ``server − agent = (t_sent + rtt/2) − t_agent``; the sample with the
+  smallest round trip in the last :data:`OFFSET_WINDOW_S` wins (its error is at most rtt/2), as
+  in NTP and LSL. To follow drift, a line is fitted through the quickest third of the samples
+  and read at the present; a clock step (three samples in a row 100 ms off) restarts the
+  window.
+- **One way, until the first echo.** The minimum over the window of (receive time − capture
+  stamp): it assumes the fastest frame's delay is small and alike across agents.
+
+Frames whose mapped capture time is more than :data:`STALE_S` old on arrival (a backlog after an
+outage) or :data:`FUTURE_S` in the future (a clock jump, a replayed recording) are rejected.
 """
 
 from __future__ import annotations
@@ -23,6 +32,51 @@ from protocol.wire import Body, Frame, Hello
 
 OFFSET_WINDOW_S = 10.0
 FRAME_BUFFER_S = 1.0
+STALE_S = 0.5
+FUTURE_S = 0.5
+MAX_RTT_S = 2.0
+STEP_S = 0.1
+
+
+class RoundTripOffset:
+    """Clock offset (server − agent, seconds) from echoed heartbeats, minimum round trip wins."""
+
+    def __init__(self, window_s: float = OFFSET_WINDOW_S) -> None:
+        self._window = window_s
+        self._samples: deque[tuple[float, float, float]] = deque()  # (received, rtt, offset)
+        self._disagreeing = 0
+        self.offset_s: float | None = None
+        self.rtt_s: float | None = None
+
+    def add(self, sent_server_s: float, agent_s: float, received_server_s: float) -> None:
+        rtt = received_server_s - sent_server_s
+        if not 0.0 <= rtt <= MAX_RTT_S:
+            return  # not an echo of ours, or hopelessly late
+        offset = sent_server_s + rtt / 2.0 - agent_s
+        if self.offset_s is not None and abs(offset - self.offset_s) > STEP_S + rtt:
+            self._disagreeing += 1
+            if self._disagreeing >= 3:  # the agent's clock stepped: start over
+                self._samples.clear()
+        else:
+            self._disagreeing = 0
+        self._samples.append((received_server_s, rtt, offset))
+        while self._samples and self._samples[0][0] < received_server_s - self._window:
+            self._samples.popleft()
+        _, self.rtt_s, best = min(self._samples, key=lambda s: s[1])
+        # Drift: fit a line through the quickest third of the samples (their delays are the
+        # most symmetric) and read it at "now"; with too few, the quickest sample stands.
+        ranked = sorted(self._samples, key=lambda s: s[1])
+        quick = sorted(ranked[: max(4, len(ranked) // 3)])
+        span = quick[-1][0] - quick[0][0]
+        if len(quick) >= 4 and span >= 2.0:
+            times = np.array([t for t, _, _ in quick]) - received_server_s
+            offsets = np.array([o for _, _, o in quick])
+            # A sample's error is at most half its round trip: weigh by 1/rtt (polyfit squares).
+            weights = 1.0 / np.maximum(np.array([r for _, r, _ in quick]), 1e-5)
+            _, intercept = np.polyfit(times, offsets, 1, w=weights)
+            self.offset_s = float(intercept)
+        else:
+            self.offset_s = best
 
 
 class SlidingMinimum:
@@ -67,9 +121,25 @@ class SensorState:
     last_seq: int | None = None
     bodies_last: int = 0
     clock_offset_s: float | None = None
+    clock_source: str = "none"
+    round_trip: RoundTripOffset = field(default_factory=RoundTripOffset)
     frames: deque[TimedFrame] = field(default_factory=deque)
     _arrivals: deque[float] = field(default_factory=deque)
     _offset: SlidingMinimum = field(default_factory=lambda: SlidingMinimum(OFFSET_WINDOW_S))
+
+    def frame_time_problem(self, frame: Frame, received_s: float) -> str | None:
+        """``stale`` or ``future`` when the frame's mapped capture time is implausible."""
+        offset = self.round_trip.offset_s
+        if offset is None:
+            offset = self.clock_offset_s
+        if offset is None:
+            return None
+        capture_server_s = frame.t_capture_ns / 1e9 + offset
+        if capture_server_s < received_s - STALE_S:
+            return "stale"
+        if capture_server_s > received_s + FUTURE_S:
+            return "future"
+        return None
 
     def add_frame(self, frame: Frame, received_s: float, received_mono: float) -> TimedFrame:
         """Record a frame received at ``received_s`` (server wall clock, Unix seconds)."""
@@ -77,7 +147,11 @@ class SensorState:
         if self.last_seq is not None and frame.seq > self.last_seq + 1:
             self.sequence_gaps += frame.seq - self.last_seq - 1
         self.last_seq = frame.seq
-        self.clock_offset_s = self._offset.push(received_s, received_s - capture_s)
+        one_way = self._offset.push(received_s, received_s - capture_s)
+        if self.round_trip.offset_s is not None:
+            self.clock_offset_s, self.clock_source = self.round_trip.offset_s, "round_trip"
+        else:
+            self.clock_offset_s, self.clock_source = one_way, "one_way"
         timed = TimedFrame(capture_s + self.clock_offset_s, frame)
         # Frames arrive in capture order on one connection; keep the buffer sorted anyway.
         if self.frames and timed.t_server_s < self.frames[-1].t_server_s:

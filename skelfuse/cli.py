@@ -271,6 +271,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="sim: pretend this PC's clock is off by this much",
     )
     agent.add_argument(
+        "--clock-drift-ppm",
+        type=float,
+        default=0.0,
+        help="sim: pretend this PC's clock runs fast (or slow, if negative) by this much",
+    )
+    agent.add_argument(
         "--no-pose-hint",
         dest="pose_hint",
         action="store_false",

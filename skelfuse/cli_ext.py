@@ -98,6 +98,7 @@ def source_from_args(args: argparse.Namespace) -> SkeletonSource:
             persons=persons,
             seed=seed,
             clock_offset_ns=int(getattr(args, "clock_offset_ms", 0.0) * 1e6),
+            clock_drift_ppm=float(getattr(args, "clock_drift_ppm", 0.0)),
             send_pose_hint=getattr(args, "pose_hint", True),
         )
     try:

@@ -149,6 +149,7 @@ def make_source(kind: str, options: dict[str, Any]) -> SkeletonSource:
             options["pose"],
             seed=int(options.get("seed", 0)),
             clock_offset_ns=int(options.get("clock_offset_ns", 0)),
+            clock_drift_ppm=float(options.get("clock_drift_ppm", 0.0)),
             send_pose_hint=bool(options.get("send_pose_hint", True)),
         )
     if kind == "replay":

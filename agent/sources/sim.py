@@ -19,8 +19,9 @@ from protocol.wire import Body
 class SimSource:
     """Frames at the sensor's own 30 fps clock; each shows the performers at that instant.
 
-    ``clock_offset_ns`` makes this "PC" clock wrong by a fixed amount (to exercise the server's
-    clock alignment): capture stamps carry the offset, the scene is rendered at the true time.
+    ``clock_offset_ns`` and ``clock_drift_ppm`` make this "PC" clock wrong (to exercise the
+    server's clock alignment): capture stamps and heartbeats use the wrong clock, the scene is
+    rendered at the true time.
     """
 
     def __init__(
@@ -31,6 +32,7 @@ class SimSource:
         params: KinectV2Params | None = None,
         seed: int = 0,
         clock_offset_ns: int = 0,
+        clock_drift_ppm: float = 0.0,
         wall_clock_ns: Callable[[], int] = time.time_ns,
         sleep: Callable[[float], None] = time.sleep,
         room: Room | None = None,
@@ -42,7 +44,9 @@ class SimSource:
         self._send_pose_hint = send_pose_hint
         self._kinect = SimulatedKinect(T_world_from_sensor, params, seed=seed)
         self._clock_offset_ns = clock_offset_ns
+        self._clock_drift = clock_drift_ppm * 1e-6
         self._wall_clock_ns = wall_clock_ns
+        self._clock_epoch_ns = wall_clock_ns()
         self._sleep = sleep
         self._period_ns = round(1e9 / self._kinect.params.fps)
         self._next_ns: int | None = None
@@ -58,6 +62,16 @@ class SimSource:
     @property
     def kinect(self) -> SimulatedKinect:
         return self._kinect
+
+    def agent_clock_ns(self, true_ns: int | None = None) -> int:
+        """This simulated PC's (wrong) wall clock at true time ``true_ns`` (default: now)."""
+        true = self._wall_clock_ns() if true_ns is None else true_ns
+        drift = round((true - self._clock_epoch_ns) * self._clock_drift)
+        return true + self._clock_offset_ns + drift
+
+    def wall_clock_ns(self) -> int:
+        """The clock the agent stamps everything with (frames and heartbeats)."""
+        return self.agent_clock_ns()
 
     def pose_hint(self) -> tuple[Matrix4, str] | None:
         if not self._send_pose_hint:
@@ -77,7 +91,7 @@ class SimSource:
         max_points = params.get("max_points", 20000)
         if not isinstance(max_points, int) or not 1000 <= max_points <= 60000:
             raise ValueError("max_points must be an integer in 1000..60000")
-        true_ns = self._wall_clock_ns() - self._clock_offset_ns
+        true_ns = self._wall_clock_ns()
         persons = self._performer.joints_at(true_ns / 1e9)
         points = capture_point_cloud(
             self._room,
@@ -91,7 +105,7 @@ class SimSource:
             "points": np.ascontiguousarray(points, dtype="<f4").tobytes(),
             "count": len(points),
             "frame": "sensor",
-            "t_capture_ns": true_ns + self._clock_offset_ns,
+            "t_capture_ns": self.agent_clock_ns(true_ns),
             "intrinsics": {
                 "width": intrinsics.width,
                 "height": intrinsics.height,
@@ -108,7 +122,7 @@ class SimSource:
         observations = self._kinect.observe(self._performer.joints_at(t_s), t_s)
         bodies = tuple(Body(o.tracking_id, o.joints_m, o.states) for o in observations)
         return Capture(
-            t_capture_ns=true_ns + self._clock_offset_ns,
+            t_capture_ns=self.agent_clock_ns(true_ns),
             bodies=bodies,
             floor=self._kinect.floor_plane(),
         )

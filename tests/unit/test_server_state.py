@@ -125,8 +125,8 @@ def test_hub_liveness_and_bye() -> None:
     hub = FusionHub(Settings(heartbeat_interval_s=1.0))
     hub.handle_message(b"a", [hello("a")], 0.0, 0.0)
     hub.handle_message(b"b", [hello("b")], 0.0, 0.0)
-    assert {s.sensor_id for s in hub.check_liveness(2.9)} == {"a", "b"}
-    hub.handle_message(b"a", [encode(Heartbeat(1))], 0.0, 2.9)
+    assert {s.sensor_id for s in hub.check_liveness(2.7)} == {"a", "b"}
+    hub.handle_message(b"a", [encode(Heartbeat(1))], 0.0, 2.7)
     assert {s.sensor_id for s in hub.check_liveness(3.5)} == {"a"}
     from protocol.wire import Bye
 
@@ -305,3 +305,62 @@ def test_sim_agent_answers_depth_cloud_in_its_own_frame() -> None:
     assert np.mean(np.abs(world[:, 1]) < 0.03) > 0.15
     with pytest.raises(ValueError, match="max_points"):
         source.depth_cloud({"max_points": 10})
+
+
+# --- clocks ---------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("delay_s", "drift", "tolerance_s"),
+    [
+        (0.0005, 30e-6, 0.0005),  # wired LAN, a typical PC clock
+        (0.0005, 300e-6, 0.001),  # wired LAN, a bad clock
+        (0.002, 300e-6, 0.003),  # jittery Wi-Fi, a bad clock
+    ],
+)
+def test_round_trip_offset_follows_offset_and_drift(
+    delay_s: float, drift: float, tolerance_s: float
+) -> None:
+    from server.sensors import RoundTripOffset
+
+    rng = np.random.default_rng(5)
+    estimator = RoundTripOffset()
+    offset0 = -4.2  # agent clock 4.2 s ahead, and running fast by `drift`
+    errors = []
+    for i in range(240):  # two minutes of heartbeats every 0.5 s
+        sent = 1000.0 + i * 0.5
+        up, down = rng.exponential(delay_s, 2) + 0.0002  # one-way delays, asymmetric
+        agent_time = (sent + up) - (offset0 - drift * (sent + up - 1000.0))
+        estimator.add(sent, agent_time, sent + up + down)
+        true_offset = offset0 - drift * (sent + up - 1000.0)
+        errors.append(abs(estimator.offset_s - true_offset))  # type: ignore[operator]
+    assert max(errors[20:]) < tolerance_s
+    assert estimator.rtt_s is not None and estimator.rtt_s < 4 * delay_s
+
+
+def test_round_trip_offset_recovers_from_a_clock_step() -> None:
+    from server.sensors import RoundTripOffset
+
+    estimator = RoundTripOffset()
+    for i in range(20):
+        estimator.add(i * 0.5, i * 0.5 - 2.0 + 0.0005, i * 0.5 + 0.001)
+    assert estimator.offset_s == pytest.approx(2.0, abs=1e-3)
+    for i in range(20, 26):  # the agent's clock jumps 1 s forward
+        estimator.add(i * 0.5, i * 0.5 - 1.0 + 0.0005, i * 0.5 + 0.003)
+    assert estimator.offset_s == pytest.approx(1.0, abs=2e-3)
+
+
+def test_stale_and_future_frames_are_rejected() -> None:
+    hub = FusionHub(Settings())
+    hub.handle_message(b"r", [hello()], 100.0, 0.0)
+    hub.handle_message(b"r", [encode(Heartbeat(int(100.0e9), echo_ns=int(99.999e9)))], 100.0, 0.0)
+    sensor = hub.sensors["cam"]
+    assert sensor.round_trip.offset_s == pytest.approx(0.0, abs=1e-3)
+    fresh = Frame(1, int(100.0e9), (body(1, 0.5),))
+    backlog = Frame(2, int(98.0e9), (body(1, 0.5),))  # captured 2 s ago
+    jumped = Frame(3, int(160.0e9), (body(1, 0.5),))  # a minute in the future
+    for frame in (fresh, backlog, jumped):
+        hub.handle_message(b"r", [encode(frame)], 100.01, 0.0)
+    assert dict(sensor.frames_rejected) == {"stale": 1, "future": 1}
+    assert sensor.frames_received == 1
+    assert sensor.clock_source == "round_trip"
