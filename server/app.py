@@ -173,7 +173,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         await websocket.accept()
         broadcaster: Broadcaster = app.state.broadcaster
         binary = format == "msgpack"
-        client = broadcaster.add(Variant(binary, raw), str(websocket.client), time.time())
+        client = broadcaster.add(
+            Variant(binary, raw), str(websocket.client), time.time(), settings.ws_send_timeout_s
+        )
 
         async def send(payload: bytes | str) -> None:
             if isinstance(payload, bytes):
@@ -182,21 +184,30 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 await websocket.send_text(payload)
 
         sender = asyncio.create_task(pump(client, send, settings.ws_send_timeout_s))
+        receiver = asyncio.create_task(_drain(websocket))
+        stalled = asyncio.create_task(client.stalled.wait())
         try:
-            await send(encode_message(skeleton_definition(), binary))
-            receiver = asyncio.create_task(_drain(websocket))
-            done, _ = await asyncio.wait({sender, receiver}, return_when=asyncio.FIRST_COMPLETED)
-            receiver.cancel()
-            if sender in done and isinstance(sender.exception(), TimeoutError):
+            await asyncio.wait_for(
+                send(encode_message(skeleton_definition(), binary)), settings.ws_send_timeout_s
+            )
+            done, _ = await asyncio.wait(
+                {sender, receiver, stalled}, return_when=asyncio.FIRST_COMPLETED
+            )
+            if stalled in done or (sender in done and isinstance(sender.exception(), TimeoutError)):
+                broadcaster.remove(client)
                 broadcaster.evicted += 1
                 logger.warning("WebSocket client %s stalled; disconnected", client.remote)
+                # The close frame may never leave a full socket buffer: do not wait for it.
                 with contextlib.suppress(Exception):
-                    await websocket.close(code=1008, reason="client too slow")
-        except (WebSocketDisconnect, RuntimeError):
+                    await asyncio.wait_for(
+                        websocket.close(code=1008, reason="client too slow"), timeout=1.0
+                    )
+        except (WebSocketDisconnect, RuntimeError, TimeoutError):
             pass
         finally:
-            sender.cancel()
-            await asyncio.gather(sender, return_exceptions=True)
+            for task in (sender, receiver, stalled):
+                task.cancel()
+            await asyncio.gather(sender, receiver, stalled, return_exceptions=True)
             broadcaster.remove(client)
 
     app.include_router(routes_calibration.router)

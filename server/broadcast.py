@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from itertools import count
@@ -47,10 +48,24 @@ class Client:
     dropped: int = 0
     connected_at_s: float = 0.0
     remote: str = ""
+    stall_limit_s: float = 5.0
+    full_since: float | None = None
+    """When the queue was first found full with no send completed since (None: keeping up)."""
+    stalled: asyncio.Event = field(default_factory=asyncio.Event)
+    """Set when the client has taken nothing for ``stall_limit_s``: it is to be disconnected."""
 
-    def offer(self, payload: bytes | str) -> None:
-        """Queue without ever blocking: drop the oldest frame when the client is behind."""
+    def offer(self, payload: bytes | str, now: float) -> None:
+        """Queue without ever blocking: drop the oldest frame when the client is behind.
+
+        A client whose queue stays full for ``stall_limit_s`` is marked stalled. This does not
+        wait for a send to time out, which takes as long as the kernel's socket buffer (megabytes,
+        tens of seconds of frames) keeps accepting data nobody reads.
+        """
         if self.queue.full():
+            if self.full_since is None:
+                self.full_since = now
+            elif now - self.full_since > self.stall_limit_s:
+                self.stalled.set()
             try:
                 self.queue.get_nowait()
                 self.dropped += 1
@@ -67,9 +82,16 @@ class Broadcaster:
     published: int = 0
     _ids: count[int] = field(default_factory=lambda: count(1))
 
-    def add(self, variant: Variant, remote: str, now_s: float) -> Client:
+    def add(
+        self, variant: Variant, remote: str, now_s: float, stall_limit_s: float = 5.0
+    ) -> Client:
         client = Client(
-            next(self._ids), variant, asyncio.Queue(self.queue_size), 0, 0, now_s, remote
+            next(self._ids),
+            variant,
+            asyncio.Queue(self.queue_size),
+            connected_at_s=now_s,
+            remote=remote,
+            stall_limit_s=stall_limit_s,
         )
         self.clients[client.client_id] = client
         return client
@@ -80,6 +102,7 @@ class Broadcaster:
     def publish(self, frame: FusedFrame) -> None:
         """Hand one fused frame to every client (encoded once per variant)."""
         self.published += 1
+        now = time.monotonic()
         cache: dict[Variant, bytes | str] = {}
         for client in list(self.clients.values()):
             payload = cache.get(client.variant)
@@ -88,7 +111,7 @@ class Broadcaster:
                     frame_json(frame, client.variant.raw), client.variant.binary
                 )
                 cache[client.variant] = payload
-            client.offer(payload)
+            client.offer(payload, now)
 
     def stats(self) -> list[dict[str, object]]:
         return [
@@ -115,3 +138,4 @@ async def pump(
         payload = await client.queue.get()
         await asyncio.wait_for(send(payload), timeout=timeout_s)
         client.sent += 1
+        client.full_since = None

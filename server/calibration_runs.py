@@ -158,7 +158,7 @@ class CalibrationService:
 
         Raises:
             CalibrationRequestError: 409 while another run is active or a sensor is offline or
-                has no starting pose; 422 for unknown sensors or unusable points.
+                has no starting pose; 400 for unknown sensors or unusable points.
         """
         busy = next((r for r in self.runs.values() if r.active), None)
         if busy is not None:
@@ -168,11 +168,11 @@ class CalibrationService:
         self._validate(spec)
         run = CalibrationRun(uuid.uuid4().hex[:12], spec, time.time())
         if spec.method == "points":
-            # Closed form and instant: solve now, so bad points are a 422, not a failed run.
+            # Closed form and instant: solve now, so bad points are a 400, not a failed run.
             try:
                 run.results = self._solve_points(spec)
             except CalibrationError as exc:
-                raise CalibrationRequestError(422, str(exc)) from exc
+                raise CalibrationRequestError(400, str(exc)) from exc
             self._finish(run)
         else:
             task = asyncio.create_task(self._execute(run), name=f"calibration-{run.run_id}")
@@ -188,19 +188,19 @@ class CalibrationService:
 
     def _validate(self, spec: RunSpec) -> None:
         if spec.method not in METHODS:
-            raise CalibrationRequestError(422, f"method must be one of {', '.join(METHODS)}")
+            raise CalibrationRequestError(400, f"method must be one of {', '.join(METHODS)}")
         known = self.hub.sensors
         unknown = [s for s in spec.sensors if s not in known]
         if spec.reference != "world" and spec.reference not in known:
             unknown.append(spec.reference)
         if unknown:
             raise CalibrationRequestError(
-                422, f"unknown sensor(s) {sorted(set(unknown))}; known: {sorted(known) or 'none'}"
+                400, f"unknown sensor(s) {sorted(set(unknown))}; known: {sorted(known) or 'none'}"
             )
         if spec.method == "points":
             if not spec.points:
                 raise CalibrationRequestError(
-                    422, "method points needs 'points': at least 3 pairs per sensor"
+                    400, "method points needs 'points': at least 3 pairs per sensor"
                 )
             return
         offline = [s for s in spec.sensors if not known[s].connected]
@@ -213,7 +213,7 @@ class CalibrationService:
                 409, f"method {spec.method} needs at least 2 connected sensors"
             )
         if spec.reference not in spec.sensors:
-            raise CalibrationRequestError(422, "the reference must be one of the run's sensors")
+            raise CalibrationRequestError(400, "the reference must be one of the run's sensors")
         if spec.method == "icp":
             missing = [s for s in spec.sensors if self.hub.pose_of(s)[0] is None]
             if missing:

@@ -16,11 +16,20 @@ from server.tracking import FusedPerson, View
 
 
 def person_json(person: FusedPerson, decimals: int = 4) -> dict[str, object]:
-    """A fused person as apps receive it: NaN never leaves the server (null instead)."""
+    """A fused person as apps receive it: NaN never leaves the server (null instead).
+
+    Confidence is 0 exactly where the joint is null (docs/api.md): a joint that is present but
+    only barely trusted is sent as 0.001, not rounded away to 0.
+    """
+    joints = joints_json(person.joints, decimals)
+    confidence = [
+        0.0 if joint is None else max(round(float(c), 3), 0.001)
+        for joint, c in zip(joints, person.confidence, strict=True)
+    ]
     return {
         "id": person.person_id,
-        "joints": joints_json(person.joints, decimals),
-        "confidence": [round(float(c), 3) for c in person.confidence],
+        "joints": joints,
+        "confidence": confidence,
         "sources": list(person.sources),
         # Per joint, bit k set when sources[k] contributed (≥ 5 % of the joint's weight).
         "joint_sources": [int(m) for m in person.joint_sources],

@@ -200,5 +200,5 @@ async def import_calibration(
     try:
         calibration = _service(request).import_json(body)
     except CalibrationError as exc:
-        raise HTTPException(422, str(exc)) from exc
+        raise HTTPException(400, str(exc)) from exc
     return calibration_json(calibration)

@@ -8,7 +8,7 @@ both and let an application set, or clear, a person's lengths:
   ``reference`` lengths fusion uses and the current online ``estimate``, by bone name (metres,
   ``null`` where unknown).
 - ``PUT /api/persons/{id}/bones``: body ``{"lengths": {"hip_right-knee_right": 0.43, ...}}``
-  with all 24 bones, each finite and within 0.02–1.0 m; 422 with the offending names otherwise.
+  with all 24 bones, each finite and within 0.02–1.0 m; 400 with the offending names otherwise.
 - ``DELETE /api/persons/{id}/bones``: back to the online estimate.
 - ``PUT /api/bones/default`` / ``DELETE /api/bones/default``: lengths every *new* person starts
   with (useful with a single known performer).
@@ -69,7 +69,7 @@ def _validated(body: BoneLengths) -> npt.NDArray[np.float64]:
         problems.append(f"lengths must be finite and within {MIN_BONE_M}–{MAX_BONE_M} m: {bad}")
     if problems:
         raise HTTPException(
-            status_code=422,
+            status_code=400,
             detail="; ".join(problems) + f". Expected all of {list(BONE_NAMES)} in metres.",
         )
     return np.array([body.lengths[name] for name in BONE_NAMES], dtype=np.float64)

@@ -114,6 +114,10 @@ def cmd_server(args: argparse.Namespace) -> int:
         port=port,
         log_level=args.log_level.lower(),
         ws_max_size=64 * 1024,
+        # A client that stops reading stops answering pings long before the kernel's socket
+        # buffers (megabytes) fill: this is what disconnects it within about 10 s.
+        ws_ping_interval=5.0,
+        ws_ping_timeout=5.0,
         lifespan="on",
     )
     server = uvicorn.Server(config)

@@ -46,7 +46,7 @@ class LiveServer:
 def start_server(settings: Settings) -> LiveServer:
     config = uvicorn.Config(
         create_app(settings), host="127.0.0.1", port=settings.http_port, log_level="warning",
-        lifespan="on", ws_max_size=64 * 1024,
+        lifespan="on", ws_max_size=64 * 1024, ws_ping_interval=1.0, ws_ping_timeout=1.0,
     )  # fmt: skip
     server = uvicorn.Server(config)
     thread = threading.Thread(target=server.run, daemon=True)

@@ -149,7 +149,7 @@ def test_calibration_survives_a_server_restart(
                     }
                 ],
             },
-            422,
+            400,
             "3",
         ),
         (
@@ -163,7 +163,7 @@ def test_calibration_survives_a_server_restart(
                     }
                 ],
             },
-            422,
+            400,
             "collinear",
         ),
         (
@@ -188,7 +188,7 @@ def test_calibration_survives_a_server_restart(
                     {"sensor": "nope", "pairs": [{"sensor": [0, 0, 1], "reference": [0, 0, 1]}] * 3}
                 ],
             },
-            422,
+            400,
             "unknown sensor",
         ),
         ({"method": "points", "reference": "world"}, 409, ""),
@@ -196,7 +196,7 @@ def test_calibration_survives_a_server_restart(
         ({"method": "icp"}, 409, "icp refines existing poses"),
         ({"method": "magic"}, 422, ""),
         ({"method": "skeleton", "duration_s": 1}, 422, ""),
-        ({"method": "skeleton", "sensors": ["cam-a", "ghost"]}, 422, "unknown sensor"),
+        ({"method": "skeleton", "sensors": ["cam-a", "ghost"]}, 400, "unknown sensor"),
     ],
 )
 def test_bad_calibration_requests_get_a_clear_4xx(
@@ -237,7 +237,7 @@ def test_other_bad_requests(live_server: LiveServer) -> None:
             },
         },
     )
-    assert bad.status_code == 422 and "rigid" in bad.json()["detail"]
+    assert bad.status_code == 400 and "rigid" in bad.json()["detail"]
     assert httpx.post(url + "/api/calibration/runs", json={"method": "auto"}).status_code == 409
 
 

@@ -61,7 +61,7 @@ async def test_bad_lengths_are_refused_with_the_bone_names(client: httpx.AsyncCl
     lengths["hip_right-knee_right"] = 3.0
     del lengths["neck-head"]
     response = await client.put(f"/api/persons/{person_id}/bones", json={"lengths": lengths})
-    assert response.status_code == 422
+    assert response.status_code == 400
     detail = response.json()["detail"]
     assert "hip_right-knee_right" in detail and "neck-head" in detail
 

@@ -260,3 +260,23 @@ def test_metrics_expose_sensors_fusion_and_clients(
     assert float(lines['skelfuse_fusion_compute_seconds{stat="median"}']) > 0
     assert 0 <= float(lines["skelfuse_fusion_lag_seconds"]) < 0.2
     assert "skelfuse_ws_clients_evicted_total" in lines
+
+
+async def test_a_client_that_never_reads_is_disconnected(
+    live_server: LiveServer, agent_factory: Callable[..., AgentThread]
+) -> None:
+    import asyncio
+
+    start_two(live_server, agent_factory, persons=2)
+    async with connect(live_server.ws_url + "/ws/skeletons?raw=1", max_queue=1) as stalled:
+        del stalled  # never read from it
+        deadline = time.monotonic() + 20
+        remaining = 1
+        async with httpx.AsyncClient() as http:
+            while time.monotonic() < deadline:
+                response = await http.get(live_server.http_url + "/api/clients")
+                remaining = len(response.json()["clients"])
+                if remaining == 0:
+                    break
+                await asyncio.sleep(0.5)
+    assert remaining == 0, "the server must drop a client that stopped reading"
