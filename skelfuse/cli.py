@@ -199,6 +199,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         duration_s=args.duration,
         log_level=args.log_level,
         calibration=args.calibration,
+        token=args.token,
     )
 
 
@@ -321,6 +322,9 @@ def build_parser() -> argparse.ArgumentParser:
         default="auto",
         help="auto: calibrate through the REST API as a user would (default); truth: use the "
         "simulator's true sensor poses",
+    )
+    demo.add_argument(
+        "--token", default=None, help="API token for REST changes and the feed (default: random)"
     )
     demo.add_argument("--duration", type=float, default=None, help="stop after N seconds")
     demo.set_defaults(func=cmd_demo)

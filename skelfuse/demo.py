@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import secrets
 import signal
 import subprocess
 import sys
@@ -63,11 +64,14 @@ def _wait_healthy(url: str, server: subprocess.Popen[bytes], timeout_s: float) -
     return False
 
 
-def _api(url: str, method: str = "GET", body: dict[str, Any] | None = None) -> Any:
+def _api(
+    url: str, method: str = "GET", body: dict[str, Any] | None = None, token: str | None = None
+) -> Any:
     data = None if body is None else json.dumps(body).encode()
-    request = urllib.request.Request(
-        url, data=data, method=method, headers={"Content-Type": "application/json"}
-    )
+    headers = {"Content-Type": "application/json"}
+    if token:
+        headers["Authorization"] = f"Bearer {token}"
+    request = urllib.request.Request(url, data=data, method=method, headers=headers)
     try:
         with urllib.request.urlopen(request, timeout=10) as response:
             return json.load(response)
@@ -76,7 +80,9 @@ def _api(url: str, method: str = "GET", body: dict[str, Any] | None = None) -> A
         raise RuntimeError(f"{method} {url}: HTTP {exc.code}: {detail}") from exc
 
 
-def calibrate(url: str, sensors: int, stop: threading.Event, attempts: int = 3) -> bool:
+def calibrate(
+    url: str, sensors: int, stop: threading.Event, token: str | None = None, attempts: int = 3
+) -> bool:
     """Wait for the agents, run ``auto`` calibration and commit it; True on success."""
     deadline = time.monotonic() + 60
     while not stop.is_set():
@@ -92,7 +98,7 @@ def calibrate(url: str, sensors: int, stop: threading.Event, attempts: int = 3) 
             return False
         logger.info("calibrating (auto: skeleton while the people walk, then ICP on depth, "
                     "then the floor); attempt %d of %d", attempt, attempts)  # fmt: skip
-        run = _api(url + "/api/calibration/runs", "POST", {"method": "auto"})
+        run = _api(url + "/api/calibration/runs", "POST", {"method": "auto"}, token)
         last_stage = ""
         while run["state"] in ("capturing", "solving") and not stop.is_set():
             if run["stage"] != last_stage:
@@ -101,7 +107,7 @@ def calibrate(url: str, sensors: int, stop: threading.Event, attempts: int = 3) 
             stop.wait(0.5)
             run = _api(f"{url}/api/calibration/runs/{run['id']}")
         if run["state"] == "done":
-            committed = _api(f"{url}/api/calibration/runs/{run['id']}/commit", "POST", {})
+            committed = _api(f"{url}/api/calibration/runs/{run['id']}/commit", "POST", {}, token)
             for sensor_id, result in sorted(run["results"].items()):
                 logger.info(
                     "  %s: %s, residual %s mm%s",
@@ -139,6 +145,7 @@ def run_demo(
     duration_s: float | None = None,
     log_level: str = "INFO",
     calibration: str = "auto",
+    token: str | None = None,
 ) -> int:
     """Run until Ctrl-C (or ``duration_s``); returns the exit status."""
     if not 1 <= sensors <= 8:
@@ -159,13 +166,14 @@ def run_demo(
     agent_host = "127.0.0.1" if host in ("0.0.0.0", "::") else host
     # Secure like a real rig: every simulated agent gets its own CurveZMQ key (docs/security.md).
     layout = sensor_layout(sensors)
+    token = token or secrets.token_urlsafe(12)
     keys = key_paths(data_dir)
     create_server_keys(data_dir)
     agent_keys = {sensor_id: create_agent_keys(data_dir, sensor_id) for sensor_id, _ in layout}
     server = subprocess.Popen(
         [
             *python, "server", "--http", f"{host}:{port}", "--zmq", zmq_bind,
-            "--data", str(data_dir), "--curve",
+            "--data", str(data_dir), "--curve", "--token", token,
         ]
     )  # fmt: skip
     processes: list[subprocess.Popen[bytes]] = [server]
@@ -204,9 +212,16 @@ def run_demo(
                 )
             )
         logger.info("demo running: %d simulated sensors, %d people", sensors, persons)
-        logger.info("open the viewer at %s/  (REST docs at %s/docs) - Ctrl-C to stop", url, url)
+        logger.info(
+            "open the viewer at %s/?token=%s  (REST docs at %s/docs; changes need "
+            "'Authorization: Bearer %s') - Ctrl-C to stop",
+            url,
+            token,
+            url,
+            token,
+        )
         deadline = None if duration_s is None else time.monotonic() + duration_s
-        if calibration == "auto" and not calibrate(url, sensors, stop):
+        if calibration == "auto" and not calibrate(url, sensors, stop, token):
             if stop.is_set():
                 return 0
             logger.error("automatic calibration failed; try --calibration truth")

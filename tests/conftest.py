@@ -36,6 +36,9 @@ def cmu_dir() -> Path:
     return CMU_DIR
 
 
+DEMO_TOKEN = "e2e-token"
+
+
 @dataclass(frozen=True)
 class DemoStack:
     http_url: str
@@ -45,6 +48,14 @@ class DemoStack:
     persons: int
     process: subprocess.Popen[bytes]
     log_path: Path
+
+    @property
+    def token(self) -> str:
+        return DEMO_TOKEN
+
+    @property
+    def viewer_url(self) -> str:
+        return f"{self.http_url}/?token={DEMO_TOKEN}"
 
     def get_json(self, path: str) -> dict[str, Any]:
         with urllib.request.urlopen(self.http_url + path, timeout=5) as response:
@@ -72,7 +83,8 @@ def demo_stack(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DemoStack]:
     log = log_path.open("wb")
     process = subprocess.Popen(
         [sys.executable, "-m", "skelfuse", "demo", "--sensors", "3", "--persons", "2",
-         "--http", f"127.0.0.1:{http_port}", "--zmq-port", str(zmq_port), "--duration", "300"],
+         "--http", f"127.0.0.1:{http_port}", "--zmq-port", str(zmq_port), "--duration", "300",
+         "--token", DEMO_TOKEN],
         stdout=log, stderr=subprocess.STDOUT, cwd=PROJECT_ROOT,
     )  # fmt: skip
     stack = DemoStack(f"http://127.0.0.1:{http_port}", f"ws://127.0.0.1:{http_port}", zmq_port,

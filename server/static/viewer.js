@@ -1,7 +1,9 @@
 // skelfuse live viewer: fused skeletons, raw per-sensor views and sensor poses in three.js.
 //
-// Data: WebSocket /ws/skeletons?raw=1 (skeleton definition, then frames) and GET /api/sensors
-// polled once a second. World frame = three.js frame (right-handed, +Y up, metres, floor y = 0).
+// Data: WebSocket /ws/skeletons?raw=1 (skeleton definition, then frames), GET /api/sensors
+// polled once a second, and the calibration REST API (/api/calibration: the active version every
+// 2 s; /api/calibration/runs: the newest run, every 0.5 s while one is running). World frame =
+// three.js frame (right-handed, +Y up, metres, floor y = 0).
 //
 // Test hook: window.skelfuseViewer (see HOOK below), refreshed after every render.
 
@@ -31,6 +33,16 @@ const HOOK = {
   gpuGeometries: 0, // renderer.info.memory.geometries: constant while the scene content is steady
   gpuTextures: 0, // renderer.info.memory.textures
   sensorsListed: 0, // sensors in the last /api/sensors answer
+  // calibration panel
+  calibrationVersion: null, // active calibration version (GET /api/calibration), null: none yet
+  calibrationRunId: null, // the run the panel shows (the newest one), or null
+  calibrationRunState: null, // its state: capturing | solving | done | failed, or null
+  calibrationRunProgress: 0, // its progress, 0..1
+  calibrationRunCommitted: null, // its committed_version, or null
+  calibrationError: null, // the last error shown in the panel (a 4xx detail), or null
+  ghostSensorsDrawn: 0, // dashed frustums of a done, uncommitted run's proposed poses
+  // joint colouring
+  confidenceColouring: false, // state of the "colour by confidence" checkbox
 };
 window.skelfuseViewer = HOOK;
 
@@ -66,6 +78,7 @@ const skeleton = {
   jointCount: FALLBACK_PARENTS.length,
   bones: bonesFromParents(FALLBACK_PARENTS),
   headIndex: 3,
+  jointNames: null,
 };
 
 function bonesFromParents(parents) {
@@ -100,6 +113,7 @@ function applySkeleton(msg) {
     bones.length !== skeleton.bones.length ||
     bones.some((b, i) => b[0] !== skeleton.bones[i][0] || b[1] !== skeleton.bones[i][1]);
   skeleton.name = typeof msg.name === 'string' ? msg.name : null;
+  skeleton.jointNames = joints ? joints.map(String) : null;
   skeleton.jointCount = n;
   skeleton.bones = bones;
   const head = joints ? joints.indexOf('Head') : -1;
@@ -171,6 +185,33 @@ function hashString(s) {
 
 const GREY = new THREE.Color(0x6b7178);
 
+// Confidence ramp: red (0) → yellow (0.5) → green (1), interpolated in sRGB. Joints without a
+// confidence value are drawn white.
+const CONFIDENCE_RAMP = ['#ff3020', '#ffe600', '#20e040'];
+const confidenceRampSrgb = CONFIDENCE_RAMP.map((hex) => {
+  const v = parseInt(hex.slice(1), 16);
+  return [(v >> 16) & 255, (v >> 8) & 255, v & 255].map((x) => x / 255);
+});
+
+function confidenceColor(value, target) {
+  if (!Number.isFinite(value)) return target.setRGB(1, 1, 1);
+  const t = Math.min(1, Math.max(0, value)) * (confidenceRampSrgb.length - 1);
+  const k = Math.min(Math.floor(t), confidenceRampSrgb.length - 2);
+  const f = t - k;
+  const a = confidenceRampSrgb[k];
+  const b = confidenceRampSrgb[k + 1];
+  return target.setRGB(
+    a[0] + (b[0] - a[0]) * f,
+    a[1] + (b[1] - a[1]) * f,
+    a[2] + (b[2] - a[2]) * f,
+    THREE.SRGBColorSpace,
+  );
+}
+
+function confidenceCss(value) {
+  return `#${confidenceColor(value, new THREE.Color()).getHexString()}`;
+}
+
 // --- renderer and scene ------------------------------------------------------------------------
 
 const container = document.getElementById('viewport');
@@ -223,6 +264,7 @@ window.addEventListener('resize', () => {
   camera.aspect = w / h;
   camera.updateProjectionMatrix();
   if (renderer) renderer.setSize(w, h);
+  requestRender();
 });
 
 // --- shared resources --------------------------------------------------------------------------
@@ -231,6 +273,7 @@ const JOINT_RADIUS = 0.03;
 const jointGeometry = new THREE.SphereGeometry(JOINT_RADIUS, 14, 10);
 const jointMaterial = new THREE.MeshLambertMaterial({ color: 0xffffff }); // tinted per instance
 const placeholderLineMaterial = new THREE.LineBasicMaterial({ color: 0xffffff });
+const confidenceBoneMaterial = new THREE.LineBasicMaterial({ vertexColors: true }); // per-vertex ramp
 
 const scratchMatrix = new THREE.Matrix4();
 const scratchColor = new THREE.Color();
@@ -268,6 +311,57 @@ function makeLabelSprite(text, height = 0.03) {
   return sprite;
 }
 
+// A sensor's label: its id, and under it a smaller second line (the residual), when given.
+function makeSensorLabelSprite(id) {
+  const canvas = document.createElement('canvas');
+  canvas.width = 256;
+  canvas.height = 112;
+  const texture = new THREE.CanvasTexture(canvas);
+  texture.colorSpace = THREE.SRGBColorSpace;
+  const material = new THREE.SpriteMaterial({
+    map: texture,
+    depthTest: false,
+    depthWrite: false,
+    transparent: true,
+    sizeAttenuation: false,
+  });
+  const sprite = new THREE.Sprite(material);
+  const height = 0.03 * (112 / 64); // the first line as tall as other labels
+  sprite.scale.set(height * (256 / 112), height, 1);
+  sprite.center.set(0.5, 0.05); // drawn above the anchor, clear of the frustum
+  sprite.renderOrder = 10;
+  sprite.userData.canvas = canvas;
+  sprite.userData.text = null;
+  drawSensorLabel(sprite, id, '');
+  return sprite;
+}
+
+function drawSensorLabel(sprite, title, sub) {
+  const key = `${title}\n${sub}`;
+  if (sprite.userData.text === key) return;
+  sprite.userData.text = key;
+  const canvas = sprite.userData.canvas;
+  const ctx = canvas.getContext('2d');
+  ctx.clearRect(0, 0, canvas.width, canvas.height);
+  ctx.textAlign = 'center';
+  ctx.textBaseline = 'middle';
+  ctx.lineJoin = 'round';
+  ctx.strokeStyle = 'rgba(0, 0, 0, 0.85)';
+  ctx.fillStyle = '#ffffff';
+  ctx.font = '600 34px system-ui, sans-serif';
+  ctx.lineWidth = 7;
+  ctx.strokeText(title, canvas.width / 2, 32, canvas.width - 8);
+  ctx.fillText(title, canvas.width / 2, 32, canvas.width - 8);
+  if (sub) {
+    ctx.font = '500 26px system-ui, sans-serif';
+    ctx.lineWidth = 6;
+    ctx.strokeText(sub, canvas.width / 2, 82, canvas.width - 8);
+    ctx.fillText(sub, canvas.width / 2, 82, canvas.width - 8);
+  }
+  sprite.material.map.needsUpdate = true;
+  requestRender();
+}
+
 function drawLabel(sprite, text) {
   const canvas = sprite.userData.canvas;
   const ctx = canvas.getContext('2d');
@@ -303,6 +397,9 @@ class PersonSlot {
     this.boneAttr = new THREE.BufferAttribute(this.bonePositions, 3).setUsage(THREE.DynamicDrawUsage);
     geometry.setAttribute('position', this.boneAttr);
     geometry.setDrawRange(0, 0);
+    this.boneColors = new Float32Array(Math.max(1, boneCount) * 6);
+    this.boneColorAttr = new THREE.BufferAttribute(this.boneColors, 3).setUsage(THREE.DynamicDrawUsage);
+    geometry.setAttribute('color', this.boneColorAttr);
     this.boneMaterial = new THREE.LineBasicMaterial({ color: 0xffffff });
     this.bones = new THREE.LineSegments(geometry, this.boneMaterial);
     this.bones.frustumCulled = false;
@@ -312,6 +409,9 @@ class PersonSlot {
 
     this.points = new Float32Array(jointCount * 3);
     this.valid = new Uint8Array(jointCount);
+    this.conf = new Float32Array(jointCount); // per joint, NaN: unknown
+    this.instanceJoint = new Int16Array(jointCount); // instance index -> joint index (hover)
+    this.person = null; // the last person message drawn (hover tooltip)
     this.id = null;
     this.group.add(this.joints, this.bones, this.label);
   }
@@ -328,10 +428,11 @@ class PersonSlot {
   }
 
   /** Returns [jointsDrawn, bonesDrawn]. */
-  update(person, bones, headIndex) {
+  update(person, bones, headIndex, byConfidence) {
     const joints = person.joints;
     const conf = Array.isArray(person.confidence) ? person.confidence : null;
     const n = this.jointCount;
+    this.person = person;
     let drawn = 0;
     let topY = -Infinity;
     let topX = 0;
@@ -351,10 +452,15 @@ class PersonSlot {
       this.points[i * 3 + 2] = z;
       scratchMatrix.makeTranslation(x, y, z);
       this.joints.setMatrixAt(drawn, scratchMatrix);
-      let k = 1;
-      if (conf && Number.isFinite(conf[i])) k = 0.3 + 0.7 * Math.min(1, Math.max(0, conf[i]));
-      scratchColor.copy(this.color).multiplyScalar(k);
+      const ci = conf && Number.isFinite(conf[i]) ? Math.min(1, Math.max(0, conf[i])) : NaN;
+      this.conf[i] = ci;
+      if (byConfidence) {
+        confidenceColor(ci, scratchColor);
+      } else {
+        scratchColor.copy(this.color).multiplyScalar(Number.isNaN(ci) ? 1 : 0.3 + 0.7 * ci);
+      }
       this.joints.setColorAt(drawn, scratchColor);
+      this.instanceJoint[drawn] = i;
       drawn++;
       if (i === headIndex || (headIndex < 0 && y > topY)) {
         topY = y;
@@ -368,6 +474,7 @@ class PersonSlot {
 
     let nb = 0;
     const pos = this.bonePositions;
+    const col = this.boneColors;
     for (let b = 0; b < bones.length; b++) {
       const a = bones[b][0];
       const c = bones[b][1];
@@ -379,10 +486,22 @@ class PersonSlot {
       pos[o + 3] = this.points[c * 3];
       pos[o + 4] = this.points[c * 3 + 1];
       pos[o + 5] = this.points[c * 3 + 2];
+      if (byConfidence) {
+        // A bone is as trustworthy as its weaker end (NaN, unknown, counts as neither).
+        const ca = this.conf[a];
+        const cc = this.conf[c];
+        confidenceColor(Number.isNaN(ca) ? cc : Number.isNaN(cc) ? ca : Math.min(ca, cc), scratchColor);
+        col[o] = col[o + 3] = scratchColor.r;
+        col[o + 1] = col[o + 4] = scratchColor.g;
+        col[o + 2] = col[o + 5] = scratchColor.b;
+      }
       nb++;
     }
     this.bones.geometry.setDrawRange(0, nb * 2);
     this.boneAttr.needsUpdate = true;
+    if (byConfidence) this.boneColorAttr.needsUpdate = true;
+    const boneMaterial = byConfidence ? confidenceBoneMaterial : this.boneMaterial;
+    if (this.bones.material !== boneMaterial) this.bones.material = boneMaterial;
 
     if (drawn > 0 && Number.isFinite(topY)) {
       this.label.visible = true;
@@ -395,6 +514,7 @@ class PersonSlot {
 
   release() {
     this.id = null;
+    this.person = null;
     this.group.visible = false;
   }
 
@@ -522,7 +642,7 @@ class SensorView {
     this.frustum = new THREE.LineSegments(frustumGeometry, this.lineMaterial);
     this.body = new THREE.Mesh(sensorBodyGeometry, this.bodyMaterial);
     this.group.add(this.frustum, this.body);
-    this.label = makeLabelSprite(id, 0.03);
+    this.label = makeSensorLabelSprite(id);
     this.label.material.color.copy(this.color);
     this.matrix = new THREE.Matrix4();
     this.connected = null;
@@ -555,9 +675,15 @@ class SensorView {
     this.group.matrix.copy(this.matrix);
     this.group.matrixWorldNeedsUpdate = true;
     this.group.visible = true;
-    this.label.position.set(T[0][3], T[1][3] + 0.16, T[2][3]);
+    this.label.position.set(T[0][3], T[1][3] + 0.1, T[2][3]);
     this.label.visible = true;
+    this.updateLabel();
     return true;
+  }
+
+  /** The label's second line: the residual of this sensor in the active calibration. */
+  updateLabel() {
+    drawSensorLabel(this.label, this.id, residualText(calibrationEntry(this.id)));
   }
 
   hide() {
@@ -597,6 +723,71 @@ function sensorView(id) {
   return v;
 }
 
+// Proposed poses of a done, uncommitted run: dashed frustums next to the active ones.
+const ghostRoot = new THREE.Group();
+scene.add(ghostRoot);
+const ghostViews = new Map(); // sensor id -> LineSegments
+let ghostKey = '';
+
+function ghostView(id) {
+  let g = ghostViews.get(id);
+  if (!g) {
+    const material = new THREE.LineDashedMaterial({
+      color: sensorColor(id),
+      dashSize: 0.035,
+      gapSize: 0.025,
+      transparent: true,
+      opacity: 0.85,
+      depthWrite: false,
+    });
+    g = new THREE.LineSegments(ghostFrustumGeometry(), material);
+    g.matrixAutoUpdate = false;
+    g.renderOrder = 2;
+    ghostRoot.add(g);
+    ghostViews.set(id, g);
+  }
+  return g;
+}
+
+let ghostGeometry = null;
+
+function ghostFrustumGeometry() {
+  if (!ghostGeometry) {
+    const tmp = new THREE.LineSegments(frustumGeometry.clone());
+    tmp.computeLineDistances(); // per-segment distances, for the dashes
+    ghostGeometry = tmp.geometry;
+  }
+  return ghostGeometry;
+}
+
+/** Shows the run's proposed poses while it is done and not committed; hides them otherwise. */
+function updateGhosts(run) {
+  const proposed =
+    run && run.state === 'done' && run.committed_version == null && run.results && typeof run.results === 'object'
+      ? run.results
+      : null;
+  const key = proposed ? `${run.id}` : '';
+  if (key === ghostKey) return;
+  ghostKey = key;
+  let drawn = 0;
+  const seen = new Set();
+  if (proposed) {
+    for (const [id, result] of Object.entries(proposed)) {
+      const T = result && result.T_world_from_sensor;
+      if (!isMatrix4x4(T)) continue;
+      const g = ghostView(id);
+      g.matrix.set(...T.flat());
+      g.matrixWorldNeedsUpdate = true;
+      g.visible = true;
+      seen.add(id);
+      drawn++;
+    }
+  }
+  for (const [id, g] of ghostViews) if (!seen.has(id)) g.visible = false;
+  HOOK.ghostSensorsDrawn = drawn;
+  requestRender();
+}
+
 // Raw bodies from a sensor /api/sensors has not listed yet still get a stable colour.
 const rawOnlyMaterials = new Map();
 
@@ -627,6 +818,7 @@ function applySensors(list) {
   HOOK.sensorsDrawn = drawn;
   HOOK.sensorsListed = seen.size;
   renderSensorTable(list);
+  requestRender();
 }
 
 // --- frames ------------------------------------------------------------------------------------
@@ -635,6 +827,7 @@ let pendingFrame = null; // newest frame not yet applied (older ones are skipped
 let lastFrame = null; // newest frame applied, re-applied when the raw toggle changes
 const EMPTY_FRAME = { type: 'frame', persons: [], raw: [] };
 let rawEnabled = false;
+let confidenceEnabled = false;
 
 function applyFrame(frame) {
   const persons = Array.isArray(frame.persons) ? frame.persons : [];
@@ -656,7 +849,7 @@ function applyFrame(frame) {
       slot.assign(id, pickPersonColorIndex(id, used));
       activePersons.set(id, slot);
     }
-    const [j, b] = slot.update(person, bones, skeleton.headIndex);
+    const [j, b] = slot.update(person, bones, skeleton.headIndex, confidenceEnabled);
     joints += j;
     bonesDrawn += b;
   }
@@ -700,9 +893,14 @@ let backoffMs = BACKOFF_MIN_MS;
 let socket = null;
 const frameTimes = []; // receive instants over the last second, for frames/s
 
+// A server started with --token wants it on the WebSocket and on every change (docs/security.md);
+// the viewer takes it from its own address: http://server:8000/?token=...
+const API_TOKEN = new URLSearchParams(location.search).get('token');
+
 function socketUrl() {
   const proto = location.protocol === 'https:' ? 'wss:' : 'ws:';
-  return `${proto}//${location.host}/ws/skeletons?raw=1`;
+  const token = API_TOKEN ? `&token=${encodeURIComponent(API_TOKEN)}` : '';
+  return `${proto}//${location.host}/ws/skeletons?raw=1${token}`;
 }
 
 function connect() {
@@ -766,7 +964,8 @@ function handleMessage(data) {
 
 // --- /api/sensors ------------------------------------------------------------------------------
 
-async function pollSensors() {
+// Once a second; calling pollSensors() polls at once (after a commit: the frustums move).
+const pollSensors = makePoller(async () => {
   const ctrl = new AbortController();
   const timer = setTimeout(() => ctrl.abort(), 2500);
   try {
@@ -780,9 +979,8 @@ async function pollSensors() {
     setApiNote(`/api/sensors: ${e && e.name === 'AbortError' ? 'timeout' : e && e.message ? e.message : e}`);
   } finally {
     clearTimeout(timer);
-    setTimeout(pollSensors, 1000);
   }
-}
+}, () => 1000);
 
 // --- HUD ---------------------------------------------------------------------------------------
 
@@ -794,6 +992,7 @@ const hudChips = document.getElementById('hud-person-chips');
 const hudSensorRows = document.getElementById('hud-sensor-rows');
 const hudApi = document.getElementById('hud-api');
 const rawToggle = document.getElementById('raw-toggle');
+const confidenceToggle = document.getElementById('confidence-toggle');
 
 function setConnState(state, retryMs) {
   hudConn.className = `state state-${state}`;
@@ -843,7 +1042,9 @@ function renderSensorTable(list) {
     sw.style.background = `#${(s.connected ? sensorColor(s.id) : GREY).getHexString()}`;
     const tdSw = document.createElement('td');
     tdSw.appendChild(sw);
-    const cal = s.calibration && typeof s.calibration.state === 'string' ? s.calibration.state : '–';
+    let cal = s.calibration && typeof s.calibration.state === 'string' ? s.calibration.state : '–';
+    const residual = residualText(calibrationEntry(s.id));
+    if (residual && cal === 'stored') cal = `${cal} · ${residual}`;
     tr.append(
       tdSw,
       cell(s.id),
@@ -874,6 +1075,13 @@ function updateRate() {
 }
 setInterval(updateRate, 500);
 
+confidenceToggle.checked = false;
+confidenceToggle.addEventListener('change', () => {
+  confidenceEnabled = confidenceToggle.checked;
+  HOOK.confidenceColouring = confidenceEnabled;
+  if (lastFrame) pendingFrame = lastFrame; // recolour right away
+});
+
 rawToggle.checked = false;
 rawToggle.addEventListener('change', () => {
   rawEnabled = rawToggle.checked;
@@ -881,10 +1089,462 @@ rawToggle.addEventListener('change', () => {
   if (lastFrame) pendingFrame = lastFrame; // redraw (or hide) raw views right away
 });
 
+// --- calibration panel -------------------------------------------------------------------------
+//
+// The active calibration (version, note, per-sensor method and residual) is polled every 2 s;
+// the newest run every 3 s, and every 0.5 s while it is capturing or solving. "start" posts a
+// run with the chosen method, "commit" makes a done run the active calibration (a new version).
+// Refusals (4xx) are shown in the panel with the server's `detail`.
+
+const calUi = {
+  section: document.getElementById('hud-calibration'),
+  summary: document.getElementById('cal-summary'),
+  version: document.getElementById('cal-version'),
+  note: document.getElementById('cal-note'),
+  method: document.getElementById('cal-method'),
+  start: document.getElementById('cal-start'),
+  commit: document.getElementById('cal-commit'),
+  run: document.getElementById('cal-run'),
+  runTitle: document.getElementById('cal-run-title'),
+  runState: document.getElementById('cal-run-state'),
+  bar: document.getElementById('cal-progress-bar'),
+  progressText: document.getElementById('cal-progress-text'),
+  stage: document.getElementById('cal-stage'),
+  results: document.getElementById('cal-results'),
+  resultRows: document.getElementById('cal-result-rows'),
+  floor: document.getElementById('cal-floor'),
+  runWarnings: document.getElementById('cal-run-warnings'),
+  runError: document.getElementById('cal-run-error'),
+  error: document.getElementById('cal-error'),
+};
+
+const cal = {
+  active: null, // the last GET /api/calibration answer
+  run: null, // the newest run
+  runGen: 0, // bumped by start/commit: run answers requested before are stale
+  busy: false, // a POST is in flight
+  expanded: new Set(), // `${runId}/${sensor}` whose warnings are unfolded
+  resultsKey: '',
+};
+
+function isActiveRun(run) {
+  return !!run && (run.state === 'capturing' || run.state === 'solving');
+}
+
+function calibrationEntry(id) {
+  const sensors = cal.active && cal.active.sensors;
+  const entry = sensors && typeof sensors === 'object' ? sensors[id] : null;
+  return entry && typeof entry === 'object' ? entry : null;
+}
+
+/** "18.2 mm", "reference", the method when the residual is unknown, or "". */
+function residualText(entry) {
+  if (!entry) return '';
+  if (entry.method === 'reference') return 'reference';
+  if (Number.isFinite(entry.residual_mm)) return `${entry.residual_mm.toFixed(1)} mm`;
+  return typeof entry.method === 'string' ? entry.method : '';
+}
+
+/** fetch + JSON: {ok, status, data}; throws on network errors and timeouts. */
+async function apiJson(method, path, body) {
+  const ctrl = new AbortController();
+  const timer = setTimeout(() => ctrl.abort(), 8000);
+  try {
+    const init = { method, cache: 'no-store', signal: ctrl.signal, headers: {} };
+    if (API_TOKEN) init.headers.Authorization = `Bearer ${API_TOKEN}`;
+    if (body !== undefined) {
+      init.headers['Content-Type'] = 'application/json';
+      init.body = JSON.stringify(body);
+    }
+    const r = await fetch(path, init);
+    let data = null;
+    try {
+      data = await r.json();
+    } catch (e) {
+      data = null;
+    }
+    return { ok: r.ok, status: r.status, data };
+  } finally {
+    clearTimeout(timer);
+  }
+}
+
+/** The server's reason for a refusal: FastAPI's `detail` (a string, or validation errors). */
+function errorDetail(res) {
+  const d = res.data && res.data.detail;
+  if (typeof d === 'string') return d;
+  if (Array.isArray(d)) {
+    return d
+      .map((e) => {
+        const loc = Array.isArray(e && e.loc) ? e.loc.filter((x) => x !== 'body').join('.') : '';
+        return loc ? `${loc}: ${e.msg}` : String(e && e.msg ? e.msg : JSON.stringify(e));
+      })
+      .join('; ');
+  }
+  return `HTTP ${res.status}`;
+}
+
+function errorText(e) {
+  if (e && e.name === 'AbortError') return 'timeout';
+  return e && e.message ? e.message : String(e);
+}
+
+function showCalError(text) {
+  HOOK.calibrationError = text || null;
+  calUi.error.hidden = !text;
+  calUi.error.textContent = text || '';
+  if (text) calUi.section.open = true; // never hidden in a folded panel
+}
+
+/** Runs `fn` now and then after `nextDelay()` ms, one at a time; calling the returned function
+ * polls at once (or right after the request in flight). */
+function makePoller(fn, nextDelay) {
+  let timer = null;
+  let inFlight = false;
+  let again = false;
+  async function poll() {
+    clearTimeout(timer);
+    timer = null;
+    if (inFlight) {
+      again = true;
+      return;
+    }
+    inFlight = true;
+    try {
+      await fn();
+    } catch (e) {
+      // transient (server restarting): the next poll retries; /api/sensors shows the outage
+    } finally {
+      inFlight = false;
+      const delay = again ? 0 : nextDelay();
+      again = false;
+      timer = setTimeout(poll, delay);
+    }
+  }
+  return poll;
+}
+
+const pollActiveCalibration = makePoller(async () => {
+  const r = await apiJson('GET', '/api/calibration');
+  if (r.ok && r.data && typeof r.data === 'object') applyActiveCalibration(r.data);
+}, () => 2000);
+
+const pollRuns = makePoller(async () => {
+  const gen = cal.runGen;
+  let run = null;
+  if (isActiveRun(cal.run)) {
+    const r = await apiJson('GET', `/api/calibration/runs/${encodeURIComponent(cal.run.id)}`);
+    if (r.ok && r.data && typeof r.data === 'object') run = r.data;
+  }
+  if (!run) {
+    const r = await apiJson('GET', '/api/calibration/runs');
+    const runs = r.ok && r.data && Array.isArray(r.data.runs) ? r.data.runs : null;
+    if (!runs) return;
+    run = runs.length ? runs[runs.length - 1] : null;
+  }
+  if (gen === cal.runGen) applyRun(run);
+}, () => (isActiveRun(cal.run) ? 500 : 3000));
+
+function applyActiveCalibration(data) {
+  cal.active = data;
+  const version = Number.isInteger(data.version) ? data.version : null;
+  HOOK.calibrationVersion = version;
+  calUi.version.textContent = version === null ? 'none' : String(version);
+  const note = typeof data.note === 'string' ? data.note : '';
+  calUi.note.textContent = note;
+  const created = Number.isFinite(data.created_unix_s)
+    ? `committed ${new Date(data.created_unix_s * 1000).toLocaleString()}`
+    : '';
+  calUi.note.title = [note, created].filter(Boolean).join('\n');
+  for (const v of sensorViews.values()) if (v.label.visible) v.updateLabel();
+  renderCalSummary();
+}
+
+function applyRun(run) {
+  cal.run = run && typeof run === 'object' && typeof run.id === 'string' ? run : null;
+  const r = cal.run;
+  HOOK.calibrationRunId = r ? r.id : null;
+  HOOK.calibrationRunState = r && typeof r.state === 'string' ? r.state : null;
+  HOOK.calibrationRunProgress = r && Number.isFinite(r.progress) ? r.progress : 0;
+  HOOK.calibrationRunCommitted = r && Number.isInteger(r.committed_version) ? r.committed_version : null;
+  updateGhosts(r);
+  renderRun();
+  renderCalSummary();
+}
+
+function updateCalButtons() {
+  const r = cal.run;
+  calUi.start.disabled = cal.busy || isActiveRun(r);
+  calUi.start.title = isActiveRun(r) ? 'a run is in progress' : 'start a calibration run with this method';
+  calUi.commit.disabled = cal.busy || !(r && r.state === 'done' && r.committed_version == null);
+}
+
+function renderCalSummary() {
+  const parts = [];
+  if (HOOK.calibrationVersion !== null) parts.push(`v${HOOK.calibrationVersion}`);
+  else if (cal.active) parts.push('none');
+  const r = cal.run;
+  if (r) {
+    if (isActiveRun(r)) parts.push(`${r.method} ${r.state} ${Math.round(HOOK.calibrationRunProgress * 100)} %`);
+    else if (r.state === 'done' && r.committed_version == null) parts.push(`${r.method} run done: review, commit`);
+    else if (r.state === 'failed') parts.push(`${r.method} run failed`);
+  }
+  calUi.summary.textContent = parts.join(' · ') || '–';
+}
+
+function fmt(value, digits, unit) {
+  return Number.isFinite(value) ? `${value.toFixed(digits)}${unit}` : null;
+}
+
+function renderRun() {
+  updateCalButtons();
+  const r = cal.run;
+  calUi.run.hidden = !r;
+  if (!r) return;
+  const when = Number.isFinite(r.created_unix_s) ? new Date(r.created_unix_s * 1000).toLocaleTimeString() : '';
+  calUi.runTitle.textContent = [r.method, r.reference ? `ref ${r.reference}` : '', when].filter(Boolean).join(' · ');
+  calUi.runTitle.title = `run ${r.id}`;
+  const state = HOOK.calibrationRunState || '?';
+  calUi.runState.textContent = state;
+  calUi.runState.className = `hud-label cal-state-${state}`;
+  const progress = Math.min(1, Math.max(0, HOOK.calibrationRunProgress));
+  calUi.bar.style.width = `${(progress * 100).toFixed(1)}%`;
+  calUi.bar.className = `cal-progress-bar${state === 'done' ? ' done' : state === 'failed' ? ' failed' : ''}`;
+  calUi.progressText.textContent = `${Math.round(progress * 100)} %`;
+  let stage = '';
+  if (isActiveRun(r)) stage = typeof r.stage === 'string' ? r.stage : '';
+  else if (state === 'done') {
+    stage = Number.isInteger(r.committed_version)
+      ? `committed as version ${r.committed_version}`
+      : 'done, not committed: the dashed frustums show the proposed poses';
+  }
+  calUi.stage.textContent = stage;
+
+  calUi.runError.hidden = !r.error;
+  calUi.runError.textContent = r.error ? `failed: ${r.error}` : '';
+  const warnings = Array.isArray(r.warnings) ? r.warnings.map(String) : [];
+  calUi.runWarnings.hidden = warnings.length === 0;
+  calUi.runWarnings.textContent = warnings.map((w) => `⚠ ${w}`).join('\n');
+
+  const floor = r.floor && typeof r.floor === 'object' ? r.floor : null;
+  calUi.floor.hidden = !floor;
+  if (floor) {
+    const height = fmt(floor.sensor_height_m, 3, ' m');
+    const rmse = fmt(floor.rmse_mm, 1, ' mm');
+    const tilt = fmt(floor.correction_deg, 2, '°');
+    const shift = fmt(floor.correction_mm, 1, ' mm');
+    const bits = [
+      height && `reference ${height} above it`,
+      rmse && `rmse ${rmse}`,
+      Number.isFinite(floor.inliers) ? `${floor.inliers} points` : null,
+      tilt && `levelled by ${tilt}${shift ? ` / ${shift}` : ''}`,
+    ].filter(Boolean);
+    calUi.floor.textContent = `floor (${floor.source || '?'})${bits.length ? `: ${bits.join(', ')}` : ''}`;
+  }
+  renderResults(r);
+}
+
+function renderResults(r) {
+  const results = r.results && typeof r.results === 'object' ? r.results : {};
+  const ids = Object.keys(results).sort();
+  const key = `${r.id}|${JSON.stringify(results, (k, v) => (k === 'T_world_from_sensor' ? undefined : v))}`;
+  if (key === cal.resultsKey) return;
+  cal.resultsKey = key;
+  calUi.results.hidden = ids.length === 0;
+  const rows = [];
+  for (const id of ids) {
+    const res = results[id] || {};
+    const tr = document.createElement('tr');
+    const sw = document.createElement('span');
+    sw.className = 'swatch';
+    sw.style.background = `#${sensorColor(id).getHexString()}`;
+    const tdSw = document.createElement('td');
+    tdSw.appendChild(sw);
+    const residual = res.method === 'reference' ? '–' : fmt(res.residual_mm, 1, ' mm') || '–';
+    const tdRes = cell(residual, 'num');
+    const metrics = res.metrics && typeof res.metrics === 'object' ? res.metrics : {};
+    tdRes.title = Object.entries(metrics)
+      .map(([k, v]) => `${k}: ${typeof v === 'object' ? JSON.stringify(v) : v}`)
+      .join('\n');
+    const warnings = Array.isArray(res.warnings) ? res.warnings.map(String) : [];
+    const tdWarn = cell(warnings.length ? '' : '–', 'warn');
+    const expandKey = `${r.id}/${id}`;
+    let detailRow = null;
+    if (warnings.length) {
+      const toggle = document.createElement('span');
+      toggle.className = 'cal-warn-toggle';
+      toggle.textContent = `⚠ ${warnings.length}`;
+      toggle.title = warnings.map((w) => `• ${w}`).join('\n');
+      tdWarn.appendChild(toggle);
+      detailRow = document.createElement('tr');
+      detailRow.className = 'cal-warn-row';
+      detailRow.hidden = !cal.expanded.has(expandKey);
+      const td = document.createElement('td');
+      td.colSpan = 5;
+      const ul = document.createElement('ul');
+      for (const w of warnings) {
+        const li = document.createElement('li');
+        li.textContent = w;
+        ul.appendChild(li);
+      }
+      td.appendChild(ul);
+      detailRow.appendChild(td);
+      const row = detailRow;
+      toggle.addEventListener('click', () => {
+        row.hidden = !row.hidden;
+        if (row.hidden) cal.expanded.delete(expandKey);
+        else cal.expanded.add(expandKey);
+      });
+    }
+    tr.append(tdSw, cell(id), cell(typeof res.method === 'string' ? res.method : '–'), tdRes, tdWarn);
+    rows.push(tr);
+    if (detailRow) rows.push(detailRow);
+  }
+  calUi.resultRows.replaceChildren(...rows);
+}
+
+function setCalBusy(busy) {
+  cal.busy = busy;
+  updateCalButtons();
+}
+
+async function startRun() {
+  if (cal.busy) return;
+  const method = calUi.method.value;
+  setCalBusy(true);
+  showCalError('');
+  try {
+    const r = await apiJson('POST', '/api/calibration/runs', { method });
+    if (!r.ok) {
+      showCalError(`start ${method}: ${errorDetail(r)}`);
+      return;
+    }
+    cal.runGen++;
+    applyRun(r.data);
+  } catch (e) {
+    showCalError(`start ${method}: ${errorText(e)}`);
+  } finally {
+    setCalBusy(false);
+    pollRuns();
+  }
+}
+
+async function commitRun() {
+  const run = cal.run;
+  if (cal.busy || !run) return;
+  setCalBusy(true);
+  showCalError('');
+  try {
+    const r = await apiJson('POST', `/api/calibration/runs/${encodeURIComponent(run.id)}/commit`);
+    if (!r.ok) {
+      showCalError(`commit: ${errorDetail(r)}`);
+      return;
+    }
+    if (r.data && typeof r.data === 'object') {
+      cal.runGen++;
+      if (cal.run && cal.run.id === run.id) {
+        applyRun({ ...cal.run, committed_version: Number.isInteger(r.data.version) ? r.data.version : null });
+      }
+      applyActiveCalibration({ ...r.data, effective: cal.active ? cal.active.effective : undefined });
+    }
+  } catch (e) {
+    showCalError(`commit: ${errorText(e)}`);
+  } finally {
+    setCalBusy(false);
+    pollRuns();
+    pollActiveCalibration();
+    pollSensors(); // the frustums move at once
+  }
+}
+
+calUi.start.addEventListener('click', startRun);
+calUi.commit.addEventListener('click', commitRun);
+
+// --- joint hover tooltip -----------------------------------------------------------------------
+
+const hover = { dirty: false, x: 0, y: 0, inside: false, down: false };
+const raycaster = new THREE.Raycaster();
+const pointerNdc = new THREE.Vector2();
+const tip = document.createElement('div');
+tip.className = 'joint-tip';
+tip.hidden = true;
+document.body.appendChild(tip);
+
+if (renderer) {
+  const el = renderer.domElement;
+  el.addEventListener('pointermove', (ev) => {
+    hover.x = ev.clientX;
+    hover.y = ev.clientY;
+    hover.inside = true;
+    hover.down = ev.buttons !== 0;
+    hover.dirty = true;
+  });
+  el.addEventListener('pointerleave', () => {
+    hover.inside = false;
+    hover.dirty = true;
+  });
+}
+
+function jointSourcesText(person, joint) {
+  const js = Array.isArray(person.joint_sources) ? person.joint_sources[joint] : undefined;
+  const sources = Array.isArray(person.sources) ? person.sources : [];
+  if (Array.isArray(js)) return js.map(String).join(', ') || 'none'; // a list of sensor ids
+  if (Number.isInteger(js)) return sources.filter((s, k) => js & (1 << k)).join(', ') || 'none'; // bitmask
+  return null;
+}
+
+function updateHover() {
+  hover.dirty = false;
+  if (!hover.inside || hover.down || !renderer) {
+    tip.hidden = true;
+    return;
+  }
+  const rect = renderer.domElement.getBoundingClientRect();
+  pointerNdc.set(((hover.x - rect.left) / rect.width) * 2 - 1, -((hover.y - rect.top) / rect.height) * 2 + 1);
+  raycaster.setFromCamera(pointerNdc, camera);
+  let best = null;
+  for (const slot of activePersons.values()) {
+    if (slot.joints.count === 0) continue;
+    slot.joints.computeBoundingSphere(); // instances move every frame
+    const hits = raycaster.intersectObject(slot.joints, false);
+    if (hits.length && (!best || hits[0].distance < best.hit.distance)) best = { slot, hit: hits[0] };
+  }
+  if (!best || best.hit.instanceId === undefined || !best.slot.person) {
+    tip.hidden = true;
+    return;
+  }
+  const { slot, hit } = best;
+  const joint = slot.instanceJoint[hit.instanceId];
+  const name = skeleton.jointNames && skeleton.jointNames[joint] ? skeleton.jointNames[joint] : `joint ${joint}`;
+  const conf = slot.conf[joint];
+  const lines = [`#${slot.id} ${name}`, `confidence ${Number.isNaN(conf) ? '–' : conf.toFixed(2)}`];
+  const src = jointSourcesText(slot.person, joint);
+  if (src !== null) lines.push(`sources: ${src}`);
+  tip.textContent = lines.join('\n');
+  tip.style.borderColor = Number.isNaN(conf) ? '' : confidenceCss(conf);
+  tip.style.left = `${hover.x + 14}px`;
+  tip.style.top = `${hover.y + 12}px`;
+  tip.hidden = false;
+}
+
 // --- main loop ---------------------------------------------------------------------------------
 
+// A pass renders only when something changed (a frame, the camera, sensors, calibration...) or
+// every 250 ms: frames arrive at 30/s, so rendering at the display's 60 Hz would double the cost
+// for nothing (a software-rendered headless browser spends a whole CPU core on it).
+let renderRequested = true;
+let lastRenderAt = -Infinity;
+const IDLE_RENDER_MS = 250;
+
+function requestRender() {
+  renderRequested = true;
+}
+
 function renderOnce() {
+  let dirty = renderRequested;
+  renderRequested = false;
   if (pendingFrame) {
+    dirty = true;
     const f = pendingFrame;
     pendingFrame = null;
     try {
@@ -895,9 +1555,12 @@ function renderOnce() {
       reportError(`frame: ${e && e.message ? e.message : e}`);
     }
   }
-  if (controls) controls.update();
+  if (controls && controls.update()) dirty = true; // true while the camera moves (damping too)
+  if (hover.dirty || hover.inside) updateHover(); // the joints move under a still pointer too
   if (renderer) {
     const t0 = performance.now();
+    if (!dirty && t0 - lastRenderAt < IDLE_RENDER_MS) return;
+    lastRenderAt = t0;
     renderer.render(scene, camera);
     HOOK.renderMs = performance.now() - t0;
     HOOK.renders++;
@@ -921,3 +1584,5 @@ if (renderer) {
 }
 connect();
 pollSensors();
+pollActiveCalibration();
+pollRuns();

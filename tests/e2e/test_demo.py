@@ -19,7 +19,7 @@ pytestmark = [pytest.mark.e2e, pytest.mark.timeout(180)]
 
 async def collect(stack: DemoStack, seconds: float) -> list[dict[str, object]]:
     frames: list[dict[str, object]] = []
-    async with connect(stack.ws_url + "/ws/skeletons") as ws:
+    async with connect(f"{stack.ws_url}/ws/skeletons?token={stack.token}") as ws:
         definition = json.loads(await ws.recv())
         assert definition["type"] == "skeleton"
         deadline = time.monotonic() + seconds

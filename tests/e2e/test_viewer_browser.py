@@ -4,6 +4,9 @@
 agents, 2 simulated people); Debian's Chromium loads ``/`` and the tests read the viewer's test
 hook ``window.skelfuseViewer``, the HUD, and the pixels of a screenshot. Nothing is mocked.
 
+The tests share one demo (module scope) and run in file order: the calibration run that commits
+a new version comes last, so the tests before it see the demo's own calibration (version 1).
+
 Chromium and the ``playwright`` Python package are required: the tests skip with a reason when
 either is missing, and fail when the ``CI`` environment variable is set (CI must install them).
 """
@@ -15,6 +18,7 @@ import re
 import shutil
 import struct
 import time
+import warnings
 import zlib
 from collections.abc import Iterator
 from pathlib import Path
@@ -102,11 +106,18 @@ class ViewerPage:
         self.page = page
         self.page_errors: list[str] = []
         self.console_errors: list[str] = []
+        self.dialogs: list[str] = []
         page.on("pageerror", lambda exc: self.page_errors.append(str(exc)))
+        page.on("dialog", self._on_dialog)
         page.on(
             "console",
             lambda msg: self.console_errors.append(msg.text) if msg.type == "error" else None,
         )
+
+    def _on_dialog(self, dialog: Any) -> None:
+        # The viewer reports problems in the HUD, never with alert()/confirm().
+        self.dialogs.append(f"{dialog.type}: {dialog.message}")
+        dialog.dismiss()
 
     def hook(self) -> dict[str, Any]:
         state: dict[str, Any] = self.page.evaluate(f"({{...{HOOK}, errors: [...{HOOK}.errors]}})")
@@ -127,6 +138,7 @@ class ViewerPage:
         assert state["errors"] == [], f"viewer reported errors: {state['errors']}"
         assert self.page_errors == [], f"uncaught page errors: {self.page_errors}"
         assert self.console_errors == [], f"console errors: {self.console_errors}"
+        assert self.dialogs == [], f"dialogs opened: {self.dialogs}"
 
 
 @pytest.fixture
@@ -137,7 +149,7 @@ def viewer(browser: Browser, demo_stack: DemoStack) -> Iterator[ViewerPage]:
         page = context.new_page()
         page.set_default_timeout(15_000)
         vp = ViewerPage(page)
-        page.goto(demo_stack.http_url + "/", wait_until="load", timeout=15_000)
+        page.goto(demo_stack.viewer_url, wait_until="load", timeout=15_000)
         vp.wait_for(f"{HOOK} && {HOOK}.framesReceived > 30", timeout_s=30)
         yield vp
     finally:
@@ -172,6 +184,10 @@ def test_viewer_streams_and_draws_the_demo(viewer: ViewerPage, demo_stack: DemoS
     assert state["sensorsDrawn"] == DEMO_SENSORS, state
     assert state["rawEnabled"] is False
     assert state["rawViewsDrawn"] == 0, state
+    assert state["confidenceColouring"] is False
+    # The demo committed its own calibration before fusing.
+    viewer.wait_for(f"{HOOK}.calibrationVersion !== null", timeout_s=10)
+    assert viewer.hook()["calibrationVersion"] >= 1
 
     # The viewer shows the server's own stream, and is up to date with it.
     health = demo_stack.get_json("/api/health")
@@ -296,31 +312,46 @@ def colour_counts(
     return {c: int(np.sum(close & (nearest == i))) for i, c in enumerate(candidates)}
 
 
+def drawn_colours(page: Page) -> tuple[list[RGB], list[RGB]]:
+    """The colours of the drawn people (HUD chips) and of the sensors (HUD swatches)."""
+    chips = page.eval_on_selector_all(
+        "#hud-person-chips .chip", "els => els.map(e => getComputedStyle(e).backgroundColor)"
+    )
+    swatches = page.eval_on_selector_all(
+        "#hud-sensor-rows .swatch", "els => els.map(e => getComputedStyle(e).backgroundColor)"
+    )
+    return [parse_css_rgb(c) for c in chips], [parse_css_rgb(c) for c in swatches]
+
+
+def steady_screenshot(page: Page) -> tuple[bytes, list[RGB], list[RGB]]:
+    """A PNG of the page, with the people's and sensors' colours, which must be the same before
+    and after the shot (the HUD chips, one per drawn person, in the person's colour), or pixel
+    counts would not mean much."""
+    for _ in range(10):
+        before = drawn_colours(page)
+        png = page.screenshot(type="png", timeout=15_000)
+        after = drawn_colours(page)
+        if before == after and len(before[0]) == DEMO_PERSONS:
+            return png, before[0], before[1]
+        time.sleep(0.3)
+    pytest.fail(f"the drawn people kept changing around the screenshot: {before} / {after}")
+
+
+def outside_hud(page: Page, height: int, width: int) -> npt.NDArray[np.bool_]:
+    """True outside the HUD panel (its chips and swatches use the scene's colours too)."""
+    hud = page.locator("#hud").bounding_box()
+    assert hud is not None
+    mask = np.ones((height, width), dtype=bool)
+    x0, y0 = max(0, int(hud["x"]) - 2), max(0, int(hud["y"]) - 2)
+    x1, y1 = int(hud["x"] + hud["width"]) + 3, int(hud["y"] + hud["height"]) + 3
+    mask[y0:y1, x0:x1] = False
+    return mask
+
+
 def test_screenshot_shows_the_fused_skeletons(viewer: ViewerPage) -> None:
     page = viewer.page
     viewer.wait_for(f"{HOOK}.personsDrawn === {DEMO_PERSONS}", timeout_s=20)
-
-    def drawn_colours() -> tuple[list[RGB], list[RGB]]:
-        chips = page.eval_on_selector_all(
-            "#hud-person-chips .chip", "els => els.map(e => getComputedStyle(e).backgroundColor)"
-        )
-        swatches = page.eval_on_selector_all(
-            "#hud-sensor-rows .swatch", "els => els.map(e => getComputedStyle(e).backgroundColor)"
-        )
-        return [parse_css_rgb(c) for c in chips], [parse_css_rgb(c) for c in swatches]
-
-    # The people on screen (the HUD chips, one per drawn person, in the person's colour) must
-    # be the same before and after the shot, or the pixel counts below would not mean much.
-    for _ in range(10):
-        before = drawn_colours()
-        png = page.screenshot(type="png", timeout=15_000)
-        after = drawn_colours()
-        if before == after and len(before[0]) == DEMO_PERSONS:
-            break
-        time.sleep(0.3)
-    else:
-        pytest.fail(f"the drawn people kept changing around the screenshot: {before} / {after}")
-    person_colours, sensor_colours = before
+    png, person_colours, sensor_colours = steady_screenshot(page)
     ARTIFACTS.mkdir(exist_ok=True)
     (ARTIFACTS / "viewer.png").write_bytes(png)
 
@@ -342,12 +373,7 @@ def test_screenshot_shows_the_fused_skeletons(viewer: ViewerPage) -> None:
     assert float(rgb.std()) > 5, f"nearly uniform image (std {float(rgb.std()):.1f})"
 
     # Pixels in the fused people's colours, outside the HUD panel (its chips use them too).
-    hud = page.locator("#hud").bounding_box()
-    assert hud is not None
-    mask = np.ones((height, width), dtype=bool)
-    x0, y0 = max(0, int(hud["x"]) - 2), max(0, int(hud["y"]) - 2)
-    x1, y1 = int(hud["x"] + hud["width"]) + 3, int(hud["y"] + hud["height"]) + 3
-    mask[y0:y1, x0:x1] = False
+    mask = outside_hud(page, height, width)
     counts = colour_counts(image, mask, palette, sensor_colours)
     drawn = {c: counts[c] for c in person_colours}
     absent = {c: n for c, n in counts.items() if c not in person_colours}
@@ -391,3 +417,297 @@ def test_raw_views_toggle(viewer: ViewerPage) -> None:
     viewer.wait_for(f"{HOOK}.framesReceived > {frames + 10}", timeout_s=5)
     assert viewer.hook()["rawViewsDrawn"] == 0
     viewer.assert_no_errors()
+
+
+# --- colour by confidence -----------------------------------------------------------------------
+
+
+def confidence_ramp(samples: int = 41) -> list[RGB]:
+    """Colours along viewer.js CONFIDENCE_RAMP (stops for 0, 0.5, 1; interpolated in sRGB)."""
+    source = VIEWER_JS.read_text(encoding="utf-8")
+    m = re.search(r"const CONFIDENCE_RAMP = \[(.*?)\]", source, re.S)
+    assert m, f"CONFIDENCE_RAMP not found in {VIEWER_JS}"
+    stops = np.array(
+        [
+            [int(h[i : i + 2], 16) for i in (0, 2, 4)]
+            for h in re.findall(r"'#([0-9a-fA-F]{6})'", m[1])
+        ],
+        np.float64,
+    )
+    assert len(stops) == 3, stops
+    out: list[RGB] = []
+    for t in np.linspace(0.0, 1.0, samples):
+        x = t * (len(stops) - 1)
+        k = min(int(x), len(stops) - 2)
+        c = stops[k] + (stops[k + 1] - stops[k]) * (x - k)
+        r, g, b = (int(v) for v in np.rint(c))
+        out.append((r, g, b))
+    return out
+
+
+def chroma_distance(a: RGB, b: RGB) -> float:
+    """Distance between two colours' chromaticities (RGB / largest channel), as colour_counts."""
+    ca = np.array(a, np.float64) / max(max(a), 1)
+    cb = np.array(b, np.float64) / max(max(b), 1)
+    return float(np.linalg.norm(ca - cb))
+
+
+def test_colour_by_confidence_toggle(viewer: ViewerPage) -> None:
+    page = viewer.page
+    toggle = page.locator("#confidence-toggle")
+    assert not toggle.is_checked()
+    assert viewer.hook()["confidenceColouring"] is False
+    viewer.wait_for(f"{HOOK}.personsDrawn === {DEMO_PERSONS}", timeout_s=20)
+
+    def shot(name: str) -> tuple[dict[RGB, int], int, list[RGB]]:
+        """(pixels per drawn person colour, pixels on the ramp, the person colours)."""
+        png, persons, sensors = steady_screenshot(page)
+        ARTIFACTS.mkdir(exist_ok=True)
+        (ARTIFACTS / name).write_bytes(png)
+        image = decode_png(png)
+        mask = outside_hud(page, *image.shape[:2])
+        # Ramp colours too close to a drawn person's colour (the palette has an orange and a
+        # lime) would be ambiguous: leave them out, the rest of the ramp tells enough.
+        ramp = [c for c in confidence_ramp() if min(chroma_distance(c, p) for p in persons) > 0.2]
+        assert len(ramp) >= 15, f"person colours {persons} cover most of the ramp"
+        counts = colour_counts(image, mask, [*persons, *ramp], sensors)
+        return {p: counts[p] for p in persons}, sum(counts[c] for c in ramp), persons
+
+    people_off, ramp_off, _ = shot("viewer-confidence-off.png")
+
+    toggle.click()
+    assert toggle.is_checked()
+    viewer.wait_for(f"{HOOK}.confidenceColouring === true", timeout_s=5)
+    renders = viewer.hook()["renders"]
+    viewer.wait_for(f"{HOOK}.renders > {renders + 5} && {HOOK}.personsDrawn > 0", timeout_s=10)
+    people_on, ramp_on, persons_on = shot("viewer-confidence.png")
+    report = (
+        f"off: people {people_off}, ramp {ramp_off}; on: people {people_on} ({persons_on}), "
+        f"ramp {ramp_on}"
+    )
+    # The skeletons are drawn in ramp colours now (red, yellow, green by confidence)...
+    assert ramp_on >= 300, report
+    assert ramp_on > 3 * ramp_off + 100, report
+    # ...and no longer in the people's colours (only their "#id" labels keep them). A person
+    # colour on the ramp itself (orange, lime) cannot be told apart from it: not checked.
+    off_ramp = [
+        p
+        for p in persons_on
+        if p in people_off and min(chroma_distance(p, c) for c in confidence_ramp()) > 0.2
+    ]
+    for p in off_ramp:
+        assert people_on[p] < 0.4 * people_off[p] + 20, f"person colour {p}: {report}"
+    assert viewer.hook()["confidenceColouring"] is True
+
+    # Off again: the people's colours come back.
+    toggle.click()
+    viewer.wait_for(f"{HOOK}.confidenceColouring === false", timeout_s=5)
+    renders = viewer.hook()["renders"]
+    viewer.wait_for(f"{HOOK}.renders > {renders + 5} && {HOOK}.personsDrawn > 0", timeout_s=10)
+    people_back, ramp_back, _ = shot("viewer-confidence-off-again.png")
+    report += f"; off again: people {people_back}, ramp {ramp_back}"
+    assert ramp_back < ramp_on / 3, report
+    assert sum(people_back.values()) >= 300, report
+    viewer.assert_no_errors()
+
+
+# --- calibration panel --------------------------------------------------------------------------
+
+
+def open_calibration_panel(viewer: ViewerPage) -> None:
+    page = viewer.page
+    if not page.locator("#hud-calibration").evaluate("el => el.open"):
+        page.click("#hud-calibration > summary")
+    page.locator("#cal-start").wait_for(state="visible", timeout=5_000)
+
+
+def test_calibration_panel_shows_the_active_calibration(
+    viewer: ViewerPage, demo_stack: DemoStack
+) -> None:
+    page = viewer.page
+    active = demo_stack.get_json("/api/calibration")
+    runs = demo_stack.get_json("/api/calibration/runs")["runs"]
+    # The demo calibrated itself (auto) and committed version 1; the commit test comes later.
+    assert active["version"] == 1, active
+    viewer.wait_for(
+        f"{HOOK}.calibrationVersion === 1 && {HOOK}.calibrationRunState === 'done'", timeout_s=10
+    )
+    state = viewer.hook()
+    assert state["calibrationRunId"] == runs[-1]["id"], (state, runs[-1])
+    assert state["calibrationRunCommitted"] == 1, state
+    assert state["calibrationRunProgress"] == 1, state
+    assert state["ghostSensorsDrawn"] == 0, "a committed run's poses are not proposals"
+    # Folded, the panel's heading still says the version.
+    assert "v1" in page.inner_text("#cal-summary")
+
+    open_calibration_panel(viewer)
+    assert page.inner_text("#cal-version") == "1"
+    assert page.inner_text("#cal-note") == active["note"]
+    assert page.inner_text("#cal-run-state") == "done"
+    assert "committed as version 1" in page.inner_text("#cal-stage")
+    assert page.locator("#cal-commit").is_disabled(), "the run is committed already"
+    assert page.locator("#cal-start").is_enabled()
+    options = page.eval_on_selector_all("#cal-method option", "els => els.map(e => e.value)")
+    assert options == ["auto", "skeleton", "icp"]
+    # One result row per sensor, with the method and the residual of the run.
+    rows = page.locator("#cal-result-rows tr:not(.cal-warn-row)")
+    assert rows.count() == DEMO_SENSORS
+    for sensor, result in runs[-1]["results"].items():
+        row = page.locator("#cal-result-rows tr:not(.cal-warn-row)", has_text=sensor)
+        text = row.inner_text()
+        assert result["method"] in text, (sensor, text)
+        if result["method"] != "reference":
+            assert f"{result['residual_mm']:.1f} mm" in text, (sensor, text)
+    # The demo's sensors are 120° apart: the skeleton fit warns, folded behind a "⚠ n" toggle.
+    toggles = page.locator(".cal-warn-toggle")
+    if toggles.count():
+        detail = page.locator("#cal-result-rows tr.cal-warn-row").first
+        assert detail.is_hidden()
+        toggles.first.click()
+        assert detail.is_visible() and detail.inner_text().strip()
+    if runs[-1]["floor"]:
+        assert page.inner_text("#cal-floor").startswith(f"floor ({runs[-1]['floor']['source']})")
+    # The sensor table shows each sensor's residual in the active calibration.
+    table = page.inner_text("#hud-sensor-rows")
+    for sensor, entry in active["sensors"].items():
+        if entry["method"] != "reference" and entry["residual_mm"] is not None:
+            assert f"{entry['residual_mm']:.1f} mm" in table, (sensor, table)
+    viewer.assert_no_errors()
+
+
+ICP_ATTEMPTS = 3
+
+
+def run_from_panel(
+    viewer: ViewerPage, previous_run: str | None
+) -> tuple[str, list[tuple[str | None, float]], float]:
+    """Clicks "start" and follows the run through the hook until it ends (60 s at most).
+
+    Returns the run id, the (state, progress) seen, and the seconds it took."""
+    page = viewer.page
+    started = time.monotonic()
+    page.click("#cal-start")
+    viewer.wait_for(
+        f"{HOOK}.calibrationRunId !== null && {HOOK}.calibrationRunId !== '{previous_run}'",
+        timeout_s=10,
+    )
+    run_id = str(viewer.hook()["calibrationRunId"])
+    states: list[tuple[str | None, float]] = []
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        state = viewer.hook()
+        assert state["calibrationRunId"] == run_id, state
+        states.append((state["calibrationRunState"], state["calibrationRunProgress"]))
+        if state["calibrationRunState"] in ("done", "failed"):
+            break
+        assert page.locator("#cal-start").is_disabled(), "start stays disabled while running"
+        assert page.locator("#cal-commit").is_disabled(), "nothing to commit while running"
+        time.sleep(0.2)
+    else:
+        pytest.fail(f"run {run_id} did not end within 60 s: {states[-5:]}")
+    return run_id, states, time.monotonic() - started
+
+
+@pytest.mark.timeout(300)  # up to 3 icp runs (a failed one takes 20 s) and one refused start
+def test_calibration_run_from_the_panel_and_commit(
+    viewer: ViewerPage, demo_stack: DemoStack
+) -> None:
+    """Last in the module: commits a new calibration version."""
+    page = viewer.page
+    version_before = demo_stack.get_json("/api/calibration")["version"]
+    viewer.wait_for(f"{HOOK}.calibrationVersion === {version_before}", timeout_s=10)
+    previous_run = viewer.hook()["calibrationRunId"]
+    open_calibration_panel(viewer)
+
+    # icp refines the current poses from one depth cloud per sensor: a few seconds. A depth
+    # request can time out on a loaded machine (the simulated agents render the clouds on the
+    # CPU): such a failed run is shown in the panel, and the run is started again, twice at most.
+    page.select_option("#cal-method", "icp")
+    failures: list[str] = []
+    for _attempt in range(ICP_ATTEMPTS):
+        run_id, states, took_s = run_from_panel(viewer, previous_run)
+        run = demo_stack.get_json(f"/api/calibration/runs/{run_id}")
+        assert run["method"] == "icp", run
+        progress = [p for _, p in states]
+        assert progress == sorted(progress), f"progress went back: {progress}"
+        if states[-1][0] == "done":
+            assert run["state"] == "done", run
+            assert states[-1][1] == 1
+            break
+        # A failed run: its error in the panel, "commit" off, "start" on again.
+        assert states[-1][0] == "failed" and run["state"] == "failed", (run, states[-1])
+        assert page.inner_text("#cal-run-error") == f"failed: {run['error']}"
+        assert page.locator("#cal-commit").is_disabled()
+        assert page.locator("#cal-start").is_enabled()
+        failures.append(f"run {run_id} failed after {took_s:.1f} s: {run['error']}")
+        previous_run = run_id
+    else:
+        pytest.fail(f"no icp run finished in {ICP_ATTEMPTS} attempts: {failures}")
+    if failures:
+        warnings.warn(f"icp run(s) failed before one succeeded: {failures}", stacklevel=1)
+
+    # Done, not committed: results per sensor, the proposed poses as dashed frustums, and
+    # "commit" enabled.
+    viewer.wait_for(f"{HOOK}.ghostSensorsDrawn === {DEMO_SENSORS}", timeout_s=5)
+    commit = page.locator("#cal-commit")
+    assert commit.is_enabled()
+    assert page.inner_text("#cal-run-state") == "done"
+    assert page.locator("#cal-result-rows tr:not(.cal-warn-row)").count() == DEMO_SENSORS
+    assert page.inner_text("#cal-progress-text") == "100 %"
+    assert viewer.hook()["calibrationVersion"] == version_before, "nothing changes before commit"
+    ARTIFACTS.mkdir(exist_ok=True)
+    page.screenshot(path=str(ARTIFACTS / "viewer-calibration.png"), timeout=15_000)
+
+    commit.click()
+    version_after = version_before + 1
+    viewer.wait_for(
+        f"{HOOK}.calibrationVersion === {version_after} && "
+        f"{HOOK}.calibrationRunCommitted === {version_after}",
+        timeout_s=10,
+    )
+    active = demo_stack.get_json("/api/calibration")
+    assert active["version"] == version_after, active
+    assert active["note"] == f"run {run_id} (icp)", active
+    assert demo_stack.get_json(f"/api/calibration/runs/{run_id}")["committed_version"] == (
+        version_after
+    )
+    assert page.inner_text("#cal-version") == str(version_after)
+    assert f"v{version_after}" in page.inner_text("#cal-summary")
+    assert f"committed as version {version_after}" in page.inner_text("#cal-stage")
+    assert commit.is_disabled()
+    viewer.wait_for(f"{HOOK}.ghostSensorsDrawn === 0", timeout_s=5)
+    assert page.locator("#cal-error").is_hidden()
+    # Fusion goes on with the new poses.
+    frames = viewer.hook()["framesReceived"]
+    viewer.wait_for(
+        f"{HOOK}.framesReceived > {frames + 10} && {HOOK}.sensorsDrawn === {DEMO_SENSORS}",
+        timeout_s=10,
+    )
+    viewer.assert_no_errors()
+
+    # A refusal (409: another run is in progress) is shown in the panel with the server's
+    # reason. The run is started through REST and the panel's "start" clicked in the same task,
+    # before the panel's polling can know about it.
+    status, body = page.evaluate(
+        """async () => {
+          const r = await fetch('/api/calibration/runs', {method: 'POST',
+            headers: {'Content-Type': 'application/json',
+                      Authorization: 'Bearer ' + new URLSearchParams(location.search).get('token')},
+            body: JSON.stringify({method: 'icp'})});
+          const body = await r.json();
+          document.getElementById('cal-start').click();
+          return [r.status, body];
+        }"""
+    )
+    assert status == 202, body
+    viewer.wait_for(f"{HOOK}.calibrationError !== null", timeout_s=10)
+    error = page.inner_text("#cal-error")
+    assert "still" in error and body["id"] in error, error
+    assert page.locator("#cal-error").is_visible()
+    assert viewer.dialogs == []
+    # The panel follows the run it did not start, until it ends (not committed: no change).
+    viewer.wait_for(f"{HOOK}.calibrationRunId === '{body['id']}'", timeout_s=10)
+    viewer.wait_for(f"['done', 'failed'].includes({HOOK}.calibrationRunState)", timeout_s=60)
+    assert demo_stack.get_json("/api/calibration")["version"] == version_after
+    # The error text is still the viewer's only report: no alert, no HOOK.errors entry.
+    assert viewer.hook()["errors"] == []
