@@ -90,3 +90,43 @@ def test_only_allowlisted_keys_connect_each_as_its_own_sensor(
     assert wait_until(
         lambda: httpx.get(secured.http_url + "/api/persons").json()["persons"], timeout_s=10
     )
+
+
+def test_a_restarted_agent_is_fused_again_within_2_s(
+    secured: LiveServer,
+    agents: Callable[[str, str, CurveKeys | None], None],
+    tmp_path: Path,
+) -> None:
+    """An agent that crashed (no bye) and restarts with its key takes its sensor over at once."""
+    import time
+
+    import numpy as np
+
+    from protocol.skeleton import JOINT_COUNT
+    from protocol.wire import Body, Frame, Hello, encode
+
+    paths = key_paths(tmp_path / "data")
+    keys = CurveKeys(paths.agent_secret("cam-a"), paths.server_public)
+    crashed = zmq.Context.instance().socket(zmq.DEALER)
+    crashed.linger = 0
+    keys.apply(crashed)
+    crashed.connect(secured.zmq_url)
+    crashed.send(encode(Hello("cam-a", "sim", "test", 30.0, time.time_ns())))
+    assert crashed.poll(5000)
+    crashed.recv()
+    joints = np.zeros((JOINT_COUNT, 3), np.float32) + [0, 0, 2]
+    crashed.send(encode(Frame(1, time.time_ns(), (Body(1, joints, np.full(25, 2, np.uint8)),))))
+    assert wait_until(lambda: sensor_ids(secured) == {"cam-a"}, timeout_s=5)
+    crashed.close(linger=0)  # gone without a bye, still "connected" for up to 3 s
+
+    restarted = time.monotonic()
+    agents(secured.zmq_url, "cam-a", keys)
+
+    def fused_from_the_new_agent() -> bool:
+        rows = httpx.get(secured.http_url + "/api/sensors").json()["sensors"]
+        row = next(r for r in rows if r["id"] == "cam-a")
+        persons = httpx.get(secured.http_url + "/api/persons").json()["persons"]
+        return row["type"] == "sim" and row["frames_received"] > 1 and bool(persons)
+
+    assert wait_until(fused_from_the_new_agent, timeout_s=10)
+    assert time.monotonic() - restarted < 2.0

@@ -280,3 +280,17 @@ async def test_a_client_that_never_reads_is_disconnected(
                     break
                 await asyncio.sleep(0.5)
     assert remaining == 0, "the server must drop a client that stopped reading"
+
+
+def test_a_dead_agent_is_offline_within_3_s(live_server: LiveServer) -> None:
+    """An agent that vanishes without a bye (crash, cable pulled) is offline within 3 s."""
+    socket = raw_agent(live_server, "crashy")
+    joints = np.zeros((JOINT_COUNT, 3), np.float32) + [0, 0, 2]
+    states = np.full(JOINT_COUNT, 2, np.uint8)
+    for seq in range(1, 4):
+        socket.send(encode(Frame(seq, time.time_ns(), (Body(1, joints, states),))))
+    assert wait_until(lambda: sensors_by_id(live_server)["crashy"]["frames_received"] == 3, 5)
+    socket.close(linger=0)  # no bye
+    died = time.monotonic()
+    assert wait_until(lambda: not sensors_by_id(live_server)["crashy"]["connected"], 6)
+    assert time.monotonic() - died < 3.3  # 3 s plus one polling step of this test

@@ -76,7 +76,7 @@ def test_record_stop_list_download_replay(
                 for s in httpx.get(live_server.http_url + "/api/sensors").json()["sensors"]
             ),
             15,
-        )
+        ), httpx.get(live_server.http_url + "/api/sensors").json()
     finally:
         stop.set()
         thread.join(timeout=10)
