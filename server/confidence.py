@@ -90,6 +90,23 @@ def _topological_order() -> tuple[int, ...]:
 CHAIN_ORDER: Final[tuple[int, ...]] = _topological_order()
 """Joints sorted so that every parent comes before its children (SpineBase first)."""
 
+
+def _depth_levels() -> tuple[tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]], ...]:
+    depth = {0: 0}
+    for joint in CHAIN_ORDER[1:]:
+        depth[joint] = depth[PARENTS[joint]] + 1
+    levels = []
+    for d in range(1, max(depth.values()) + 1):
+        children = [j for j in CHAIN_ORDER if depth[j] == d]
+        levels.append(
+            (np.array(children, dtype=np.intp), np.array([PARENTS[j] for j in children], np.intp))
+        )
+    return tuple(levels)
+
+
+CHAIN_LEVELS: Final = _depth_levels()
+"""(children, their parents) per depth below SpineBase: each level only needs the one above."""
+
 _BONE_CHILD: Final = np.array([child for _, child in BONES])
 _BONE_PARENT: Final = np.array([parent for parent, _ in BONES])
 
@@ -109,10 +126,8 @@ def propagate(local: npt.ArrayLike) -> FloatArray:
         (..., 25) float64: each joint's factor times all its ancestors' factors.
     """
     out = np.array(local, dtype=np.float64, copy=True)
-    for joint in CHAIN_ORDER:
-        parent = PARENTS[joint]
-        if parent >= 0:
-            out[..., joint] *= out[..., parent]
+    for children, parents in CHAIN_LEVELS:
+        out[..., children] *= out[..., parents]
     return out
 
 
@@ -123,7 +138,8 @@ def bone_length_factors(
 
     Args:
         views: (S, 25, 3) joints, metres.
-        reference: (24,) reference length of each bone (metres), NaN where unknown.
+        reference: (24,) reference length of each bone (metres), NaN where unknown; or (S, 24),
+            one row per view.
         scale_m: length difference that divides the factor by e.
 
     Returns:
@@ -133,7 +149,7 @@ def bone_length_factors(
     joints = np.asarray(views, dtype=np.float64)
     ref = np.asarray(reference, dtype=np.float64)
     lengths = np.linalg.norm(joints[:, _BONE_CHILD] - joints[:, _BONE_PARENT], axis=-1)
-    diff = np.abs(lengths - ref[None, :])
+    diff = np.abs(lengths - ref)
     factor_bones = np.where(np.isfinite(diff), np.exp(-diff / scale_m), 1.0)
     out = np.ones(joints.shape[:2])
     out[:, _BONE_CHILD] = factor_bones
@@ -143,11 +159,25 @@ def bone_length_factors(
 # --- body frame and angles ----------------------------------------------------------------------
 
 
+_HORIZONTAL: Final = np.array([1.0, 0.0, 1.0])
+
+
 def _unit(v: FloatArray) -> FloatArray:
-    norm = np.linalg.norm(v, axis=-1, keepdims=True)
+    norm = np.sqrt((v * v).sum(-1, keepdims=True))  # == np.linalg.norm(v, axis=-1)
     with np.errstate(invalid="ignore", divide="ignore"):
         result: FloatArray = v / norm
     return result
+
+
+def _cross(a: FloatArray, b: FloatArray) -> FloatArray:
+    """``np.cross`` for 3-vectors (the same operations, so the same bits), without its overhead."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    out: FloatArray = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a1 * b2 - a2 * b1
+    out[..., 1] = a2 * b0 - a0 * b2
+    out[..., 2] = a0 * b1 - a1 * b0
+    return out
 
 
 def body_frame(views: npt.ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -165,19 +195,19 @@ def body_frame(views: npt.ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray
     up = _unit(joints[:, J.SPINE_SHOULDER] - joints[:, J.SPINE_BASE])
     hips = joints[:, J.HIP_LEFT] - joints[:, J.HIP_RIGHT]
     shoulders = joints[:, J.SHOULDER_LEFT] - joints[:, J.SHOULDER_RIGHT]
-    lateral = np.where(np.isfinite(hips), hips, 0.0) + np.where(
-        np.isfinite(shoulders), shoulders, 0.0
-    )
-    lateral[~(np.isfinite(hips).all(-1) | np.isfinite(shoulders).all(-1))] = np.nan
+    hips_ok = np.isfinite(hips)
+    shoulders_ok = np.isfinite(shoulders)
+    lateral = np.where(hips_ok, hips, 0.0) + np.where(shoulders_ok, shoulders, 0.0)
+    lateral[~(hips_ok.all(-1) | shoulders_ok.all(-1))] = np.nan
     lateral = lateral - (lateral * up).sum(-1, keepdims=True) * up
     left = _unit(lateral)
-    forward = np.cross(left, up)
+    forward = _cross(left, up)
     return left, up, forward
 
 
 def _signed_angle(a: FloatArray, b: FloatArray, axis: FloatArray) -> FloatArray:
     """Angle from ``a`` to ``b`` (degrees), positive counter-clockwise about ``axis``."""
-    cross = (np.cross(a, b) * axis).sum(-1)
+    cross = (_cross(a, b) * axis).sum(-1)
     dot = (a * b).sum(-1)
     angle: FloatArray = np.degrees(np.arctan2(cross, dot))
     return angle
@@ -200,6 +230,72 @@ ROM_LIMITS_DEG: Final[dict[str, tuple[float, float]]] = {
 }
 """Anatomical range of each angle (degrees); sources and conventions in the module docstring."""
 
+# Both sides at once: index 0 left, 1 right (sign +1 / −1 for abduction).
+_SIDE_SIGN: Final = np.array([1.0, -1.0])
+_HIP: Final = np.array([J.HIP_LEFT, J.HIP_RIGHT])
+_KNEE: Final = np.array([J.KNEE_LEFT, J.KNEE_RIGHT])
+_ANKLE: Final = np.array([J.ANKLE_LEFT, J.ANKLE_RIGHT])
+_FOOT: Final = np.array([J.FOOT_LEFT, J.FOOT_RIGHT])
+_SHOULDER: Final = np.array([J.SHOULDER_LEFT, J.SHOULDER_RIGHT])
+_ELBOW: Final = np.array([J.ELBOW_LEFT, J.ELBOW_RIGHT])
+_WRIST: Final = np.array([J.WRIST_LEFT, J.WRIST_RIGHT])
+_SIDED_ANGLES: Final = (
+    ("knee_flexion", _ANKLE),
+    ("hip_flexion", _KNEE),
+    ("hip_abduction", _KNEE),
+    ("ankle_shank_foot", _FOOT),
+    ("elbow_flexion", _WRIST),
+    ("shoulder_extension", _ELBOW),
+)
+"""The per-side angles in the order :func:`_angle_table` returns them, and their distal joints."""
+_ANGLE_LOW: Final = np.array(
+    [ROM_LIMITS_DEG[name][0] for name, _ in _SIDED_ANGLES for _side in range(2)]
+    + [ROM_LIMITS_DEG["neck_flexion"][0]]
+)
+_ANGLE_HIGH: Final = np.array(
+    [ROM_LIMITS_DEG[name][1] for name, _ in _SIDED_ANGLES for _side in range(2)]
+    + [ROM_LIMITS_DEG["neck_flexion"][1]]
+)
+_KNEE_COLUMNS: Final = (2, 3, 4, 5)
+"""Columns of the angle table landing on the knees (hip flexion L/R, hip abduction L/R)."""
+_SINGLE_COLUMNS: Final = np.array([0, 1, 6, 7, 8, 9, 10, 11, 12])
+_SINGLE_JOINTS: Final = np.array(
+    [J.ANKLE_LEFT, J.ANKLE_RIGHT, J.FOOT_LEFT, J.FOOT_RIGHT, J.WRIST_LEFT, J.WRIST_RIGHT,
+     J.ELBOW_LEFT, J.ELBOW_RIGHT, J.HEAD]
+)  # fmt: skip
+
+
+def _angle_table(
+    joints: FloatArray, left: FloatArray, up: FloatArray, forward: FloatArray
+) -> FloatArray:
+    """(S, 13) angles in degrees: each of :data:`_SIDED_ANGLES` left then right, then the neck."""
+    n = joints.shape[0]
+    left_, up_, forward_ = left[:, None], up[:, None], forward[:, None]
+    thigh = joints[:, _KNEE] - joints[:, _HIP]  # (S, 2, 3)
+    shank = joints[:, _ANKLE] - joints[:, _KNEE]
+    foot_v = joints[:, _FOOT] - joints[:, _ANKLE]
+    upper = joints[:, _ELBOW] - joints[:, _SHOULDER]
+    fore = joints[:, _WRIST] - joints[:, _ELBOW]
+    down = -up_
+    out = np.empty((n, 13))
+    # Flexion swings the shank backwards: positive about the person's left axis.
+    out[:, 0:2] = _signed_angle(thigh, shank, left_)
+    # Hip: thigh against the trunk's down axis; flexion forward, abduction outward.
+    out[:, 2:4] = np.degrees(np.arctan2((thigh * forward_).sum(-1), (thigh * down).sum(-1)))
+    # Abduction: how far the thigh leaves the sagittal plane (outwards positive).
+    outwards = _SIDE_SIGN * (_unit(thigh) * left_).sum(-1)
+    out[:, 4:6] = np.degrees(np.arcsin(np.clip(outwards, -1.0, 1.0)))
+    # Foot points forward from the shank: positive about the person's right axis.
+    out[:, 6:8] = _signed_angle(shank, foot_v, -left_)
+    out[:, 8:10] = _unsigned_angle(upper, fore)
+    # Shoulder extension: the arm behind the trunk while below shoulder height.
+    behind = -(upper * forward_).sum(-1)
+    below = (upper * down).sum(-1)
+    out[:, 10:12] = np.where(below > 0, np.degrees(np.arctan2(behind, below)), 0.0)
+    neck = joints[:, J.HEAD] - joints[:, J.NECK]
+    out[:, 12] = _unsigned_angle(up, neck)
+    return out
+
 
 def joint_angles(views: npt.ArrayLike) -> dict[str, tuple[FloatArray, int]]:
     """The range-of-motion angles of each view (degrees) and the joint each one lands on.
@@ -211,45 +307,30 @@ def joint_angles(views: npt.ArrayLike) -> dict[str, tuple[FloatArray, int]]:
         ``name_side`` → ((S,) angles in degrees, NaN where unknown; distal joint index).
     """
     joints = np.asarray(views, dtype=np.float64)
-    left, up, forward = body_frame(joints)
+    table = _angle_table(joints, *body_frame(joints))
     out: dict[str, tuple[FloatArray, int]] = {}
-    sides = (
-        ("left", 1.0, J.HIP_LEFT, J.KNEE_LEFT, J.ANKLE_LEFT, J.FOOT_LEFT,
-         J.SHOULDER_LEFT, J.ELBOW_LEFT, J.WRIST_LEFT),
-        ("right", -1.0, J.HIP_RIGHT, J.KNEE_RIGHT, J.ANKLE_RIGHT, J.FOOT_RIGHT,
-         J.SHOULDER_RIGHT, J.ELBOW_RIGHT, J.WRIST_RIGHT),
-    )  # fmt: skip
-    for side, sign, hip, knee, ankle, foot, shoulder, elbow, wrist in sides:
-        thigh = joints[:, knee] - joints[:, hip]
-        shank = joints[:, ankle] - joints[:, knee]
-        foot_v = joints[:, foot] - joints[:, ankle]
-        # Flexion swings the shank backwards: positive about the person's left axis.
-        out[f"knee_flexion_{side}"] = (_signed_angle(thigh, shank, left), int(ankle))
-        # Hip: thigh against the trunk's down axis; flexion forward, abduction outward.
-        down = -up
-        out[f"hip_flexion_{side}"] = (
-            np.degrees(np.arctan2((thigh * forward).sum(-1), (thigh * down).sum(-1))),
-            int(knee),
-        )
-        # Abduction: how far the thigh leaves the sagittal plane (outwards positive).
-        outwards = sign * (_unit(thigh) * left).sum(-1)
-        out[f"hip_abduction_{side}"] = (
-            np.degrees(np.arcsin(np.clip(outwards, -1.0, 1.0))),
-            int(knee),
-        )
-        # Foot points forward from the shank: positive about the person's right axis.
-        out[f"ankle_shank_foot_{side}"] = (_signed_angle(shank, foot_v, -left), int(foot))
-        upper = joints[:, elbow] - joints[:, shoulder]
-        fore = joints[:, wrist] - joints[:, elbow]
-        out[f"elbow_flexion_{side}"] = (_unsigned_angle(upper, fore), int(wrist))
-        # Shoulder extension: the arm behind the trunk while below shoulder height.
-        behind = -(upper * forward).sum(-1)
-        below = (upper * down).sum(-1)
-        extension = np.where(below > 0, np.degrees(np.arctan2(behind, below)), 0.0)
-        out[f"shoulder_extension_{side}"] = (extension, int(elbow))
-    neck = joints[:, J.HEAD] - joints[:, J.NECK]
-    out["neck_flexion"] = (_unsigned_angle(up, neck), int(J.HEAD))
+    for side_index, side in enumerate(("left", "right")):
+        for k, (name, distal) in enumerate(_SIDED_ANGLES):
+            out[f"{name}_{side}"] = (table[:, 2 * k + side_index], int(distal[side_index]))
+    out["neck_flexion"] = (table[:, 12], int(J.HEAD))
     return out
+
+
+def rom_factors_and_forward(
+    views: npt.ArrayLike, scale_deg: float
+) -> tuple[FloatArray, FloatArray]:
+    """:func:`range_of_motion_factors` and the views' ``forward`` axes (:func:`body_frame`)."""
+    joints = np.asarray(views, dtype=np.float64)
+    left, up, forward = body_frame(joints)
+    angles = _angle_table(joints, left, up, forward)
+    excess = np.maximum(_ANGLE_LOW - angles, 0.0) + np.maximum(angles - _ANGLE_HIGH, 0.0)
+    factors = np.where(np.isfinite(excess), np.exp(-excess / scale_deg), 1.0)
+    out = np.ones(joints.shape[:2])
+    out[:, _SINGLE_JOINTS] = factors[:, _SINGLE_COLUMNS]
+    # The knee gets hip flexion × hip abduction (1 · a · b as a running product: the same bits).
+    out[:, J.KNEE_LEFT] = factors[:, _KNEE_COLUMNS[0]] * factors[:, _KNEE_COLUMNS[2]]
+    out[:, J.KNEE_RIGHT] = factors[:, _KNEE_COLUMNS[1]] * factors[:, _KNEE_COLUMNS[3]]
+    return out, forward
 
 
 def range_of_motion_factors(views: npt.ArrayLike, scale_deg: float) -> FloatArray:
@@ -263,13 +344,7 @@ def range_of_motion_factors(views: npt.ArrayLike, scale_deg: float) -> FloatArra
         (S, 25) float64 in (0, 1]; 1 where every angle landing on the joint is in range or
         unknown.
     """
-    joints = np.asarray(views, dtype=np.float64)
-    out = np.ones(joints.shape[:2])
-    for name, (angles, joint) in joint_angles(joints).items():
-        low, high = ROM_LIMITS_DEG[name.removesuffix("_left").removesuffix("_right")]
-        excess = np.maximum(low - angles, 0.0) + np.maximum(angles - high, 0.0)
-        out[:, joint] *= np.where(np.isfinite(excess), np.exp(-excess / scale_deg), 1.0)
-    return out
+    return rom_factors_and_forward(views, scale_deg)[0]
 
 
 def facing_direction(joints: npt.ArrayLike) -> FloatArray:
@@ -278,11 +353,19 @@ def facing_direction(joints: npt.ArrayLike) -> FloatArray:
     Args:
         joints: (25, 3) joints, metres, world frame (+Y up).
     """
-    _, _, forward = body_frame(np.asarray(joints, dtype=np.float64)[None])
-    horizontal = forward[0] * np.array([1.0, 0.0, 1.0])
-    if not np.isfinite(horizontal).all() or np.linalg.norm(horizontal) < 1e-6:
-        return np.full(3, np.nan)
-    result: FloatArray = horizontal / np.linalg.norm(horizontal)
+    result: FloatArray = facing_directions(np.asarray(joints, dtype=np.float64)[None])[0]
+    return result
+
+
+def facing_directions(skeletons: npt.ArrayLike) -> FloatArray:
+    """:func:`facing_direction` of each of P skeletons (P, 25, 3) at once: (P, 3)."""
+    _, _, forward = body_frame(skeletons)
+    horizontal = forward * _HORIZONTAL
+    # np.vecdot is the dot product np.linalg.norm uses on one vector (the same bits).
+    norm = np.sqrt(np.vecdot(horizontal, horizontal))
+    ok = np.isfinite(horizontal).all(-1) & ~(norm < 1e-6)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        result: FloatArray = np.where(ok[:, None], horizontal / norm[:, None], np.nan)
     return result
 
 
@@ -300,7 +383,7 @@ def facing_cosines(
         (S,) float64 in [−1, 1]; NaN where unknown.
     """
     to_sensor = np.asarray(sensor_positions, dtype=np.float64) - np.asarray(body_position)
-    to_sensor = to_sensor * np.array([1.0, 0.0, 1.0])
+    to_sensor = to_sensor * _HORIZONTAL
     cos: FloatArray = (_unit(to_sensor) * np.asarray(facing, dtype=np.float64)).sum(-1)
     return cos
 
@@ -369,6 +452,6 @@ def distance_factors(
         sensor_positions: (S, 3) metres, world; NaN rows give 1.
     """
     delta = np.asarray(sensor_positions, dtype=np.float64) - np.asarray(body_position)
-    distance = np.linalg.norm(delta * np.array([1.0, 0.0, 1.0]), axis=-1)
+    distance = np.linalg.norm(delta * _HORIZONTAL, axis=-1)
     outside = np.maximum(best_m[0] - distance, 0.0) + np.maximum(distance - best_m[1], 0.0)
     return np.where(np.isfinite(outside), np.exp(-((outside / scale_m) ** 2)), 1.0)

@@ -77,21 +77,65 @@ class OneEuroFilter:
             self._x, self._dx = x.copy(), np.zeros_like(x)
             self._t = np.where(np.isfinite(x), t_s, -np.inf)
             return x.copy()
+        out, self._x, self._dx, self._t = self._step(x, self._x, self._dx, self._t, t_s)
+        return out
+
+    def _step(
+        self, x: FloatArray, last_x: FloatArray, last_dx: FloatArray, last_t: FloatArray, t_s: float
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """One sample on any stack of states: output, new x, new dx, new t."""
         present = np.isfinite(x)
-        dt = t_s - self._t
-        fresh = present & (~np.isfinite(self._x) | (dt > self.reset_gap_s))
+        dt = t_s - last_t
+        fresh = present & (~np.isfinite(last_x) | (dt > self.reset_gap_s))
         step = present & ~fresh & (dt > 0)
         safe_dt = np.where(step, dt, 1.0)
-        dx = np.where(step, (x - np.where(step, self._x, 0.0)) / safe_dt, 0.0)
+        previous = np.where(step, last_x, 0.0)
+        dx = np.where(step, (x - previous) / safe_dt, 0.0)
         alpha_d = 1.0 / (1.0 + 1.0 / (2.0 * math.pi * self.d_cutoff_hz * safe_dt))
-        dx_hat = alpha_d * dx + (1.0 - alpha_d) * self._dx
+        dx_hat = alpha_d * dx + (1.0 - alpha_d) * last_dx
         cutoff = self.min_cutoff_hz + self.beta * np.abs(dx_hat)
         alpha = 1.0 / (1.0 + 1.0 / (2.0 * math.pi * cutoff * safe_dt))
-        x_hat = alpha * np.where(step, x, 0.0) + (1.0 - alpha) * np.where(step, self._x, 0.0)
-        self._x = np.where(step, x_hat, np.where(fresh, x, self._x))
-        self._dx = np.where(step, dx_hat, np.where(fresh, 0.0, self._dx))
-        self._t = np.where(present, t_s, self._t)
-        return np.where(present, self._x, np.nan)
+        x_hat = alpha * np.where(step, x, 0.0) + (1.0 - alpha) * previous
+        new_x = np.where(step, x_hat, np.where(fresh, x, last_x))
+        new_dx = np.where(step, dx_hat, np.where(fresh, 0.0, last_dx))
+        new_t = np.where(present, t_s, last_t)
+        return np.where(present, new_x, np.nan), new_x, new_dx, new_t
+
+    def _params(self) -> tuple[float, float, float, float]:
+        return (self.min_cutoff_hz, self.beta, self.d_cutoff_hz, self.reset_gap_s)
+
+
+def filter_all(filters: list[JointFilter], joints: FloatArray, t_s: float) -> list[FloatArray]:
+    """Filter one sample per filter (``filters[i]`` gets ``joints[i]``), as separate calls would.
+
+    One Euro filters with the same parameters and already started are stepped together in one
+    vectorised pass (the same element-wise arithmetic, so the same results); others one by one.
+
+    Args:
+        joints: (P, ...) one sample per filter.
+    """
+    out: list[FloatArray | None] = [None] * len(filters)
+    groups: dict[tuple[float, float, float, float], list[int]] = {}
+    for i, f in enumerate(filters):
+        if isinstance(f, OneEuroFilter) and f._x is not None and f._x.shape == joints.shape[1:]:
+            groups.setdefault(f._params(), []).append(i)
+        else:
+            out[i] = f(joints[i], t_s)
+    for members in groups.values():
+        first = filters[members[0]]
+        assert isinstance(first, OneEuroFilter)
+        chosen = [f for i in members if isinstance(f := filters[i], OneEuroFilter)]
+        result, xs, dxs, ts = first._step(
+            np.asarray(joints[members], dtype=np.float64),
+            np.stack([f._x for f in chosen]),  # type: ignore[misc]
+            np.stack([f._dx for f in chosen]),  # type: ignore[misc]
+            np.stack([f._t for f in chosen]),  # type: ignore[misc]
+            t_s,
+        )
+        for k, (i, f) in enumerate(zip(members, chosen, strict=True)):
+            f._x, f._dx, f._t = xs[k], dxs[k], ts[k]
+            out[i] = result[k]
+    return [o for o in out if o is not None]
 
 
 class ConstantVelocityKalman:

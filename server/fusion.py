@@ -18,7 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 from protocol.skeleton import BONES, JOINT_COUNT, JointId
-from server.confidence import CHAIN_ORDER
+from server.confidence import CHAIN_LEVELS
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -26,6 +26,8 @@ TRUNK_JOINTS: Final = np.array(
     [JointId.SPINE_BASE, JointId.SPINE_MID, JointId.SPINE_SHOULDER, JointId.NECK, JointId.HEAD]
 )
 """Joints on the body's midline: the same whatever a sensor thinks is left or right."""
+_BONE_PARENT: Final = np.array([parent for parent, _ in BONES])
+_BONE_CHILD: Final = np.array([child for _, child in BONES])
 
 
 def state_weights(states: npt.ArrayLike, table: tuple[float, float, float]) -> FloatArray:
@@ -61,15 +63,31 @@ def fuse_views(joints: npt.ArrayLike, weights: npt.ArrayLike) -> tuple[FloatArra
         raise ValueError(
             f"expected joints (S, J, 3) and weights (S, J), got {views.shape} and {w.shape}"
         )
-    usable = np.isfinite(views).all(axis=2) & (w > 0)
-    w = np.where(usable, w, 0.0)
-    total = w.sum(axis=0)
-    safe_views = np.where(usable[..., None], views, 0.0)
+    fused, confidence = fuse_views_batch(views[None], w[None])
+    return fused[0], confidence[0]
+
+
+def fuse_views_batch(joints: FloatArray, weights: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """:func:`fuse_views` of P persons at once.
+
+    Args:
+        joints: (P, S, J, 3); a person with fewer views is padded with NaN views.
+        weights: (P, S, J); 0 on padding.
+
+    Returns:
+        fused (P, J, 3) and confidence (P, J), each person's exactly as :func:`fuse_views`
+        (padding adds zeros after the real views, which changes no sum or product).
+    """
+    usable = np.isfinite(joints).all(axis=3) & (weights > 0)
+    w = np.where(usable, weights, 0.0)
+    total = w.sum(axis=1)
+    safe_views = np.where(usable[..., None], joints, 0.0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        fused = (w[..., None] * safe_views).sum(axis=0) / total[:, None]
-    fused[total <= 0] = np.nan
-    confidence = 1.0 - np.prod(1.0 - np.clip(w, 0.0, 1.0), axis=0)
-    confidence[total <= 0] = 0.0
+        fused = (w[..., None] * safe_views).sum(axis=1) / total[..., None]
+    empty = total <= 0
+    fused[empty] = np.nan
+    confidence = 1.0 - np.prod(1.0 - np.clip(w, 0.0, 1.0), axis=1)
+    confidence[empty] = 0.0
     return fused, confidence
 
 
@@ -154,26 +172,29 @@ def enforce_bone_lengths(joints: npt.ArrayLike, reference: npt.ArrayLike) -> Flo
     keeps its measured offset; NaN joints stay NaN.
 
     Args:
-        joints: (25, 3) metres; reference: (24,) metres in :data:`BONES` order.
+        joints: (25, 3) metres; reference: (24,) metres in :data:`BONES` order. Or several
+            skeletons at once: (..., 25, 3) and (..., 24).
 
     Returns:
-        (25, 3) float64.
+        (25, 3) float64 (or (..., 25, 3)).
     """
     original = np.asarray(joints, dtype=np.float64)
     ref = np.asarray(reference, dtype=np.float64)
+    offsets = original[..., _BONE_CHILD, :] - original[..., _BONE_PARENT, :]  # (..., 24, 3)
+    # np.vecdot is the dot product np.linalg.norm uses on one vector (the same bits).
+    norms = np.sqrt(np.vecdot(offsets, offsets))
+    scale = np.isfinite(ref) & np.isfinite(norms) & (norms > 1e-9)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        factors = ref / norms
+    offset_of = np.empty(original.shape)
+    offset_of[..., _BONE_CHILD, :] = np.where(
+        scale[..., None], offsets * factors[..., None], offsets
+    )
     out = original.copy()
-    length_of = {child: ref[k] for k, (_, child) in enumerate(BONES)}
-    parent_of = {child: parent for parent, child in BONES}
-    for joint in CHAIN_ORDER:
-        parent = parent_of.get(joint)
-        if parent is None:
-            continue
-        if not np.isfinite(out[parent]).all():
-            continue  # nothing to hang it on: keep the joint as measured
-        offset = original[joint] - original[parent]
-        norm = float(np.linalg.norm(offset))
-        target = length_of[joint]
-        if np.isfinite(target) and np.isfinite(norm) and norm > 1e-9:
-            offset = offset * (target / norm)
-        out[joint] = out[parent] + offset
+    # Outward one depth level at a time; a joint whose parent is missing keeps its measurement.
+    for children, parents in CHAIN_LEVELS:
+        hung = np.isfinite(out[..., parents, :]).all(axis=-1, keepdims=True)
+        out[..., children, :] = np.where(
+            hung, out[..., parents, :] + offset_of[..., children, :], out[..., children, :]
+        )
     return out

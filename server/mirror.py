@@ -32,15 +32,18 @@ Pure functions on arrays; the per-(sensor, body) memory for the hysteresis lives
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Sequence
 from typing import Final
 
 import numpy as np
 import numpy.typing as npt
 
 from protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION
-from server.confidence import body_frame, facing_direction, range_of_motion_factors
+from server.confidence import facing_direction, rom_factors_and_forward
 
 FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.intp]
 
 PERMUTATION: Final = np.array(MIRROR_PERMUTATION)
 LATERAL_JOINTS: Final = np.array([j for j in range(JOINT_COUNT) if MIRROR_PERMUTATION[j] != j])
@@ -49,6 +52,39 @@ MAX_VIEWS: Final = 10
 SWAP_PRIOR_M: Final = 0.01
 """Cost of calling a view mirrored at all: sensors are right more often than not."""
 
+_HORIZONTAL: Final = np.array([1.0, 0.0, 1.0])
+# Per view count n (0 … MAX_VIEWS), built once: every labelling (C = 2^n, n), its transpose,
+# its number of swapped views, the view pairs i < j in the order they are summed, and 0 … n−1.
+_COMBOS: Final = tuple(
+    ((np.arange(2**n)[:, None] >> np.arange(n)[None, :]) & 1).astype(np.intp)
+    for n in range(MAX_VIEWS + 1)
+)
+_PAIRS: Final = tuple(
+    (
+        np.array([i for i in range(n) for j in range(i + 1, n)], dtype=np.intp),
+        np.array([j for i in range(n) for j in range(i + 1, n)], dtype=np.intp),
+    )
+    for n in range(MAX_VIEWS + 1)
+)
+_ROWS: Final = tuple(np.arange(n)[None, :] for n in range(MAX_VIEWS + 1))
+_PAIR_ROWS: Final = tuple(np.arange(n * (n - 1) // 2)[:, None] for n in range(MAX_VIEWS + 1))
+# Flat indices into a (pairs, 2, 2) block and an (n, 2) per-view table: entry [pair, c] is
+# D[pair, c_i, c_j] and [c, i] is T[i, c_i] for labelling c (one take instead of a fancy index).
+_PAIR_TAKE: Final = tuple(
+    4 * _PAIR_ROWS[n] + 2 * _COMBOS[n].T[_PAIRS[n][0]] + _COMBOS[n].T[_PAIRS[n][1]]
+    for n in range(MAX_VIEWS + 1)
+)
+_VIEW_TAKE: Final = tuple(2 * _ROWS[n] + _COMBOS[n] for n in range(MAX_VIEWS + 1))
+_SWAPS: Final = tuple(c.sum(axis=1) for c in _COMBOS)
+_LABELS: Final = np.array([0.0, 1.0])
+_SCREEN_FROM_VIEWS: Final = 6
+"""From this many views on, labellings are screened with a quick estimate before exact scoring."""
+_SCREEN_MARGIN_M: Final = 1e-9
+"""Labellings whose estimate is within this of the best are scored exactly. The estimate differs
+from the exact cost by rounding only (≈ 1e-14 m), far below it, so the exact minimum is always
+among them and the choice is the one the full enumeration makes."""
+_NO_LATERAL: Final = np.full((len(LATERAL_JOINTS), 3), np.nan)
+
 
 def labellings(views: npt.ArrayLike) -> FloatArray:
     """Both labellings of each view: (S, 2, 25, 3), index 1 with left and right swapped."""
@@ -56,17 +92,26 @@ def labellings(views: npt.ArrayLike) -> FloatArray:
     return np.stack([v, v[:, PERMUTATION]], axis=1)
 
 
-def _mean_distance(a: FloatArray, b: FloatArray) -> FloatArray:
+def _mean_lateral_distance(a: FloatArray, b: FloatArray) -> FloatArray:
     """Mean distance over the lateral joints both have; 0 where they share none.
 
-    a, b: broadcastable (..., 25, 3) arrays. Returns (...).
+    a, b: broadcastable (..., 20, 3) arrays of the :data:`LATERAL_JOINTS` only. Returns (...).
     """
-    d = np.linalg.norm(a[..., LATERAL_JOINTS, :] - b[..., LATERAL_JOINTS, :], axis=-1)
+    diff = a - b
+    d = np.sqrt((diff * diff).sum(-1))  # == np.linalg.norm(diff, axis=-1)
     finite = np.isfinite(d)
     count = finite.sum(-1)
     total = np.where(finite, d, 0.0).sum(-1)
     result: FloatArray = np.where(count > 0, total / np.maximum(count, 1), 0.0)
     return result
+
+
+def _mean_distance(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Mean distance over the lateral joints both have; 0 where they share none.
+
+    a, b: broadcastable (..., 25, 3) arrays. Returns (...).
+    """
+    return _mean_lateral_distance(a[..., LATERAL_JOINTS, :], b[..., LATERAL_JOINTS, :])
 
 
 def choose_labelling(
@@ -104,54 +149,293 @@ def choose_labelling(
     if n > MAX_VIEWS or v.shape[1:] != (JOINT_COUNT, 3):
         raise ValueError(f"expected (S ≤ {MAX_VIEWS}, 25, 3) views, got {v.shape}")
     sensors = np.asarray(sensor_positions, dtype=np.float64).reshape(n, 3)
-    both = labellings(v)  # (S, 2, 25, 3)
-    combos = ((np.arange(2**n)[:, None] >> np.arange(n)[None, :]) & 1).astype(np.intp)  # (C, S)
-    cost = np.zeros(len(combos))
-
-    # Agreement between views: D[i, j, a, b].
-    if n > 1:
-        pair = _mean_distance(both[:, None, :, None], both[None, :, None, :])  # (S, S, 2, 2)
-        for i in range(n):
-            for j in range(i + 1, n):
-                cost += pair[i, j, combos[:, i], combos[:, j]]
-
-    # Agreement with the track.
     ref = None if reference is None else np.asarray(reference, dtype=np.float64)
-    if ref is not None:
-        to_ref = _mean_distance(both, ref[None, None])  # (S, 2)
-        cost += track_weight * to_ref[np.arange(n)[None, :], combos].sum(axis=1)
+    prev = None if previous is None else np.asarray(previous).reshape(n)
+    facing = None if ref is None else facing_direction(ref)
+    mirrored, _ = choose_labellings(
+        v,
+        sensors,
+        [n],
+        [ref],
+        None if facing is None else facing[None],
+        prev,
+        geometry_weight_m=geometry_weight_m,
+        hysteresis_m=hysteresis_m,
+        track_weight=track_weight,
+        anatomy_weight_m=anatomy_weight_m,
+        rom_scale_deg=rom_scale_deg,
+    )
+    return mirrored
 
-    # Geometry: where the person faces against where each sensor is.
-    body = np.nanmean(v[:, 0], axis=0) if np.isfinite(v[:, 0]).any() else np.full(3, np.nan)
-    to_sensor = (sensors - body) * np.array([1.0, 0.0, 1.0])
+
+def choose_labellings(
+    views: FloatArray,
+    sensor_positions: FloatArray,
+    counts: Sequence[int],
+    references: Sequence[FloatArray | None],
+    reference_facings: FloatArray | None,
+    previous: npt.ArrayLike | None,
+    *,
+    geometry_weight_m: float,
+    hysteresis_m: float,
+    track_weight: float,
+    anatomy_weight_m: float,
+    rom_scale_deg: float,
+    need_rom: bool = False,
+) -> tuple[npt.NDArray[np.bool_], FloatArray | None]:
+    """:func:`choose_labelling` for several persons at once (every per-view term in one pass).
+
+    Args:
+        views: (N, 25, 3) the views of all persons, each person's views consecutive.
+        sensor_positions: (N, 3).
+        counts: views per person (1 … :data:`MAX_VIEWS` each, summing to N).
+        references: per person, its previous fused skeleton (25, 3) or None.
+        reference_facings: (P, 3) :func:`facing_direction` of each reference (rows of persons
+            without one are ignored), or None when no person has a reference.
+        previous: (N,) previous decisions (1, 0, −1 unknown), or None.
+        need_rom: also return the range-of-motion factors of both labellings.
+
+    Returns:
+        mirrored: (N,) bool, as :func:`choose_labelling` per person.
+        factors: (N, 2, 25) range-of-motion factors (:func:`range_of_motion_factors`) of each
+            view as reported (0) and swapped (1), when computed (anatomy term or ``need_rom``).
+    """
+    total = views.shape[0]
+    both = np.empty((total, 2, JOINT_COUNT, 3))
+    both[:, 0] = views
+    both[:, 1] = views[:, PERMUTATION]
+    lateral = both[:, :, LATERAL_JOINTS]  # (N, 2, 20, 3)
+    starts = np.cumsum([0, *counts])
+
+    factors = anatomy = forward = None
+    if anatomy_weight_m > 0 or need_rom:
+        flat_factors, flat_forward = rom_factors_and_forward(
+            both.reshape(-1, JOINT_COUNT, 3), rom_scale_deg
+        )
+        factors = flat_factors.reshape(total, 2, JOINT_COUNT)
+        forward = flat_forward.reshape(total, 2, 3)
+        if anatomy_weight_m > 0:
+            anatomy = (1.0 - flat_factors).sum(axis=1).reshape(total, 2)
+
+    # Agreement between views: one row per pair i < j of each person, (K, 2, 2).
+    firsts, seconds = [], []
+    for p, n in enumerate(counts):
+        if n > 1:
+            first, second = _PAIRS[n]
+            firsts.append(first + starts[p])
+            seconds.append(second + starts[p])
+    pair = None
+    if firsts:
+        first_all, second_all = np.concatenate(firsts), np.concatenate(seconds)
+        pair = _mean_lateral_distance(
+            lateral[first_all][:, :, None], lateral[second_all][:, None, :]
+        )
+
+    # Where each person stands (mean SpineBase of its views) and the direction to each sensor.
+    spine = views[:, 0]
+    finite = np.isfinite(spine)
+    person_of = np.repeat(np.arange(len(counts)), counts)
+    slot_of = np.arange(total) - starts[person_of]
+    # Sums per person over a zero-padded (P, S_max, 3) block: the same order as np.nanmean.
+    padded = np.zeros((len(counts), max(counts), 2, 3))
+    padded[person_of, slot_of, 0] = np.where(finite, spine, 0.0)
+    padded[person_of, slot_of, 1] = finite
+    sums = padded.sum(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
-        to_sensor /= np.linalg.norm(to_sensor, axis=-1, keepdims=True)
-    facing_ref = None if ref is None else facing_direction(ref)
-    if facing_ref is not None and np.isfinite(facing_ref).all():
-        facing = np.broadcast_to(facing_ref, (len(combos), 3))
-    else:
-        # From the candidate labelling itself: the sum of the labelled views' forward axes.
-        _, _, forward = body_frame(both.reshape(-1, JOINT_COUNT, 3))
-        forward = np.nan_to_num(forward.reshape(n, 2, 3) * np.array([1.0, 0.0, 1.0]))
-        facing = forward[np.arange(n)[None, :], combos].sum(axis=1)  # (C, 3)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            facing = facing / np.linalg.norm(facing, axis=-1, keepdims=True)
-    cos = np.nan_to_num(facing @ to_sensor.T)  # (C, S), 0 where unknown
-    geometry = np.where(combos == 0, np.maximum(-cos, 0.0), np.maximum(cos, 0.0))
-    cost += geometry_weight_m * geometry.sum(axis=1)
+        body = sums[:, 0] / sums[:, 1]
+        to_sensor = (sensor_positions - body[person_of]) * _HORIZONTAL
+        to_sensor /= np.sqrt((to_sensor * to_sensor).sum(-1, keepdims=True))
 
-    # Anatomy: a labelling under which knees bend forwards and feet point backwards is wrong.
-    if anatomy_weight_m > 0:
-        factors = range_of_motion_factors(both.reshape(-1, JOINT_COUNT, 3), rom_scale_deg)
-        anatomy = (1.0 - factors).sum(axis=1).reshape(n, 2)
-        cost += anatomy_weight_m * anatomy[np.arange(n)[None, :], combos].sum(axis=1)
+    prev = None if previous is None else np.asarray(previous)
+    known = None if prev is None else prev >= 0
+    pair_start = np.cumsum([0] + [n * (n - 1) // 2 for n in counts])
 
-    # Hysteresis and the prior.
-    cost += SWAP_PRIOR_M * combos.sum(axis=1)
-    if previous is not None:
-        prev = np.asarray(previous).reshape(n)
-        known = prev >= 0
-        cost += hysteresis_m * ((combos != prev[None, :]) & known[None, :]).sum(axis=1)
+    # Agreement with the track, every view at once.
+    has_ref = [ref is not None for ref in references]
+    to_ref = np.zeros((total, 2))
+    if any(has_ref):
+        ref_lateral = np.stack(
+            [_NO_LATERAL if ref is None else ref[LATERAL_JOINTS] for ref in references]
+        )
+        to_ref = _mean_lateral_distance(lateral, ref_lateral[person_of][:, None])
 
-    best: npt.NDArray[np.bool_] = combos[int(np.argmin(cost))].astype(bool)
-    return best
+    # Geometry with a known facing (from the track): a per-view term, (N, 2) for labels 0, 1.
+    per_label = np.zeros((total, 2))
+    row_geometry = [False] * len(counts)
+    for p, ref in enumerate(references):
+        if ref is None or reference_facings is None:
+            continue
+        facing_ref = reference_facings[p]
+        if np.isfinite(facing_ref).all():
+            lo, hi = starts[p], starts[p + 1]
+            # Every labelling sees the same facing, so one row of the (C, S) product is enough
+            # (computed as the product of a broadcast facing: matmul's own rounding).
+            cos = (np.broadcast_to(facing_ref, (2, 3)) @ to_sensor[lo:hi].T)[0]
+            cos = np.where(np.isnan(cos), 0.0, cos)  # np.nan_to_num (cos is finite or NaN)
+            per_label[lo:hi, 0] = np.maximum(-cos, 0.0)
+            per_label[lo:hi, 1] = np.maximum(cos, 0.0)
+            row_geometry[p] = True
+
+    mirrored = np.zeros(total, dtype=bool)
+    # Persons with the same number of views and the same kinds of terms are scored together:
+    # (G, C) costs, every term summed in the order a single person's would be.
+    groups: dict[tuple[int, bool, bool], list[int]] = {}
+    for p, n in enumerate(counts):
+        groups.setdefault((n, has_ref[p], row_geometry[p]), []).append(p)
+    for (n, with_ref, known_facing), members in groups.items():
+        combos = _COMBOS[n]
+        take = _VIEW_TAKE[n]
+        people = np.array(members)
+        views_of = (starts[people][:, None] + np.arange(n)[None, :]).ravel()  # (G·n,)
+        size = len(members)
+
+        k = n * (n - 1) // 2
+        block = np.zeros((size, 0))
+        if k:
+            rows_of = (pair_start[people][:, None] + np.arange(k)[None, :]).ravel()
+            assert pair is not None
+            block = pair[rows_of].reshape(size, 4 * k)
+        mine = mine_known = None
+        if prev is not None and known is not None:
+            mine, mine_known = prev[views_of].reshape(size, n), known[views_of].reshape(size, n)
+        tables: list[tuple[float, FloatArray]] = []
+        if with_ref:
+            tables.append((track_weight, to_ref[views_of].reshape(size, 2 * n)))
+        geometry_sum = None
+        if known_facing:
+            tables.append((geometry_weight_m, per_label[views_of].reshape(size, 2 * n)))
+        else:
+            geometry_sum = np.stack(
+                [
+                    _candidate_geometry(
+                        combos,
+                        both[starts[p] : starts[p + 1]],
+                        None if forward is None else forward[starts[p] : starts[p + 1]],
+                        to_sensor[starts[p] : starts[p + 1]],
+                        rom_scale_deg,
+                    ).sum(axis=1)
+                    for p in members
+                ]
+            )
+        if anatomy is not None:
+            tables.append((anatomy_weight_m, anatomy[views_of].reshape(size, 2 * n)))
+
+        # For many views, one matrix product first estimates every labelling's cost: a person
+        # whose best estimate beats all others by more than rounding could ever explain has
+        # its labelling (see _screen); the others are scored exactly.
+        exact = np.arange(size)
+        if n >= _SCREEN_FROM_VIEWS and geometry_sum is None:
+            unary = SWAP_PRIOR_M * np.tile(_LABELS, (size, n))
+            for weight, table in tables:
+                unary = unary + weight * table
+            if mine is not None and mine_known is not None:
+                changed = (_LABELS[None, None, :] != mine[:, :, None]) & mine_known[:, :, None]
+                unary = unary + hysteresis_m * changed.reshape(size, 2 * n)
+            clear = _screen(n, block, unary)
+            for g in np.flatnonzero(clear >= 0):
+                mirrored[views_of[g * n : (g + 1) * n]] = combos[clear[g]].astype(bool)
+            exact = np.flatnonzero(clear < 0)
+            if not len(exact):
+                continue
+
+        # Exact costs of every labelling, (G, C), term by term as for one person alone.
+        if k:
+            # Agreement between views: Σ over pairs i < j of D[i, j, c_i, c_j], pair by pair.
+            cost = block[exact][:, _PAIR_TAKE[n]].sum(axis=1)
+        else:
+            cost = np.zeros((len(exact), len(combos)))
+        term = 0
+        if with_ref:
+            weight, table = tables[term]
+            term += 1
+            cost += weight * table[exact][:, take].sum(axis=2)
+        if geometry_sum is not None:
+            cost += geometry_weight_m * geometry_sum[exact]
+        else:
+            weight, table = tables[term]
+            term += 1
+            cost += weight * table[exact][:, take].sum(axis=2)
+        if anatomy is not None:
+            weight, table = tables[term]
+            cost += weight * table[exact][:, take].sum(axis=2)
+        cost += SWAP_PRIOR_M * _SWAPS[n]
+        if mine is not None and mine_known is not None:
+            changed_all = (combos[None] != mine[exact][:, None, :]) & mine_known[exact][:, None, :]
+            cost += hysteresis_m * changed_all.sum(axis=2)
+        best = combos[np.argmin(cost, axis=1)]  # (G, n), the first minimum as np.argmin
+        for row, g in enumerate(exact):
+            mirrored[views_of[g * n : (g + 1) * n]] = best[row].astype(bool)
+    return mirrored, factors
+
+
+def _candidate_geometry(
+    combos: IntArray,
+    both: FloatArray,
+    forward: FloatArray | None,
+    to_sensor: FloatArray,
+    rom_scale_deg: float,
+) -> FloatArray:
+    """(C, S) geometry term with the facing taken from each candidate labelling itself.
+
+    The facing of labelling c is the sum of its views' horizontal forward axes.
+    """
+    n = combos.shape[1]
+    if forward is None:
+        _, flat_forward = rom_factors_and_forward(both.reshape(-1, JOINT_COUNT, 3), rom_scale_deg)
+        forward = flat_forward.reshape(n, 2, 3)
+    own = np.nan_to_num(forward * _HORIZONTAL)
+    facing = own[_ROWS[n], combos].sum(axis=1)  # (C, 3)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        facing = facing / np.linalg.norm(facing, axis=-1, keepdims=True)
+    cos = np.nan_to_num(facing @ np.ascontiguousarray(to_sensor).T)  # (C, S)
+    geometry: FloatArray = np.where(combos == 0, np.maximum(-cos, 0.0), np.maximum(cos, 0.0))
+    return geometry
+
+
+def _per_view_sum(table: FloatArray, views_of: IntArray, take: IntArray) -> FloatArray:
+    """(G, C) Σ over a person's views of ``table[view, c_view]``, for G persons of n views.
+
+    ``views_of``: (G·n,) each person's views in order; ``take``: :data:`_VIEW_TAKE` of n.
+    """
+    size = len(views_of) // take.shape[1]
+    summed: FloatArray = table[views_of].reshape(size, -1)[:, take].sum(axis=2)
+    return summed
+
+
+@functools.cache
+def _design(n: int) -> FloatArray:
+    """(C, 4·pairs + 2·n) one-hot design: labelling c's pair states, then its view labels."""
+    count = 2**n
+    pairs = n * (n - 1) // 2
+    design = np.zeros((count, 4 * pairs + 2 * n))
+    rows = np.arange(count)[:, None]
+    design[rows, _PAIR_TAKE[n].T] = 1.0
+    design[rows, 4 * pairs + _VIEW_TAKE[n]] = 1.0
+    return design
+
+
+def _screen(n: int, block: FloatArray, unary: FloatArray) -> IntArray:
+    """Each person's labelling when a quick estimate settles it, else −1 (score exactly).
+
+    The cost of labelling c is Σ_pairs D[pair, c_i, c_j] + Σ_views U[view, c_view], linear in
+    c's one-hot design, so one matrix product estimates every cost of every person. The
+    estimate sums in another order than the exact cost, so they differ by rounding only (about
+    1e-15 m). When the best estimate beats every other by more than :data:`_SCREEN_MARGIN_M`,
+    the exact minimum is that labelling and no other: it is returned. Otherwise (near-ties,
+    where rounding decides as in the exact enumeration, or an estimate that is not finite) −1.
+
+    Args:
+        block: (G, 4·pairs) D flattened; unary: (G, 2·n) U flattened (view-major).
+
+    Returns:
+        (G,) index of the labelling in :data:`_COMBOS` ``[n]``, or −1.
+    """
+    estimate = np.concatenate([block, unary], axis=1) @ _design(n).T  # (G, C)
+    best = np.argmin(estimate, axis=1)
+    rows = np.arange(len(best))
+    lowest = estimate[rows, best]
+    estimate[rows, best] = np.inf
+    runner_up = estimate.min(axis=1)
+    settled = np.isfinite(lowest) & (runner_up > lowest + _SCREEN_MARGIN_M)
+    result: IntArray = np.where(settled, best, -1)
+    return result

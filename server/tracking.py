@@ -27,7 +27,6 @@ State is in memory only; nothing here does I/O.
 
 from __future__ import annotations
 
-import warnings
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Literal
@@ -43,20 +42,20 @@ from server.confidence import (
     distance_factors,
     facing_cosines,
     facing_direction,
+    facing_directions,
     facing_factors,
     propagate,
     range_of_motion_factors,
 )
-from server.filters import JointFilter, make_filter
+from server.filters import JointFilter, filter_all, make_filter
 from server.fusion import (
-    contributors,
+    TRUNK_JOINTS,
     enforce_bone_lengths,
-    fuse_views,
-    robust_reweight,
+    fuse_views_batch,
     state_weights,
     trunk_distance,
 )
-from server.mirror import MAX_VIEWS, PERMUTATION, choose_labelling
+from server.mirror import MAX_VIEWS, PERMUTATION, choose_labellings
 from server.settings import FusionSettings
 
 FloatArray = npt.NDArray[np.float64]
@@ -67,6 +66,23 @@ MAX_SPEED_MPS = 3.0
 """Trunk speed used for prediction is clipped to this (a person, not a glitch)."""
 GOOD_VIEW_COS = 0.5
 """A view feeds the online bone-length estimate only if the person faces it within 60°."""
+_NO_POSITION = np.full(3, np.nan)
+_MIN_SHARE = 0.05
+"""A view is a source of a joint when it carries this share of its weight (as ``contributors``)."""
+
+
+def nanmedian_axis(data: FloatArray, axis: int) -> FloatArray:
+    """``np.nanmedian`` along ``axis`` (the same values: mean of the two middle ones), faster.
+
+    All-NaN slices give NaN without a warning.
+    """
+    ordered = np.sort(data, axis=axis)  # NaN last
+    count = np.isfinite(data).sum(axis=axis, keepdims=True)
+    low = np.take_along_axis(ordered, np.maximum((count - 1) // 2, 0), axis=axis)
+    high = np.take_along_axis(ordered, count // 2, axis=axis)
+    median = np.where(count > 0, (low + high) / 2.0, np.nan)
+    result: FloatArray = np.squeeze(median, axis=axis)
+    return result
 
 
 @dataclass(frozen=True, slots=True)
@@ -149,9 +165,7 @@ class BoneModel:
             data = np.stack(self._samples)
             counts = np.isfinite(data).sum(axis=0)
             enough = counts >= self.min_samples
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN bones stay NaN
-                median = np.nanmedian(np.where(enough[None, :], data, np.nan), axis=0)
+            median = nanmedian_axis(data, axis=0)  # all-NaN bones stay NaN
             self._estimate = np.where(enough, median, np.nan)
 
 
@@ -226,9 +240,9 @@ class PersonTracker:
         clusters = self._associate(views, t_s)
         self._merge_duplicates(clusters)
         published: list[FusedPerson] = []
-        for person_id, cluster in sorted(clusters.items()):
-            track = self._tracks[person_id]
-            person = self._fuse(track, cluster, t_s)
+        items = [(self._tracks[pid], cluster) for pid, cluster in sorted(clusters.items())]
+        fused_persons = self._fuse_all(items, t_s)
+        for (track, cluster), person in zip(items, fused_persons, strict=True):
             track.hits += 1
             track.members = {(v.sensor_id, v.tracking_id) for v in cluster}
             if track.hits >= self.settings.track_min_frames:
@@ -278,14 +292,21 @@ class PersonTracker:
         remaining: list[View] = []
         predicted = {pid: t.predicted(t_s) for pid, t in self._tracks.items()}
 
-        # 1. Sticky membership.
-        for view in views:
-            key = (view.sensor_id, view.tracking_id)
-            track = next((t for t in self._tracks.values() if key in t.members), None)
-            if (
-                track is None
-                or trunk_distance(view.joints_world, predicted[track.person_id]) > 2 * gate
-            ):
+        # 1. Sticky membership (every view's distance to its track in one pass).
+        owner: dict[tuple[str, int], _Track] = {}
+        for t in reversed(self._tracks.values()):  # the first track holding a key wins
+            for member in t.members:
+                owner[member] = t
+        sticky = [owner.get((view.sensor_id, view.tracking_id)) for view in views]
+        with_track = [i for i, t in enumerate(sticky) if t is not None]
+        distances = np.full(len(views), np.inf)
+        if with_track:
+            distances[with_track] = _trunk_distances(
+                np.stack([views[i].joints_world[TRUNK_JOINTS] for i in with_track]),
+                np.stack([predicted[sticky[i].person_id][TRUNK_JOINTS] for i in with_track]),  # type: ignore[union-attr]
+            )
+        for view, track, distance in zip(views, sticky, distances, strict=True):
+            if track is None or distance > 2 * gate:
                 remaining.append(view)
                 continue
             cluster = clusters.setdefault(track.person_id, [])
@@ -364,125 +385,213 @@ class PersonTracker:
                         old.published = True
                     del self._tracks[younger]
 
-    # --- fusing one person -----------------------------------------------------------------------
+    # --- fusing the persons ----------------------------------------------------------------------
 
-    def _fuse(self, track: _Track, cluster: list[View], t_s: float) -> FusedPerson | None:
+    def _fuse_all(
+        self, items: list[tuple[_Track, list[View]]], t_s: float
+    ) -> list[FusedPerson | None]:
+        """Fuse every person of this step; each as if alone, every per-view term in one pass.
+
+        Views of all persons are stacked (N views, person ``person_of[i]``, its ``slot_of[i]``-th
+        view); per-person sums use a (P, S_max, ...) block padded after the real views with
+        NaN views of weight 0, which leaves every sum and product as it is for one person.
+        """
+        if not items:
+            return []
         s = self.settings
-        cluster = cluster[:MAX_VIEWS]
-        joints = np.stack([v.joints_world for v in cluster]).astype(np.float64)
-        states = np.stack([v.states for v in cluster])
+        tracks = [track for track, _ in items]
+        clusters = [cluster[:MAX_VIEWS] for _, cluster in items]
+        counts = [len(cluster) for cluster in clusters]
+        flat = [view for cluster in clusters for view in cluster]
+        total, persons, widest = len(flat), len(items), max(counts)
+        person_of = np.repeat(np.arange(persons), counts)
+        starts = np.cumsum([0, *counts])
+        slot_of = np.arange(total) - starts[person_of]
+        joints = np.stack([v.joints_world for v in flat]).astype(np.float64)
+        states = np.stack([v.states for v in flat])
         sensors = np.stack(
-            [
-                np.full(3, np.nan) if v.sensor_position is None else v.sensor_position
-                for v in cluster
-            ]
+            [_NO_POSITION if v.sensor_position is None else v.sensor_position for v in flat]
         ).astype(np.float64)
-        keys = [(v.sensor_id, v.tracking_id) for v in cluster]
+        track_joints = np.stack([track.joints for track in tracks])
+        fused_once = np.array([track.fused_once for track in tracks])
+        track_facing = facing_directions(track_joints)
 
         # Mirrored views: swap labels back before anything looks at left or right.
-        mirrored = np.zeros(len(cluster), dtype=bool)
+        mirrored = np.zeros(total, dtype=bool)
+        rom: FloatArray | None = None
         if s.use_mirror_correction:
-            previous = np.array([int(track.mirror_memory.get(k, -1)) for k in keys])
-            mirrored = choose_labelling(
+            keys = [(v.sensor_id, v.tracking_id) for v in flat]
+            previous = np.array(
+                [
+                    int(tracks[p].mirror_memory.get(k, -1))
+                    for p, k in zip(person_of, keys, strict=True)
+                ]
+            )
+            mirrored, both_rom = choose_labellings(
                 joints,
                 sensors,
-                track.joints if track.fused_once else None,
+                counts,
+                [track.joints if track.fused_once else None for track in tracks],
+                track_facing,
                 previous,
                 geometry_weight_m=s.mirror_geometry_weight_m,
                 hysteresis_m=s.mirror_hysteresis_m,
                 track_weight=s.mirror_track_weight,
                 anatomy_weight_m=s.mirror_anatomy_weight_m,
                 rom_scale_deg=s.rom_scale_deg,
+                need_rom=s.use_range_of_motion,
             )
-            track.mirror_memory = {k: bool(m) for k, m in zip(keys, mirrored, strict=True)}
-            joints[mirrored] = joints[mirrored][:, PERMUTATION]
-            states[mirrored] = states[mirrored][:, PERMUTATION]
+            for p, track in enumerate(tracks):
+                lo, hi = starts[p], starts[p + 1]
+                track.mirror_memory = {
+                    k: bool(m) for k, m in zip(keys[lo:hi], mirrored[lo:hi], strict=True)
+                }
+            if mirrored.any():
+                joints[mirrored] = joints[mirrored][:, PERMUTATION]
+                states[mirrored] = states[mirrored][:, PERMUTATION]
+            if both_rom is not None:
+                rom = both_rom[np.arange(total), mirrored.astype(np.intp)]
 
         # Body-based confidence, propagated outward from SpineBase.
         weights = state_weights(states, s.state_weights)
         local = np.ones(joints.shape[:2])
-        reference = track.bones.reference()
-        if s.use_bone_length and np.isfinite(reference).any():
-            local *= bone_length_factors(joints, reference, s.bone_length_scale_m)
+        if s.use_bone_length:
+            references = np.stack([track.bones.reference() for track in tracks])
+            if np.isfinite(references).any():  # an unknown reference gives factors of 1
+                local *= bone_length_factors(joints, references[person_of], s.bone_length_scale_m)
         if s.use_range_of_motion:
-            local *= range_of_motion_factors(joints, s.rom_scale_deg)
+            local *= rom if rom is not None else range_of_motion_factors(joints, s.rom_scale_deg)
         weights = weights * propagate(local)
-        fused, confidence = fuse_views(joints, weights)
+
+        def fuse(joints: FloatArray, weights: FloatArray) -> tuple[FloatArray, FloatArray]:
+            padded_joints = np.full((persons, widest, JOINT_COUNT, 3), np.nan)
+            padded_joints[person_of, slot_of] = joints
+            padded_weights = np.zeros((persons, widest, JOINT_COUNT))
+            padded_weights[person_of, slot_of] = weights
+            return fuse_views_batch(padded_joints, padded_weights)
+
+        fused, confidence = fuse(joints, weights)
 
         # Facing and distance: per view, from where the person stands and faces.
-        facing = facing_direction(track.joints if track.fused_once else fused)
-        body = fused[0] if np.isfinite(fused[0]).all() else np.nanmean(joints[:, 0], axis=0)
-        cosines = facing_cosines(facing, body, sensors)
-        per_view = np.ones(len(cluster))
+        facing = track_facing
+        if not fused_once.all():
+            facing = np.where(fused_once[:, None], track_facing, facing_directions(fused))
+        spine = np.zeros((persons, widest, 2, 3))
+        spine[person_of, slot_of, 0] = np.where(np.isfinite(joints[:, 0]), joints[:, 0], 0.0)
+        spine[person_of, slot_of, 1] = np.isfinite(joints[:, 0])
+        sums = spine.sum(axis=1)  # np.nanmean of each person's SpineBase, in the same order
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean_spine = sums[:, 0] / sums[:, 1]
+        fused_spine_ok = np.isfinite(fused[:, 0]).all(axis=-1, keepdims=True)
+        body = np.where(fused_spine_ok, fused[:, 0], mean_spine)
+        view_body = body[person_of]
+        cosines = facing_cosines(facing[person_of], view_body, sensors)
+        per_view = np.ones(total)
         if s.use_facing:
             per_view *= facing_factors(
                 cosines, s.facing_power, s.facing_floor, s.facing_back_factor
             )
         if s.use_distance:
-            per_view *= distance_factors(body, sensors, s.distance_best_m, s.distance_scale_m)
-        if s.correct_view_yaw and len(cluster) > 1:
-            # The person's facing from the views seen most squarely (least turned by their
-            # sensor's bias), then every view turned to it.
-            frontal = np.nan_to_num(np.abs(cosines), nan=0.5) ** 4 + 1e-6
-            own = np.stack([facing_direction(v) for v in joints])
-            usable = np.isfinite(own).all(axis=1)
-            if usable.any():
-                mean = (frontal[usable, None] * own[usable]).sum(axis=0)
-                norm = float(np.linalg.norm(mean))
-                if norm > 1e-6:
-                    joints = align_yaw(joints, mean / norm, s.yaw_max_deg)
+            per_view *= distance_factors(view_body, sensors, s.distance_best_m, s.distance_scale_m)
+        if s.correct_view_yaw:
+            for p in range(persons):
+                lo, hi = starts[p], starts[p + 1]
+                if hi - lo > 1:
+                    joints[lo:hi] = _corrected_yaw(joints[lo:hi], cosines[lo:hi], s.yaw_max_deg)
         if s.use_facing or s.use_distance or s.correct_view_yaw:
             weights = weights * per_view[:, None]
-            fused, confidence = fuse_views(joints, weights)
-        if s.outlier_scale_m > 0 and len(cluster) > 1:
-            weights = robust_reweight(joints, weights, fused, s.outlier_scale_m)
-            fused, confidence = fuse_views(joints, weights)
+            fused, confidence = fuse(joints, weights)
+        if s.outlier_scale_m > 0:
+            several = np.array(counts)[person_of] > 1
+            if several.any():
+                # One Cauchy re-weighting pass (server.fusion.robust_reweight) per person.
+                d = np.linalg.norm(joints - fused[person_of], axis=-1)
+                factor = np.where(np.isfinite(d), 1.0 / (1.0 + (d / s.outlier_scale_m) ** 2), 1.0)
+                weights = np.where(several[:, None], weights * factor, weights)
+                fused, confidence = fuse(joints, weights)
 
-        self._observe_bones(track, joints, states, cosines)
-        self._update_motion(track, fused, t_s)
-        if not np.isfinite(fused).any():
-            return None
+        self._observe_bones(tracks, joints, states, cosines, person_of, slot_of, widest)
 
-        output = track.filter(fused, t_s)
-        reference = track.bones.reference()
-        if s.enforce_bone_lengths and np.isfinite(reference).any():
-            output = enforce_bone_lengths(output, reference)
+        # Which views carried each joint (server.fusion.contributors), as source bitmasks.
+        final = np.zeros((persons, widest, JOINT_COUNT))
+        final[person_of, slot_of] = np.where(np.isfinite(joints).all(-1), weights, 0.0)
+        total_weight = final.sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            share = np.where(total_weight[:, None] > 0, final / total_weight[:, None], 0.0)
+        carries = (share >= _MIN_SHARE) & (final > 0)
 
-        sources = tuple(sorted({v.sensor_id for v in cluster}))
-        mask = contributors(np.where(np.isfinite(joints).all(-1), weights, 0.0))
-        order = [sources.index(v.sensor_id) for v in cluster]
-        joint_sources = np.zeros(JOINT_COUNT, dtype=np.int64)
-        for k, slot in enumerate(order):
-            joint_sources |= ((mask >> k) & 1) << slot
-        return FusedPerson(
-            person_id=track.person_id,
-            joints=output,
-            confidence=confidence,
-            sources=sources,
-            views=tuple(cluster),
-            joint_sources=joint_sources,
-            mirrored=tuple(
-                sorted(v.sensor_id for v, m in zip(cluster, mirrored, strict=True) if m)
-            ),
-        )
+        for p, track in enumerate(tracks):
+            self._update_motion(track, fused[p], t_s)
+        alive = [p for p in range(persons) if np.isfinite(fused[p]).any()]
+        filtered = filter_all([tracks[p].filter for p in alive], fused[alive], t_s)
+        outputs = dict(zip(alive, filtered, strict=True))
+        if s.enforce_bone_lengths and alive:
+            references = np.stack([tracks[p].bones.reference() for p in alive])
+            fitted = [i for i in range(len(alive)) if np.isfinite(references[i]).any()]
+            if fitted:
+                enforced = enforce_bone_lengths(
+                    np.stack([outputs[alive[i]] for i in fitted]), references[fitted]
+                )
+                for k, i in enumerate(fitted):
+                    outputs[alive[i]] = enforced[k]
 
+        out: list[FusedPerson | None] = []
+        for p, (track, cluster) in enumerate(zip(tracks, clusters, strict=True)):
+            if p not in outputs:
+                out.append(None)
+                continue
+            sources = tuple(sorted({v.sensor_id for v in cluster}))
+            slots = np.array([sources.index(v.sensor_id) for v in cluster], dtype=np.int64)
+            joint_sources = np.bitwise_or.reduce(
+                carries[p, : len(cluster)].astype(np.int64) << slots[:, None], axis=0
+            )
+            lo = starts[p]
+            out.append(
+                FusedPerson(
+                    person_id=track.person_id,
+                    joints=outputs[p],
+                    confidence=confidence[p],
+                    sources=sources,
+                    views=tuple(cluster),
+                    joint_sources=joint_sources,
+                    mirrored=tuple(
+                        sorted(
+                            v.sensor_id
+                            for v, m in zip(cluster, mirrored[lo : lo + len(cluster)], strict=True)
+                            if m
+                        )
+                    ),
+                )
+            )
+        return out
+
+    @staticmethod
     def _observe_bones(
-        self, track: _Track, joints: FloatArray, states: npt.NDArray[np.uint8], cosines: FloatArray
+        tracks: list[_Track],
+        joints: FloatArray,
+        states: npt.NDArray[np.uint8],
+        cosines: FloatArray,
+        person_of: npt.NDArray[np.intp],
+        slot_of: npt.NDArray[np.intp],
+        widest: int,
     ) -> None:
-        """Feed the online bone-length estimate with this step's good views."""
-        if track.bones.set_lengths is not None:
+        """Feed each online bone-length estimate with this step's good views of its person."""
+        estimating = np.array([track.bones.set_lengths is None for track in tracks])
+        if not estimating.any():
             return
         good_view = np.isfinite(cosines) & (cosines >= GOOD_VIEW_COS)
         tracked = states == TrackingState.TRACKED
         ok = tracked[:, _BONE_PARENT] & tracked[:, _BONE_CHILD] & good_view[:, None]
         lengths = np.linalg.norm(joints[:, _BONE_CHILD] - joints[:, _BONE_PARENT], axis=-1)
         lengths = np.where(ok & np.isfinite(lengths), lengths, np.nan)
-        if not np.isfinite(lengths).any():
+        padded = np.full((len(tracks), widest, BONE_COUNT), np.nan)
+        padded[person_of, slot_of] = lengths
+        observed = np.isfinite(padded).any(axis=(1, 2)) & estimating
+        if not observed.any():
             return
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN bones stay NaN
-            per_bone = np.nanmedian(lengths, axis=0)
-        track.bones.observe(per_bone)
+        per_bone = nanmedian_axis(padded, axis=1)
+        for p in np.flatnonzero(observed):
+            tracks[p].bones.observe(per_bone[p])
 
     @staticmethod
     def _update_motion(track: _Track, fused: FloatArray, t_s: float) -> None:
@@ -499,3 +608,32 @@ class PersonTracker:
         track.joints = np.where(np.isfinite(fused), fused, track.joints)
         track.last_seen_s = t_s
         track.fused_once = True
+
+
+def _corrected_yaw(joints: FloatArray, cosines: FloatArray, max_deg: float) -> FloatArray:
+    """One person's views turned to the facing of the views seen most squarely.
+
+    The person's facing from the views seen most squarely (least turned by their sensor's
+    bias), then every view turned to it (``correct_view_yaw``).
+    """
+    frontal = np.nan_to_num(np.abs(cosines), nan=0.5) ** 4 + 1e-6
+    own = np.stack([facing_direction(v) for v in joints])
+    usable = np.isfinite(own).all(axis=1)
+    if usable.any():
+        mean = (frontal[usable, None] * own[usable]).sum(axis=0)
+        norm = float(np.linalg.norm(mean))
+        if norm > 1e-6:
+            return align_yaw(joints, mean / norm, max_deg)
+    return joints
+
+
+def _trunk_distances(a: FloatArray, b: FloatArray) -> FloatArray:
+    """:func:`server.fusion.trunk_distance` of many pairs: a, b (M, 5, 3) midline joints → (M,)."""
+    both = np.isfinite(a).all(-1) & np.isfinite(b).all(-1)
+    diff = a - b
+    d = np.sqrt((diff * diff).sum(-1))
+    count = both.sum(-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(both, d, 0.0).sum(-1) / count
+    result: FloatArray = np.where(count < 2, np.inf, mean)
+    return result

@@ -94,3 +94,21 @@ def test_facing_and_distance_terms() -> None:
     assert np.allclose(d[:3], 1.0)
     far = distance_factors(view[J.SPINE_BASE], np.array([[0.0, 1.0, 4.0]]), (1.5, 3.0), 1.0)
     assert far[0] == pytest.approx(np.exp(-1.0))
+
+
+def test_batched_facing_and_range_of_motion_match_single_skeletons() -> None:
+    from server.confidence import facing_directions, rom_factors_and_forward
+
+    rng = np.random.default_rng(2)
+    skeletons = np.stack([body(Pose()) + rng.normal(scale=0.05, size=(25, 3)) for _ in range(5)])
+    skeletons[4, 0] = np.nan
+    together = facing_directions(skeletons)
+    for k in range(5):
+        np.testing.assert_array_equal(together[k], facing_direction(skeletons[k]))
+    factors, forward = rom_factors_and_forward(skeletons, 15.0)
+    np.testing.assert_array_equal(factors, range_of_motion_factors(skeletons, 15.0))
+    for k in range(5):
+        np.testing.assert_array_equal(
+            factors[k], range_of_motion_factors(skeletons[k : k + 1], 15.0)[0]
+        )
+    assert forward.shape == (5, 3)

@@ -88,3 +88,17 @@ def test_unknown_filter_is_refused() -> None:
     with pytest.raises(ValueError, match="unknown filter"):
         make_filter("butterworth")
     assert isinstance(make_filter("none"), PassThrough)
+
+
+def test_filter_all_matches_separate_calls() -> None:
+    from server.filters import filter_all
+
+    rng = np.random.default_rng(3)
+    together = [OneEuroFilter(1.5, 10.0), OneEuroFilter(1.5, 10.0), PassThrough()]
+    apart = [OneEuroFilter(1.5, 10.0), OneEuroFilter(1.5, 10.0), PassThrough()]
+    for k in range(20):
+        sample = rng.normal(size=(3, 25, 3))
+        sample[rng.random((3, 25, 3)) < 0.1] = np.nan
+        got = filter_all(together, sample, k / 30)  # type: ignore[arg-type]
+        for f, x, y in zip(apart, sample, got, strict=True):
+            np.testing.assert_array_equal(f(x, k / 30), y)

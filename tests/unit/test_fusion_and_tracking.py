@@ -230,3 +230,64 @@ def test_duplicate_person_from_disjoint_sensors_is_merged() -> None:
         [View("s0", 1, person, TRACKED), View("s1", 2, person + [0.05, 0, 0], TRACKED)], 2 / 30
     )
     assert len(out) == 1 and out[0].sources == ("s0", "s1")
+
+
+# --- batched forms: the same numbers as one at a time ----------------------------------------
+
+
+def test_batched_fusion_helpers_match_single_calls() -> None:
+    from server.fusion import enforce_bone_lengths, fuse_views_batch
+    from server.tracking import nanmedian_axis
+
+    rng = np.random.default_rng(5)
+    joints = rng.normal(size=(3, 4, JOINT_COUNT, 3))
+    joints[rng.random((3, 4, JOINT_COUNT)) < 0.1] = np.nan
+    weights = rng.random((3, 4, JOINT_COUNT))
+    joints[2, 3], weights[2, 3] = np.nan, 0.0  # padding
+    fused, confidence = fuse_views_batch(joints, weights)
+    for p, n in enumerate((4, 4, 3)):
+        one, one_confidence = fuse_views(joints[p, :n], weights[p, :n])
+        np.testing.assert_array_equal(fused[p], one)
+        np.testing.assert_array_equal(confidence[p], one_confidence)
+
+    skeletons = rng.normal(size=(3, JOINT_COUNT, 3))
+    reference = rng.uniform(0.1, 0.5, size=(3, 24))
+    reference[0, 3] = np.nan
+    batch = enforce_bone_lengths(skeletons, reference)
+    for p in range(3):
+        np.testing.assert_array_equal(batch[p], enforce_bone_lengths(skeletons[p], reference[p]))
+
+    data = rng.normal(size=(7, 24))
+    data[rng.random((7, 24)) < 0.4] = np.nan
+    data[:, 0] = np.nan
+    with pytest.warns(RuntimeWarning):
+        expected = np.nanmedian(data, axis=0)
+    np.testing.assert_array_equal(nanmedian_axis(data, axis=0), expected)
+
+
+def test_several_persons_fuse_as_if_alone() -> None:
+    """One step with three persons gives each the result a tracker with only them gives."""
+    people = [standing(-1.5, 0.0), standing(0.0, 0.5), standing(1.5, -0.5)]
+    sensors = {"a": np.array([0.0, 1.0, 3.0]), "b": np.array([3.0, 1.0, 0.0])}
+    rng = np.random.default_rng(11)
+    steps = [
+        [
+            [(s, i, joints + rng.normal(scale=0.01, size=joints.shape)) for s in sensors]
+            for i, joints in enumerate(people)
+        ]
+        for _ in range(5)
+    ]
+    together = PersonTracker()
+    alone = [PersonTracker() for _ in people]
+    for k, step in enumerate(steps):
+        t = k / 30
+        views = [View(s, i, j, TRACKED, sensors[s]) for person in step for s, i, j in person]
+        got = {p.views[0].tracking_id: p for p in together.update(views, t)}
+        for i, tracker in enumerate(alone):
+            mine = [View(s, idx, j, TRACKED, sensors[s]) for s, idx, j in step[i]]
+            for expected in tracker.update(mine, t):
+                np.testing.assert_array_equal(got[i].joints, expected.joints)
+                np.testing.assert_array_equal(got[i].confidence, expected.confidence)
+                np.testing.assert_array_equal(got[i].joint_sources, expected.joint_sources)
+                assert got[i].mirrored == expected.mirrored
+    assert len(got) == 3

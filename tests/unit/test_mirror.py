@@ -54,3 +54,43 @@ def test_hysteresis_keeps_an_ambiguous_decision() -> None:
 
 def test_no_views() -> None:
     assert choose_labelling(np.zeros((0, 25, 3)), np.zeros((0, 3))).shape == (0,)
+
+
+def test_several_persons_at_once_decide_as_one_by_one() -> None:
+    from server.confidence import facing_direction
+    from server.mirror import choose_labellings
+
+    rng = np.random.default_rng(7)
+    truth = person()
+    sensors_all = np.stack([FRONT, BACK, SIDE, -SIDE])
+    persons, sensors, references, previous = [], [], [], []
+    for n in (1, 2, 3, 4, 4):
+        views = np.stack([truth + rng.normal(scale=0.02, size=truth.shape) for _ in range(n)])
+        flip = rng.random(n) < 0.5
+        views[flip] = views[flip][:, list(MIRROR_PERMUTATION)]
+        persons.append(views)
+        sensors.append(sensors_all[:n])
+        references.append(None if n == 2 else truth)
+        previous.append(rng.integers(-1, 2, size=n))
+    facings = np.stack([facing_direction(truth)] * len(persons))
+    together, factors = choose_labellings(
+        np.concatenate(persons),
+        np.concatenate(sensors),
+        [len(p) for p in persons],
+        references,
+        facings,
+        np.concatenate(previous),
+        geometry_weight_m=0.15,
+        hysteresis_m=0.05,
+        track_weight=1.0,
+        anatomy_weight_m=0.1,
+        rom_scale_deg=15.0,
+    )
+    alone = np.concatenate(
+        [
+            choose_labelling(v, s, r, p)
+            for v, s, r, p in zip(persons, sensors, references, previous, strict=True)
+        ]
+    )
+    assert together.tolist() == alone.tolist()
+    assert factors is not None and factors.shape == (len(together), 2, 25)
