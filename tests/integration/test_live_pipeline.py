@@ -220,15 +220,27 @@ def test_agent_survives_server_restart_without_backlog(
 async def test_agent_clock_offset_is_absorbed(
     live_server: LiveServer, agent_factory: Callable[..., AgentThread]
 ) -> None:
-    """Two agents whose clocks disagree by 3 s still fuse into one person at the right time."""
-    agent_factory(live_server.zmq_url, "cam-a", (0.0, 1.0, 3.0))
-    agent_factory(live_server.zmq_url, "cam-b", (2.6, 1.0, -1.5), clock_offset_ns=3_000_000_000)
-    assert wait_until(lambda: len(sensors_by_id(live_server)) == 2, 10)
+    """Agents whose clocks are seconds off, one of them drifting fast, still fuse into one
+    person at the right time: the server measures the offsets by round trip."""
+    agent_factory(live_server.zmq_url, "cam-a", (0.0, 1.0, 3.0), clock_offset_ns=-1_500_000_000)
+    agent_factory(
+        live_server.zmq_url, "cam-b", (2.6, 1.0, -1.5),
+        clock_offset_ns=3_000_000_000, clock_drift_ppm=500.0,
+    )  # fmt: skip
+    assert wait_until(
+        lambda: (
+            {s["clock_source"] for s in sensors_by_id(live_server).values()} == {"round_trip"}
+            and len(sensors_by_id(live_server)) == 2
+        ),
+        10,
+    )
     async with connect(live_server.ws_url + "/ws/skeletons") as ws:
         await ws.recv()
         frames = [json.loads(await ws.recv()) for _ in range(60)]
     offsets = {s["id"]: s["clock_offset_s"] for s in sensors_by_id(live_server).values()}
-    assert offsets["cam-b"] == pytest.approx(offsets["cam-a"] - 3.0, abs=0.05), offsets
+    # Within a few ms on an idle machine; the bounds leave room for a loaded one.
+    assert offsets["cam-a"] == pytest.approx(1.5, abs=0.02), offsets  # server − agent
+    assert offsets["cam-b"] == pytest.approx(-3.0, abs=0.03), offsets  # + up to ~10 ms drift
     both = [f for f in frames if f["persons"] and len(f["persons"][0]["sources"]) == 2]
     assert len(both) > 30, "both sensors should contribute to the same person"
     assert all(len(f["persons"]) == 1 for f in frames[10:]), "no duplicate person"
