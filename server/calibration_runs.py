@@ -237,11 +237,20 @@ class CalibrationService:
                 run.progress = share
             if spec.method in ("icp", "auto"):
                 run.state, run.stage = RunState.CAPTURING, "capturing depth clouds"
-                clouds = await self._capture_clouds(spec)
-                run.state, run.stage = RunState.SOLVING, "refining with ICP"
-                if not poses:
-                    poses = {s: self._current(s) for s in spec.sensors}
-                poses = await asyncio.to_thread(self._solve_icp, spec, clouds, poses, run)
+                try:
+                    clouds = await self._capture_clouds(spec)
+                except AgentRequestFailed as exc:
+                    if spec.method == "icp":
+                        raise
+                    # auto degrades to the skeleton result rather than failing outright (a
+                    # source without depth, e.g. the Kinect v2 source today).
+                    run.warnings.append(f"no ICP refinement: {exc}; kept the skeleton poses")
+                    clouds = None
+                if clouds is not None:
+                    run.state, run.stage = RunState.SOLVING, "refining with ICP"
+                    if not poses:
+                        poses = {s: self._current(s) for s in spec.sensors}
+                    poses = await asyncio.to_thread(self._solve_icp, spec, clouds, poses, run)
             run.results = poses
             self._finish(run)
         except (CalibrationError, AgentRequestFailed, SensorUnavailable) as exc:

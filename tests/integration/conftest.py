@@ -103,13 +103,15 @@ def agent_factory() -> Iterator[Callable[..., AgentThread]]:
     def make(
         endpoint: str, sensor_id: str, position: tuple[float, float, float] = (0.0, 1.0, 3.0),
         persons: int = 1, clock_offset_ns: int = 0, pose_hint: bool = True,
-        clock_drift_ppm: float = 0.0,
+        clock_drift_ppm: float = 0.0, depth: bool = True,
     ) -> AgentThread:  # fmt: skip
         source = SimSource(
             ProceduralPerformer(persons), look_at_pose(position, (0.0, 1.0, 0.0)),
             seed=len(agents) + 1, clock_offset_ns=clock_offset_ns, send_pose_hint=pose_hint,
             clock_drift_ppm=clock_drift_ppm,
         )  # fmt: skip
+        if not depth:  # like a source whose SDK path has no depth capture
+            source.request_handlers = dict  # type: ignore[method-assign]
         stop = threading.Event()
         thread = threading.Thread(
             target=run_agent, args=(sensor_id, source, endpoint), kwargs={"stop": stop},

@@ -25,10 +25,19 @@ def true_pose(sensor_id: str) -> np.ndarray:
 
 
 def start_agents(
-    live: LiveServer, agent_factory: Callable[..., AgentThread], ids: list[str]
+    live: LiveServer,
+    agent_factory: Callable[..., AgentThread],
+    ids: list[str],
+    without_depth: tuple[str, ...] = (),
 ) -> None:
     for sensor_id in ids:
-        agent_factory(live.zmq_url, sensor_id, POSITIONS[sensor_id], pose_hint=False)
+        agent_factory(
+            live.zmq_url,
+            sensor_id,
+            POSITIONS[sensor_id],
+            pose_hint=False,
+            depth=sensor_id not in without_depth,
+        )
 
     def connected() -> bool:
         rows = httpx.get(live.http_url + "/api/sensors").json()["sensors"]
@@ -272,3 +281,15 @@ def test_auto_calibration_finds_sensors_and_floor_with_no_equipment(
         true_up = true_pose(sensor_id)[1, :3]
         assert np.degrees(np.arccos(np.clip(up_in_sensor @ true_up, -1, 1))) < 0.7
     assert run["floor"]["source"] == "depth"
+
+
+def test_auto_without_depth_keeps_the_skeleton_poses_and_says_so(
+    live_server: LiveServer, agent_factory: Callable[..., AgentThread]
+) -> None:
+    start_agents(live_server, agent_factory, ["cam-a", "cam-b"], without_depth=("cam-b",))
+    run = run_until_finished(live_server, {"method": "auto", "duration_s": 12}, timeout_s=60)
+    assert run["state"] == "done", run
+    assert any("no ICP refinement" in w and "cam-b" in w for w in run["warnings"]), run
+    assert run["results"]["cam-b"]["method"] == "skeleton"
+    icp = httpx.post(live_server.http_url + "/api/calibration/runs", json={"method": "icp"})
+    assert icp.status_code == 409  # nothing committed yet: icp has no poses to refine
