@@ -51,10 +51,10 @@ async def test_demo_fuses_close_to_ground_truth(demo_stack: DemoStack) -> None:
             errors.append(per_truth[match])
             pelvis_errors.append(np.linalg.norm(joints[JointId.SPINE_BASE] - truth[match][0]))
     assert np.median(people_per_frame) == demo_stack.persons, "both people fused, no duplicate"
-    # Tracking-state fusion with mirrored back views is not accurate (see docs/benchmarks.md):
-    # these bounds say "the right people in the right places", not "good mocap".
-    assert np.median(errors) < 0.25, f"median MPJPE {np.median(errors):.3f} m"
-    assert np.median(pelvis_errors) < 0.12, f"median pelvis error {np.median(pelvis_errors):.3f} m"
+    # Through self-calibration, the real processes and the full fusion method, measured here at
+    # about 50 mm median MPJPE and 16 mm at the pelvis; the bounds leave room for noise.
+    assert np.median(errors) < 0.10, f"median MPJPE {np.median(errors):.3f} m"
+    assert np.median(pelvis_errors) < 0.06, f"median pelvis error {np.median(pelvis_errors):.3f} m"
     assert len(ids) <= demo_stack.persons + 2, f"ids should stay stable, saw {sorted(ids)}"
 
 
