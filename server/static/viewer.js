@@ -290,10 +290,10 @@ function finite3(p) {
 
 // Labels keep a constant size on screen (sizeAttenuation off): `height` is a fraction of the
 // view height at unit distance, 0.03 ≈ 3 % of the canvas height.
-function makeLabelSprite(text, height = 0.03) {
+function makeCanvasSprite(width, canvasHeight, height) {
   const canvas = document.createElement('canvas');
-  canvas.width = 256;
-  canvas.height = 64;
+  canvas.width = width;
+  canvas.height = canvasHeight;
   const texture = new THREE.CanvasTexture(canvas);
   texture.colorSpace = THREE.SRGBColorSpace;
   const material = new THREE.SpriteMaterial({
@@ -304,33 +304,22 @@ function makeLabelSprite(text, height = 0.03) {
     sizeAttenuation: false,
   });
   const sprite = new THREE.Sprite(material);
-  sprite.scale.set(height * 4, height, 1);
+  sprite.scale.set(height * (width / canvasHeight), height, 1);
   sprite.renderOrder = 10;
   sprite.userData.canvas = canvas;
+  return sprite;
+}
+
+function makeLabelSprite(text, height = 0.03) {
+  const sprite = makeCanvasSprite(256, 64, height);
   drawLabel(sprite, text);
   return sprite;
 }
 
 // A sensor's label: its id, and under it a smaller second line (the residual), when given.
 function makeSensorLabelSprite(id) {
-  const canvas = document.createElement('canvas');
-  canvas.width = 256;
-  canvas.height = 112;
-  const texture = new THREE.CanvasTexture(canvas);
-  texture.colorSpace = THREE.SRGBColorSpace;
-  const material = new THREE.SpriteMaterial({
-    map: texture,
-    depthTest: false,
-    depthWrite: false,
-    transparent: true,
-    sizeAttenuation: false,
-  });
-  const sprite = new THREE.Sprite(material);
-  const height = 0.03 * (112 / 64); // the first line as tall as other labels
-  sprite.scale.set(height * (256 / 112), height, 1);
+  const sprite = makeCanvasSprite(256, 112, 0.03 * (112 / 64)); // first line as tall as others
   sprite.center.set(0.5, 0.05); // drawn above the anchor, clear of the frustum
-  sprite.renderOrder = 10;
-  sprite.userData.canvas = canvas;
   sprite.userData.text = null;
   drawSensorLabel(sprite, id, '');
   return sprite;

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +32,8 @@ def data_dir() -> Path:
     files = ("02.asf", "02_01.amc", "scaled_131_01.bvh")
     missing = [f for f in files if not (DATA_DIR / f).is_file()]
     if missing:
+        if os.environ.get("CI"):
+            pytest.fail(f"CI must provide the CMU mocap samples: {missing} in {DATA_DIR}")
         pytest.skip(f"CMU mocap samples not found: {missing} in {DATA_DIR}")
     return DATA_DIR
 
