@@ -604,13 +604,23 @@ def run_from_panel(
     states: list[tuple[str | None, float]] = []
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:
-        state = viewer.hook()
-        assert state["calibrationRunId"] == run_id, state
-        states.append((state["calibrationRunState"], state["calibrationRunProgress"]))
-        if state["calibrationRunState"] in ("done", "failed"):
+        # One snapshot of the hook and the buttons, taken in a single task of the page: read one
+        # after the other, the run can end in between and enable "commit" (a race seen in CI).
+        state = page.evaluate(
+            f"""({{
+                id: {HOOK}.calibrationRunId,
+                state: {HOOK}.calibrationRunState,
+                progress: {HOOK}.calibrationRunProgress,
+                startDisabled: document.getElementById('cal-start').disabled,
+                commitDisabled: document.getElementById('cal-commit').disabled,
+            }})"""
+        )
+        assert state["id"] == run_id, state
+        states.append((state["state"], state["progress"]))
+        if state["state"] in ("done", "failed"):
             break
-        assert page.locator("#cal-start").is_disabled(), "start stays disabled while running"
-        assert page.locator("#cal-commit").is_disabled(), "nothing to commit while running"
+        assert state["startDisabled"], f"start stays disabled while running: {state}"
+        assert state["commitDisabled"], f"nothing to commit while running: {state}"
         time.sleep(0.2)
     else:
         pytest.fail(f"run {run_id} did not end within 60 s: {states[-5:]}")
