@@ -104,6 +104,16 @@ MIRROR_PERMUTATION: Final[tuple[int, ...]] = _mirror_permutation()
 """``joints[list(MIRROR_PERMUTATION)]`` swaps every left joint with its right counterpart."""
 
 
+def _bone_mirror_permutation() -> tuple[int, ...]:
+    index = {bone: b for b, bone in enumerate(BONES)}
+    return tuple(index[(MIRROR_PERMUTATION[p], MIRROR_PERMUTATION[c])] for p, c in BONES)
+
+
+BONE_MIRROR_PERMUTATION: Final[tuple[int, ...]] = _bone_mirror_permutation()
+"""``lengths[list(BONE_MIRROR_PERMUTATION)]`` swaps every left bone with its right counterpart
+(midline bones map to themselves)."""
+
+
 def skeleton_definition() -> dict[str, object]:
     """The skeleton definition message apps receive on connect and at ``GET /api/skeleton``."""
     return {

@@ -198,3 +198,70 @@ def enforce_bone_lengths(joints: npt.ArrayLike, reference: npt.ArrayLike) -> Flo
             hung, out[..., parents, :] + offset_of[..., children, :], out[..., children, :]
         )
     return out
+
+
+def _bone_groups() -> tuple[npt.NDArray[np.intp], ...]:
+    """Bones split into groups that share no joint (a greedy edge colouring of the tree), so a
+    group's corrections can be applied at once without two bones writing the same joint."""
+    groups: list[list[int]] = []
+    used: list[set[int]] = []
+    for b, (parent, child) in enumerate(BONES):
+        for group, joints in zip(groups, used, strict=True):
+            if parent not in joints and child not in joints:
+                group.append(b)
+                joints.update((parent, child))
+                break
+        else:
+            groups.append([b])
+            used.append({parent, child})
+    return tuple(np.array(g, dtype=np.intp) for g in groups)
+
+
+BONE_GROUPS: Final = _bone_groups()
+
+
+def project_bone_lengths(
+    joints: npt.ArrayLike,
+    reference: npt.ArrayLike,
+    mobility: npt.ArrayLike | None = None,
+    iterations: int = 5,
+) -> FloatArray:
+    """Give a skeleton the reference bone lengths while moving its joints as little as possible.
+
+    Position-based distance constraints: each pass shortens or lengthens every bone to its
+    reference by moving both ends along the bone, the parent by the share ``m_p / (m_p + m_c)``
+    of the mobilities; ``iterations`` passes (Gauss–Seidel over :data:`BONE_GROUPS`) then one
+    outward :func:`enforce_bone_lengths` pass make the lengths exact. Unlike that pass alone,
+    which keeps SpineBase fixed and pushes a whole subtree along with every correction, the
+    correction is spread over both ends, so errors do not pile up towards the hands and feet.
+
+    Args:
+        joints: (..., 25, 3) metres. reference: (..., 24) metres in :data:`BONES` order, NaN for
+            a bone to leave alone. mobility: (..., 25) how freely each joint may move (> 0;
+            e.g. 1 − confidence); None: all alike.
+
+    Returns:
+        (..., 25, 3) float64; NaN joints stay NaN.
+    """
+    out = np.array(joints, dtype=np.float64, copy=True)
+    ref = np.asarray(reference, dtype=np.float64)
+    move = np.ones(out.shape[:-1]) if mobility is None else np.asarray(mobility, np.float64)
+    move = np.maximum(move, 1e-6)
+    # Per group, fixed over the passes: its bones' ends, targets and the parents' shares.
+    plan = []
+    for group in BONE_GROUPS:
+        parents, children = _BONE_PARENT[group], _BONE_CHILD[group]
+        m_parent, m_child = move[..., parents], move[..., children]
+        share = (m_parent / (m_parent + m_child))[..., None]
+        plan.append((parents, children, ref[..., group], share, 1.0 - share))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for _ in range(iterations):
+            for parents, children, target, share, rest in plan:
+                offsets = out[..., children, :] - out[..., parents, :]
+                norms = np.sqrt(np.vecdot(offsets, offsets))
+                # NaN (unknown target, missing end) and ±inf (zero length) become 0: no move.
+                stretch = np.nan_to_num((norms - target) / norms, nan=0.0, posinf=0.0, neginf=0.0)
+                delta = np.nan_to_num(offsets * stretch[..., None], nan=0.0)
+                out[..., parents, :] += share * delta
+                out[..., children, :] -= rest * delta
+    return enforce_bone_lengths(out, ref)

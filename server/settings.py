@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 from protocol.constants import DEFAULT_HTTP_PORT, DEFAULT_ZMQ_PORT, HEARTBEAT_INTERVAL_S
 
@@ -33,8 +34,13 @@ class FusionSettings:
     """Bone-length term ``exp(−|l − l_ref| / scale)``: 0.88 at 1 cm off, 0.29 at 10 cm."""
     bone_estimate_window: int = 300
     """Online reference lengths: median of the last this many good observations per bone."""
-    bone_estimate_min_samples: int = 30
+    bone_estimate_min_samples: int = 10
     """An online reference bone length is used once it has this many observations."""
+    bone_estimate_symmetric: bool = True
+    """Left and right bones share their observations in the online estimate (one length each)."""
+    bone_estimate_lock_samples: int | None = None
+    """An online reference bone length stops changing once it has this many good observations
+    (None: it follows the last ``bone_estimate_window`` observations for ever)."""
     use_range_of_motion: bool = True
     """Multiply in the range-of-motion term (anatomical limits table in server/confidence.py)."""
     rom_scale_deg: float = 15.0
@@ -84,7 +90,13 @@ class FusionSettings:
     kalman_predict_s: float = 0.0
     """Extrapolate the Kalman output this far ahead (compensates latency; adds overshoot)."""
     enforce_bone_lengths: bool = True
-    """Rescale each fused bone to the person's reference length (directions kept)."""
+    """Give each fused skeleton the person's reference bone lengths."""
+    bone_length_fit: Literal["projection", "chain"] = "projection"
+    """How: ``projection`` moves both ends of each bone, as little as possible in all
+    (server.fusion.project_bone_lengths); ``chain`` rescales bone after bone outward from
+    SpineBase, keeping each parent where it is (server.fusion.enforce_bone_lengths)."""
+    bone_fit_iterations: int = 5
+    """Passes of ``projection`` before its exact finishing pass."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -35,7 +35,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.optimize import linear_sum_assignment
 
-from protocol.skeleton import BONES, JOINT_COUNT, TrackingState
+from protocol.skeleton import BONE_MIRROR_PERMUTATION, BONES, JOINT_COUNT, TrackingState
 from server.confidence import (
     align_yaw,
     bone_length_factors,
@@ -52,6 +52,7 @@ from server.fusion import (
     TRUNK_JOINTS,
     enforce_bone_lengths,
     fuse_views_batch,
+    project_bone_lengths,
     state_weights,
     trunk_distance,
 )
@@ -62,6 +63,7 @@ FloatArray = npt.NDArray[np.float64]
 BONE_COUNT = len(BONES)
 _BONE_PARENT = np.array([p for p, _ in BONES])
 _BONE_CHILD = np.array([c for _, c in BONES])
+_BONE_MIRROR = np.array(BONE_MIRROR_PERMUTATION)
 MAX_SPEED_MPS = 3.0
 """Trunk speed used for prediction is clipped to this (a person, not a glitch)."""
 GOOD_VIEW_COS = 0.5
@@ -127,15 +129,31 @@ BoneSource = Literal["set", "estimated", "none"]
 class BoneModel:
     """A person's reference bone lengths: set by hand, or estimated online.
 
-    The online estimate is the per-bone median of the last ``window`` observations from good
+    The online estimate is, per bone, the median of the last ``window`` observations from good
     views (both ends Tracked, the person facing the sensor within 60°, after mirror
-    correction); a bone is used once it has ``min_samples`` observations.
+    correction). A bone that good views have not shown ``min_samples`` times yet (hand tips and
+    thumbs, often) takes the median of any view where both ends are Tracked instead. With
+    ``symmetric``, a left bone and its right counterpart share their observations: people are
+    left-right symmetric to a percent or two, and twice the samples settle the estimate sooner.
+    The estimate is refreshed every step while it settles, then every ``_REFRESH_EVERY`` steps.
     """
 
-    def __init__(self, window: int = 300, min_samples: int = 30) -> None:
+    _REFRESH_EVERY = 10
+
+    def __init__(
+        self,
+        window: int = 300,
+        min_samples: int = 30,
+        symmetric: bool = True,
+        lock_samples: int | None = None,
+    ) -> None:
         self.set_lengths: FloatArray | None = None
         self.min_samples = min_samples
+        self.symmetric = symmetric
+        self.lock_samples = lock_samples
+        self._locked = np.zeros(BONE_COUNT, dtype=bool)
         self._samples: deque[FloatArray] = deque(maxlen=window)
+        self._fallback: deque[FloatArray] = deque(maxlen=window)
         self._estimate = np.full(BONE_COUNT, np.nan)
         self._since_update = 0
 
@@ -154,19 +172,52 @@ class BoneModel:
         """(24,) the lengths fusion uses: the set ones, else the estimate (NaN: unknown)."""
         return self.set_lengths.copy() if self.set_lengths is not None else self.estimate
 
-    def observe(self, lengths: FloatArray) -> None:
-        """Add one step's observed lengths (24,), NaN for bones not observed well."""
-        if not np.isfinite(lengths).any():
+    def observe(self, lengths: FloatArray, fallback: FloatArray | None = None) -> None:
+        """Add one step's observed lengths.
+
+        Args:
+            lengths: (24,) metres from good views, NaN for bones not observed well.
+            fallback: (24,) metres from any view with both ends Tracked, or None.
+        """
+        good = bool(np.isfinite(lengths).any())
+        spare = fallback is not None and bool(np.isfinite(fallback).any())
+        if not (good or spare):
             return
-        self._samples.append(lengths)
+        if good:
+            self._samples.append(lengths)
+        if spare:
+            assert fallback is not None
+            self._fallback.append(fallback)
         self._since_update += 1
-        if self._since_update >= 10 or len(self._samples) == self.min_samples:
+        settling = len(self._samples) < 2 * self.min_samples
+        if settling or self._since_update >= self._REFRESH_EVERY:
             self._since_update = 0
-            data = np.stack(self._samples)
-            counts = np.isfinite(data).sum(axis=0)
-            enough = counts >= self.min_samples
-            median = nanmedian_axis(data, axis=0)  # all-NaN bones stay NaN
-            self._estimate = np.where(enough, median, np.nan)
+            estimate = self._median(self._samples)
+            missing = ~np.isfinite(estimate)
+            if missing.any():
+                estimate[missing] = self._median(self._fallback)[missing]
+            self._estimate = np.where(self._locked, self._estimate, estimate)
+            if self.lock_samples is not None and self._samples:
+                data = np.stack(self._samples)
+                counts = np.isfinite(data).sum(axis=0)
+                if self.symmetric:
+                    counts = counts + counts[_BONE_MIRROR]
+                    self._locked |= counts >= 2 * self.lock_samples
+                else:
+                    self._locked |= counts >= self.lock_samples
+
+    def _median(self, samples: deque[FloatArray]) -> FloatArray:
+        """Per-bone median of ``samples``; NaN where fewer than ``min_samples``."""
+        if not samples:
+            return np.full(BONE_COUNT, np.nan)
+        data = np.stack(samples)
+        if self.symmetric:
+            data = np.concatenate([data, data[:, _BONE_MIRROR]], axis=0)
+            needed = 2 * self.min_samples
+        else:
+            needed = self.min_samples
+        enough = np.isfinite(data).sum(axis=0) >= needed
+        return np.where(enough, nanmedian_axis(data, axis=0), np.nan)  # all-NaN bones stay NaN
 
 
 @dataclass(slots=True)
@@ -264,7 +315,12 @@ class PersonTracker:
         s = self.settings
         person_id = self._next_id
         self._next_id += 1
-        bones = BoneModel(s.bone_estimate_window, s.bone_estimate_min_samples)
+        bones = BoneModel(
+            s.bone_estimate_window,
+            s.bone_estimate_min_samples,
+            s.bone_estimate_symmetric,
+            s.bone_estimate_lock_samples,
+        )
         if self.default_bone_lengths is not None:
             bones.set_lengths = self.default_bone_lengths.copy()
         track = _Track(
@@ -529,9 +585,13 @@ class PersonTracker:
             references = np.stack([tracks[p].bones.reference() for p in alive])
             fitted = [i for i in range(len(alive)) if np.isfinite(references[i]).any()]
             if fitted:
-                enforced = enforce_bone_lengths(
-                    np.stack([outputs[alive[i]] for i in fitted]), references[fitted]
-                )
+                skeletons = np.stack([outputs[alive[i]] for i in fitted])
+                if s.bone_length_fit == "chain":
+                    enforced = enforce_bone_lengths(skeletons, references[fitted])
+                else:
+                    enforced = project_bone_lengths(
+                        skeletons, references[fitted], iterations=s.bone_fit_iterations
+                    )
                 for k, i in enumerate(fitted):
                     outputs[alive[i]] = enforced[k]
 
@@ -581,17 +641,19 @@ class PersonTracker:
             return
         good_view = np.isfinite(cosines) & (cosines >= GOOD_VIEW_COS)
         tracked = states == TrackingState.TRACKED
-        ok = tracked[:, _BONE_PARENT] & tracked[:, _BONE_CHILD] & good_view[:, None]
+        both_tracked = tracked[:, _BONE_PARENT] & tracked[:, _BONE_CHILD]
         lengths = np.linalg.norm(joints[:, _BONE_CHILD] - joints[:, _BONE_PARENT], axis=-1)
-        lengths = np.where(ok & np.isfinite(lengths), lengths, np.nan)
-        padded = np.full((len(tracks), widest, BONE_COUNT), np.nan)
-        padded[person_of, slot_of] = lengths
-        observed = np.isfinite(padded).any(axis=(1, 2)) & estimating
+        usable = both_tracked & np.isfinite(lengths)
+        # (persons, views, bones, 2): good views only, then any view.
+        padded = np.full((len(tracks), widest, BONE_COUNT, 2), np.nan)
+        padded[person_of, slot_of, :, 0] = np.where(usable & good_view[:, None], lengths, np.nan)
+        padded[person_of, slot_of, :, 1] = np.where(usable, lengths, np.nan)
+        observed = np.isfinite(padded[..., 1]).any(axis=(1, 2)) & estimating
         if not observed.any():
             return
-        per_bone = nanmedian_axis(padded, axis=1)
+        per_bone = nanmedian_axis(padded, axis=1)  # (persons, bones, 2)
         for p in np.flatnonzero(observed):
-            tracks[p].bones.observe(per_bone[p])
+            tracks[p].bones.observe(per_bone[p, :, 0], per_bone[p, :, 1])
 
     @staticmethod
     def _update_motion(track: _Track, fused: FloatArray, t_s: float) -> None:

@@ -291,3 +291,102 @@ def test_several_persons_fuse_as_if_alone() -> None:
                 np.testing.assert_array_equal(got[i].joint_sources, expected.joint_sources)
                 assert got[i].mirrored == expected.mirrored
     assert len(got) == 3
+
+
+def test_bone_projection_gives_exact_lengths_and_moves_joints_less_than_the_chain() -> None:
+    from protocol.skeleton import bone_lengths
+    from server.fusion import enforce_bone_lengths, project_bone_lengths
+
+    rng = np.random.default_rng(21)
+    truth = np.stack([standing(0.3 * k, 0.0) for k in range(4)])
+    noisy = truth + rng.normal(scale=0.02, size=truth.shape)  # 2 cm per axis, like a fused view
+    reference = np.stack([bone_lengths(t) for t in truth])
+    projected = project_bone_lengths(noisy, reference)
+    chained = enforce_bone_lengths(noisy, reference)
+    for p in range(4):
+        np.testing.assert_allclose(bone_lengths(projected[p]), reference[p], atol=1e-9)
+        np.testing.assert_allclose(
+            project_bone_lengths(noisy[p], reference[p]), projected[p], atol=1e-12
+        )
+    # Spreading each correction over both ends keeps the skeleton nearer to what was measured,
+    # and (the noise being unbiased) nearer to the truth, than pushing whole subtrees outward.
+    moved_projected = np.linalg.norm(projected - noisy, axis=-1).mean()
+    moved_chained = np.linalg.norm(chained - noisy, axis=-1).mean()
+    assert moved_projected < 0.6 * moved_chained, (moved_projected, moved_chained)
+    error_projected = np.linalg.norm(projected - truth, axis=-1).mean()
+    error_noisy = np.linalg.norm(noisy - truth, axis=-1).mean()
+    error_chained = np.linalg.norm(chained - truth, axis=-1).mean()
+    assert error_projected < min(error_noisy, error_chained), (
+        error_projected,
+        error_noisy,
+        error_chained,
+    )
+
+
+def test_bone_projection_leaves_unknown_bones_missing_joints_and_right_lengths_alone() -> None:
+    from protocol.skeleton import JointId, bone_lengths
+    from server.fusion import project_bone_lengths
+
+    joints = standing()
+    lengths = bone_lengths(joints)
+    np.testing.assert_allclose(project_bone_lengths(joints, lengths), joints, atol=1e-12)
+    unknown = np.full(24, np.nan)
+    np.testing.assert_array_equal(project_bone_lengths(joints, unknown), joints)
+    holed = joints.copy()
+    holed[JointId.WRIST_LEFT] = np.nan
+    out = project_bone_lengths(holed, lengths * 1.1)
+    assert np.isnan(out[JointId.WRIST_LEFT]).all()
+    assert np.isfinite(np.delete(out, JointId.WRIST_LEFT, axis=0)).all()
+    # A joint that may not move stays put: the other end of its bones does the moving.
+    mobility = np.ones(JOINT_COUNT)
+    mobility[JointId.SPINE_BASE] = 1e-9
+    pinned = project_bone_lengths(joints, lengths * 1.1, mobility, iterations=30)
+    assert np.linalg.norm(pinned[JointId.SPINE_BASE] - joints[JointId.SPINE_BASE]) < 1e-3
+
+
+def test_online_bone_estimate_pools_left_and_right_and_falls_back_to_any_view() -> None:
+    from protocol.skeleton import BONE_MIRROR_PERMUTATION, BONES, JointId
+    from server.tracking import BoneModel
+
+    index = {bone: b for b, bone in enumerate(BONES)}
+    upper_left = index[(JointId.SHOULDER_LEFT, JointId.ELBOW_LEFT)]
+    upper_right = index[(JointId.SHOULDER_RIGHT, JointId.ELBOW_RIGHT)]
+    tip_left = index[(JointId.HAND_LEFT, JointId.HAND_TIP_LEFT)]
+    assert BONE_MIRROR_PERMUTATION[upper_left] == upper_right
+
+    good = np.full(24, 0.30)
+    good[upper_left], good[upper_right] = 0.28, 0.32
+    good[tip_left] = np.nan  # never seen from a good view
+    tip_right = index[(JointId.HAND_RIGHT, JointId.HAND_TIP_RIGHT)]
+    good[tip_right] = np.nan
+    fallback = good.copy()
+    fallback[[tip_left, tip_right]] = 0.08
+
+    pooled = BoneModel(min_samples=5)
+    apart = BoneModel(min_samples=5, symmetric=False)
+    for model in (pooled, apart):
+        for _ in range(4):
+            model.observe(good, fallback)
+        assert model.source == "none", "not before min_samples observations"
+        model.observe(good, fallback)
+        assert model.source == "estimated"
+    assert pooled.estimate[upper_left] == pytest.approx(0.30)
+    assert pooled.estimate[upper_right] == pytest.approx(0.30)
+    assert apart.estimate[upper_left] == pytest.approx(0.28)
+    assert apart.estimate[upper_right] == pytest.approx(0.32)
+    assert pooled.estimate[tip_left] == pytest.approx(0.08), "from the any-view fallback"
+
+
+def test_online_bone_estimate_can_lock() -> None:
+    from server.tracking import BoneModel
+
+    model = BoneModel(min_samples=3, lock_samples=10)
+    for _ in range(10):
+        model.observe(np.full(24, 0.30))
+    for _ in range(50):
+        model.observe(np.full(24, 0.40))
+    np.testing.assert_allclose(model.estimate, 0.30)
+    follows = BoneModel(min_samples=3)
+    for length in [0.30] * 10 + [0.40] * 50:
+        follows.observe(np.full(24, length))
+    np.testing.assert_allclose(follows.estimate, 0.40)
