@@ -76,6 +76,14 @@ class FusionSettings:
     mirror_anatomy_weight_m: float = 0.1
     """Cost per joint out of its range of motion under a labelling (bent knees look
     hyperextended and feet point backwards when left and right are swapped)."""
+    mirror_walk_check_s: float = 0.5
+    """A person whose fused skeleton faces against the way it walks for this long is taken to
+    be mirrored as a whole (every view's labelling and the track swapped); 0 = off. People walk
+    forwards: a track that started mirrored can otherwise stay so, since every view is then
+    labelled to agree with it (docs/fusion.md)."""
+    mirror_walk_min_speed_mps: float = 0.5
+    """Walking speed from which the walking direction is trusted (side steps and shuffles are
+    slower; brisk walking backwards for longer than ``mirror_walk_check_s`` is misread)."""
 
     # --- temporal filter (server/filters.py) --------------------------------------------------
     filter: str = "one_euro"

@@ -206,6 +206,15 @@ class BoneModel:
                 else:
                     self._locked |= counts >= self.lock_samples
 
+    def mirror(self) -> None:
+        """Swap left and right in the online samples (the track they came from was mirrored)."""
+        for samples in (self._samples, self._fallback):
+            swapped = [sample[_BONE_MIRROR] for sample in samples]
+            samples.clear()
+            samples.extend(swapped)
+        self._estimate = self._estimate[_BONE_MIRROR]
+        self._locked = self._locked[_BONE_MIRROR]
+
     def _median(self, samples: deque[FloatArray]) -> FloatArray:
         """Per-bone median of ``samples``; NaN where fewer than ``min_samples``."""
         if not samples:
@@ -234,6 +243,8 @@ class _Track:
     velocity: FloatArray = field(default_factory=lambda: np.zeros(3))
     mirror_memory: dict[tuple[str, int], bool] = field(default_factory=dict)
     fused_once: bool = False
+    backward_since_s: float | None = None
+    walk_swaps: int = 0
 
     def predicted(self, t_s: float) -> FloatArray:
         """Joints moved by the trunk's velocity to ``t_s`` (association only)."""
@@ -328,19 +339,58 @@ class PersonTracker:
             joints.copy(),
             t_s,
             t_s,
-            make_filter(
-                s.filter,
-                min_cutoff_hz=s.one_euro_min_cutoff_hz,
-                beta=s.one_euro_beta,
-                d_cutoff_hz=s.one_euro_d_cutoff_hz,
-                accel_std=s.kalman_accel_std,
-                meas_std_m=s.kalman_meas_std_m,
-                predict_s=s.kalman_predict_s,
-            ),
+            self._make_filter(),
             bones,
         )
         self._tracks[person_id] = track
         return track
+
+    def _make_filter(self) -> JointFilter:
+        s = self.settings
+        return make_filter(
+            s.filter,
+            min_cutoff_hz=s.one_euro_min_cutoff_hz,
+            beta=s.one_euro_beta,
+            d_cutoff_hz=s.one_euro_d_cutoff_hz,
+            accel_std=s.kalman_accel_std,
+            meas_std_m=s.kalman_meas_std_m,
+            predict_s=s.kalman_predict_s,
+        )
+
+    def _check_walking_direction(self, track: _Track, t_s: float) -> None:
+        """Swap a whole track that walks backwards for too long (``mirror_walk_check_s``).
+
+        A track born mirrored (every sensor seeing the person from the side or behind) stays
+        mirrored, since each view is labelled to agree with it and its own facing, reversed,
+        makes the back views look like front ones. The walking direction is the one cue that
+        does not depend on the labels. The swap takes effect from the next step: the track's
+        skeleton and every view's remembered labelling are swapped, the filter restarts (it
+        would otherwise sweep the limbs across), the online bone samples swap sides.
+        """
+        s = self.settings
+        if s.mirror_walk_check_s <= 0 or not s.use_mirror_correction:
+            return
+        speed = float(np.linalg.norm(track.velocity))
+        facing = facing_direction(track.joints)
+        backwards = (
+            speed >= s.mirror_walk_min_speed_mps
+            and bool(np.isfinite(facing).all())
+            and float(np.dot(facing, track.velocity)) < -0.5 * speed
+        )
+        if not backwards:
+            track.backward_since_s = None
+            return
+        if track.backward_since_s is None:
+            track.backward_since_s = t_s
+            return
+        if t_s - track.backward_since_s < s.mirror_walk_check_s:
+            return
+        track.joints = track.joints[PERMUTATION]
+        track.mirror_memory = {key: not m for key, m in track.mirror_memory.items()}
+        track.filter = self._make_filter()
+        track.bones.mirror()
+        track.backward_since_s = None
+        track.walk_swaps += 1
 
     def _associate(self, views: list[View], t_s: float) -> dict[int, list[View]]:
         gate = self.settings.association_gate_m
@@ -578,6 +628,7 @@ class PersonTracker:
 
         for p, track in enumerate(tracks):
             self._update_motion(track, fused[p], t_s)
+            self._check_walking_direction(track, t_s)
         alive = [p for p in range(persons) if np.isfinite(fused[p]).any()]
         filtered = filter_all([tracks[p].filter for p in alive], fused[alive], t_s)
         outputs = dict(zip(alive, filtered, strict=True))
