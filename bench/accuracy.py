@@ -85,19 +85,21 @@ _BASE = FusionSettings(
 _BONE = replace(_BASE, use_bone_length=True)
 _ROM = replace(_BONE, use_range_of_motion=True)
 _MIRROR = replace(_ROM, use_mirror_correction=True)
-_FACING = replace(_MIRROR, use_facing=True, use_distance=True)
+_FACING = replace(_MIRROR, use_facing=True)
+_DISTANCE = replace(_FACING, use_distance=True)
 METHODS: dict[str, FusionSettings] = {
     "plain mean": replace(_BASE, state_weights=(0.0, 1.0, 1.0)),
     "tracking-state weights (report A baseline)": _BASE,
     "+ bone length": _BONE,
     "+ range of motion": _ROM,
     "+ mirrored-view correction": _MIRROR,
-    "+ facing and distance": _FACING,
-    "full: + One Euro filter, reference bone lengths": FusionSettings(),
+    "+ facing": _FACING,
+    "+ distance (off by default)": _DISTANCE,
+    "full (defaults): + facing, One Euro filter, bone-length fit": FusionSettings(),
     "full, Kalman filter instead": FusionSettings(filter="kalman"),
 }
 BASELINE = "tracking-state weights (report A baseline)"
-FULL = "full: + One Euro filter, reference bone lengths"
+FULL = "full (defaults): + facing, One Euro filter, bone-length fit"
 BEST_SINGLE = "best single sensor (oracle, per run)"
 
 
