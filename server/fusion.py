@@ -224,7 +224,7 @@ def project_bone_lengths(
     joints: npt.ArrayLike,
     reference: npt.ArrayLike,
     mobility: npt.ArrayLike | None = None,
-    iterations: int = 5,
+    iterations: int = 3,
 ) -> FloatArray:
     """Give a skeleton the reference bone lengths while moving its joints as little as possible.
 
@@ -243,25 +243,29 @@ def project_bone_lengths(
     Returns:
         (..., 25, 3) float64; NaN joints stay NaN.
     """
-    out = np.array(joints, dtype=np.float64, copy=True)
+    original = np.asarray(joints, dtype=np.float64)
     ref = np.asarray(reference, dtype=np.float64)
+    missing = ~np.isfinite(original).all(axis=-1)  # (..., 25)
+    out = np.where(missing[..., None], 0.0, original)  # NaN-free while iterating
     move = np.ones(out.shape[:-1]) if mobility is None else np.asarray(mobility, np.float64)
     move = np.maximum(move, 1e-6)
-    # Per group, fixed over the passes: its bones' ends, targets and the parents' shares.
+    # Per group, fixed over the passes: its bones' ends, targets and the ends' shares (0 for a
+    # bone with an unknown target or a missing end: it moves nothing).
     plan = []
     for group in BONE_GROUPS:
         parents, children = _BONE_PARENT[group], _BONE_CHILD[group]
+        target = ref[..., group]
+        usable = np.isfinite(target) & ~missing[..., parents] & ~missing[..., children]
         m_parent, m_child = move[..., parents], move[..., children]
-        share = (m_parent / (m_parent + m_child))[..., None]
-        plan.append((parents, children, ref[..., group], share, 1.0 - share))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        for _ in range(iterations):
-            for parents, children, target, share, rest in plan:
-                offsets = out[..., children, :] - out[..., parents, :]
-                norms = np.sqrt(np.vecdot(offsets, offsets))
-                # NaN (unknown target, missing end) and ±inf (zero length) become 0: no move.
-                stretch = np.nan_to_num((norms - target) / norms, nan=0.0, posinf=0.0, neginf=0.0)
-                delta = np.nan_to_num(offsets * stretch[..., None], nan=0.0)
-                out[..., parents, :] += share * delta
-                out[..., children, :] -= rest * delta
+        share = np.where(usable, m_parent / (m_parent + m_child), 0.0)[..., None]
+        rest = np.where(usable, 1.0, 0.0)[..., None] - share
+        plan.append((parents, children, np.where(usable, target, 0.0), share, rest))
+    for _ in range(iterations):
+        for parents, children, target, share, rest in plan:
+            offsets = out[..., children, :] - out[..., parents, :]
+            norms = np.maximum(np.sqrt(np.vecdot(offsets, offsets)), 1e-12)
+            delta = offsets * ((norms - target) / norms)[..., None]
+            out[..., parents, :] += share * delta
+            out[..., children, :] -= rest * delta
+    out[missing] = np.nan
     return enforce_bone_lengths(out, ref)

@@ -106,7 +106,7 @@ class FusionSettings:
     """How: ``projection`` moves both ends of each bone, as little as possible in all
     (server.fusion.project_bone_lengths); ``chain`` rescales bone after bone outward from
     SpineBase, keeping each parent where it is (server.fusion.enforce_bone_lengths)."""
-    bone_fit_iterations: int = 5
+    bone_fit_iterations: int = 3
     """Passes of ``projection`` before its exact finishing pass."""
 
 

@@ -371,12 +371,12 @@ class PersonTracker:
         if s.mirror_walk_check_s <= 0 or not s.use_mirror_correction:
             return
         speed = float(np.linalg.norm(track.velocity))
-        facing = facing_direction(track.joints)
-        backwards = (
-            speed >= s.mirror_walk_min_speed_mps
-            and bool(np.isfinite(facing).all())
-            and float(np.dot(facing, track.velocity)) < -0.5 * speed
-        )
+        backwards = False
+        if speed >= s.mirror_walk_min_speed_mps:
+            facing = facing_direction(track.joints)
+            backwards = bool(np.isfinite(facing).all()) and (
+                float(np.dot(facing, track.velocity)) < -0.5 * speed
+            )
         if not backwards:
             track.backward_since_s = None
             return
