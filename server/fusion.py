@@ -245,7 +245,7 @@ def project_bone_lengths(
     """
     original = np.asarray(joints, dtype=np.float64)
     ref = np.asarray(reference, dtype=np.float64)
-    missing = ~np.isfinite(original).all(axis=-1)  # (..., 25)
+    missing = np.asarray(~np.isfinite(original).all(axis=-1))  # (..., 25)
     out = np.where(missing[..., None], 0.0, original)  # NaN-free while iterating
     move = np.ones(out.shape[:-1]) if mobility is None else np.asarray(mobility, np.float64)
     move = np.maximum(move, 1e-6)

@@ -12,6 +12,8 @@ both and let an application set, or clear, a person's lengths:
 - ``DELETE /api/persons/{id}/bones``: back to the online estimate.
 - ``PUT /api/bones/default`` / ``DELETE /api/bones/default``: lengths every *new* person starts
   with (useful with a single known performer).
+- ``GET /api/fusion/settings``: the fusion settings in use (defaults, or the deployment's
+  ``--fusion-config`` file; read-only: they are chosen when the server starts).
 
 Include with ``app.include_router(router)``; the routes read ``request.app.state.hub.tracker``.
 """
@@ -26,6 +28,7 @@ from fastapi import APIRouter, HTTPException, Request
 from pydantic import BaseModel
 
 from server.confidence import BONE_NAMES
+from server.fusion_config import fusion_settings_as_dict
 from server.tracking import PersonTracker
 
 router = APIRouter(tags=["fusion"])
@@ -123,3 +126,9 @@ async def delete_default_bones(request: Request) -> dict[str, object]:
     """New persons go back to online estimation."""
     _tracker(request).default_bone_lengths = None
     return {"default": None}
+
+
+@router.get("/api/fusion/settings")
+async def get_fusion_settings(request: Request) -> dict[str, object]:
+    """The fusion settings in use (docs/fusion.md §9), by name."""
+    return {"fusion": fusion_settings_as_dict(_tracker(request).settings)}

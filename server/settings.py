@@ -89,7 +89,7 @@ class FusionSettings:
     slower; brisk walking backwards for longer than ``mirror_walk_check_s`` is misread)."""
 
     # --- temporal filter (server/filters.py) --------------------------------------------------
-    filter: str = "one_euro"
+    filter: Literal["one_euro", "kalman", "none"] = "one_euro"
     """``none``, ``one_euro`` (default) or ``kalman``; applied per person after fusion."""
     one_euro_min_cutoff_hz: float = 1.5
     one_euro_beta: float = 10.0

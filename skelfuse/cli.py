@@ -11,9 +11,13 @@ import sys
 import threading
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from agent.sources.registry import SOURCE_KINDS
 from protocol.constants import DEFAULT_HTTP_PORT, DEFAULT_ZMQ_PORT
+
+if TYPE_CHECKING:
+    from server.settings import FusionSettings
 
 
 class UsageError(Exception):
@@ -75,6 +79,19 @@ def _stop_on_signals() -> threading.Event:
 # --- subcommands ----------------------------------------------------------------------------
 
 
+def fusion_settings(path: str | None) -> FusionSettings:
+    """Defaults, or the deployment's file; a bad file stops the command with its problems."""
+    from server.fusion_config import FusionConfigError, load_fusion_settings
+    from server.settings import FusionSettings
+
+    if path is None:
+        return FusionSettings()
+    try:
+        return load_fusion_settings(path)
+    except FusionConfigError as exc:
+        raise UsageError(str(exc)) from exc
+
+
 def cmd_server(args: argparse.Namespace) -> int:
     try:
         import uvicorn
@@ -95,7 +112,9 @@ def cmd_server(args: argparse.Namespace) -> int:
             server_keys(Path(args.data))  # fail closed, and say how to fix it
         except KeysMissing as exc:
             raise UsageError(str(exc)) from exc
+    fusion = fusion_settings(args.fusion_config)
     settings = Settings(
+        fusion=fusion,
         http_host=host,
         http_port=port,
         zmq_endpoint=args.zmq,
@@ -238,6 +257,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         metavar="ORIGIN",
         help="another browser origin allowed on the WebSocket (repeatable)",
+    )
+    server.add_argument(
+        "--fusion-config",
+        default=None,
+        metavar="FILE",
+        help="TOML file with a [fusion] table overriding fusion settings (docs/fusion.md §9)",
     )
     server.add_argument(
         "--curve",

@@ -124,6 +124,7 @@ def register(subparsers: Any) -> None:
         help="NTU files: X,Y,Z,YAW_DEG[,PITCH_DEG] per file, in order",
     )
     replay.add_argument("--out", default=None, help="write fused frames as JSON Lines here")
+    _fusion_config_option(replay)
     _export_options(replay, required=False)
     replay.set_defaults(func=cmd_replay)
 
@@ -131,6 +132,7 @@ def register(subparsers: Any) -> None:
         "export", help="export fused motion (from a recording or a fused .jsonl) to a file"
     )
     export.add_argument("file", help="a .sfrec recording or fused frames as .jsonl")
+    _fusion_config_option(export)
     _export_options(export, required=True)
     export.set_defaults(func=cmd_export)
 
@@ -188,6 +190,23 @@ def _recording_path(
     return files[0], None
 
 
+def _fusion_config_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--fusion-config",
+        default=None,
+        metavar="FILE",
+        help="a recording: fuse it with this TOML [fusion] table's settings (docs/fusion.md §9)",
+    )
+
+
+def _replay_settings(args: argparse.Namespace) -> Any:
+    """Server settings for an offline replay: defaults, or ``--fusion-config``."""
+    from server.settings import Settings
+    from skelfuse.cli import fusion_settings
+
+    return Settings(fusion=fusion_settings(args.fusion_config))  # CliError on a bad file
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     from recording.format import RecordingError
     from recording.replay import ReplayStats, replay, write_jsonl
@@ -197,7 +216,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     stats = ReplayStats()
     started = time.perf_counter()
     try:
-        frames = list(replay(path, stats=stats))
+        frames = list(replay(path, _replay_settings(args), stats=stats))
     except RecordingError as exc:
         raise CliError(str(exc)) from exc
     finally:
@@ -232,6 +251,10 @@ def cmd_export(args: argparse.Namespace) -> int:
 
     source = Path(args.file)
     if source.suffix == ".jsonl":
+        if args.fusion_config:
+            raise CliError(
+                f"{source} is fused already: --fusion-config applies to a .sfrec recording"
+            )
         take = take_from_jsonl(source)
     else:
         from recording.format import RecordingError
@@ -239,7 +262,7 @@ def cmd_export(args: argparse.Namespace) -> int:
         from recording.take import take_from_frames
 
         try:
-            take = take_from_frames(replay(source))
+            take = take_from_frames(replay(source, _replay_settings(args)))
         except RecordingError as exc:
             raise CliError(str(exc)) from exc
     _export(take, args, _default_target(source, args))

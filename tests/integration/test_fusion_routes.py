@@ -6,7 +6,7 @@ The app is driven in-process through ``httpx.ASGITransport`` (no sockets, no lif
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 
 import httpx
 import numpy as np
@@ -20,6 +20,7 @@ from server.hub import FusionHub
 from server.routes_fusion import router
 from server.settings import FusionSettings, Settings
 from server.tracking import View
+from tests.integration.conftest import LiveServer
 
 
 @pytest.fixture
@@ -80,3 +81,17 @@ async def test_default_bones_apply_to_new_persons(client: httpx.AsyncClient) -> 
     got = (await client.get(f"/api/persons/{person_id}/bones")).json()
     assert got["source"] == "set"
     assert (await client.delete("/api/bones/default")).json() == {"default": None}
+
+
+def test_fusion_settings_in_use_are_shown(server_factory: Callable[..., LiveServer]) -> None:
+    """On a real uvicorn server started with a deployment's settings."""
+    fusion = FusionSettings(filter="kalman", mirror_walk_check_s=0.0, state_weights=(0, 0.5, 1))
+    live = server_factory(fusion=fusion)
+    response = httpx.get(live.http_url + "/api/fusion/settings", timeout=5)
+    assert response.status_code == 200
+    shown = response.json()["fusion"]
+    assert shown["filter"] == "kalman"
+    assert shown["mirror_walk_check_s"] == 0.0
+    assert shown["state_weights"] == [0, 0.5, 1]
+    assert shown["use_distance"] is False and shown["bone_length_fit"] == "projection"
+    assert set(shown) == set(FusionSettings.__dataclass_fields__)
