@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import os
 import secrets
 import signal
 import subprocess
@@ -170,11 +171,16 @@ def run_demo(
     keys = key_paths(data_dir)
     create_server_keys(data_dir)
     agent_keys = {sensor_id: create_agent_keys(data_dir, sensor_id) for sensor_id, _ in layout}
+    # The children get their own process group: Ctrl-C in a terminal signals the whole
+    # foreground group, and a server signalled twice (by the terminal, then by the demo's own
+    # orderly stop) aborts its shutdown with a traceback. The demo alone stops them.
+    own_group: dict[str, Any] = {"process_group": 0} if os.name == "posix" else {}
     server = subprocess.Popen(
         [
             *python, "server", "--http", f"{host}:{port}", "--zmq", zmq_bind,
             "--data", str(data_dir), "--curve", "--token", token,
-        ]
+        ],
+        **own_group,
     )  # fmt: skip
     processes: list[subprocess.Popen[bytes]] = [server]
     stop = threading.Event()
@@ -182,7 +188,11 @@ def run_demo(
     def on_signal(signum: int, frame: object) -> None:
         stop.set()
 
-    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    # SIGHUP too (the terminal closed): the children, in their own group, would outlive it.
+    stop_signals = [signal.SIGINT, signal.SIGTERM]
+    if hasattr(signal, "SIGHUP"):
+        stop_signals.append(signal.SIGHUP)
+    previous = {s: signal.signal(s, on_signal) for s in stop_signals}
     url = f"http://{agent_host}:{port}"
     try:
         if not _wait_healthy(url, server, timeout_s=30.0):
@@ -208,7 +218,8 @@ def run_demo(
                         *(["--no-pose-hint"] if calibration == "auto" else []),
                         f"--key={agent_keys[sensor_id]}",
                         f"--server-key={keys.server_public}",
-                    ]
+                    ],
+                    **own_group,
                 )
             )
         logger.info("demo running: %d simulated sensors, %d people", sensors, persons)

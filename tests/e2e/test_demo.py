@@ -3,7 +3,13 @@
 from __future__ import annotations
 
 import json
+import os
+import signal
+import subprocess
+import sys
 import time
+import urllib.request
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,7 +18,8 @@ from websockets.asyncio.client import connect
 from agent.sim.performer import ProceduralPerformer
 from protocol.skeleton import JOINT_COUNT, JointId
 from protocol.transform import apply
-from tests.conftest import DemoStack
+from tests.conftest import PROJECT_ROOT, DemoStack
+from tests.support import free_port, wait_until
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(180)]
 
@@ -85,3 +92,70 @@ def test_demo_reports_sensors_and_health(demo_stack: DemoStack) -> None:
     health = demo_stack.get_json("/api/health")
     assert health["status"] == "ok"
     assert health["sensors_online"] == 3
+
+
+def _children(parent: int) -> list[int]:
+    """Process ids whose parent is ``parent``, from /proc (no procps needed)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue  # gone meanwhile
+        # "pid (comm) state ppid ...": comm may hold spaces and parentheses.
+        if int(stat.rsplit(")", 1)[1].split()[1]) == parent:
+            found.append(int(entry.name))
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+@pytest.mark.skipif(
+    not Path("/proc").is_dir(), reason="process groups and /proc: Linux (CI runs it)"
+)
+def test_ctrl_c_in_a_terminal_stops_the_demo_cleanly(tmp_path: Path) -> None:
+    """A terminal's Ctrl-C signals the whole foreground process group, not just the demo: every
+    process must still stop in order, without a traceback, and none may be left behind."""
+    http_port, zmq_port = free_port(), free_port()
+    log_path = tmp_path / "demo.log"
+    with log_path.open("wb") as log:
+        process = subprocess.Popen(
+            [sys.executable, "-m", "skelfuse", "demo", "--sensors", "2", "--persons", "1",
+             "--http", f"127.0.0.1:{http_port}", "--zmq-port", str(zmq_port),
+             "--calibration", "truth", "--duration", "120"],
+            stdout=log, stderr=subprocess.STDOUT, cwd=PROJECT_ROOT, start_new_session=True,
+        )  # fmt: skip
+        try:
+
+            def online() -> bool:
+                url = f"http://127.0.0.1:{http_port}/api/health"
+                try:
+                    with urllib.request.urlopen(url, timeout=2) as response:
+                        return bool(json.load(response)["sensors_online"] == 2)
+                except OSError:
+                    return False
+
+            assert wait_until(online, timeout_s=60), log_path.read_text()
+            children = _children(process.pid)
+            assert len(children) == 3, (children, log_path.read_text())  # server + 2 agents
+            os.killpg(process.pid, signal.SIGINT)  # what the terminal does
+            assert process.wait(timeout=30) == 0
+        finally:
+            if process.poll() is None:
+                os.killpg(process.pid, signal.SIGKILL)
+                process.wait()
+    text = log_path.read_text()
+    assert "Traceback" not in text, text
+    assert "demo stopped" in text, text
+    deadline = time.monotonic() + 5
+    while any(_alive(pid) for pid in children) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not any(_alive(pid) for pid in children), "a demo process outlived the demo"
