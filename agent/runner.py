@@ -58,9 +58,18 @@ def run_agent(
     deadline = None if duration_s is None else time.monotonic() + duration_s
     seq = 0
     last_report = time.monotonic()
+
+    def running() -> bool:
+        return not stop.is_set() and (deadline is None or time.monotonic() < deadline)
+
     try:
         link.poll()
-        while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
+        # A live sensor is drained from the start (frames before registration are dropped,
+        # never queued); a recording would play its beginning to nobody, so it waits.
+        if getattr(source, "waits_for_server", False):
+            while running() and not link.registered:
+                link.poll(timeout_s=0.05)
+        while running():
             capture = source.next_capture(timeout_s=0.1)
             link.poll()
             if capture is None:

@@ -88,6 +88,9 @@ class ReplaySource:
         self._first_ns = self._frames[0].t_capture_ns
         self._span_ns = self._frames[-1].t_capture_ns - self._first_ns + round(1e9 / self._fps)
 
+    waits_for_server = True
+    """The runner starts playback once the server has registered this agent."""
+
     @property
     def sensor_type(self) -> str:
         return "replay"

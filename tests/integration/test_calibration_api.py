@@ -280,13 +280,19 @@ def test_auto_calibration_finds_sensors_and_floor_with_no_equipment(
         if "icp" not in result["method"]:
             assert result["metrics"]["icp_applied"] is False, result
             assert any("kept the initial pose" in w for w in result["warnings"]), result
-    # Floor: every sensor at its true height, world +Y is the true up.
+    # Floor: every sensor at its true height, world +Y is the true up. Where ICP refused its
+    # correction (above), the height and tilt are the skeleton fit's, levelled: looser.
     for sensor_id in ids:
         pose = np.asarray(results[sensor_id]["T_world_from_sensor"])
-        assert pose[1, 3] == pytest.approx(POSITIONS[sensor_id][1], abs=0.02)
+        refined = results[sensor_id]["metrics"].get("icp_applied", True)
+        height_mm, tilt_deg = (20, 0.7) if refined else (50, 2.0)
+        assert pose[1, 3] == pytest.approx(POSITIONS[sensor_id][1], abs=height_mm / 1000), (
+            sensor_id,
+            results[sensor_id],
+        )
         up_in_sensor = pose[1, :3]
         true_up = true_pose(sensor_id)[1, :3]
-        assert np.degrees(np.arccos(np.clip(up_in_sensor @ true_up, -1, 1))) < 0.7
+        assert np.degrees(np.arccos(np.clip(up_in_sensor @ true_up, -1, 1))) < tilt_deg
     assert run["floor"]["source"] == "depth"
 
 

@@ -69,14 +69,19 @@ def test_record_stop_list_download_replay(
         daemon=True,
     )
     thread.start()
+
+    def replayed() -> dict[str, object]:
+        rows = httpx.get(live_server.http_url + "/api/sensors", timeout=5).json()["sensors"]
+        return next((row for row in rows if row["id"] == "cam-a-replay"), {})
+
     try:
-        assert wait_until(
-            lambda: any(
-                s["id"] == "cam-a-replay" and s["frames_received"] > 20 and s["type"] == "replay"
-                for s in httpx.get(live_server.http_url + "/api/sensors").json()["sensors"]
-            ),
-            15,
-        ), httpx.get(live_server.http_url + "/api/sensors").json()
+        # Playback starts once the server has registered the agent: every recorded frame
+        # arrives, the first ones too (before, a slow registration lost the start of the take).
+        assert wait_until(lambda: replayed().get("frames_received") == source.frame_count, 30), (
+            source.frame_count,
+            replayed(),
+        )
+        assert replayed()["type"] == "replay"
     finally:
         stop.set()
         thread.join(timeout=10)
