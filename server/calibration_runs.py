@@ -243,7 +243,7 @@ class CalibrationService:
                     if spec.method == "icp":
                         raise
                     # auto degrades to the skeleton result rather than failing outright (a
-                    # source without depth, e.g. the Kinect v2 source today).
+                    # source without depth, e.g. a replayed recording).
                     run.warnings.append(f"no ICP refinement: {exc}; kept the skeleton poses")
                     clouds = None
                 if clouds is not None:

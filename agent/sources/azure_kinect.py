@@ -28,8 +28,8 @@ import numpy as np
 import numpy.typing as npt
 
 from agent.sources.base import Capture, SensorError
+from agent.sources.depth_reply import cloud_reply
 from agent.sources.kinect_v2 import DeviceClock
-from protocol.constants import MAX_RESPONSE_BYTES
 from protocol.skeleton import AZURE_JOINT_COUNT, azure_to_kinect_v2
 from protocol.transform import Matrix4
 from protocol.wire import Body
@@ -38,10 +38,6 @@ logger = logging.getLogger(__name__)
 
 DEPTH_MODES: Final = ("NFOV_2X2BINNED", "NFOV_UNBINNED", "WFOV_2X2BINNED", "WFOV_UNBINNED")
 _US_NS = 1000
-# docs/protocol.md §6.5: one bin of N×3 float32; the server accepts answers up to
-# MAX_RESPONSE_BYTES while it waits for them, and asks for at most 60 000 points.
-DEFAULT_CLOUD_POINTS: Final = 20_000
-MAX_CLOUD_POINTS: Final = min(60_000, (MAX_RESPONSE_BYTES - 4096) // 12)
 
 
 def import_pykinect_azure() -> Any:
@@ -180,30 +176,22 @@ class AzureKinectSource:
     def depth_cloud(self, params: dict[str, Any]) -> dict[str, Any]:
         """The ``depth_cloud`` request: points of the latest depth image, our sensor frame.
 
-        Params: ``max_points`` (default 20 000, at most :data:`MAX_CLOUD_POINTS`) and
+        Params: ``max_points`` (default 20 000, at most
+        :data:`agent.sources.depth_reply.MAX_CLOUD_POINTS`) and
         ``max_range_m`` (default 5.0). Result (docs/protocol.md §6.5): ``points``, one bin of
         float32 little-endian x, y, z triples (metres), ``count``, ``frame`` = ``"sensor"``,
         ``device_timestamp_us``.
         """
         if self._last_capture is None:
             raise SensorError("no depth capture yet")
-        max_points = min(int(params.get("max_points", DEFAULT_CLOUD_POINTS)), MAX_CLOUD_POINTS)
-        max_range = float(params.get("max_range_m", 5.0))
         ok, points_mm = self._last_capture.get_pointcloud()
         if not ok:
             raise SensorError("the SDK returned no point cloud for the latest capture")
-        points = cloud_to_sensor_frame(points_mm)
-        points = points[np.linalg.norm(points, axis=1) <= max_range]
-        if points.shape[0] > max_points:
-            step = int(np.ceil(points.shape[0] / max_points))
-            points = points[::step][:max_points]
-        return {
-            "frame": "sensor",
-            "units": "m",
-            "count": int(points.shape[0]),
-            "points": np.ascontiguousarray(points, dtype="<f4").tobytes(),
-            "device_timestamp_us": self._clock.last_device_ticks,
-        }
+        return cloud_reply(
+            cloud_to_sensor_frame(points_mm),
+            params,
+            device_timestamp_us=self._clock.last_device_ticks,
+        )
 
     def close(self) -> None:
         for closer in (

@@ -24,6 +24,7 @@ re-anchored if the two drift apart by more than 50 ms.
 
 from __future__ import annotations
 
+import ctypes
 import importlib
 import importlib.abc
 import importlib.machinery
@@ -37,8 +38,10 @@ from types import ModuleType
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from agent.sources.base import Capture, SensorError
+from agent.sources.depth_reply import cloud_reply
 from protocol.skeleton import JOINT_COUNT
 from protocol.transform import Matrix4
 from protocol.wire import Body
@@ -202,12 +205,15 @@ class KinectV2Source:
         runtime_factory: Callable[[], Any] | None = None,
         wall_clock_ns: Callable[[], int] = time.time_ns,
         sleep: Callable[[float], None] = time.sleep,
+        depth: bool = True,
     ) -> None:
         if runtime_factory is None:
             v2, runtime = import_pykinect2()
+            # Depth too: calibration asks for clouds (depth_cloud); the SDK streams both at once.
+            streams = v2.FrameSourceTypes_Body | (v2.FrameSourceTypes_Depth if depth else 0)
 
             def runtime_factory() -> Any:
-                return runtime.PyKinectRuntime(v2.FrameSourceTypes_Body)
+                return runtime.PyKinectRuntime(streams)
 
         try:
             self._runtime = runtime_factory()
@@ -219,6 +225,7 @@ class KinectV2Source:
         self._clock = DeviceClock(_TICK_NS, wall_clock_ns)
         self._sleep = sleep
         self._last_relative: int | None = None
+        self._point_type: Any = None
 
     @property
     def sensor_type(self) -> str:
@@ -254,6 +261,50 @@ class KinectV2Source:
             if remaining <= 0:
                 return None
             self._sleep(min(0.002, remaining))
+
+    def request_handlers(self) -> dict[str, Callable[[dict[str, Any]], Any]]:
+        """Requests this source answers (docs/protocol.md §6.5)."""
+        return {"depth_cloud": self.depth_cloud}
+
+    def depth_cloud(self, params: dict[str, Any]) -> dict[str, object]:
+        """The ``depth_cloud`` request: the latest depth image as points in our sensor frame.
+
+        The SDK's coordinate mapper turns the 512×424 depth image (mm) into camera space, which
+        is our sensor frame already (metres, +X to the sensor's left, +Y up, +Z forward), with
+        the device's own lens calibration. Pixels without depth map to −inf and are dropped.
+        Params and reply as :func:`agent.sources.depth_reply.cloud_reply`.
+
+        Raises:
+            SensorError: no depth stream, or no depth frame yet.
+        """
+        depth = self._runtime.get_last_depth_frame()
+        if depth is None:
+            raise SensorError("the Kinect v2 was opened without its depth stream")
+        depth = np.ascontiguousarray(depth, dtype=np.uint16)
+        if not depth.any():
+            raise SensorError("no depth frame from the Kinect v2 yet")
+        return cloud_reply(
+            self._camera_points(depth),
+            params,
+            device_relative_time=self._clock.last_device_ticks,
+        )
+
+    def _camera_points(self, depth: npt.NDArray[np.uint16]) -> npt.NDArray[np.float32]:
+        """(N, 3) camera-space points of a flat depth image, through ICoordinateMapper."""
+        if self._point_type is None:
+            v2, _ = import_pykinect2()
+            self._point_type = v2._CameraSpacePoint
+        count = int(depth.size)
+        out = (self._point_type * count)()
+        # PyKinect2 exposes the sensor's ICoordinateMapper only as this attribute.
+        self._runtime._mapper.MapDepthFrameToCameraSpace(
+            ctypes.c_uint(count),
+            depth.ctypes.data_as(ctypes.POINTER(ctypes.c_ushort)),
+            ctypes.c_uint(count),
+            out,
+        )
+        points: npt.NDArray[np.float32] = np.frombuffer(out, dtype=np.float32).reshape(count, 3)
+        return points
 
     def close(self) -> None:
         self._runtime.close()

@@ -120,6 +120,39 @@ def test_kinect_v2_source_maps_joints_states_floor_and_time(fake_pykinect2: None
     encode(Frame(1, first.t_capture_ns, first.bodies, first.floor))  # wire-valid
 
 
+def test_kinect_v2_depth_cloud_goes_through_the_coordinate_mapper(fake_pykinect2: None) -> None:
+    """Depth image → the SDK's ICoordinateMapper (called with the ctypes types its COM
+    signature demands) → our sensor frame, limited and packed as the server asks."""
+    from agent.sources.kinect_v2 import KinectV2Source, import_pykinect2
+
+    _, runtime = import_pykinect2()
+    runtime.DEPTH.clear()
+    source = KinectV2Source(sleep=lambda s: None)
+    assert source.request_handlers()["depth_cloud"] == source.depth_cloud
+    with pytest.raises(SensorError, match="no depth frame"):
+        source.depth_cloud({})
+    depth = np.zeros((runtime.DEPTH_HEIGHT, runtime.DEPTH_WIDTH), dtype=np.uint16)
+    depth[:100] = 2500  # a wall 2.5 m away, at the top of the image
+    depth[100:200, :256] = 6000  # beyond the request's range
+    runtime.DEPTH.append(depth.ravel())  # the rest: no depth (the SDK maps it to -inf)
+    result = source.depth_cloud({"max_points": 20_000, "max_range_m": 5.0})
+    assert source._runtime._mapper.calls == 1
+    points = np.frombuffer(result["points"], dtype="<f4").reshape(-1, 3)
+    assert result["frame"] == "sensor" and result["count"] == points.shape[0]
+    assert 10_000 <= points.shape[0] <= 20_000  # 51 200 wall points, thinned to the limit
+    np.testing.assert_allclose(points[:, 2], 2.5, atol=1e-6)
+    assert (points[:, 1] > 0).all(), "the top of the image is above the sensor: +Y up"
+    message = encode(Response(1, True, result))
+    decoded = decode(message, MAX_RESPONSE_BYTES)
+    assert isinstance(decoded, Response) and decoded.result["count"] == result["count"]
+    source.close()
+
+    body_only = KinectV2Source(sleep=lambda s: None, depth=False)
+    with pytest.raises(SensorError, match="without its depth stream"):
+        body_only.depth_cloud({})
+    body_only.close()
+
+
 # --- Azure Kinect / Femto ----------------------------------------------------------------------
 
 

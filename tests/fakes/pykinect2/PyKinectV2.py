@@ -2,10 +2,15 @@
 # fmt: off
 # Fake of pykinect2/PyKinectV2.py (PyPI 0.1.0): the few names skelfuse uses, and the lines that
 # break the real module on 64-bit Python / comtypes >= 1.2.
-from ctypes import POINTER, Structure, c_uint32, c_ulonglong, c_void_p, c_wchar_p, sizeof
+from ctypes import POINTER, Structure, c_float, c_uint32, c_ulonglong, c_void_p, c_wchar_p, sizeof
 
+FrameSourceTypes_Depth = 8
 FrameSourceTypes_Body = 32
 JointType_Count = 25
+
+
+class _CameraSpacePoint(Structure):
+    _fields_ = [("x", c_float), ("y", c_float), ("z", c_float)]
 
 
 class tagSTATSTG(Structure):
