@@ -260,9 +260,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     server.add_argument(
         "--fusion-config",
-        default=None,
+        default=os.environ.get("SKELFUSE_FUSION_CONFIG") or None,
         metavar="FILE",
-        help="TOML file with a [fusion] table overriding fusion settings (docs/fusion.md §9)",
+        help="TOML file with a [fusion] table overriding fusion settings (docs/fusion.md §9; "
+        "or set SKELFUSE_FUSION_CONFIG)",
     )
     server.add_argument(
         "--curve",

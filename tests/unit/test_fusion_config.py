@@ -120,3 +120,17 @@ def test_replay_fuses_with_the_files_settings_and_refuses_a_bad_file(
     jsonl = tmp_path / "defaults.jsonl"
     assert main(["export", str(jsonl), "--export", "csv", "--fusion-config", str(bad)]) == 2
     assert "fused already" in capsys.readouterr().err
+
+
+def test_the_server_takes_the_file_from_the_environment_too(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    from skelfuse.cli import build_parser
+
+    assert build_parser().parse_args(["server"]).fusion_config is None
+    path = str(write(tmp_path, "[fusion]\n"))
+    monkeypatch.setenv("SKELFUSE_FUSION_CONFIG", path)
+    assert build_parser().parse_args(["server"]).fusion_config == path
+    assert build_parser().parse_args(["server", "--fusion-config", "x.toml"]).fusion_config == (
+        "x.toml"
+    )
