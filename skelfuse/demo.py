@@ -107,6 +107,16 @@ def calibrate(
                 logger.info("calibration: %s (%.0f%%)", last_stage, run["progress"] * 100)
             stop.wait(0.5)
             run = _api(f"{url}/api/calibration/runs/{run['id']}")
+        doubtful = sorted(
+            sensor_id
+            for sensor_id, result in (run.get("results") or {}).items()
+            if (result.get("metrics") or {}).get("trust") == "low"
+        )
+        if run["state"] == "done" and doubtful and attempt < attempts:
+            # As a user would: the people did not walk enough in this window; try again.
+            logger.warning("calibration of %s is doubtful (low trust); running it again",
+                           ", ".join(doubtful))  # fmt: skip
+            continue
         if run["state"] == "done":
             committed = _api(f"{url}/api/calibration/runs/{run['id']}/commit", "POST", {}, token)
             for sensor_id, result in sorted(run["results"].items()):

@@ -12,7 +12,7 @@ import pytest
 import uvicorn
 
 from agent.runner import run_agent
-from agent.sim.performer import ProceduralPerformer
+from agent.sim.performer import Performer, ProceduralPerformer
 from agent.sources.sim import SimSource
 from protocol.transform import look_at_pose
 from server.app import create_app
@@ -103,10 +103,10 @@ def agent_factory() -> Iterator[Callable[..., AgentThread]]:
     def make(
         endpoint: str, sensor_id: str, position: tuple[float, float, float] = (0.0, 1.0, 3.0),
         persons: int = 1, clock_offset_ns: int = 0, pose_hint: bool = True,
-        clock_drift_ppm: float = 0.0, depth: bool = True,
+        clock_drift_ppm: float = 0.0, depth: bool = True, performer: Performer | None = None,
     ) -> AgentThread:  # fmt: skip
         source = SimSource(
-            ProceduralPerformer(persons), look_at_pose(position, (0.0, 1.0, 0.0)),
+            performer or ProceduralPerformer(persons), look_at_pose(position, (0.0, 1.0, 0.0)),
             seed=len(agents) + 1, clock_offset_ns=clock_offset_ns, send_pose_hint=pose_hint,
             clock_drift_ppm=clock_drift_ppm,
         )  # fmt: skip
