@@ -192,19 +192,13 @@ class BoneModel:
         settling = len(self._samples) < 2 * self.min_samples
         if settling or self._since_update >= self._REFRESH_EVERY:
             self._since_update = 0
-            estimate = self._median(self._samples)
+            estimate, counts = self._median(self._samples)
             missing = ~np.isfinite(estimate)
             if missing.any():
-                estimate[missing] = self._median(self._fallback)[missing]
+                estimate[missing] = self._median(self._fallback)[0][missing]
             self._estimate = np.where(self._locked, self._estimate, estimate)
-            if self.lock_samples is not None and self._samples:
-                data = np.stack(self._samples)
-                counts = np.isfinite(data).sum(axis=0)
-                if self.symmetric:
-                    counts = counts + counts[_BONE_MIRROR]
-                    self._locked |= counts >= 2 * self.lock_samples
-                else:
-                    self._locked |= counts >= self.lock_samples
+            if self.lock_samples is not None:
+                self._locked |= counts >= self.lock_samples
 
     def mirror(self) -> None:
         """Swap left and right in the online samples (the track they came from was mirrored)."""
@@ -215,18 +209,19 @@ class BoneModel:
         self._estimate = self._estimate[_BONE_MIRROR]
         self._locked = self._locked[_BONE_MIRROR]
 
-    def _median(self, samples: deque[FloatArray]) -> FloatArray:
-        """Per-bone median of ``samples``; NaN where fewer than ``min_samples``."""
+    def _median(self, samples: deque[FloatArray]) -> tuple[FloatArray, FloatArray]:
+        """Per-bone median of ``samples`` (NaN where fewer than ``min_samples``) and the
+        observations behind it, per bone (with ``symmetric``: the mean of a left/right pair's)."""
         if not samples:
-            return np.full(BONE_COUNT, np.nan)
+            return np.full(BONE_COUNT, np.nan), np.zeros(BONE_COUNT)
         data = np.stack(samples)
+        sides = 1
         if self.symmetric:
             data = np.concatenate([data, data[:, _BONE_MIRROR]], axis=0)
-            needed = 2 * self.min_samples
-        else:
-            needed = self.min_samples
-        enough = np.isfinite(data).sum(axis=0) >= needed
-        return np.where(enough, nanmedian_axis(data, axis=0), np.nan)  # all-NaN bones stay NaN
+            sides = 2
+        counts = np.isfinite(data).sum(axis=0) / sides
+        median = np.where(counts >= self.min_samples, nanmedian_axis(data, axis=0), np.nan)
+        return median, counts  # all-NaN bones stay NaN
 
 
 @dataclass(slots=True)

@@ -28,7 +28,12 @@ class Capture:
 
 
 class SkeletonSource(Protocol):
-    """What the agent needs from a sensor."""
+    """What the agent needs from a sensor.
+
+    Optional, looked up by the runner with ``getattr``: ``request_handlers()`` (requests the
+    source answers, e.g. ``depth_cloud``), ``wall_clock_ns`` (a source with its own clock) and
+    ``waits_for_server`` (True: start reading only once registered, for recordings).
+    """
 
     @property
     def sensor_type(self) -> str:
