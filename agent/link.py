@@ -26,9 +26,9 @@ from typing import Any
 import zmq
 import zmq.auth
 
-from protocol.constants import AGENT_SEND_HWM, HEARTBEAT_INTERVAL_S, HEARTBEAT_LIVENESS
-from protocol.errors import DecodeError
-from protocol.wire import (
+from skelfuse.protocol.constants import AGENT_SEND_HWM, HEARTBEAT_INTERVAL_S, HEARTBEAT_LIVENESS
+from skelfuse.protocol.errors import DecodeError
+from skelfuse.protocol.wire import (
     Bye,
     ErrorMessage,
     Frame,

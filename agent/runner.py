@@ -7,10 +7,10 @@ import threading
 import time
 from collections.abc import Callable
 
-from agent import __version__
-from agent.link import AgentLink, CurveKeys, RequestHandler
-from agent.sources.base import SkeletonSource
-from protocol.wire import Frame, Hello
+from skelfuse.agent import __version__
+from skelfuse.agent.link import AgentLink, CurveKeys, RequestHandler
+from skelfuse.agent.sources.base import SkeletonSource
+from skelfuse.protocol.wire import Frame, Hello
 
 logger = logging.getLogger(__name__)
 

@@ -52,17 +52,17 @@ from scipy.optimize import linear_sum_assignment
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from agent.sim.kinect_model import KinectV2Params, SimulatedKinect
-from agent.sim.mocap import load_asf_amc, load_bvh
-from agent.sim.performer import ClipPerformer, Performer, ProceduralPerformer
-from agent.sim.scenarios import Line, LineWalkers, Segment, Standing
-from protocol.skeleton import BONES, JOINT_COUNT, JointId, TrackingState, bone_lengths
-from protocol.transform import apply, look_at_pose
-from protocol.wire import Body, Frame, Hello, encode
-from server.filters import ConstantVelocityKalman, JointFilter, OneEuroFilter
-from server.fusion import TRUNK_JOINTS
-from server.hub import FusionHub
-from server.settings import FusionSettings, Settings
+from skelfuse.agent.sim.kinect_model import KinectV2Params, SimulatedKinect
+from skelfuse.agent.sim.mocap import load_asf_amc, load_bvh
+from skelfuse.agent.sim.performer import ClipPerformer, Performer, ProceduralPerformer
+from skelfuse.agent.sim.scenarios import Line, LineWalkers, Segment, Standing
+from skelfuse.protocol.skeleton import BONES, JOINT_COUNT, JointId, TrackingState, bone_lengths
+from skelfuse.protocol.transform import apply, look_at_pose
+from skelfuse.protocol.wire import Body, Frame, Hello, encode
+from skelfuse.server.filters import ConstantVelocityKalman, JointFilter, OneEuroFilter
+from skelfuse.server.fusion import TRUNK_JOINTS
+from skelfuse.server.hub import FusionHub
+from skelfuse.server.settings import FusionSettings, Settings
 
 CMU_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "cmu-mocap"
 FPS = 30.0

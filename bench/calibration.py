@@ -45,15 +45,15 @@ import numpy.typing as npt
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from agent.sim.kinect_model import KinectV2Params, SimulatedKinect
-from agent.sim.performer import ProceduralPerformer
-from agent.sim.room import Room, capture_point_cloud, default_room
-from calibration.errors import CalibrationError
-from calibration.floor import fit_floor, floor_error, floor_from_kinect_plane
-from calibration.icp import IcpResult, refine_all
-from calibration.rigid import fit_rigid, pose_error
-from calibration.skeleton_pose import SKELETON_ERROR_BOUND, solve_from_skeletons
-from protocol.transform import Matrix4, apply, invert, look_at_pose
+from skelfuse.agent.sim.kinect_model import KinectV2Params, SimulatedKinect
+from skelfuse.agent.sim.performer import ProceduralPerformer
+from skelfuse.agent.sim.room import Room, capture_point_cloud, default_room
+from skelfuse.calibration.errors import CalibrationError
+from skelfuse.calibration.floor import fit_floor, floor_error, floor_from_kinect_plane
+from skelfuse.calibration.icp import IcpResult, refine_all
+from skelfuse.calibration.rigid import fit_rigid, pose_error
+from skelfuse.calibration.skeleton_pose import SKELETON_ERROR_BOUND, solve_from_skeletons
+from skelfuse.protocol.transform import Matrix4, apply, invert, look_at_pose
 
 F64 = npt.NDArray[np.float64]
 FPS = 30.0

@@ -68,12 +68,12 @@ import numpy.typing as npt
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from agent.link import AgentLink
-from agent.sim.performer import ProceduralPerformer
-from calibration.store import Calibration, CalibrationStore, SensorCalibration
-from protocol.skeleton import JOINT_COUNT, TrackingState
-from protocol.transform import Matrix4, apply, invert, look_at_pose
-from protocol.wire import Body, Frame, Hello, encode
+from skelfuse.agent.link import AgentLink
+from skelfuse.agent.sim.performer import ProceduralPerformer
+from skelfuse.calibration.store import Calibration, CalibrationStore, SensorCalibration
+from skelfuse.protocol.skeleton import JOINT_COUNT, TrackingState
+from skelfuse.protocol.transform import Matrix4, apply, invert, look_at_pose
+from skelfuse.protocol.wire import Body, Frame, Hello, encode
 
 ROOT = Path(__file__).resolve().parents[1]
 FPS = 30.0
@@ -616,11 +616,11 @@ class FusionTiming:
 
 def fusion_timing(sensors: int, bodies: int, steps: int = 1000, warmup: int = 100) -> FusionTiming:
     """Median cost of one fused frame (and of ingesting one frame) on the production classes."""
-    from server.broadcast import encode_message
-    from server.hub import FusionHub
-    from server.messages import frame_json
-    from server.settings import Settings
-    from server.tracking import FusedPerson, PersonTracker, View
+    from skelfuse.server.broadcast import encode_message
+    from skelfuse.server.hub import FusionHub
+    from skelfuse.server.messages import frame_json
+    from skelfuse.server.settings import Settings
+    from skelfuse.server.tracking import FusedPerson, PersonTracker, View
 
     tracker_times: list[float] = []
 

@@ -34,9 +34,9 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from calibration.errors import InvalidInput, NoOverlap
-from calibration.rigid import rotation_angle_deg
-from protocol.transform import Matrix4, apply, is_rigid
+from skelfuse.calibration.errors import InvalidInput, NoOverlap
+from skelfuse.calibration.rigid import rotation_angle_deg
+from skelfuse.protocol.transform import Matrix4, apply, is_rigid
 
 FloatArray = npt.NDArray[np.float64]
 

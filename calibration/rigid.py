@@ -12,8 +12,8 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from calibration.errors import DegenerateGeometry, InvalidInput, NotEnoughCorrespondences
-from protocol.transform import Matrix4
+from skelfuse.calibration.errors import DegenerateGeometry, InvalidInput, NotEnoughCorrespondences
+from skelfuse.protocol.transform import Matrix4
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -50,10 +50,10 @@ from typing import Final, Literal
 import numpy as np
 import numpy.typing as npt
 
-from calibration.errors import DegenerateGeometry, InvalidInput, NotEnoughCorrespondences
-from calibration.rigid import fit_rigid, rotation_angle_deg
-from protocol.skeleton import JOINT_COUNT, JointId, TrackingState
-from protocol.transform import Matrix4
+from skelfuse.calibration.errors import DegenerateGeometry, InvalidInput, NotEnoughCorrespondences
+from skelfuse.calibration.rigid import fit_rigid, rotation_angle_deg
+from skelfuse.protocol.skeleton import JOINT_COUNT, JointId, TrackingState
+from skelfuse.protocol.transform import Matrix4
 
 J = JointId
 FloatArray = npt.NDArray[np.float64]

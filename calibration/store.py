@@ -24,8 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from calibration.errors import CalibrationError
-from protocol.transform import Matrix4, is_rigid
+from skelfuse.calibration.errors import CalibrationError
+from skelfuse.protocol.transform import Matrix4, is_rigid
 
 FILE_NAME = "calibration.json"
 HISTORY_DIR = "calibration-history"

@@ -1,8 +1,8 @@
 """Shared skeleton model and agent <-> server wire protocol. Depends on numpy and msgpack only."""
 
-from protocol.constants import PROTOCOL_VERSION
-from protocol.errors import DecodeError, ProtocolError, VersionMismatch
-from protocol.skeleton import (
+from skelfuse.protocol.constants import PROTOCOL_VERSION
+from skelfuse.protocol.errors import DecodeError, ProtocolError, VersionMismatch
+from skelfuse.protocol.skeleton import (
     BONES,
     JOINT_COUNT,
     JOINT_NAMES,

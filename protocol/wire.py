@@ -20,9 +20,14 @@ import msgpack
 import numpy as np
 import numpy.typing as npt
 
-from protocol.constants import MAX_BODIES, MAX_COORDINATE_M, MAX_MESSAGE_BYTES, PROTOCOL_VERSION
-from protocol.errors import DecodeError, VersionMismatch
-from protocol.skeleton import JOINT_COUNT, SKELETON_NAME, TrackingState
+from skelfuse.protocol.constants import (
+    MAX_BODIES,
+    MAX_COORDINATE_M,
+    MAX_MESSAGE_BYTES,
+    PROTOCOL_VERSION,
+)
+from skelfuse.protocol.errors import DecodeError, VersionMismatch
+from skelfuse.protocol.skeleton import JOINT_COUNT, SKELETON_NAME, TrackingState
 
 SENSOR_ID_PATTERN: Final = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
 SENSOR_TYPES: Final = frozenset({"kinect_v2", "azure_kinect", "femto", "sim", "replay"})

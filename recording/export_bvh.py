@@ -32,8 +32,8 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from protocol.skeleton import JOINT_COUNT, JOINT_NAMES, PARENTS, JointId
-from recording.take import PersonTrack, TakeError, resample
+from skelfuse.protocol.skeleton import JOINT_COUNT, JOINT_NAMES, PARENTS, JointId
+from skelfuse.recording.take import PersonTrack, TakeError, resample
 
 F64 = npt.NDArray[np.float64]
 J = JointId

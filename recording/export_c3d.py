@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from protocol.skeleton import JOINT_COUNT, JOINT_NAMES
-from recording.take import Take, TakeError, resample
+from skelfuse.protocol.skeleton import JOINT_COUNT, JOINT_NAMES
+from skelfuse.recording.take import Take, TakeError, resample
 
 F64 = npt.NDArray[np.float64]
 BLOCK = 512

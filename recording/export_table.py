@@ -15,8 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from protocol.skeleton import JOINT_NAMES, skeleton_definition
-from recording.take import Take
+from skelfuse.protocol.skeleton import JOINT_NAMES, skeleton_definition
+from skelfuse.recording.take import Take
 
 
 def csv_header() -> list[str]:

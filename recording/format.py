@@ -27,7 +27,7 @@ from typing import Any, BinaryIO, Final
 import msgpack
 import numpy as np
 
-from protocol.transform import Matrix4, is_rigid
+from skelfuse.protocol.transform import Matrix4, is_rigid
 
 logger = logging.getLogger(__name__)
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
 
-from recording.format import Header, RecordingError, pack_record
+from skelfuse.recording.format import Header, RecordingError, pack_record
 
 logger = logging.getLogger(__name__)
 

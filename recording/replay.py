@@ -15,12 +15,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
-from calibration.store import Calibration, SensorCalibration
-from protocol.skeleton import skeleton_definition
-from recording.format import Header, ReadStatus, RecordingReader
-from server.hub import FusedFrame, FusionHub
-from server.messages import person_json
-from server.settings import Settings
+from skelfuse.calibration.store import Calibration, SensorCalibration
+from skelfuse.protocol.skeleton import skeleton_definition
+from skelfuse.recording.format import Header, ReadStatus, RecordingReader
+from skelfuse.server.hub import FusedFrame, FusionHub
+from skelfuse.server.messages import person_json
+from skelfuse.server.settings import Settings
 
 
 @dataclass(slots=True)

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from protocol.skeleton import JOINT_COUNT
+from skelfuse.protocol.skeleton import JOINT_COUNT
 
 F64 = npt.NDArray[np.float64]
 

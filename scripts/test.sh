@@ -24,6 +24,7 @@ echo "==> ruff"
 "$VENV/bin/ruff" check .
 "$VENV/bin/ruff" format --check .
 echo "==> mypy"
+"$VENV/bin/python" scripts/typecheck_tree.py  # mypy reads the layers through these links
 "$VENV/bin/mypy"
 echo "==> pytest"
 set +e

@@ -21,18 +21,18 @@ from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 from prometheus_client import CollectorRegistry, make_asgi_app
 
-from calibration.store import CalibrationStore
-from protocol.skeleton import skeleton_definition
-from server import __version__, routes_calibration, routes_fusion, routes_recordings
-from server.auth import SensorAuthenticator
-from server.broadcast import Broadcaster, Variant, encode_message, pump
-from server.calibration_runs import CalibrationService
-from server.hub import FusionHub
-from server.ingest import fusion_loop, ingest_loop, liveness_loop, open_router, send_to
-from server.messages import person_json
-from server.metrics import SkelfuseCollector
-from server.security import HttpGuard, origin_ok, token_ok
-from server.settings import Settings
+from skelfuse.calibration.store import CalibrationStore
+from skelfuse.protocol.skeleton import skeleton_definition
+from skelfuse.server import __version__, routes_calibration, routes_fusion, routes_recordings
+from skelfuse.server.auth import SensorAuthenticator
+from skelfuse.server.broadcast import Broadcaster, Variant, encode_message, pump
+from skelfuse.server.calibration_runs import CalibrationService
+from skelfuse.server.hub import FusionHub
+from skelfuse.server.ingest import fusion_loop, ingest_loop, liveness_loop, open_router, send_to
+from skelfuse.server.messages import person_json
+from skelfuse.server.metrics import SkelfuseCollector
+from skelfuse.server.security import HttpGuard, origin_ok, token_ok
+from skelfuse.server.settings import Settings
 
 logger = logging.getLogger(__name__)
 STATIC_DIR = Path(__file__).parent / "static"

@@ -27,7 +27,7 @@ import zmq.auth
 from zmq.auth.asyncio import AsyncioAuthenticator
 from zmq.utils import z85
 
-from protocol.wire import SENSOR_ID_PATTERN
+from skelfuse.protocol.wire import SENSOR_ID_PATTERN
 
 logger = logging.getLogger(__name__)
 ZAP_DOMAIN = "skelfuse"

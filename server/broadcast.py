@@ -19,8 +19,8 @@ from typing import Any
 
 import msgpack
 
-from server.hub import FusedFrame
-from server.messages import frame_json
+from skelfuse.server.hub import FusedFrame
+from skelfuse.server.messages import frame_json
 
 logger = logging.getLogger(__name__)
 

@@ -28,17 +28,21 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from calibration.errors import CalibrationError, NotEnoughCorrespondences
-from calibration.floor import FloorFit, fit_floor, floor_from_kinect_plane, level_to_floor
-from calibration.icp import refine_all
-from calibration.rigid import fit_rigid, pose_error
-from calibration.skeleton_pose import SKELETON_ERROR_BOUND, SkeletonFit, solve_from_skeletons
-from calibration.store import Calibration, CalibrationStore, SensorCalibration, merge
-from protocol.skeleton import JointId
-from protocol.transform import Matrix4, invert
-from protocol.wire import Body
-from server.hub import AgentRequestFailed, FusionHub, SensorUnavailable
-from server.sensors import bodies_at
+from skelfuse.calibration.errors import CalibrationError, NotEnoughCorrespondences
+from skelfuse.calibration.floor import FloorFit, fit_floor, floor_from_kinect_plane, level_to_floor
+from skelfuse.calibration.icp import refine_all
+from skelfuse.calibration.rigid import fit_rigid, pose_error
+from skelfuse.calibration.skeleton_pose import (
+    SKELETON_ERROR_BOUND,
+    SkeletonFit,
+    solve_from_skeletons,
+)
+from skelfuse.calibration.store import Calibration, CalibrationStore, SensorCalibration, merge
+from skelfuse.protocol.skeleton import JointId
+from skelfuse.protocol.transform import Matrix4, invert
+from skelfuse.protocol.wire import Body
+from skelfuse.server.hub import AgentRequestFailed, FusionHub, SensorUnavailable
+from skelfuse.server.sensors import bodies_at
 
 logger = logging.getLogger(__name__)
 

@@ -71,7 +71,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from protocol.skeleton import BONES, JOINT_COUNT, PARENTS, JointId
+from skelfuse.protocol.skeleton import BONES, JOINT_COUNT, PARENTS, JointId
 
 FloatArray = npt.NDArray[np.float64]
 J = JointId

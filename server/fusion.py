@@ -17,8 +17,8 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from protocol.skeleton import BONES, JOINT_COUNT, JointId
-from server.confidence import CHAIN_LEVELS
+from skelfuse.protocol.skeleton import BONES, JOINT_COUNT, JointId
+from skelfuse.server.confidence import CHAIN_LEVELS
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -16,11 +16,11 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from calibration.store import Calibration
-from protocol.constants import MAX_MESSAGE_BYTES, MAX_RESPONSE_BYTES
-from protocol.errors import DecodeError
-from protocol.transform import Matrix4, apply
-from protocol.wire import (
+from skelfuse.calibration.store import Calibration
+from skelfuse.protocol.constants import MAX_MESSAGE_BYTES, MAX_RESPONSE_BYTES
+from skelfuse.protocol.errors import DecodeError
+from skelfuse.protocol.transform import Matrix4, apply
+from skelfuse.protocol.wire import (
     Bye,
     ErrorMessage,
     Frame,
@@ -32,14 +32,14 @@ from protocol.wire import (
     Welcome,
     decode,
 )
-from server import __version__
-from server.sensors import SensorState, bodies_at, new_sensor
-from server.settings import Settings
-from server.stats import RollingStats
-from server.tracking import FusedPerson, PersonTracker, View
+from skelfuse.server import __version__
+from skelfuse.server.sensors import SensorState, bodies_at, new_sensor
+from skelfuse.server.settings import Settings
+from skelfuse.server.stats import RollingStats
+from skelfuse.server.tracking import FusedPerson, PersonTracker, View
 
 if TYPE_CHECKING:
-    from recording.recorder import Recorder
+    from skelfuse.recording.recorder import Recorder
 
 logger = logging.getLogger(__name__)
 

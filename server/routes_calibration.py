@@ -13,9 +13,9 @@ from fastapi import APIRouter, Body, HTTPException, Request
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict, Field
 
-from calibration.errors import CalibrationError
-from calibration.store import Calibration, UnknownVersion
-from server.calibration_runs import (
+from skelfuse.calibration.errors import CalibrationError
+from skelfuse.calibration.store import Calibration, UnknownVersion
+from skelfuse.server.calibration_runs import (
     CalibrationRequestError,
     CalibrationService,
     PointPairs,

@@ -26,9 +26,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from protocol.skeleton import TrackingState
-from protocol.transform import Matrix4
-from protocol.wire import Body, Frame, Hello
+from skelfuse.protocol.skeleton import TrackingState
+from skelfuse.protocol.transform import Matrix4
+from skelfuse.protocol.wire import Body, Frame, Hello
 
 OFFSET_WINDOW_S = 10.0
 FRAME_BUFFER_S = 1.0

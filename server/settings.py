@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from protocol.constants import DEFAULT_HTTP_PORT, DEFAULT_ZMQ_PORT, HEARTBEAT_INTERVAL_S
+from skelfuse.protocol.constants import DEFAULT_HTTP_PORT, DEFAULT_ZMQ_PORT, HEARTBEAT_INTERVAL_S
 
 
 @dataclass(frozen=True, slots=True)

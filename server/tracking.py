@@ -35,8 +35,8 @@ import numpy as np
 import numpy.typing as npt
 from scipy.optimize import linear_sum_assignment
 
-from protocol.skeleton import BONE_MIRROR_PERMUTATION, BONES, JOINT_COUNT, TrackingState
-from server.confidence import (
+from skelfuse.protocol.skeleton import BONE_MIRROR_PERMUTATION, BONES, JOINT_COUNT, TrackingState
+from skelfuse.server.confidence import (
     align_yaw,
     bone_length_factors,
     distance_factors,
@@ -47,8 +47,8 @@ from server.confidence import (
     propagate,
     range_of_motion_factors,
 )
-from server.filters import JointFilter, filter_all, make_filter
-from server.fusion import (
+from skelfuse.server.filters import JointFilter, filter_all, make_filter
+from skelfuse.server.fusion import (
     TRUNK_JOINTS,
     enforce_bone_lengths,
     fuse_views_batch,
@@ -56,8 +56,8 @@ from server.fusion import (
     state_weights,
     trunk_distance,
 )
-from server.mirror import MAX_VIEWS, PERMUTATION, choose_labellings
-from server.settings import FusionSettings
+from skelfuse.server.mirror import MAX_VIEWS, PERMUTATION, choose_labellings
+from skelfuse.server.settings import FusionSettings
 
 FloatArray = npt.NDArray[np.float64]
 BONE_COUNT = len(BONES)

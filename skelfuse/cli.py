@@ -13,11 +13,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from agent.sources.registry import SOURCE_KINDS
-from protocol.constants import DEFAULT_HTTP_PORT, DEFAULT_ZMQ_PORT
+from skelfuse.agent.sources.registry import SOURCE_KINDS
+from skelfuse.protocol.constants import DEFAULT_HTTP_PORT, DEFAULT_ZMQ_PORT
 
 if TYPE_CHECKING:
-    from server.settings import FusionSettings
+    from skelfuse.server.settings import FusionSettings
 
 
 class UsageError(Exception):
@@ -81,8 +81,8 @@ def _stop_on_signals() -> threading.Event:
 
 def fusion_settings(path: str | None) -> FusionSettings:
     """Defaults, or the deployment's file; a bad file stops the command with its problems."""
-    from server.fusion_config import FusionConfigError, load_fusion_settings
-    from server.settings import FusionSettings
+    from skelfuse.server.fusion_config import FusionConfigError, load_fusion_settings
+    from skelfuse.server.settings import FusionSettings
 
     if path is None:
         return FusionSettings()
@@ -96,8 +96,8 @@ def cmd_server(args: argparse.Namespace) -> int:
     try:
         import uvicorn
 
-        from server.app import create_app
-        from server.settings import Settings
+        from skelfuse.server.app import create_app
+        from skelfuse.server.settings import Settings
     except ImportError as exc:
         raise UsageError(
             f"the server needs its extra dependencies ({exc.name} is missing): "
@@ -106,7 +106,7 @@ def cmd_server(args: argparse.Namespace) -> int:
     host, port = parse_host_port(args.http, DEFAULT_HTTP_PORT)
     token = args.token or os.environ.get("SKELFUSE_TOKEN") or None
     if args.curve:
-        from server.auth import KeysMissing, server_keys
+        from skelfuse.server.auth import KeysMissing, server_keys
 
         try:
             server_keys(Path(args.data))  # fail closed, and say how to fix it
@@ -147,7 +147,7 @@ def cmd_server(args: argparse.Namespace) -> int:
 def cmd_agent(args: argparse.Namespace) -> int:
     import time
 
-    from agent.runner import run_agent
+    from skelfuse.agent.runner import run_agent
     from skelfuse.cli_ext import source_from_args
 
     args.pose_given = args.pose is not None
@@ -158,7 +158,7 @@ def cmd_agent(args: argparse.Namespace) -> int:
             raise UsageError(
                 "CurveZMQ needs both --key (this agent's .key_secret) and --server-key"
             )
-        from agent.link import CurveKeys
+        from skelfuse.agent.link import CurveKeys
 
         curve = CurveKeys(Path(args.key), Path(args.server_key))
     stop = _stop_on_signals()
@@ -175,7 +175,7 @@ def cmd_agent(args: argparse.Namespace) -> int:
 
 
 def cmd_keys(args: argparse.Namespace) -> int:
-    from server.auth import (
+    from skelfuse.server.auth import (
         KeysMissing,
         allowed_agents,
         create_agent_keys,

@@ -15,8 +15,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from agent.sources.base import SensorError, SkeletonSource
-from agent.sources.registry import SOURCE_KINDS
+from skelfuse.agent.sources.base import SensorError, SkeletonSource
+from skelfuse.agent.sources.registry import SOURCE_KINDS
 from skelfuse.cli import UsageError as CliError
 
 logger = logging.getLogger("skelfuse")
@@ -26,8 +26,8 @@ EXPORT_FORMATS = ("bvh", "csv", "json", "c3d")
 def _parse_pose(text: str | None) -> Any:
     if text is None:
         return None
-    from protocol.transform import pose_from_position_yaw_pitch
     from skelfuse.cli import parse_pose
+    from skelfuse.protocol.transform import pose_from_position_yaw_pitch
 
     position, yaw, pitch = parse_pose(text)
     return pose_from_position_yaw_pitch(position, yaw, pitch)
@@ -69,7 +69,7 @@ def source_from_args(args: argparse.Namespace) -> SkeletonSource:
     sensors and ``ntu``, ``--pose`` is announced as a manual pose hint only when given explicitly
     (``args.pose_given``), since a real sensor's pose is not known by default.
     """
-    from agent.sources.registry import make_source
+    from skelfuse.agent.sources.registry import make_source
 
     kind = args.source
     if kind not in SOURCE_KINDS:
@@ -168,8 +168,8 @@ def _recording_path(
 ) -> tuple[Path, tempfile.TemporaryDirectory[str] | None]:
     files = [Path(f) for f in args.file] if isinstance(args.file, list) else [Path(args.file)]
     if all(f.suffix == ".skeleton" for f in files):
-        from recording.format import write_recording
-        from recording.ntu_import import ntu_recording
+        from skelfuse.recording.format import write_recording
+        from skelfuse.recording.ntu_import import ntu_recording
 
         poses = args.pose or []
         if poses and len(poses) != len(files):
@@ -201,16 +201,16 @@ def _fusion_config_option(parser: argparse.ArgumentParser) -> None:
 
 def _replay_settings(args: argparse.Namespace) -> Any:
     """Server settings for an offline replay: defaults, or ``--fusion-config``."""
-    from server.settings import Settings
     from skelfuse.cli import fusion_settings
+    from skelfuse.server.settings import Settings
 
     return Settings(fusion=fusion_settings(args.fusion_config))  # CliError on a bad file
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from recording.format import RecordingError
-    from recording.replay import ReplayStats, replay, write_jsonl
-    from recording.take import take_from_frames
+    from skelfuse.recording.format import RecordingError
+    from skelfuse.recording.replay import ReplayStats, replay, write_jsonl
+    from skelfuse.recording.take import take_from_frames
 
     path, tmp = _recording_path(args)
     stats = ReplayStats()
@@ -247,7 +247,7 @@ def _default_target(source: Path, args: argparse.Namespace) -> Path:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from recording.take import take_from_jsonl
+    from skelfuse.recording.take import take_from_jsonl
 
     source = Path(args.file)
     if source.suffix == ".jsonl":
@@ -257,9 +257,9 @@ def cmd_export(args: argparse.Namespace) -> int:
             )
         take = take_from_jsonl(source)
     else:
-        from recording.format import RecordingError
-        from recording.replay import replay
-        from recording.take import take_from_frames
+        from skelfuse.recording.format import RecordingError
+        from skelfuse.recording.replay import replay
+        from skelfuse.recording.take import take_from_frames
 
         try:
             take = take_from_frames(replay(source, _replay_settings(args)))
@@ -270,11 +270,11 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def _export(take: Any, args: argparse.Namespace, target: Path) -> None:
-    from recording.take import TakeError
+    from skelfuse.recording.take import TakeError
 
     try:
         if args.export == "bvh":
-            from recording.export_bvh import export_bvh
+            from skelfuse.recording.export_bvh import export_bvh
 
             if args.person is not None and args.person not in take.persons:
                 raise CliError(f"no person {args.person}; fused ids: {sorted(take.persons)}")
@@ -282,16 +282,16 @@ def _export(take: Any, args: argparse.Namespace, target: Path) -> None:
             result = export_bvh(track, target, fps=args.fps, stretch=args.bvh_stretch)
             logger.info("wrote %s: person %d, %d frames", target, track.person_id, result.frames)
         elif args.export == "csv":
-            from recording.export_table import export_csv
+            from skelfuse.recording.export_table import export_csv
 
             logger.info("wrote %s: %d rows", target, export_csv(take, target))
         elif args.export == "json":
-            from recording.export_table import export_json
+            from skelfuse.recording.export_table import export_json
 
             export_json(take, target)
             logger.info("wrote %s", target)
         else:
-            from recording.export_c3d import export_c3d
+            from skelfuse.recording.export_c3d import export_c3d
 
             logger.info("wrote %s: %d frames", target, export_c3d(take, target, fps=args.fps))
     except TakeError as exc:
@@ -299,7 +299,7 @@ def _export(take: Any, args: argparse.Namespace, target: Path) -> None:
 
 
 def cmd_doctor(args: argparse.Namespace) -> int:
-    from agent.sources.registry import check_sources
+    from skelfuse.agent.sources.registry import check_sources
 
     bits = 64 if sys.maxsize > 2**32 else 32
     lines = [f"Python {sys.version.split()[0]} ({bits}-bit) on {sys.platform}"]

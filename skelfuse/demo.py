@@ -27,7 +27,7 @@ import urllib.request
 from pathlib import Path
 from typing import Any
 
-from server.auth import create_agent_keys, create_server_keys, key_paths
+from skelfuse.server.auth import create_agent_keys, create_server_keys, key_paths
 
 logger = logging.getLogger("skelfuse.demo")
 

@@ -16,9 +16,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from protocol.transform import invert, pose_from_position_yaw_pitch
 from skelfuse.cli import parse_pose
 from skelfuse.demo import sensor_layout
+from skelfuse.protocol.transform import invert, pose_from_position_yaw_pitch
 from tests.support import free_port, wait_until
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]

@@ -31,9 +31,9 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from protocol.constants import MAX_BODIES
-from protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION, JointId, TrackingState
-from protocol.transform import Matrix4, apply, invert
+from skelfuse.protocol.constants import MAX_BODIES
+from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION, JointId, TrackingState
+from skelfuse.protocol.transform import Matrix4, apply, invert
 
 J = JointId
 FloatArray = npt.NDArray[np.float64]

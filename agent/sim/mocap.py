@@ -80,7 +80,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from protocol.skeleton import JOINT_COUNT, JointId
+from skelfuse.protocol.skeleton import JOINT_COUNT, JointId
 
 __all__ = [
     "ASF_RECIPE",

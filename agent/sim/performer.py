@@ -19,8 +19,8 @@ from typing import Final, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from agent.sim.mocap import MotionClip
-from protocol.skeleton import JOINT_COUNT, JointId
+from skelfuse.agent.sim.mocap import MotionClip
+from skelfuse.protocol.skeleton import JOINT_COUNT, JointId
 
 J = JointId
 

@@ -36,7 +36,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from protocol.skeleton import JointId
+from skelfuse.protocol.skeleton import JointId
 
 J = JointId
 FloatArray = npt.NDArray[np.float64]

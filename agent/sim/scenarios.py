@@ -20,8 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from agent.sim.performer import BodyShape, Performer, Pose, pose_joints
-from protocol.skeleton import JOINT_COUNT
+from skelfuse.agent.sim.performer import BodyShape, Performer, Pose, pose_joints
+from skelfuse.protocol.skeleton import JOINT_COUNT
 
 
 @dataclass(frozen=True, slots=True)

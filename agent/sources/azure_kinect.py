@@ -27,12 +27,12 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from agent.sources.base import Capture, SensorError
-from agent.sources.depth_reply import cloud_reply
-from agent.sources.kinect_v2 import DeviceClock
-from protocol.skeleton import AZURE_JOINT_COUNT, azure_to_kinect_v2
-from protocol.transform import Matrix4
-from protocol.wire import Body
+from skelfuse.agent.sources.base import Capture, SensorError
+from skelfuse.agent.sources.depth_reply import cloud_reply
+from skelfuse.agent.sources.kinect_v2 import DeviceClock
+from skelfuse.protocol.skeleton import AZURE_JOINT_COUNT, azure_to_kinect_v2
+from skelfuse.protocol.transform import Matrix4
+from skelfuse.protocol.wire import Body
 
 logger = logging.getLogger(__name__)
 

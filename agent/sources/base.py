@@ -10,8 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Protocol
 
-from protocol.transform import Matrix4
-from protocol.wire import Body
+from skelfuse.protocol.transform import Matrix4
+from skelfuse.protocol.wire import Body
 
 
 class SensorError(Exception):

@@ -11,7 +11,7 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from protocol.constants import MAX_RESPONSE_BYTES
+from skelfuse.protocol.constants import MAX_RESPONSE_BYTES
 
 # One bin of N×3 float32; the server accepts answers up to MAX_RESPONSE_BYTES while it waits for
 # them, and asks for at most 60 000 points.

@@ -40,11 +40,11 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from agent.sources.base import Capture, SensorError
-from agent.sources.depth_reply import cloud_reply
-from protocol.skeleton import JOINT_COUNT
-from protocol.transform import Matrix4
-from protocol.wire import Body
+from skelfuse.agent.sources.base import Capture, SensorError
+from skelfuse.agent.sources.depth_reply import cloud_reply
+from skelfuse.protocol.skeleton import JOINT_COUNT
+from skelfuse.protocol.transform import Matrix4
+from skelfuse.protocol.wire import Body
 
 logger = logging.getLogger(__name__)
 

@@ -26,10 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
-from agent.sources.base import Capture, SensorError
-from protocol.skeleton import JOINT_COUNT
-from protocol.transform import Matrix4
-from protocol.wire import Body
+from skelfuse.agent.sources.base import Capture, SensorError
+from skelfuse.protocol.skeleton import JOINT_COUNT
+from skelfuse.protocol.transform import Matrix4
+from skelfuse.protocol.wire import Body
 
 NTU_FPS = 30.0
 _NAME = re.compile(r"S(\d{3})C(\d{3})P(\d{3})R(\d{3})A(\d{3})")

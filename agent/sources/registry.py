@@ -18,8 +18,8 @@ from typing import Any, Final
 
 import numpy as np
 
-from agent.sources.base import SensorError, SkeletonSource
-from protocol.transform import Matrix4
+from skelfuse.agent.sources.base import SensorError, SkeletonSource
+from skelfuse.protocol.transform import Matrix4
 
 SOURCE_KINDS: Final = ("sim", "replay", "ntu", "kinect_v2", "azure_kinect", "femto")
 
@@ -139,8 +139,8 @@ def make_source(kind: str, options: dict[str, Any]) -> SkeletonSource:
         SensorError: unknown kind, missing option, or the source cannot start.
     """
     if kind == "sim":
-        from agent.sim.performer import ProceduralPerformer
-        from agent.sources.sim import SimSource
+        from skelfuse.agent.sim.performer import ProceduralPerformer
+        from skelfuse.agent.sources.sim import SimSource
 
         if options.get("pose") is None:
             raise SensorError("the sim source needs a pose")
@@ -153,7 +153,7 @@ def make_source(kind: str, options: dict[str, Any]) -> SkeletonSource:
             send_pose_hint=bool(options.get("send_pose_hint", True)),
         )
     if kind == "replay":
-        from agent.sources.replay import ReplaySource
+        from skelfuse.agent.sources.replay import ReplaySource
 
         if not options.get("file"):
             raise SensorError("the replay source needs --file RECORDING")
@@ -164,7 +164,7 @@ def make_source(kind: str, options: dict[str, Any]) -> SkeletonSource:
             speed=float(options.get("speed", 1.0)),
         )
     if kind == "ntu":
-        from agent.sources.ntu import NtuSource
+        from skelfuse.agent.sources.ntu import NtuSource
 
         if not options.get("file"):
             raise SensorError("the ntu source needs --file FILE.skeleton")
@@ -175,11 +175,11 @@ def make_source(kind: str, options: dict[str, Any]) -> SkeletonSource:
             start_unix_s=options.get("start_unix_s"),
         )
     if kind == "kinect_v2":
-        from agent.sources.kinect_v2 import KinectV2Source
+        from skelfuse.agent.sources.kinect_v2 import KinectV2Source
 
         return KinectV2Source(_pose(options))
     if kind in ("azure_kinect", "femto"):
-        from agent.sources.azure_kinect import AzureKinectSource
+        from skelfuse.agent.sources.azure_kinect import AzureKinectSource
 
         return AzureKinectSource(
             kind,

@@ -14,11 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
-from agent.sources.base import Capture, SensorError
-from protocol.errors import DecodeError
-from protocol.transform import Matrix4
-from protocol.wire import Frame, Hello, decode
-from recording.format import RecordingError, read_recording
+from skelfuse.agent.sources.base import Capture, SensorError
+from skelfuse.protocol.errors import DecodeError
+from skelfuse.protocol.transform import Matrix4
+from skelfuse.protocol.wire import Frame, Hello, decode
+from skelfuse.recording.format import RecordingError, read_recording
 
 
 class ReplaySource:

@@ -8,12 +8,12 @@ from typing import Any
 
 import numpy as np
 
-from agent.sim.kinect_model import KinectV2Params, SimulatedKinect
-from agent.sim.performer import Performer
-from agent.sim.room import KINECT_V2_DEPTH, Room, capture_point_cloud, default_room
-from agent.sources.base import Capture
-from protocol.transform import Matrix4
-from protocol.wire import Body
+from skelfuse.agent.sim.kinect_model import KinectV2Params, SimulatedKinect
+from skelfuse.agent.sim.performer import Performer
+from skelfuse.agent.sim.room import KINECT_V2_DEPTH, Room, capture_point_cloud, default_room
+from skelfuse.agent.sources.base import Capture
+from skelfuse.protocol.transform import Matrix4
+from skelfuse.protocol.wire import Body
 
 
 class SimSource:

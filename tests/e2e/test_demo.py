@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 from websockets.asyncio.client import connect
 
-from agent.sim.performer import ProceduralPerformer
-from protocol.skeleton import JOINT_COUNT, JointId
-from protocol.transform import apply
+from skelfuse.agent.sim.performer import ProceduralPerformer
+from skelfuse.protocol.skeleton import JOINT_COUNT, JointId
+from skelfuse.protocol.transform import apply
 from tests.conftest import PROJECT_ROOT, DemoStack
 from tests.support import free_port, wait_until
 

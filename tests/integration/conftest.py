@@ -11,12 +11,12 @@ from pathlib import Path
 import pytest
 import uvicorn
 
-from agent.runner import run_agent
-from agent.sim.performer import Performer, ProceduralPerformer
-from agent.sources.sim import SimSource
-from protocol.transform import look_at_pose
-from server.app import create_app
-from server.settings import Settings
+from skelfuse.agent.runner import run_agent
+from skelfuse.agent.sim.performer import Performer, ProceduralPerformer
+from skelfuse.agent.sources.sim import SimSource
+from skelfuse.protocol.transform import look_at_pose
+from skelfuse.server.app import create_app
+from skelfuse.server.settings import Settings
 from tests.support import free_port
 
 

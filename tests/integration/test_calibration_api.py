@@ -10,10 +10,10 @@ import httpx
 import numpy as np
 import pytest
 
-from agent.sim.performer import ProceduralPerformer
-from agent.sim.scenarios import Segment
-from calibration.rigid import pose_error
-from protocol.transform import apply, invert, look_at_pose
+from skelfuse.agent.sim.performer import ProceduralPerformer
+from skelfuse.agent.sim.scenarios import Segment
+from skelfuse.calibration.rigid import pose_error
+from skelfuse.protocol.transform import apply, invert, look_at_pose
 from tests.integration.conftest import AgentThread, LiveServer
 from tests.support import wait_until
 

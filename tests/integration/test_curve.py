@@ -10,12 +10,12 @@ import httpx
 import pytest
 import zmq.auth
 
-from agent.link import CurveKeys
-from agent.runner import run_agent
-from agent.sim.performer import ProceduralPerformer
-from agent.sources.sim import SimSource
-from protocol.transform import look_at_pose
-from server.auth import create_agent_keys, create_server_keys, key_paths
+from skelfuse.agent.link import CurveKeys
+from skelfuse.agent.runner import run_agent
+from skelfuse.agent.sim.performer import ProceduralPerformer
+from skelfuse.agent.sources.sim import SimSource
+from skelfuse.protocol.transform import look_at_pose
+from skelfuse.server.auth import create_agent_keys, create_server_keys, key_paths
 from tests.integration.conftest import LiveServer
 from tests.support import wait_until
 
@@ -102,8 +102,8 @@ def test_a_restarted_agent_is_fused_again_within_2_s(
 
     import numpy as np
 
-    from protocol.skeleton import JOINT_COUNT
-    from protocol.wire import Body, Frame, Hello, encode
+    from skelfuse.protocol.skeleton import JOINT_COUNT
+    from skelfuse.protocol.wire import Body, Frame, Hello, encode
 
     paths = key_paths(tmp_path / "data")
     keys = CurveKeys(paths.agent_secret("cam-a"), paths.server_public)

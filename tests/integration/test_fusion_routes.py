@@ -12,14 +12,14 @@ import httpx
 import numpy as np
 import pytest
 
-from agent.sim.performer import ProceduralPerformer
-from protocol.skeleton import JOINT_COUNT, TrackingState
-from server.app import create_app
-from server.confidence import BONE_NAMES
-from server.hub import FusionHub
-from server.routes_fusion import router
-from server.settings import FusionSettings, Settings
-from server.tracking import View
+from skelfuse.agent.sim.performer import ProceduralPerformer
+from skelfuse.protocol.skeleton import JOINT_COUNT, TrackingState
+from skelfuse.server.app import create_app
+from skelfuse.server.confidence import BONE_NAMES
+from skelfuse.server.hub import FusionHub
+from skelfuse.server.routes_fusion import router
+from skelfuse.server.settings import FusionSettings, Settings
+from skelfuse.server.tracking import View
 from tests.integration.conftest import LiveServer
 
 

@@ -14,8 +14,8 @@ import pytest
 import zmq
 from websockets.asyncio.client import connect
 
-from protocol.skeleton import JOINT_COUNT, SKELETON_NAME
-from protocol.wire import Body, ErrorMessage, Frame, Hello, decode, encode
+from skelfuse.protocol.skeleton import JOINT_COUNT, SKELETON_NAME
+from skelfuse.protocol.wire import Body, ErrorMessage, Frame, Hello, decode, encode
 from tests.integration.conftest import AgentThread, LiveServer
 from tests.support import wait_until
 

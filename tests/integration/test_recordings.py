@@ -14,10 +14,10 @@ from pathlib import Path
 import httpx
 import pytest
 
-from agent.runner import run_agent
-from agent.sources.replay import ReplaySource
-from recording.format import read_recording
-from recording.replay import replay
+from skelfuse.agent.runner import run_agent
+from skelfuse.agent.sources.replay import ReplaySource
+from skelfuse.recording.format import read_recording
+from skelfuse.recording.replay import replay
 from tests.integration.conftest import AgentThread, LiveServer
 from tests.support import wait_until
 

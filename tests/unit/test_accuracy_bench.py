@@ -6,10 +6,10 @@ import math
 
 import pytest
 
-from agent.sim.kinect_model import KinectV2Params
-from agent.sim.performer import ProceduralPerformer
-from agent.sim.scenarios import Segment
 from bench.accuracy import BASELINE, FULL, METHODS, Log, Scenario, _row, run_once
+from skelfuse.agent.sim.kinect_model import KinectV2Params
+from skelfuse.agent.sim.performer import ProceduralPerformer
+from skelfuse.agent.sim.scenarios import Segment
 
 
 def test_a_short_run_gives_every_metric_and_the_full_method_wins() -> None:

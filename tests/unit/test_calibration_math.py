@@ -6,27 +6,27 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from agent.sim.kinect_model import SimulatedKinect
-from agent.sim.performer import ProceduralPerformer
-from agent.sim.room import Box, Room, capture_point_cloud, default_room
-from calibration.errors import (
+from skelfuse.agent.sim.kinect_model import SimulatedKinect
+from skelfuse.agent.sim.performer import ProceduralPerformer
+from skelfuse.agent.sim.room import Box, Room, capture_point_cloud, default_room
+from skelfuse.calibration.errors import (
     CalibrationError,
     DegenerateGeometry,
     InvalidInput,
     NoOverlap,
     NotEnoughCorrespondences,
 )
-from calibration.floor import (
+from skelfuse.calibration.floor import (
     FloorFit,
     fit_floor,
     floor_error,
     floor_from_kinect_plane,
     level_to_floor,
 )
-from calibration.icp import refine_all, refine_icp
-from calibration.rigid import fit_rigid, pose_error, rotation_angle_deg
-from calibration.skeleton_pose import solve_from_skeletons
-from protocol.transform import apply, invert, look_at_pose, pose_from_position_yaw_pitch
+from skelfuse.calibration.icp import refine_all, refine_icp
+from skelfuse.calibration.rigid import fit_rigid, pose_error, rotation_angle_deg
+from skelfuse.calibration.skeleton_pose import solve_from_skeletons
+from skelfuse.protocol.transform import apply, invert, look_at_pose, pose_from_position_yaw_pitch
 
 F64 = npt.NDArray[np.float64]
 

@@ -8,9 +8,9 @@ import sys
 import numpy as np
 import pytest
 
-from agent.sim.kinect_model import SimulatedKinect
-from agent.sim.performer import ProceduralPerformer
-from agent.sim.room import (
+from skelfuse.agent.sim.kinect_model import SimulatedKinect
+from skelfuse.agent.sim.performer import ProceduralPerformer
+from skelfuse.agent.sim.room import (
     KINECT_V2_DEPTH,
     Room,
     capture_point_cloud,
@@ -19,8 +19,8 @@ from agent.sim.room import (
     render_depth,
     voxel_downsample,
 )
-from protocol.skeleton import JointId
-from protocol.transform import apply, invert, look_at_pose
+from skelfuse.protocol.skeleton import JointId
+from skelfuse.protocol.transform import apply, invert, look_at_pose
 
 POSE = look_at_pose((0.5, 1.2, 2.5), (0.0, 0.9, 0.0))
 

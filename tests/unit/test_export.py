@@ -10,19 +10,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agent.sim.mocap import load_asf_amc, load_bvh
-from agent.sim.performer import ProceduralPerformer
-from protocol.skeleton import JOINT_NAMES
-from recording.export_bvh import (
+from skelfuse.agent.sim.mocap import load_asf_amc, load_bvh
+from skelfuse.agent.sim.performer import ProceduralPerformer
+from skelfuse.protocol.skeleton import JOINT_NAMES
+from skelfuse.recording.export_bvh import (
     NODES,
     bvh_from_joints,
     euler_zxy_deg,
     read_bvh,
     roundtrip_errors_m,
 )
-from recording.export_c3d import export_c3d, read_c3d, z_up_mm
-from recording.export_table import csv_header, export_csv, export_json
-from recording.take import PersonTrack, Take, TakeError, resample, take_from_jsonl
+from skelfuse.recording.export_c3d import export_c3d, read_c3d, z_up_mm
+from skelfuse.recording.export_table import csv_header, export_csv, export_json
+from skelfuse.recording.take import PersonTrack, Take, TakeError, resample, take_from_jsonl
 
 
 def _track(
@@ -65,7 +65,7 @@ def test_bvh_stretch_mode_reproduces_noisy_bone_lengths() -> None:
 
 
 def test_euler_zxy_inverts_rotation_matrices() -> None:
-    from recording.export_bvh import _axis_matrix
+    from skelfuse.recording.export_bvh import _axis_matrix
 
     rng = np.random.default_rng(2)
     q = rng.normal(size=(50, 4))

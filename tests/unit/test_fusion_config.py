@@ -8,14 +8,14 @@ from pathlib import Path
 import pytest
 
 from bench.replay import generate_recording
-from server.fusion_config import (
+from skelfuse.cli import main
+from skelfuse.server.fusion_config import (
     FusionConfigError,
     fusion_settings_as_dict,
     fusion_settings_from_mapping,
     load_fusion_settings,
 )
-from server.settings import FusionSettings
-from skelfuse.cli import main
+from skelfuse.server.settings import FusionSettings
 
 
 def write(tmp_path: Path, text: str, name: str = "fusion.toml") -> Path:

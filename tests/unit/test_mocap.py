@@ -9,7 +9,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from agent.sim.mocap import (
+from skelfuse.agent.sim.mocap import (
     FOOT_JOINT_FLOOR_HEIGHT_M,
     MocapFormatError,
     MotionClip,
@@ -18,7 +18,7 @@ from agent.sim.mocap import (
     load_asf_amc,
     load_bvh,
 )
-from protocol.skeleton import BONES, JOINT_COUNT, JOINT_NAMES, JointId as J, bone_lengths
+from skelfuse.protocol.skeleton import BONES, JOINT_COUNT, JOINT_NAMES, JointId as J, bone_lengths
 
 DATA_DIR = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "cmu-mocap"
 UP = np.array([0.0, 1.0, 0.0])

@@ -7,14 +7,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agent.sources.ntu import (
+from skelfuse.agent.sources.ntu import (
     NtuFormatError,
     NtuSource,
     parse_ntu_name,
     read_ntu_skeleton,
 )
-from protocol.transform import apply, invert, look_at_pose
-from protocol.wire import Frame, encode
+from skelfuse.protocol.transform import apply, invert, look_at_pose
+from skelfuse.protocol.wire import Frame, encode
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 FIXTURE = DATA / "S001C001P001R001A001.skeleton"
@@ -65,10 +65,10 @@ def test_source_paces_at_30_fps_from_a_shared_start() -> None:
 
 
 def test_three_cameras_with_poses_fuse_into_one_person(tmp_path: Path) -> None:
-    from recording.format import write_recording
-    from recording.ntu_import import ntu_recording
-    from recording.replay import replay
-    from server.settings import FusionSettings, Settings
+    from skelfuse.recording.format import write_recording
+    from skelfuse.recording.ntu_import import ntu_recording
+    from skelfuse.recording.replay import replay
+    from skelfuse.server.settings import FusionSettings, Settings
 
     # Three views of the same skeleton: write camera files whose sensor-frame joints come from
     # one world skeleton through three known poses.

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from bench.replay import generate_recording
-from protocol.wire import Frame, Hello, decode, encode
-from recording.format import (
+from skelfuse.protocol.wire import Frame, Hello, decode, encode
+from skelfuse.recording.format import (
     Header,
     Record,
     RecordingError,
@@ -22,8 +22,8 @@ from recording.format import (
     summarize,
     write_recording,
 )
-from recording.recorder import Recorder
-from recording.replay import fused_frame_json, replay, write_jsonl
+from skelfuse.recording.recorder import Recorder
+from skelfuse.recording.replay import fused_frame_json, replay, write_jsonl
 
 
 @pytest.fixture(scope="module")
@@ -144,8 +144,8 @@ def test_jsonl_has_the_skeleton_then_frames(sim_recording: Path, tmp_path: Path)
 
 
 def test_replay_source_plays_one_sensor_at_recorded_pace(sim_recording: Path) -> None:
-    from agent.sources.base import SensorError
-    from agent.sources.replay import ReplaySource
+    from skelfuse.agent.sources.base import SensorError
+    from skelfuse.agent.sources.replay import ReplaySource
 
     with pytest.raises(SensorError, match="--sensor"):
         ReplaySource(sim_recording)

@@ -12,11 +12,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from agent.sources.base import SensorError
-from agent.sources.registry import SOURCE_KINDS, check_sources, make_source
-from protocol.constants import MAX_RESPONSE_BYTES
-from protocol.skeleton import AZURE_JOINT_COUNT, azure_to_kinect_v2
-from protocol.wire import Frame, Response, decode, encode
+from skelfuse.agent.sources.base import SensorError
+from skelfuse.agent.sources.registry import SOURCE_KINDS, check_sources, make_source
+from skelfuse.protocol.constants import MAX_RESPONSE_BYTES
+from skelfuse.protocol.skeleton import AZURE_JOINT_COUNT, azure_to_kinect_v2
+from skelfuse.protocol.wire import Frame, Response, decode, encode
 
 FAKES = Path(__file__).resolve().parents[1] / "fakes"
 
@@ -28,7 +28,7 @@ def _forget(prefix: str) -> None:
 
 @pytest.fixture
 def fake_pykinect2(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
-    from agent.sources.kinect_v2 import PyKinect2Fixer
+    from skelfuse.agent.sources.kinect_v2 import PyKinect2Fixer
 
     monkeypatch.syspath_prepend(str(FAKES))
     _forget("pykinect2")
@@ -60,7 +60,7 @@ class FakeClock:
 
 
 def test_patch_fixes_each_known_line_and_leaves_others() -> None:
-    from agent.sources.kinect_v2 import patch_pykinect_source
+    from skelfuse.agent.sources.kinect_v2 import patch_pykinect_source
 
     source = (
         "assert sizeof(tagSTATSTG) == 72, sizeof(tagSTATSTG)\n"
@@ -92,7 +92,7 @@ def _kinect_frame(runtime: Any, relative: int, floor: tuple[float, ...]) -> Any:
 
 
 def test_kinect_v2_source_maps_joints_states_floor_and_time(fake_pykinect2: None) -> None:
-    from agent.sources.kinect_v2 import KinectV2Source, import_pykinect2
+    from skelfuse.agent.sources.kinect_v2 import KinectV2Source, import_pykinect2
 
     _, runtime = import_pykinect2()  # the fake, loaded through skelfuse's fixes
     clock = FakeClock()
@@ -123,7 +123,7 @@ def test_kinect_v2_source_maps_joints_states_floor_and_time(fake_pykinect2: None
 def test_kinect_v2_depth_cloud_goes_through_the_coordinate_mapper(fake_pykinect2: None) -> None:
     """Depth image → the SDK's ICoordinateMapper (called with the ctypes types its COM
     signature demands) → our sensor frame, limited and packed as the server asks."""
-    from agent.sources.kinect_v2 import KinectV2Source, import_pykinect2
+    from skelfuse.agent.sources.kinect_v2 import KinectV2Source, import_pykinect2
 
     _, runtime = import_pykinect2()
     runtime.DEPTH.clear()
@@ -164,7 +164,7 @@ def _azure_body(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_azure_source_maps_32_joints_mm_ydown_and_confidence(fake_k4a: ModuleType) -> None:
-    from agent.sources.azure_kinect import AzureKinectSource
+    from skelfuse.agent.sources.azure_kinect import AzureKinectSource
 
     rng = np.random.default_rng(1)
     joints, levels = _azure_body(rng)
@@ -191,7 +191,7 @@ def test_azure_source_maps_32_joints_mm_ydown_and_confidence(fake_k4a: ModuleTyp
 
 
 def test_femto_passes_the_orbbec_wrapper_library(fake_k4a: ModuleType) -> None:
-    from agent.sources.azure_kinect import AzureKinectSource
+    from skelfuse.agent.sources.azure_kinect import AzureKinectSource
 
     source = AzureKinectSource(
         "femto", k4a_path="/opt/orbbec/libk4a.so", depth_mode="WFOV_2X2BINNED"
@@ -204,7 +204,7 @@ def test_femto_passes_the_orbbec_wrapper_library(fake_k4a: ModuleType) -> None:
 
 
 def test_depth_cloud_is_in_our_sensor_frame_and_fits_one_message(fake_k4a: ModuleType) -> None:
-    from agent.sources.azure_kinect import AzureKinectSource
+    from skelfuse.agent.sources.azure_kinect import AzureKinectSource
 
     cloud = np.zeros((20_000, 3), dtype=np.int16)
     cloud[:, 0] = 100

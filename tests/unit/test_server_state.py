@@ -11,15 +11,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calibration.store import CalibrationFileError, CalibrationStore, SensorCalibration
-from protocol.skeleton import JOINT_COUNT
-from protocol.transform import pose_from_position_yaw_pitch
-from protocol.wire import Body, ErrorMessage, Frame, Heartbeat, Hello, Welcome, encode
-from server.hub import FusionHub
-from server.messages import frame_json
-from server.sensors import SlidingMinimum, TimedFrame, bodies_at
-from server.settings import Settings
+from skelfuse.calibration.store import CalibrationFileError, CalibrationStore, SensorCalibration
 from skelfuse.cli import UsageError, parse_host_port, parse_pose
+from skelfuse.protocol.skeleton import JOINT_COUNT
+from skelfuse.protocol.transform import pose_from_position_yaw_pitch
+from skelfuse.protocol.wire import Body, ErrorMessage, Frame, Heartbeat, Hello, Welcome, encode
+from skelfuse.server.hub import FusionHub
+from skelfuse.server.messages import frame_json
+from skelfuse.server.sensors import SlidingMinimum, TimedFrame, bodies_at
+from skelfuse.server.settings import Settings
 
 STATES = np.full(JOINT_COUNT, 2, np.uint8)
 
@@ -128,7 +128,7 @@ def test_hub_liveness_and_bye() -> None:
     assert {s.sensor_id for s in hub.check_liveness(2.7)} == {"a", "b"}
     hub.handle_message(b"a", [encode(Heartbeat(1))], 0.0, 2.7)
     assert {s.sensor_id for s in hub.check_liveness(3.5)} == {"a"}
-    from protocol.wire import Bye
+    from skelfuse.protocol.wire import Bye
 
     hub.handle_message(b"a", [encode(Bye())], 0.0, 3.6)
     assert hub.check_liveness(3.7) == []
@@ -223,9 +223,9 @@ def test_parse_host_port() -> None:
 
 
 def test_large_response_only_when_the_server_is_waiting() -> None:
-    from protocol.constants import MAX_MESSAGE_BYTES, MAX_RESPONSE_BYTES
-    from protocol.errors import DecodeError
-    from protocol.wire import Response, decode
+    from skelfuse.protocol.constants import MAX_MESSAGE_BYTES, MAX_RESPONSE_BYTES
+    from skelfuse.protocol.errors import DecodeError
+    from skelfuse.protocol.wire import Response, decode
 
     cloud = Response(1, ok=True, result={"points": b"\0" * (300 * 1024)})
     payload = encode(cloud)
@@ -253,8 +253,8 @@ def test_large_response_only_when_the_server_is_waiting() -> None:
 async def test_hub_request_round_trip_and_refusals() -> None:
     import asyncio
 
-    from protocol.wire import Request, Response, decode
-    from server.hub import AgentRequestFailed, SensorUnavailable
+    from skelfuse.protocol.wire import Request, Response, decode
+    from skelfuse.server.hub import AgentRequestFailed, SensorUnavailable
 
     hub = FusionHub(Settings())
     hub.handle_message(b"r", [hello()], 0.0, 0.0)
@@ -290,9 +290,9 @@ async def test_hub_request_round_trip_and_refusals() -> None:
 
 
 def test_sim_agent_answers_depth_cloud_in_its_own_frame() -> None:
-    from agent.sim.performer import ProceduralPerformer
-    from agent.sources.sim import SimSource
-    from protocol.transform import apply as apply_pose
+    from skelfuse.agent.sim.performer import ProceduralPerformer
+    from skelfuse.agent.sources.sim import SimSource
+    from skelfuse.protocol.transform import apply as apply_pose
 
     pose = pose_from_position_yaw_pitch((0.0, 1.2, 3.0), 180.0, 10.0)
     source = SimSource(ProceduralPerformer(1), pose, seed=2)
@@ -321,7 +321,7 @@ def test_sim_agent_answers_depth_cloud_in_its_own_frame() -> None:
 def test_round_trip_offset_follows_offset_and_drift(
     delay_s: float, drift: float, tolerance_s: float
 ) -> None:
-    from server.sensors import RoundTripOffset
+    from skelfuse.server.sensors import RoundTripOffset
 
     rng = np.random.default_rng(5)
     estimator = RoundTripOffset()
@@ -339,7 +339,7 @@ def test_round_trip_offset_follows_offset_and_drift(
 
 
 def test_round_trip_offset_recovers_from_a_clock_step() -> None:
-    from server.sensors import RoundTripOffset
+    from skelfuse.server.sensors import RoundTripOffset
 
     estimator = RoundTripOffset()
     for i in range(20):

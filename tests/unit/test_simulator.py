@@ -8,10 +8,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from agent.sim.kinect_model import KinectV2Params, SimulatedKinect
-from agent.sim.performer import ProceduralPerformer, standing_pose
-from protocol.skeleton import JOINT_COUNT, JointId, TrackingState, bone_lengths
-from protocol.transform import apply, look_at_pose, pose_from_position_yaw_pitch
+from skelfuse.agent.sim.kinect_model import KinectV2Params, SimulatedKinect
+from skelfuse.agent.sim.performer import ProceduralPerformer, standing_pose
+from skelfuse.protocol.skeleton import JOINT_COUNT, JointId, TrackingState, bone_lengths
+from skelfuse.protocol.transform import apply, look_at_pose, pose_from_position_yaw_pitch
 
 J = JointId
 QUIET = KinectV2Params(glitch_rate_hz=0.0, dropout_rate_hz=0.0)

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from protocol.skeleton import (
+from skelfuse.protocol.skeleton import (
     AZURE_CONFIDENCE_TO_STATE,
     AZURE_JOINT_COUNT,
     AZURE_TO_KINECT_V2,
@@ -23,7 +23,7 @@ from protocol.skeleton import (
     bone_lengths,
     skeleton_definition,
 )
-from protocol.transform import (
+from skelfuse.protocol.transform import (
     apply,
     invert,
     is_rigid,

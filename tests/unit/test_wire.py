@@ -22,10 +22,10 @@ import msgpack
 import numpy as np
 import pytest
 
-from protocol.constants import MAX_BODIES, MAX_MESSAGE_BYTES, PROTOCOL_VERSION
-from protocol.errors import DecodeError, VersionMismatch
-from protocol.skeleton import JOINT_COUNT, TrackingState
-from protocol.wire import (
+from skelfuse.protocol.constants import MAX_BODIES, MAX_MESSAGE_BYTES, PROTOCOL_VERSION
+from skelfuse.protocol.errors import DecodeError, VersionMismatch
+from skelfuse.protocol.skeleton import JOINT_COUNT, TrackingState
+from skelfuse.protocol.wire import (
     Body,
     Bye,
     ErrorMessage,

@@ -29,11 +29,16 @@ import numpy as np
 import numpy.typing as npt
 from hypothesis import HealthCheck, event, given, settings, strategies as st
 
-from protocol.constants import MAX_BODIES, MAX_COORDINATE_M, MAX_MESSAGE_BYTES, MAX_RESPONSE_BYTES
-from protocol.errors import DecodeError
-from protocol.skeleton import JOINT_COUNT, SKELETON_NAME, TrackingState
-from protocol.transform import pose_from_position_yaw_pitch
-from protocol.wire import (
+from skelfuse.protocol.constants import (
+    MAX_BODIES,
+    MAX_COORDINATE_M,
+    MAX_MESSAGE_BYTES,
+    MAX_RESPONSE_BYTES,
+)
+from skelfuse.protocol.errors import DecodeError
+from skelfuse.protocol.skeleton import JOINT_COUNT, SKELETON_NAME, TrackingState
+from skelfuse.protocol.transform import pose_from_position_yaw_pitch
+from skelfuse.protocol.wire import (
     POSE_HINT_SOURCES,
     SENSOR_ID_PATTERN,
     SENSOR_TYPES,
