@@ -3,5 +3,3 @@
 Installs with numpy, pyzmq and msgpack only (no server dependencies); sensor SDKs are imported
 lazily by their sources.
 """
-
-__version__ = "0.1.0"

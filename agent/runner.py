@@ -7,7 +7,7 @@ import threading
 import time
 from collections.abc import Callable
 
-from skelfuse.agent import __version__
+from skelfuse import __version__
 from skelfuse.agent.link import AgentLink, CurveKeys, RequestHandler
 from skelfuse.agent.sources.base import SkeletonSource
 from skelfuse.protocol.wire import Frame, Hello

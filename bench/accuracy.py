@@ -4,7 +4,7 @@ Simulated Kinect v2 sensors (2–4, on a 3 m circle, 1 m high, looking at the mi
 people: CMU mocap walks (``../shared/data/cmu-mocap``, when present) and procedural scenarios
 (walking a circle, turning on the spot, arm raises, squats, two people crossing, one person
 walking in front of others). Each scenario run feeds the *same* sensor frames to one production
-:class:`server.hub.FusionHub` per method, in simulated time: frames are encoded to wire bytes and
+:class:`fusion.hub.FusionHub` per method, in simulated time: frames are encoded to wire bytes and
 go through clock offsets, interpolation, tracking and fusion exactly as on the live server.
 
 Methods (``FusionSettings`` variants, one run):
@@ -56,12 +56,12 @@ from skelfuse.agent.sim.kinect_model import KinectV2Params, SimulatedKinect
 from skelfuse.agent.sim.mocap import load_asf_amc, load_bvh
 from skelfuse.agent.sim.performer import ClipPerformer, Performer, ProceduralPerformer
 from skelfuse.agent.sim.scenarios import Line, LineWalkers, Segment, Standing
+from skelfuse.fusion.filters import ConstantVelocityKalman, JointFilter, OneEuroFilter
+from skelfuse.fusion.hub import FusionHub
+from skelfuse.fusion.weighted import TRUNK_JOINTS
 from skelfuse.protocol.skeleton import BONES, JOINT_COUNT, JointId, TrackingState, bone_lengths
 from skelfuse.protocol.transform import apply, look_at_pose
 from skelfuse.protocol.wire import Body, Frame, Hello, encode
-from skelfuse.server.filters import ConstantVelocityKalman, JointFilter, OneEuroFilter
-from skelfuse.server.fusion import TRUNK_JOINTS
-from skelfuse.server.hub import FusionHub
 from skelfuse.server.settings import FusionSettings, Settings
 
 CMU_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "cmu-mocap"

@@ -616,11 +616,11 @@ class FusionTiming:
 
 def fusion_timing(sensors: int, bodies: int, steps: int = 1000, warmup: int = 100) -> FusionTiming:
     """Median cost of one fused frame (and of ingesting one frame) on the production classes."""
+    from skelfuse.fusion.hub import FusionHub
+    from skelfuse.fusion.tracking import FusedPerson, PersonTracker, View
     from skelfuse.server.broadcast import encode_message
-    from skelfuse.server.hub import FusionHub
     from skelfuse.server.messages import frame_json
     from skelfuse.server.settings import Settings
-    from skelfuse.server.tracking import FusedPerson, PersonTracker, View
 
     tracker_times: list[float] = []
 

@@ -31,13 +31,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from skelfuse.agent.sim.kinect_model import SimulatedKinect
 from skelfuse.agent.sim.performer import ProceduralPerformer
+from skelfuse.fusion.hub import FusedFrame
 from skelfuse.protocol.transform import look_at_pose
 from skelfuse.protocol.wire import Body, Frame, Hello, encode
 from skelfuse.recording.export_bvh import export_bvh, roundtrip_errors_m
 from skelfuse.recording.format import Header, pack_record
 from skelfuse.recording.replay import fused_frame_json, replay
 from skelfuse.recording.take import take_from_frames
-from skelfuse.server.hub import FusedFrame
 
 FPS = 30.0
 NETWORK_DELAY_S = 0.002

@@ -16,11 +16,11 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from skelfuse.calibration.store import Calibration, SensorCalibration
+from skelfuse.fusion.hub import FusedFrame, FusionHub
+from skelfuse.fusion.settings import HubSettings
 from skelfuse.protocol.skeleton import skeleton_definition
 from skelfuse.recording.format import Header, ReadStatus, RecordingReader
-from skelfuse.server.hub import FusedFrame, FusionHub
 from skelfuse.server.messages import person_json
-from skelfuse.server.settings import Settings
 
 
 @dataclass(slots=True)
@@ -53,7 +53,7 @@ def calibration_of(header: Header) -> Calibration | None:
 
 def replay(
     path: str | Path,
-    settings: Settings | None = None,
+    settings: HubSettings | None = None,
     *,
     stats: ReplayStats | None = None,
     strict: bool = False,
@@ -72,7 +72,7 @@ def replay(
     stats = stats if stats is not None else ReplayStats()
     with RecordingReader(path, strict=strict) as reader:
         stats.read = reader.status
-        hub = FusionHub(settings or Settings(), calibration_of(reader.header))
+        hub = FusionHub(settings or HubSettings(), calibration_of(reader.header))
         liveness_every_s = hub.settings.heartbeat_interval_s / 2
         next_liveness: float | None = None
         t0: float | None = None

@@ -21,13 +21,14 @@ from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 from prometheus_client import CollectorRegistry, make_asgi_app
 
+from skelfuse import __version__
 from skelfuse.calibration.store import CalibrationStore
+from skelfuse.fusion.hub import FusionHub
 from skelfuse.protocol.skeleton import skeleton_definition
-from skelfuse.server import __version__, routes_calibration, routes_fusion, routes_recordings
+from skelfuse.server import routes_calibration, routes_fusion, routes_recordings
 from skelfuse.server.auth import SensorAuthenticator
 from skelfuse.server.broadcast import Broadcaster, Variant, encode_message, pump
 from skelfuse.server.calibration_runs import CalibrationService
-from skelfuse.server.hub import FusionHub
 from skelfuse.server.ingest import fusion_loop, ingest_loop, liveness_loop, open_router, send_to
 from skelfuse.server.messages import person_json
 from skelfuse.server.metrics import SkelfuseCollector

@@ -19,7 +19,7 @@ from typing import Any
 
 import msgpack
 
-from skelfuse.server.hub import FusedFrame
+from skelfuse.fusion.hub import FusedFrame
 from skelfuse.server.messages import frame_json
 
 logger = logging.getLogger(__name__)

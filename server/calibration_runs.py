@@ -38,11 +38,11 @@ from skelfuse.calibration.skeleton_pose import (
     solve_from_skeletons,
 )
 from skelfuse.calibration.store import Calibration, CalibrationStore, SensorCalibration, merge
+from skelfuse.fusion.hub import AgentRequestFailed, FusionHub, SensorUnavailable
+from skelfuse.fusion.sensors import bodies_at
 from skelfuse.protocol.skeleton import JointId
 from skelfuse.protocol.transform import Matrix4, invert
 from skelfuse.protocol.wire import Body
-from skelfuse.server.hub import AgentRequestFailed, FusionHub, SensorUnavailable
-from skelfuse.server.sensors import bodies_at
 
 logger = logging.getLogger(__name__)
 

@@ -16,11 +16,11 @@ from typing import Any
 import zmq
 import zmq.asyncio
 
+from skelfuse.fusion.hub import FusionHub
 from skelfuse.protocol.constants import MAX_MESSAGE_BYTES
 from skelfuse.protocol.wire import Heartbeat, Message, encode
 from skelfuse.server.auth import secure_router
 from skelfuse.server.broadcast import Broadcaster
-from skelfuse.server.hub import FusionHub
 
 logger = logging.getLogger(__name__)
 

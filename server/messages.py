@@ -11,8 +11,8 @@ import time
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.server.hub import FusedFrame
-from skelfuse.server.tracking import FusedPerson, View
+from skelfuse.fusion.hub import FusedFrame
+from skelfuse.fusion.tracking import FusedPerson, View
 
 
 def person_json(person: FusedPerson, decimals: int = 4) -> dict[str, object]:

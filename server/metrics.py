@@ -12,8 +12,8 @@ from collections.abc import Iterator
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
 from prometheus_client.registry import Collector
 
+from skelfuse.fusion.hub import FusionHub
 from skelfuse.server.broadcast import Broadcaster
-from skelfuse.server.hub import FusionHub
 
 
 class SkelfuseCollector(Collector):

@@ -27,9 +27,9 @@ import numpy.typing as npt
 from fastapi import APIRouter, HTTPException, Request
 from pydantic import BaseModel
 
-from skelfuse.server.confidence import BONE_NAMES
-from skelfuse.server.fusion_config import fusion_settings_as_dict
-from skelfuse.server.tracking import PersonTracker
+from skelfuse.fusion.confidence import BONE_NAMES
+from skelfuse.fusion.config import fusion_settings_as_dict
+from skelfuse.fusion.tracking import PersonTracker
 
 router = APIRouter(tags=["fusion"])
 

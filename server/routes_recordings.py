@@ -20,11 +20,11 @@ from fastapi import APIRouter, HTTPException, Request
 from fastapi.responses import FileResponse
 from pydantic import BaseModel, Field
 
+from skelfuse import __version__
+from skelfuse.fusion.hub import FusionHub
 from skelfuse.protocol.wire import Hello, encode
 from skelfuse.recording.format import FILE_SUFFIX, Header, RecordingError, SensorPose, summarize
 from skelfuse.recording.recorder import Recorder
-from skelfuse.server import __version__
-from skelfuse.server.hub import FusionHub
 
 router = APIRouter(prefix="/api/recordings", tags=["recordings"])
 _ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$")

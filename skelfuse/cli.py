@@ -17,7 +17,7 @@ from skelfuse.agent.sources.registry import SOURCE_KINDS
 from skelfuse.protocol.constants import DEFAULT_HTTP_PORT, DEFAULT_ZMQ_PORT
 
 if TYPE_CHECKING:
-    from skelfuse.server.settings import FusionSettings
+    from skelfuse.fusion.settings import FusionSettings
 
 
 class UsageError(Exception):
@@ -81,8 +81,8 @@ def _stop_on_signals() -> threading.Event:
 
 def fusion_settings(path: str | None) -> FusionSettings:
     """Defaults, or the deployment's file; a bad file stops the command with its problems."""
-    from skelfuse.server.fusion_config import FusionConfigError, load_fusion_settings
-    from skelfuse.server.settings import FusionSettings
+    from skelfuse.fusion.config import FusionConfigError, load_fusion_settings
+    from skelfuse.fusion.settings import FusionSettings
 
     if path is None:
         return FusionSettings()

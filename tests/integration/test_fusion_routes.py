@@ -13,13 +13,13 @@ import numpy as np
 import pytest
 
 from skelfuse.agent.sim.performer import ProceduralPerformer
+from skelfuse.fusion.confidence import BONE_NAMES
+from skelfuse.fusion.hub import FusionHub
+from skelfuse.fusion.tracking import View
 from skelfuse.protocol.skeleton import JOINT_COUNT, TrackingState
 from skelfuse.server.app import create_app
-from skelfuse.server.confidence import BONE_NAMES
-from skelfuse.server.hub import FusionHub
 from skelfuse.server.routes_fusion import router
 from skelfuse.server.settings import FusionSettings, Settings
-from skelfuse.server.tracking import View
 from tests.integration.conftest import LiveServer
 
 

@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from skelfuse.agent.sim.performer import BodyShape, Pose, pose_joints
-from skelfuse.protocol.skeleton import BONES, MIRROR_PERMUTATION, PARENTS, JointId, bone_lengths
-from skelfuse.server.confidence import (
+from skelfuse.fusion.confidence import (
     CHAIN_ORDER,
     bone_length_factors,
     distance_factors,
@@ -18,6 +17,7 @@ from skelfuse.server.confidence import (
     propagate,
     range_of_motion_factors,
 )
+from skelfuse.protocol.skeleton import BONES, MIRROR_PERMUTATION, PARENTS, JointId, bone_lengths
 
 J = JointId
 
@@ -97,7 +97,7 @@ def test_facing_and_distance_terms() -> None:
 
 
 def test_batched_facing_and_range_of_motion_match_single_skeletons() -> None:
-    from skelfuse.server.confidence import facing_directions, rom_factors_and_forward
+    from skelfuse.fusion.confidence import facing_directions, rom_factors_and_forward
 
     rng = np.random.default_rng(2)
     skeletons = np.stack([body(Pose()) + rng.normal(scale=0.05, size=(25, 3)) for _ in range(5)])

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from skelfuse.server.filters import ConstantVelocityKalman, OneEuroFilter, PassThrough, make_filter
+from skelfuse.fusion.filters import ConstantVelocityKalman, OneEuroFilter, PassThrough, make_filter
 
 
 class ScalarOneEuro:
@@ -91,7 +91,7 @@ def test_unknown_filter_is_refused() -> None:
 
 
 def test_filter_all_matches_separate_calls() -> None:
-    from skelfuse.server.filters import filter_all
+    from skelfuse.fusion.filters import filter_all
 
     rng = np.random.default_rng(3)
     together = [OneEuroFilter(1.5, 10.0), OneEuroFilter(1.5, 10.0), PassThrough()]

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from skelfuse.agent.sim.performer import ProceduralPerformer
+from skelfuse.fusion.settings import FusionSettings
+from skelfuse.fusion.tracking import FusedPerson, PersonTracker, View
+from skelfuse.fusion.weighted import fuse_views, mpjpe, state_weights, trunk_distance
 from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION, JointId, TrackingState
-from skelfuse.server.fusion import fuse_views, mpjpe, state_weights, trunk_distance
-from skelfuse.server.settings import FusionSettings
-from skelfuse.server.tracking import FusedPerson, PersonTracker, View
 
 TRACKED = np.full(JOINT_COUNT, TrackingState.TRACKED, np.uint8)
 
@@ -190,7 +190,7 @@ def test_bone_lengths_are_estimated_online_and_can_be_set() -> None:
     from skelfuse.protocol.skeleton import bone_lengths
 
     tracker = PersonTracker(FusionSettings(track_min_frames=1, bone_estimate_min_samples=5))
-    from skelfuse.server.confidence import facing_direction
+    from skelfuse.fusion.confidence import facing_direction
 
     person = standing()
     sensor = person[0] + 2.5 * facing_direction(person)  # in front of the person
@@ -236,8 +236,8 @@ def test_duplicate_person_from_disjoint_sensors_is_merged() -> None:
 
 
 def test_batched_fusion_helpers_match_single_calls() -> None:
-    from skelfuse.server.fusion import enforce_bone_lengths, fuse_views_batch
-    from skelfuse.server.tracking import nanmedian_axis
+    from skelfuse.fusion.tracking import nanmedian_axis
+    from skelfuse.fusion.weighted import enforce_bone_lengths, fuse_views_batch
 
     rng = np.random.default_rng(5)
     joints = rng.normal(size=(3, 4, JOINT_COUNT, 3))
@@ -294,8 +294,8 @@ def test_several_persons_fuse_as_if_alone() -> None:
 
 
 def test_bone_projection_gives_exact_lengths_and_moves_joints_less_than_the_chain() -> None:
+    from skelfuse.fusion.weighted import enforce_bone_lengths, project_bone_lengths
     from skelfuse.protocol.skeleton import bone_lengths
-    from skelfuse.server.fusion import enforce_bone_lengths, project_bone_lengths
 
     rng = np.random.default_rng(21)
     truth = np.stack([standing(0.3 * k, 0.0) for k in range(4)])
@@ -324,8 +324,8 @@ def test_bone_projection_gives_exact_lengths_and_moves_joints_less_than_the_chai
 
 
 def test_bone_projection_leaves_unknown_bones_missing_joints_and_right_lengths_alone() -> None:
+    from skelfuse.fusion.weighted import project_bone_lengths
     from skelfuse.protocol.skeleton import JointId, bone_lengths
-    from skelfuse.server.fusion import project_bone_lengths
 
     joints = standing()
     lengths = bone_lengths(joints)
@@ -345,8 +345,8 @@ def test_bone_projection_leaves_unknown_bones_missing_joints_and_right_lengths_a
 
 
 def test_online_bone_estimate_pools_left_and_right_and_falls_back_to_any_view() -> None:
+    from skelfuse.fusion.tracking import BoneModel
     from skelfuse.protocol.skeleton import BONE_MIRROR_PERMUTATION, BONES, JointId
-    from skelfuse.server.tracking import BoneModel
 
     index = {bone: b for b, bone in enumerate(BONES)}
     upper_left = index[(JointId.SHOULDER_LEFT, JointId.ELBOW_LEFT)]
@@ -378,7 +378,7 @@ def test_online_bone_estimate_pools_left_and_right_and_falls_back_to_any_view() 
 
 
 def test_online_bone_estimate_can_lock() -> None:
-    from skelfuse.server.tracking import BoneModel
+    from skelfuse.fusion.tracking import BoneModel
 
     model = BoneModel(min_samples=3, lock_samples=10)
     for _ in range(10):
@@ -396,7 +396,7 @@ def test_online_bone_estimate_can_lock() -> None:
 def test_a_person_walking_backwards_is_unmirrored_as_a_whole(walk_check_s: float) -> None:
     """A track mirrored as a whole stays so (every view is labelled to agree with it); only the
     walking direction can tell, and with the check it does."""
-    from skelfuse.server.confidence import facing_direction
+    from skelfuse.fusion.confidence import facing_direction
 
     body = standing()
     forward = facing_direction(body)

@@ -9,13 +9,13 @@ import pytest
 
 from bench.replay import generate_recording
 from skelfuse.cli import main
-from skelfuse.server.fusion_config import (
+from skelfuse.fusion.config import (
     FusionConfigError,
     fusion_settings_as_dict,
     fusion_settings_from_mapping,
     load_fusion_settings,
 )
-from skelfuse.server.settings import FusionSettings
+from skelfuse.fusion.settings import FusionSettings
 
 
 def write(tmp_path: Path, text: str, name: str = "fusion.toml") -> Path:

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from skelfuse.agent.sim.performer import BodyShape, Pose, pose_joints
+from skelfuse.fusion.mirror import choose_labelling
 from skelfuse.protocol.skeleton import MIRROR_PERMUTATION
-from skelfuse.server.mirror import choose_labelling
 
 WALK = Pose(hip_flex_l=0.3, hip_flex_r=-0.3, knee_flex_l=0.6, knee_flex_r=0.1,
             shoulder_flex_l=-0.3, shoulder_flex_r=0.3)  # fmt: skip
@@ -57,8 +57,8 @@ def test_no_views() -> None:
 
 
 def test_several_persons_at_once_decide_as_one_by_one() -> None:
-    from skelfuse.server.confidence import facing_direction
-    from skelfuse.server.mirror import choose_labellings
+    from skelfuse.fusion.confidence import facing_direction
+    from skelfuse.fusion.mirror import choose_labellings
 
     rng = np.random.default_rng(7)
     truth = person()

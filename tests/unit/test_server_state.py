@@ -13,12 +13,12 @@ import pytest
 
 from skelfuse.calibration.store import CalibrationFileError, CalibrationStore, SensorCalibration
 from skelfuse.cli import UsageError, parse_host_port, parse_pose
+from skelfuse.fusion.hub import FusionHub
+from skelfuse.fusion.sensors import SlidingMinimum, TimedFrame, bodies_at
 from skelfuse.protocol.skeleton import JOINT_COUNT
 from skelfuse.protocol.transform import pose_from_position_yaw_pitch
 from skelfuse.protocol.wire import Body, ErrorMessage, Frame, Heartbeat, Hello, Welcome, encode
-from skelfuse.server.hub import FusionHub
 from skelfuse.server.messages import frame_json
-from skelfuse.server.sensors import SlidingMinimum, TimedFrame, bodies_at
 from skelfuse.server.settings import Settings
 
 STATES = np.full(JOINT_COUNT, 2, np.uint8)
@@ -253,8 +253,8 @@ def test_large_response_only_when_the_server_is_waiting() -> None:
 async def test_hub_request_round_trip_and_refusals() -> None:
     import asyncio
 
+    from skelfuse.fusion.hub import AgentRequestFailed, SensorUnavailable
     from skelfuse.protocol.wire import Request, Response, decode
-    from skelfuse.server.hub import AgentRequestFailed, SensorUnavailable
 
     hub = FusionHub(Settings())
     hub.handle_message(b"r", [hello()], 0.0, 0.0)
@@ -321,7 +321,7 @@ def test_sim_agent_answers_depth_cloud_in_its_own_frame() -> None:
 def test_round_trip_offset_follows_offset_and_drift(
     delay_s: float, drift: float, tolerance_s: float
 ) -> None:
-    from skelfuse.server.sensors import RoundTripOffset
+    from skelfuse.fusion.sensors import RoundTripOffset
 
     rng = np.random.default_rng(5)
     estimator = RoundTripOffset()
@@ -339,7 +339,7 @@ def test_round_trip_offset_follows_offset_and_drift(
 
 
 def test_round_trip_offset_recovers_from_a_clock_step() -> None:
-    from skelfuse.server.sensors import RoundTripOffset
+    from skelfuse.fusion.sensors import RoundTripOffset
 
     estimator = RoundTripOffset()
     for i in range(20):

@@ -2,7 +2,7 @@
 
 Report A (``shared/papers.md``) multiplies body-based terms into the tracking-state weight of
 each joint of each view. Everything here is a pure function on arrays; the terms are combined in
-:mod:`server.tracking` and fused by :func:`server.fusion.fuse_views`.
+:mod:`fusion.tracking` and fused by :func:`fusion.weighted.fuse_views`.
 
 Shapes: S views of one person, 25 joints, 24 bones (:data:`protocol.skeleton.BONES` order).
 Positions in metres, world frame (+Y up). Every term is in (0, 1], 1 meaning "no doubt", and a
@@ -396,7 +396,7 @@ def facing_factors(
     ``floor + (1 − floor)·|cos θ|^power``, times ``back_factor`` when the sensor is behind the
     person (cos θ < 0). A sensor's own yaw bias grows with how far the person is turned from
     *its axis*, front or back (a view from behind, once its labels are swapped back by
-    :mod:`server.mirror`, is fitted as a front view: conventions.md §5), so side views are the
+    :mod:`fusion.mirror`, is fitted as a front view: conventions.md §5), so side views are the
     least trusted; a back view also hides the arms in front of the body, hence ``back_factor``.
     """
     cos = np.asarray(cosines, dtype=np.float64)

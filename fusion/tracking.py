@@ -16,10 +16,10 @@ each person (docs/fusion.md):
    within half the gate are one person seen twice; the younger is merged into the older.
 5. **Death**: a person no sensor has seen for ``track_timeout_s`` is dropped.
 
-Then, per person: mirrored views are swapped back (:mod:`server.mirror`), each joint of each
+Then, per person: mirrored views are swapped back (:mod:`fusion.mirror`), each joint of each
 view gets a weight (tracking state × bone length × range of motion × facing × distance,
-:mod:`server.confidence`), views are fused (:func:`server.fusion.fuse_views`), filtered over
-time (:mod:`server.filters`) and given the person's reference bone lengths. Reference lengths
+:mod:`fusion.confidence`), views are fused (:func:`fusion.weighted.fuse_views`), filtered over
+time (:mod:`fusion.filters`) and given the person's reference bone lengths. Reference lengths
 are set through the API or estimated online from good views (:class:`BoneModel`).
 
 State is in memory only; nothing here does I/O.
@@ -35,8 +35,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.optimize import linear_sum_assignment
 
-from skelfuse.protocol.skeleton import BONE_MIRROR_PERMUTATION, BONES, JOINT_COUNT, TrackingState
-from skelfuse.server.confidence import (
+from skelfuse.fusion.confidence import (
     align_yaw,
     bone_length_factors,
     distance_factors,
@@ -47,8 +46,10 @@ from skelfuse.server.confidence import (
     propagate,
     range_of_motion_factors,
 )
-from skelfuse.server.filters import JointFilter, filter_all, make_filter
-from skelfuse.server.fusion import (
+from skelfuse.fusion.filters import JointFilter, filter_all, make_filter
+from skelfuse.fusion.mirror import MAX_VIEWS, PERMUTATION, choose_labellings
+from skelfuse.fusion.settings import FusionSettings
+from skelfuse.fusion.weighted import (
     TRUNK_JOINTS,
     enforce_bone_lengths,
     fuse_views_batch,
@@ -56,8 +57,7 @@ from skelfuse.server.fusion import (
     state_weights,
     trunk_distance,
 )
-from skelfuse.server.mirror import MAX_VIEWS, PERMUTATION, choose_labellings
-from skelfuse.server.settings import FusionSettings
+from skelfuse.protocol.skeleton import BONE_MIRROR_PERMUTATION, BONES, JOINT_COUNT, TrackingState
 
 FloatArray = npt.NDArray[np.float64]
 BONE_COUNT = len(BONES)
@@ -605,7 +605,7 @@ class PersonTracker:
         if s.outlier_scale_m > 0:
             several = np.array(counts)[person_of] > 1
             if several.any():
-                # One Cauchy re-weighting pass (server.fusion.robust_reweight) per person.
+                # One Cauchy re-weighting pass (fusion.weighted.robust_reweight) per person.
                 d = np.linalg.norm(joints - fused[person_of], axis=-1)
                 factor = np.where(np.isfinite(d), 1.0 / (1.0 + (d / s.outlier_scale_m) ** 2), 1.0)
                 weights = np.where(several[:, None], weights * factor, weights)
@@ -613,7 +613,7 @@ class PersonTracker:
 
         self._observe_bones(tracks, joints, states, cosines, person_of, slot_of, widest)
 
-        # Which views carried each joint (server.fusion.contributors), as source bitmasks.
+        # Which views carried each joint (fusion.weighted.contributors), as source bitmasks.
         final = np.zeros((persons, widest, JOINT_COUNT))
         final[person_of, slot_of] = np.where(np.isfinite(joints).all(-1), weights, 0.0)
         total_weight = final.sum(axis=1)
@@ -736,7 +736,7 @@ def _corrected_yaw(joints: FloatArray, cosines: FloatArray, max_deg: float) -> F
 
 
 def _trunk_distances(a: FloatArray, b: FloatArray) -> FloatArray:
-    """:func:`server.fusion.trunk_distance` of many pairs: a, b (M, 5, 3) midline joints → (M,)."""
+    """:func:`fusion.weighted.trunk_distance` of many pairs: a, b (M, 5, 3) midline → (M,)."""
     both = np.isfinite(a).all(-1) & np.isfinite(b).all(-1)
     diff = a - b
     d = np.sqrt((diff * diff).sum(-1))

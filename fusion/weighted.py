@@ -3,7 +3,7 @@
 Report A (``shared/papers.md``): sensor k sees joint n at J_kn with confidence C_kn; the fused
 joint is the confidence-weighted mean ``J_n = Σ_k C_kn·J_kn / Σ_k C_kn`` with C from the tracking
 state (NotTracked 0, Inferred 0.3, Tracked 0.7) times the body-based terms of
-:mod:`server.confidence` (bone length, range of motion, facing, distance). After fusion,
+:mod:`fusion.confidence` (bone length, range of motion, facing, distance). After fusion,
 :func:`robust_reweight` can discount views far from the consensus and
 :func:`enforce_bone_lengths` gives the skeleton the person's reference bone lengths.
 
@@ -17,8 +17,8 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
+from skelfuse.fusion.confidence import CHAIN_LEVELS
 from skelfuse.protocol.skeleton import BONES, JOINT_COUNT, JointId
-from skelfuse.server.confidence import CHAIN_LEVELS
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -39,8 +39,8 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
+from skelfuse.fusion.confidence import facing_direction, rom_factors_and_forward
 from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION
-from skelfuse.server.confidence import facing_direction, rom_factors_and_forward
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]

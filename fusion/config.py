@@ -24,7 +24,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from skelfuse.server.settings import FusionSettings
+from skelfuse.fusion.settings import FusionSettings
 
 
 class FusionConfigError(ValueError):

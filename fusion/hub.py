@@ -14,9 +14,14 @@ import time
 from collections import Counter
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
+from skelfuse import __version__
 from skelfuse.calibration.store import Calibration
+from skelfuse.fusion.sensors import SensorState, bodies_at, new_sensor
+from skelfuse.fusion.settings import HubSettings
+from skelfuse.fusion.stats import RollingStats
+from skelfuse.fusion.tracking import FusedPerson, PersonTracker, View
 from skelfuse.protocol.constants import MAX_MESSAGE_BYTES, MAX_RESPONSE_BYTES
 from skelfuse.protocol.errors import DecodeError
 from skelfuse.protocol.transform import Matrix4, apply
@@ -32,14 +37,6 @@ from skelfuse.protocol.wire import (
     Welcome,
     decode,
 )
-from skelfuse.server import __version__
-from skelfuse.server.sensors import SensorState, bodies_at, new_sensor
-from skelfuse.server.settings import Settings
-from skelfuse.server.stats import RollingStats
-from skelfuse.server.tracking import FusedPerson, PersonTracker, View
-
-if TYPE_CHECKING:
-    from skelfuse.recording.recorder import Recorder
 
 logger = logging.getLogger(__name__)
 
@@ -50,6 +47,14 @@ class SensorUnavailable(Exception):
 
 class AgentRequestFailed(Exception):
     """An agent answered a request with an error, or did not answer in time."""
+
+
+class MessageTap(Protocol):
+    """Sees every accepted hello and frame as received (the recorder, while a recording runs)."""
+
+    def on_hello(self, sensor_id: str, payload: bytes, t_s: float) -> None: ...
+
+    def on_frame(self, sensor_id: str, payload: bytes, t_s: float) -> None: ...
 
 
 SendFunction = Callable[[bytes, Message], Awaitable[None]]
@@ -73,7 +78,7 @@ class FusedFrame:
 
 
 class FusionHub:
-    def __init__(self, settings: Settings, calibration: Calibration | None = None) -> None:
+    def __init__(self, settings: HubSettings, calibration: Calibration | None = None) -> None:
         self.settings = settings
         self.calibration = calibration
         self.sensors: dict[str, SensorState] = {}
@@ -88,7 +93,7 @@ class FusionHub:
         self.send: SendFunction | None = None
         """Set by the ingest side: sends one message to the agent with this routing id."""
         self._pending: dict[int, tuple[str, asyncio.Future[Response]]] = {}
-        self.recorder: Recorder | None = None
+        self.recorder: MessageTap | None = None
         """While a recording runs: every accepted hello and frame, as received."""
         self.fusion_timing = RollingStats()
         """Seconds of compute per fusion step."""

@@ -1,0 +1,129 @@
+"""What fusion does, term by term: the full method by default, every term switchable.
+
+Docs: docs/fusion.md §9 (the TOML file a deployment sets them with).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+from skelfuse.protocol.constants import HEARTBEAT_INTERVAL_S
+
+
+@dataclass(frozen=True, slots=True)
+class FusionSettings:
+    """Parameters of fusion and tracking (see ``docs/fusion.md``).
+
+    The defaults are the full method. The benchmark's method ladder (tracking-state weights only,
+    + bone length, + range of motion, + mirrored-view correction, + filter) switches terms off
+    with ``dataclasses.replace``.
+    """
+
+    state_weights: tuple[float, float, float] = (0.0, 0.3, 0.7)
+    """Confidence of a NotTracked / Inferred / Tracked joint (report A's values)."""
+    association_gate_m: float = 0.5
+    """Views farther apart than this (trunk distance) are never the same person."""
+    track_timeout_s: float = 1.0
+    """A person unseen by every sensor for this long is gone; a later return gets a new id."""
+    track_min_frames: int = 3
+    """A new person is published after this many consecutive fused frames (no one-frame ghosts)."""
+
+    # --- body-based confidence (fusion/confidence.py) ------------------------------------------
+    use_bone_length: bool = True
+    """Multiply in the bone-length term (report A), propagated outward from SpineBase."""
+    bone_length_scale_m: float = 0.08
+    """Bone-length term ``exp(−|l − l_ref| / scale)``: 0.88 at 1 cm off, 0.29 at 10 cm."""
+    bone_estimate_window: int = 300
+    """Online reference lengths: median of the last this many good observations per bone."""
+    bone_estimate_min_samples: int = 10
+    """An online reference bone length is used once it has this many observations."""
+    bone_estimate_symmetric: bool = True
+    """Left and right bones share their observations in the online estimate (one length each)."""
+    bone_estimate_lock_samples: int | None = None
+    """An online reference bone length stops changing once it has this many good observations
+    (None: it follows the last ``bone_estimate_window`` observations for ever)."""
+    use_range_of_motion: bool = True
+    """Multiply in the range-of-motion term (anatomical limits table in fusion/confidence.py)."""
+    rom_scale_deg: float = 15.0
+    """Range-of-motion term ``exp(−excess / scale)`` for an angle ``excess`` degrees outside."""
+    use_facing: bool = True
+    """Multiply in how frontally the person faces each sensor."""
+    facing_power: float = 2.0
+    """Facing term ``floor + (1 − floor)·|cos θ|^power`` (θ: person's yaw off the sensor)."""
+    facing_floor: float = 0.1
+    facing_back_factor: float = 0.5
+    """The facing term is multiplied by this when the sensor sees the person's back."""
+    correct_view_yaw: bool = False
+    """Turn each view about the vertical to the facing of the views seen most frontally
+    (removes each sensor's bias of turning the skeleton towards itself)."""
+    yaw_max_deg: float = 60.0
+    """Views needing a larger turn are left as they are."""
+    use_distance: bool = False
+    """Multiply in the distance term: 1 inside ``distance_best_m``, Gaussian fall-off outside.
+    Off by default: on the simulated rigs it cost MPJPE in 6 of 8 benchmark groups (far views
+    are often the frontal ones, and depth noise is small next to drift and inferred joints;
+    docs/benchmarks.md). Worth trying where far views are visibly worse."""
+    distance_best_m: tuple[float, float] = (1.5, 3.0)
+    distance_scale_m: float = 1.0
+    outlier_scale_m: float = 0.0
+    """Robust re-weighting (Cauchy, one pass) of views far from the weighted mean; 0 = off."""
+
+    # --- mirrored views (fusion/mirror.py) ----------------------------------------------------
+    use_mirror_correction: bool = True
+    """Detect views whose left and right are swapped (person facing away) and swap them back."""
+    mirror_geometry_weight_m: float = 0.15
+    """Cost (metres of disagreement) of a labelling that contradicts where the person faces."""
+    mirror_hysteresis_m: float = 0.05
+    """Extra cost of changing a view's labelling from the previous step."""
+    mirror_track_weight: float = 1.0
+    """Weight of the agreement with the person's previous fused skeleton."""
+    mirror_anatomy_weight_m: float = 0.1
+    """Cost per joint out of its range of motion under a labelling (bent knees look
+    hyperextended and feet point backwards when left and right are swapped)."""
+    mirror_walk_check_s: float = 0.5
+    """A person whose fused skeleton faces against the way it walks for this long is taken to
+    be mirrored as a whole (every view's labelling and the track swapped); 0 = off. People walk
+    forwards: a track that started mirrored can otherwise stay so, since every view is then
+    labelled to agree with it (docs/fusion.md)."""
+    mirror_walk_min_speed_mps: float = 0.5
+    """Walking speed from which the walking direction is trusted (side steps and shuffles are
+    slower; brisk walking backwards for longer than ``mirror_walk_check_s`` is misread)."""
+
+    # --- temporal filter (fusion/filters.py) --------------------------------------------------
+    filter: Literal["one_euro", "kalman", "none"] = "one_euro"
+    """``none``, ``one_euro`` (default) or ``kalman``; applied per person after fusion."""
+    one_euro_min_cutoff_hz: float = 1.5
+    one_euro_beta: float = 10.0
+    one_euro_d_cutoff_hz: float = 1.0
+    kalman_accel_std: float = 8.0
+    """Constant-velocity Kalman: white acceleration noise, m/s² (per axis)."""
+    kalman_meas_std_m: float = 0.03
+    """Constant-velocity Kalman: measurement noise of a fused joint, metres (per axis)."""
+    kalman_predict_s: float = 0.0
+    """Extrapolate the Kalman output this far ahead (compensates latency; adds overshoot)."""
+    enforce_bone_lengths: bool = True
+    """Give each fused skeleton the person's reference bone lengths."""
+    bone_length_fit: Literal["projection", "chain"] = "projection"
+    """How: ``projection`` moves both ends of each bone, as little as possible in all
+    (fusion.weighted.project_bone_lengths); ``chain`` rescales bone after bone outward from
+    SpineBase, keeping each parent where it is (fusion.weighted.enforce_bone_lengths)."""
+    bone_fit_iterations: int = 3
+    """Passes of ``projection`` before its exact finishing pass."""
+
+
+@dataclass(frozen=True, slots=True)
+class HubSettings:
+    """What the fusion hub reads: the method, the output grid and sensor liveness.
+
+    The server's :class:`skelfuse.server.settings.Settings` extends it with the network's.
+    """
+
+    fusion: FusionSettings = field(default_factory=FusionSettings)
+    output_hz: float = 30.0
+    """Fused frames per second: instants on a fixed grid of the server clock."""
+    max_wait_s: float = 0.1
+    """Fusion waits at most this long for a late sensor before fusing without it."""
+    interpolation_gap_s: float = 0.1
+    """Frames further apart than this are not interpolated between (nearest is used)."""
+    heartbeat_interval_s: float = HEARTBEAT_INTERVAL_S
