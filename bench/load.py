@@ -618,8 +618,8 @@ def fusion_timing(sensors: int, bodies: int, steps: int = 1000, warmup: int = 10
     """Median cost of one fused frame (and of ingesting one frame) on the production classes."""
     from skelfuse.fusion.hub import FusionHub
     from skelfuse.fusion.tracking import FusedPerson, PersonTracker, View
+    from skelfuse.protocol.feed import frame_json
     from skelfuse.server.broadcast import encode_message
-    from skelfuse.server.messages import frame_json
     from skelfuse.server.settings import Settings
 
     tracker_times: list[float] = []
@@ -666,7 +666,7 @@ def fusion_timing(sensors: int, bodies: int, steps: int = 1000, warmup: int = 10
         if fused is None:
             raise RuntimeError(f"fusion produced nothing at step {k}")
         start = time.perf_counter()
-        encode_message(frame_json(fused, False), binary=False)
+        encode_message(frame_json(fused, False, time.time()), binary=False)
         encode_elapsed = time.perf_counter() - start
         if k >= warmup:
             fuse.append(elapsed)

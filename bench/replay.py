@@ -32,11 +32,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from skelfuse.agent.sim.kinect_model import SimulatedKinect
 from skelfuse.agent.sim.performer import ProceduralPerformer
 from skelfuse.fusion.hub import FusedFrame
+from skelfuse.protocol.feed import frame_json
 from skelfuse.protocol.transform import look_at_pose
 from skelfuse.protocol.wire import Body, Frame, Hello, encode
 from skelfuse.recording.export_bvh import export_bvh, roundtrip_errors_m
 from skelfuse.recording.format import Header, pack_record
-from skelfuse.recording.replay import fused_frame_json, replay
+from skelfuse.recording.replay import replay
 from skelfuse.recording.take import take_from_frames
 
 FPS = 30.0
@@ -87,7 +88,9 @@ def fused_digest(path: Path) -> tuple[str, list[FusedFrame], float]:
     elapsed = time.perf_counter() - started
     digest = hashlib.sha256()
     for frame in frames:
-        digest.update(json.dumps(fused_frame_json(frame), separators=(",", ":")).encode())
+        digest.update(
+            json.dumps(frame_json(frame, include_raw=False), separators=(",", ":")).encode()
+        )
     return digest.hexdigest(), frames, elapsed
 
 

@@ -4,7 +4,7 @@ Every record goes to a fresh hub (built with the recording's calibration) in fil
 its recorded arrival time as "now", exactly like :mod:`bench.accuracy` drives the hub; after each
 frame the fusion step runs at that time, as the live fusion loop does on every arrival. Nothing
 reads the wall clock, so the same file always gives the same fused frames (and the same bytes
-from :func:`fused_frame_json`), as fast as the CPU allows.
+from :func:`write_jsonl`), as fast as the CPU allows.
 """
 
 from __future__ import annotations
@@ -13,14 +13,14 @@ import json
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TextIO
 
 from skelfuse.calibration.store import Calibration, SensorCalibration
 from skelfuse.fusion.hub import FusedFrame, FusionHub
 from skelfuse.fusion.settings import HubSettings
+from skelfuse.protocol.feed import frame_json
 from skelfuse.protocol.skeleton import skeleton_definition
 from skelfuse.recording.format import Header, ReadStatus, RecordingReader
-from skelfuse.server.messages import person_json
 
 
 @dataclass(slots=True)
@@ -99,23 +99,17 @@ def replay(
                 yield fused
 
 
-def fused_frame_json(frame: FusedFrame) -> dict[str, Any]:
-    """A fused frame as apps get it on the WebSocket, minus the wall-clock ``t_sent``."""
-    return {
-        "type": "frame",
-        "v": 1,
-        "seq": frame.seq,
-        "t": round(frame.t_s, 6),
-        "persons": [person_json(p) for p in frame.persons],
-    }
-
-
 def write_jsonl(frames: Iterable[FusedFrame], out: TextIO) -> int:
-    """Write the skeleton definition, then one JSON line per fused frame; returns the count."""
+    """Write the skeleton definition, then one JSON line per fused frame; returns the count.
+
+    Each line is the frame as apps get it on the WebSocket, minus the wall-clock ``t_sent``.
+    """
     out.write(json.dumps(skeleton_definition(), separators=(",", ":")) + "\n")
     count = 0
     for frame in frames:
-        out.write(json.dumps(fused_frame_json(frame), separators=(",", ":"), allow_nan=False))
+        out.write(
+            json.dumps(frame_json(frame, include_raw=False), separators=(",", ":"), allow_nan=False)
+        )
         out.write("\n")
         count += 1
     return count

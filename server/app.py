@@ -24,13 +24,13 @@ from prometheus_client import CollectorRegistry, make_asgi_app
 from skelfuse import __version__
 from skelfuse.calibration.store import CalibrationStore
 from skelfuse.fusion.hub import FusionHub
+from skelfuse.protocol.feed import person_json
 from skelfuse.protocol.skeleton import skeleton_definition
 from skelfuse.server import routes_calibration, routes_fusion, routes_recordings
 from skelfuse.server.auth import SensorAuthenticator
 from skelfuse.server.broadcast import Broadcaster, Variant, encode_message, pump
 from skelfuse.server.calibration_runs import CalibrationService
 from skelfuse.server.ingest import fusion_loop, ingest_loop, liveness_loop, open_router, send_to
-from skelfuse.server.messages import person_json
 from skelfuse.server.metrics import SkelfuseCollector
 from skelfuse.server.security import HttpGuard, origin_ok, token_ok
 from skelfuse.server.settings import Settings

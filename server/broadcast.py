@@ -20,7 +20,7 @@ from typing import Any
 import msgpack
 
 from skelfuse.fusion.hub import FusedFrame
-from skelfuse.server.messages import frame_json
+from skelfuse.protocol.feed import frame_json
 
 logger = logging.getLogger(__name__)
 
@@ -108,7 +108,7 @@ class Broadcaster:
             payload = cache.get(client.variant)
             if payload is None:
                 payload = encode_message(
-                    frame_json(frame, client.variant.raw), client.variant.binary
+                    frame_json(frame, client.variant.raw, time.time()), client.variant.binary
                 )
                 cache[client.variant] = payload
             client.offer(payload, now)

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from bench.replay import generate_recording
+from skelfuse.protocol.feed import frame_json
 from skelfuse.protocol.wire import Frame, Hello, decode, encode
 from skelfuse.recording.format import (
     Header,
@@ -23,7 +24,7 @@ from skelfuse.recording.format import (
     write_recording,
 )
 from skelfuse.recording.recorder import Recorder
-from skelfuse.recording.replay import fused_frame_json, replay, write_jsonl
+from skelfuse.recording.replay import replay, write_jsonl
 
 
 @pytest.fixture(scope="module")
@@ -34,7 +35,9 @@ def sim_recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def _digest(path: Path) -> list[str]:
-    return [json.dumps(fused_frame_json(f), separators=(",", ":")) for f in replay(path)]
+    return [
+        json.dumps(frame_json(f, include_raw=False), separators=(",", ":")) for f in replay(path)
+    ]
 
 
 def test_replay_is_deterministic_and_fuses_both_people(sim_recording: Path) -> None:

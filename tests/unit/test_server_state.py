@@ -15,10 +15,10 @@ from skelfuse.calibration.store import CalibrationFileError, CalibrationStore, S
 from skelfuse.cli import UsageError, parse_host_port, parse_pose
 from skelfuse.fusion.hub import FusionHub
 from skelfuse.fusion.sensors import SlidingMinimum, TimedFrame, bodies_at
+from skelfuse.protocol.feed import frame_json
 from skelfuse.protocol.skeleton import JOINT_COUNT
 from skelfuse.protocol.transform import pose_from_position_yaw_pitch
 from skelfuse.protocol.wire import Body, ErrorMessage, Frame, Heartbeat, Hello, Welcome, encode
-from skelfuse.server.messages import frame_json
 from skelfuse.server.settings import Settings
 
 STATES = np.full(JOINT_COUNT, 2, np.uint8)

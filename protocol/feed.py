@@ -1,0 +1,135 @@
+"""Messages apps receive on the WebSocket feed: fused frames and persons as JSON-ready dicts.
+
+The one builder of these messages (docs/api.md), used by the live server and by offline replay.
+NaN never leaves the server: unknown joints become ``null``. Tracking ids become strings because
+a uint64 does not fit a JavaScript number. The builder reads the fusion results through the small
+protocols below, so this layer does not import the fusion layer that produces them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Final, Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+FEED_VERSION: Final = 1
+"""The ``v`` of every feed message."""
+
+
+class FeedPerson(Protocol):
+    """What a fused person message is built from (``skelfuse.fusion.tracking.FusedPerson``).
+
+    joints: (25, 3) metres, world frame, NaN where unknown.
+    confidence: (25,) in [0, 1].
+    joint_sources: (25,) bitmask per joint: bit k set when ``sources[k]`` contributed.
+    mirrored: the sensors whose view of this person was swapped back (left ↔ right).
+    """
+
+    @property
+    def person_id(self) -> int: ...
+    @property
+    def joints(self) -> npt.NDArray[np.floating]: ...
+    @property
+    def confidence(self) -> npt.NDArray[np.floating]: ...
+    @property
+    def sources(self) -> Sequence[str]: ...
+    @property
+    def joint_sources(self) -> npt.NDArray[np.integer]: ...
+    @property
+    def mirrored(self) -> Sequence[str]: ...
+
+
+class FeedView(Protocol):
+    """One sensor's body in the world frame (``skelfuse.fusion.tracking.View``).
+
+    joints_world: (25, 3) metres, world frame, NaN where not tracked.
+    states: (25,) TrackingState values.
+    """
+
+    @property
+    def sensor_id(self) -> str: ...
+    @property
+    def tracking_id(self) -> int: ...
+    @property
+    def joints_world(self) -> npt.NDArray[np.floating]: ...
+    @property
+    def states(self) -> npt.NDArray[np.uint8]: ...
+
+
+class FeedFrame(Protocol):
+    """One fusion step's result (``skelfuse.fusion.hub.FusedFrame``); ``t_s`` in Unix seconds."""
+
+    @property
+    def seq(self) -> int: ...
+    @property
+    def t_s(self) -> float: ...
+    @property
+    def persons(self) -> Sequence[FeedPerson]: ...
+    @property
+    def raw(self) -> Sequence[FeedView]: ...
+
+
+def joints_json(joints: npt.NDArray[np.floating], decimals: int = 4) -> list[list[float] | None]:
+    """(J, 3) metres → J rows ``[x, y, z]`` rounded to ``decimals``; ``None`` where not finite."""
+    rounded = np.round(np.asarray(joints, dtype=np.float64), decimals).reshape(-1, 3)
+    finite = np.isfinite(rounded).all(axis=1).reshape(-1)
+    return [row.tolist() if finite[i] else None for i, row in enumerate(rounded)]
+
+
+def person_json(person: FeedPerson, decimals: int = 4) -> dict[str, object]:
+    """A fused person as apps receive it: NaN never leaves the server (null instead).
+
+    Confidence is 0 exactly where the joint is null (docs/api.md): a joint that is present but
+    only barely trusted is sent as 0.001, not rounded away to 0.
+    """
+    joints = joints_json(person.joints, decimals)
+    confidence = [
+        0.0 if joint is None else max(round(float(c), 3), 0.001)
+        for joint, c in zip(joints, person.confidence, strict=True)
+    ]
+    return {
+        "id": person.person_id,
+        "joints": joints,
+        "confidence": confidence,
+        "sources": list(person.sources),
+        # Per joint, bit k set when sources[k] contributed (≥ 5 % of the joint's weight).
+        "joint_sources": [int(m) for m in person.joint_sources],
+        "mirrored": list(person.mirrored),
+    }
+
+
+def view_json(view: FeedView, decimals: int = 4) -> dict[str, object]:
+    """One sensor's body as sent in a frame's ``raw`` list."""
+    return {
+        "sensor": view.sensor_id,
+        "tracking_id": str(view.tracking_id),  # uint64 does not fit a JavaScript number
+        "joints": joints_json(view.joints_world, decimals),
+        "states": [int(s) for s in view.states],
+    }
+
+
+def frame_json(
+    frame: FeedFrame, include_raw: bool, sent_at_s: float | None = None
+) -> dict[str, object]:
+    """A fused frame message.
+
+    Args:
+        frame: the fused frame.
+        include_raw: add every sensor's bodies (``raw``), for clients that asked for them.
+        sent_at_s: the server's wall clock when sending (Unix seconds), sent as ``t_sent``; None
+            leaves ``t_sent`` out, as offline replay does so that its output is deterministic.
+    """
+    message: dict[str, object] = {
+        "type": "frame",
+        "v": FEED_VERSION,
+        "seq": frame.seq,
+        "t": round(frame.t_s, 6),
+    }
+    if sent_at_s is not None:
+        message["t_sent"] = round(sent_at_s, 6)
+    message["persons"] = [person_json(p) for p in frame.persons]
+    if include_raw:
+        message["raw"] = [view_json(v) for v in frame.raw]
+    return message
