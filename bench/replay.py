@@ -33,10 +33,10 @@ from skelfuse.agent.sim.kinect_model import SimulatedKinect
 from skelfuse.agent.sim.performer import ProceduralPerformer
 from skelfuse.fusion.hub import FusedFrame
 from skelfuse.protocol.feed import frame_json
+from skelfuse.protocol.recording_file import Header, pack_record
 from skelfuse.protocol.transform import look_at_pose
 from skelfuse.protocol.wire import Body, Frame, Hello, encode
 from skelfuse.recording.export_bvh import export_bvh, roundtrip_errors_m
-from skelfuse.recording.format import Header, pack_record
 from skelfuse.recording.replay import replay
 from skelfuse.recording.take import take_from_frames
 

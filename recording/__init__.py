@@ -1,5 +1,6 @@
-"""Recordings of agents' raw streams, offline replay through the fusion server, and exports.
+"""Recordings of agents' raw streams, offline replay through the fusion layer, and exports.
 
-``recording.format`` and ``recording.recorder`` need only numpy and msgpack (an agent can read a
-recording); ``recording.replay`` runs the server's fusion, so it needs the server extra.
+The file format itself is a contract, in :mod:`skelfuse.protocol.recording_file` (an agent reads
+recordings through it). ``recording.recorder`` needs only numpy and msgpack; ``recording.replay``
+runs the fusion layer, so it needs the server extra.
 """

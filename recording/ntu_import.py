@@ -11,10 +11,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
-from skelfuse.agent.sources.ntu import NTU_FPS, parse_ntu_name, read_ntu_skeleton
+from skelfuse.protocol.ntu import NTU_FPS, parse_ntu_name, read_ntu_skeleton
+from skelfuse.protocol.recording_file import Header, Record, SensorPose
 from skelfuse.protocol.transform import Matrix4
 from skelfuse.protocol.wire import Frame, Hello, encode
-from skelfuse.recording.format import Header, Record, SensorPose
 
 _T0_NS = 1_700_000_000_000_000_000
 _NETWORK_DELAY_NS = 2_000_000

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
 
-from skelfuse.recording.format import Header, RecordingError, pack_record
+from skelfuse.protocol.recording_file import Header, RecordingError, pack_record
 
 logger = logging.getLogger(__name__)
 
@@ -44,7 +44,7 @@ class RecorderStats:
 
 
 class Recorder:
-    """Records every agent's raw stream into one file (format: :mod:`recording.format`).
+    """Records every agent's raw stream into one file (:mod:`skelfuse.protocol.recording_file`).
 
     Args:
         path: the file to create (it must not exist).

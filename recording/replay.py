@@ -19,8 +19,8 @@ from skelfuse.calibration.store import Calibration, SensorCalibration
 from skelfuse.fusion.hub import FusedFrame, FusionHub
 from skelfuse.fusion.settings import HubSettings
 from skelfuse.protocol.feed import frame_json
+from skelfuse.protocol.recording_file import Header, ReadStatus, RecordingReader
 from skelfuse.protocol.skeleton import skeleton_definition
-from skelfuse.recording.format import Header, ReadStatus, RecordingReader
 
 
 @dataclass(slots=True)

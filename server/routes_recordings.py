@@ -22,8 +22,14 @@ from pydantic import BaseModel, Field
 
 from skelfuse import __version__
 from skelfuse.fusion.hub import FusionHub
+from skelfuse.protocol.recording_file import (
+    FILE_SUFFIX,
+    Header,
+    RecordingError,
+    SensorPose,
+    summarize,
+)
 from skelfuse.protocol.wire import Hello, encode
-from skelfuse.recording.format import FILE_SUFFIX, Header, RecordingError, SensorPose, summarize
 from skelfuse.recording.recorder import Recorder
 
 router = APIRouter(prefix="/api/recordings", tags=["recordings"])

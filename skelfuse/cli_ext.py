@@ -168,7 +168,7 @@ def _recording_path(
 ) -> tuple[Path, tempfile.TemporaryDirectory[str] | None]:
     files = [Path(f) for f in args.file] if isinstance(args.file, list) else [Path(args.file)]
     if all(f.suffix == ".skeleton" for f in files):
-        from skelfuse.recording.format import write_recording
+        from skelfuse.protocol.recording_file import write_recording
         from skelfuse.recording.ntu_import import ntu_recording
 
         poses = args.pose or []
@@ -208,7 +208,7 @@ def _replay_settings(args: argparse.Namespace) -> Any:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from skelfuse.recording.format import RecordingError
+    from skelfuse.protocol.recording_file import RecordingError
     from skelfuse.recording.replay import ReplayStats, replay, write_jsonl
     from skelfuse.recording.take import take_from_frames
 
@@ -257,7 +257,7 @@ def cmd_export(args: argparse.Namespace) -> int:
             )
         take = take_from_jsonl(source)
     else:
-        from skelfuse.recording.format import RecordingError
+        from skelfuse.protocol.recording_file import RecordingError
         from skelfuse.recording.replay import replay
         from skelfuse.recording.take import take_from_frames
 

@@ -16,9 +16,9 @@ import numpy as np
 
 from skelfuse.agent.sources.base import Capture, SensorError
 from skelfuse.protocol.errors import DecodeError
+from skelfuse.protocol.recording_file import RecordingError, read_recording
 from skelfuse.protocol.transform import Matrix4
 from skelfuse.protocol.wire import Frame, Hello, decode
-from skelfuse.recording.format import RecordingError, read_recording
 
 
 class ReplaySource:

@@ -16,7 +16,7 @@ import pytest
 
 from skelfuse.agent.runner import run_agent
 from skelfuse.agent.sources.replay import ReplaySource
-from skelfuse.recording.format import read_recording
+from skelfuse.protocol.recording_file import read_recording
 from skelfuse.recording.replay import replay
 from tests.integration.conftest import AgentThread, LiveServer
 from tests.support import wait_until

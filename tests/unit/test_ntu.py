@@ -7,12 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from skelfuse.agent.sources.ntu import (
-    NtuFormatError,
-    NtuSource,
-    parse_ntu_name,
-    read_ntu_skeleton,
-)
+from skelfuse.agent.sources.base import SensorError
+from skelfuse.agent.sources.ntu import NtuSource
+from skelfuse.protocol.ntu import NtuFormatError, parse_ntu_name, read_ntu_skeleton
 from skelfuse.protocol.transform import apply, invert, look_at_pose
 from skelfuse.protocol.wire import Frame, encode
 
@@ -43,6 +40,8 @@ def test_truncated_file_names_the_line(tmp_path: Path) -> None:
     broken.write_text("\n".join(FIXTURE.read_text().split("\n")[:20]))
     with pytest.raises(NtuFormatError, match="ends early"):
         read_ntu_skeleton(broken)
+    with pytest.raises(SensorError, match="ends early"):  # the agent reports it as a sensor error
+        NtuSource(broken)
 
 
 def test_source_paces_at_30_fps_from_a_shared_start() -> None:
@@ -65,7 +64,7 @@ def test_source_paces_at_30_fps_from_a_shared_start() -> None:
 
 
 def test_three_cameras_with_poses_fuse_into_one_person(tmp_path: Path) -> None:
-    from skelfuse.recording.format import write_recording
+    from skelfuse.protocol.recording_file import write_recording
     from skelfuse.recording.ntu_import import ntu_recording
     from skelfuse.recording.replay import replay
     from skelfuse.server.settings import FusionSettings, Settings

@@ -11,8 +11,7 @@ import pytest
 
 from bench.replay import generate_recording
 from skelfuse.protocol.feed import frame_json
-from skelfuse.protocol.wire import Frame, Hello, decode, encode
-from skelfuse.recording.format import (
+from skelfuse.protocol.recording_file import (
     Header,
     Record,
     RecordingError,
@@ -23,6 +22,7 @@ from skelfuse.recording.format import (
     summarize,
     write_recording,
 )
+from skelfuse.protocol.wire import Frame, Hello, decode, encode
 from skelfuse.recording.recorder import Recorder
 from skelfuse.recording.replay import replay, write_jsonl
 
