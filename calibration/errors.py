@@ -7,7 +7,9 @@
     ├── NotEnoughCorrespondences     fewer pairs/frames than the method needs
     ├── DegenerateGeometry           the pairs do not pin down a pose (collinear, coincident,
     │                                a person who did not move)
-    └── NoOverlap                    two point clouds do not see the same surfaces
+    ├── NoOverlap                    two point clouds do not see the same surfaces
+    └── IcpUnavailable               open3d (ICP) does not import: not installed, or a system
+                                     library it links is missing
 
 Every message says what was received and what to do about it, so the REST layer can pass it
 through to the user unchanged.
@@ -34,3 +36,7 @@ class DegenerateGeometry(CalibrationError):
 
 class NoOverlap(CalibrationError):
     """Two point clouds share (almost) no surface at the initial guess."""
+
+
+class IcpUnavailable(CalibrationError):
+    """open3d, which ICP refinement needs, does not import; the message names what is missing."""

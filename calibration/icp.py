@@ -34,7 +34,7 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.calibration.errors import InvalidInput, NoOverlap
+from skelfuse.calibration.errors import IcpUnavailable, InvalidInput, NoOverlap
 from skelfuse.calibration.rigid import rotation_angle_deg
 from skelfuse.protocol.transform import Matrix4, apply, is_rigid
 
@@ -86,9 +86,26 @@ def _cloud_array(points: npt.ArrayLike, name: str) -> FloatArray:
     return array
 
 
-def _to_o3d(points: FloatArray) -> Any:
-    import open3d as o3d
+def _open3d() -> Any:
+    """The open3d module, imported on first use.
 
+    Raises:
+        IcpUnavailable: open3d is not installed, or its native library does not load (on Linux
+            it links libusb-1.0, absent from minimal systems); the message says what to install.
+    """
+    try:
+        import open3d
+    except ImportError as exc:
+        if "libusb" in str(exc):
+            fix = "it links the system library libusb-1.0: apt-get install libusb-1.0-0"
+        else:
+            fix = "install the server extras: pip install 'skelfuse[server]'"
+        raise IcpUnavailable(f"ICP needs open3d, which does not import ({exc}): {fix}") from exc
+    return open3d
+
+
+def _to_o3d(points: FloatArray) -> Any:
+    o3d = _open3d()
     cloud = o3d.geometry.PointCloud()
     cloud.points = o3d.utility.Vector3dVector(points)
     return cloud
@@ -211,9 +228,9 @@ def refine_icp(
     Raises:
         InvalidInput: empty clouds, NaN/inf, wrong shapes, a non-rigid initial guess, no levels.
         NoOverlap: (almost) no source point near the target at the coarsest level.
+        IcpUnavailable: open3d does not import (see :func:`_open3d`).
     """
-    import open3d as o3d
-
+    o3d = _open3d()
     reg = o3d.pipelines.registration
     src_all = _cloud_array(source_points, "source_points")
     tgt_all = _cloud_array(target_points, "target_points")

@@ -9,16 +9,9 @@ echo "==> installing skelfuse with the dev extras"
 "$VENV/bin/pip" install --quiet --disable-pip-version-check -e '.[dev]'
 
 if ! command -v chromium >/dev/null 2>&1; then
-  echo "==> installing Debian's chromium for the viewer test"
-  if [ "$(id -u)" = 0 ]; then
-    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null
-  elif command -v sudo >/dev/null 2>&1 && sudo -n true 2>/dev/null; then
-    sudo apt-get update -qq && sudo DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null
-  else
-    echo "warning: no chromium and no root: the browser tests will report themselves skipped" >&2
-    echo "         (install it with: sudo apt-get install chromium)" >&2
-  fi
+  install_debian_package chromium "the viewer's browser tests need it (skipped without it)"
 fi
+ensure_libusb
 
 echo "==> ruff"
 "$VENV/bin/ruff" check .
