@@ -58,7 +58,7 @@ from skelfuse.agent.sim.performer import ClipPerformer, Performer, ProceduralPer
 from skelfuse.agent.sim.scenarios import Line, LineWalkers, Segment, Standing
 from skelfuse.fusion.filters import ConstantVelocityKalman, JointFilter, OneEuroFilter
 from skelfuse.fusion.hub import FusionHub
-from skelfuse.fusion.weighted import TRUNK_JOINTS
+from skelfuse.fusion.identity import TRUNK_JOINTS
 from skelfuse.protocol.skeleton import BONES, JOINT_COUNT, JointId, TrackingState, bone_lengths
 from skelfuse.protocol.transform import apply, look_at_pose
 from skelfuse.protocol.wire import Body, Frame, Hello, encode
@@ -349,7 +349,7 @@ def paper_experiment(seed: int = 0) -> dict[str, dict[str, float]]:
 
     def set_reference(label: str, hub: FusionHub) -> None:
         if label in methods and methods[label].use_bone_length:
-            hub.tracker.default_bone_lengths = premeasured
+            hub.pipeline.default_bone_lengths = premeasured
 
     scenario = Scenario("paper", Segment(ProceduralPerformer(1), 0.0, 6.3), 62 / FPS, 2, "")
     hubs: dict[str, FusionHub] = {}

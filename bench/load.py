@@ -30,7 +30,7 @@ Measured over a window that starts after all sensors are online and a warm-up:
   it, and the healthy clients' latency while it was connected vs after.
 
 Separately, in-process: the fusion compute per fused frame (``FusionHub.fuse_step`` and the
-``PersonTracker.update`` inside it), the per-frame JSON encode, and ``handle_message`` per
+``FusionPipeline.update`` inside it), the per-frame JSON encode, and ``handle_message`` per
 incoming frame, median over 1000 steps.
 
 Run: ``python bench/load.py`` (main run: 10 agents × 6 bodies, 120 s), ``--scaling`` (agents in
@@ -617,14 +617,15 @@ class FusionTiming:
 def fusion_timing(sensors: int, bodies: int, steps: int = 1000, warmup: int = 100) -> FusionTiming:
     """Median cost of one fused frame (and of ingesting one frame) on the production classes."""
     from skelfuse.fusion.hub import FusionHub
-    from skelfuse.fusion.tracking import FusedPerson, PersonTracker, View
+    from skelfuse.fusion.pipeline import FusionPipeline
+    from skelfuse.fusion.views import FusedPerson, View
     from skelfuse.protocol.feed import frame_json
     from skelfuse.server.broadcast import encode_message
     from skelfuse.server.settings import Settings
 
     tracker_times: list[float] = []
 
-    class TimedTracker(PersonTracker):
+    class TimedPipeline(FusionPipeline):
         def update(self, views: list[View], t_s: float) -> list[FusedPerson]:
             start = time.perf_counter()
             out = super().update(views, t_s)
@@ -635,7 +636,7 @@ def fusion_timing(sensors: int, bodies: int, steps: int = 1000, warmup: int = 10
     settings = Settings()
     calibration = Calibration(1, 0.0, {s: SensorCalibration(p, "bench") for s, p in poses.items()})
     hub = FusionHub(settings, calibration)
-    hub.tracker = TimedTracker(settings.fusion)
+    hub.pipeline = TimedPipeline(settings.fusion)
     performer = ProceduralPerformer(bodies)
     states = np.full(JOINT_COUNT, TrackingState.TRACKED, dtype=np.uint8)
     t_start = math.floor(1_800_000_000.0 * FPS) / FPS
@@ -806,7 +807,7 @@ def print_fusion(timings: list[FusionTiming]) -> None:
     print("\nIn-process fusion cost (production classes, simulated time), median over steps\n")
     print(
         "| sensors × bodies | `fuse_step` wall median (p99) ms | `fuse_step` CPU median ms "
-        "| target | `PersonTracker.update` wall ms | JSON encode per frame ms "
+        "| target | `FusionPipeline.update` wall ms | JSON encode per frame ms "
         "| `handle_message` per frame ms |"
     )
     print("|---|---|---|---|---|---|---|")

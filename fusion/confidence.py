@@ -1,8 +1,10 @@
 """Body-based confidence of each joint of each view: bone length, range of motion, facing, distance.
 
 Report A (``shared/papers.md``) multiplies body-based terms into the tracking-state weight of
-each joint of each view. Everything here is a pure function on arrays; the terms are combined in
-:mod:`fusion.tracking` and fused by :func:`fusion.weighted.fuse_views`.
+each joint of each view. Everything here is a pure function on arrays;
+:mod:`skelfuse.fusion.pipeline` combines the terms (:func:`body_weights`, :func:`view_factors`)
+and :mod:`skelfuse.fusion.weighted` fuses with them. :func:`joint_confidence` is the one place the
+confidence apps receive with each fused joint is computed.
 
 Shapes: S views of one person, 25 joints, 24 bones (:data:`protocol.skeleton.BONES` order).
 Positions in metres, world frame (+Y up). Every term is in (0, 1], 1 meaning "no doubt", and a
@@ -65,55 +67,21 @@ how far the horizontal distance is outside the best band.
 
 from __future__ import annotations
 
-import math
 from typing import Final
 
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.protocol.skeleton import BONES, JOINT_COUNT, PARENTS, JointId
+from skelfuse.fusion.anatomy import CHAIN_LEVELS, HORIZONTAL, rom_factors_and_forward, unit
+from skelfuse.fusion.settings import FusionSettings
+from skelfuse.protocol.skeleton import BONES, JointId
 
 FloatArray = npt.NDArray[np.float64]
 J = JointId
 
 
-def _topological_order() -> tuple[int, ...]:
-    depth = [0] * JOINT_COUNT
-    for joint in range(JOINT_COUNT):
-        node, d = joint, 0
-        while PARENTS[node] >= 0:
-            node, d = PARENTS[node], d + 1
-        depth[joint] = d
-    return tuple(sorted(range(JOINT_COUNT), key=lambda j: (depth[j], j)))
-
-
-CHAIN_ORDER: Final[tuple[int, ...]] = _topological_order()
-"""Joints sorted so that every parent comes before its children (SpineBase first)."""
-
-
-def _depth_levels() -> tuple[tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]], ...]:
-    depth = {0: 0}
-    for joint in CHAIN_ORDER[1:]:
-        depth[joint] = depth[PARENTS[joint]] + 1
-    levels = []
-    for d in range(1, max(depth.values()) + 1):
-        children = [j for j in CHAIN_ORDER if depth[j] == d]
-        levels.append(
-            (np.array(children, dtype=np.intp), np.array([PARENTS[j] for j in children], np.intp))
-        )
-    return tuple(levels)
-
-
-CHAIN_LEVELS: Final = _depth_levels()
-"""(children, their parents) per depth below SpineBase: each level only needs the one above."""
-
 _BONE_CHILD: Final = np.array([child for _, child in BONES])
 _BONE_PARENT: Final = np.array([parent for parent, _ in BONES])
-
-BONE_NAMES: Final[tuple[str, ...]] = tuple(
-    f"{JointId(p).name.lower()}-{JointId(c).name.lower()}" for p, c in BONES
-)
-"""Bone names for the API: ``parent-child`` in snake case, e.g. ``hip_right-knee_right``."""
 
 
 def propagate(local: npt.ArrayLike) -> FloatArray:
@@ -159,180 +127,6 @@ def bone_length_factors(
 # --- body frame and angles ----------------------------------------------------------------------
 
 
-_HORIZONTAL: Final = np.array([1.0, 0.0, 1.0])
-
-
-def _unit(v: FloatArray) -> FloatArray:
-    norm = np.sqrt((v * v).sum(-1, keepdims=True))  # == np.linalg.norm(v, axis=-1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        result: FloatArray = v / norm
-    return result
-
-
-def _cross(a: FloatArray, b: FloatArray) -> FloatArray:
-    """``np.cross`` for 3-vectors (the same operations, so the same bits), without its overhead."""
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    out: FloatArray = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    out[..., 0] = a1 * b2 - a2 * b1
-    out[..., 1] = a2 * b0 - a0 * b2
-    out[..., 2] = a0 * b1 - a1 * b0
-    return out
-
-
-def body_frame(views: npt.ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Each view's own body axes, from its labels.
-
-    Args:
-        views: (S, 25, 3) joints, metres, world frame.
-
-    Returns:
-        left, up, forward: (S, 3) unit vectors (NaN where the trunk is missing). ``left`` is the
-        mean of the hip and shoulder left-minus-right vectors made orthogonal to ``up``
-        (SpineBase → SpineShoulder); ``forward = left × up``.
-    """
-    joints = np.asarray(views, dtype=np.float64)
-    up = _unit(joints[:, J.SPINE_SHOULDER] - joints[:, J.SPINE_BASE])
-    hips = joints[:, J.HIP_LEFT] - joints[:, J.HIP_RIGHT]
-    shoulders = joints[:, J.SHOULDER_LEFT] - joints[:, J.SHOULDER_RIGHT]
-    hips_ok = np.isfinite(hips)
-    shoulders_ok = np.isfinite(shoulders)
-    lateral = np.where(hips_ok, hips, 0.0) + np.where(shoulders_ok, shoulders, 0.0)
-    lateral[~(hips_ok.all(-1) | shoulders_ok.all(-1))] = np.nan
-    lateral = lateral - (lateral * up).sum(-1, keepdims=True) * up
-    left = _unit(lateral)
-    forward = _cross(left, up)
-    return left, up, forward
-
-
-def _signed_angle(a: FloatArray, b: FloatArray, axis: FloatArray) -> FloatArray:
-    """Angle from ``a`` to ``b`` (degrees), positive counter-clockwise about ``axis``."""
-    cross = (_cross(a, b) * axis).sum(-1)
-    dot = (a * b).sum(-1)
-    angle: FloatArray = np.degrees(np.arctan2(cross, dot))
-    return angle
-
-
-def _unsigned_angle(a: FloatArray, b: FloatArray) -> FloatArray:
-    cos = (_unit(a) * _unit(b)).sum(-1)
-    angle: FloatArray = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
-    return angle
-
-
-ROM_LIMITS_DEG: Final[dict[str, tuple[float, float]]] = {
-    "knee_flexion": (-5.0, 145.0),
-    "elbow_flexion": (0.0, 150.0),
-    "hip_flexion": (-30.0, 130.0),
-    "hip_abduction": (-30.0, 50.0),
-    "shoulder_extension": (-180.0, 60.0),
-    "ankle_shank_foot": (25.0, 150.0),
-    "neck_flexion": (0.0, 70.0),
-}
-"""Anatomical range of each angle (degrees); sources and conventions in the module docstring."""
-
-# Both sides at once: index 0 left, 1 right (sign +1 / −1 for abduction).
-_SIDE_SIGN: Final = np.array([1.0, -1.0])
-_HIP: Final = np.array([J.HIP_LEFT, J.HIP_RIGHT])
-_KNEE: Final = np.array([J.KNEE_LEFT, J.KNEE_RIGHT])
-_ANKLE: Final = np.array([J.ANKLE_LEFT, J.ANKLE_RIGHT])
-_FOOT: Final = np.array([J.FOOT_LEFT, J.FOOT_RIGHT])
-_SHOULDER: Final = np.array([J.SHOULDER_LEFT, J.SHOULDER_RIGHT])
-_ELBOW: Final = np.array([J.ELBOW_LEFT, J.ELBOW_RIGHT])
-_WRIST: Final = np.array([J.WRIST_LEFT, J.WRIST_RIGHT])
-_SIDED_ANGLES: Final = (
-    ("knee_flexion", _ANKLE),
-    ("hip_flexion", _KNEE),
-    ("hip_abduction", _KNEE),
-    ("ankle_shank_foot", _FOOT),
-    ("elbow_flexion", _WRIST),
-    ("shoulder_extension", _ELBOW),
-)
-"""The per-side angles in the order :func:`_angle_table` returns them, and their distal joints."""
-_ANGLE_LOW: Final = np.array(
-    [ROM_LIMITS_DEG[name][0] for name, _ in _SIDED_ANGLES for _side in range(2)]
-    + [ROM_LIMITS_DEG["neck_flexion"][0]]
-)
-_ANGLE_HIGH: Final = np.array(
-    [ROM_LIMITS_DEG[name][1] for name, _ in _SIDED_ANGLES for _side in range(2)]
-    + [ROM_LIMITS_DEG["neck_flexion"][1]]
-)
-_KNEE_COLUMNS: Final = (2, 3, 4, 5)
-"""Columns of the angle table landing on the knees (hip flexion L/R, hip abduction L/R)."""
-_SINGLE_COLUMNS: Final = np.array([0, 1, 6, 7, 8, 9, 10, 11, 12])
-_SINGLE_JOINTS: Final = np.array(
-    [J.ANKLE_LEFT, J.ANKLE_RIGHT, J.FOOT_LEFT, J.FOOT_RIGHT, J.WRIST_LEFT, J.WRIST_RIGHT,
-     J.ELBOW_LEFT, J.ELBOW_RIGHT, J.HEAD]
-)  # fmt: skip
-
-
-def _angle_table(
-    joints: FloatArray, left: FloatArray, up: FloatArray, forward: FloatArray
-) -> FloatArray:
-    """(S, 13) angles in degrees: each of :data:`_SIDED_ANGLES` left then right, then the neck."""
-    n = joints.shape[0]
-    left_, up_, forward_ = left[:, None], up[:, None], forward[:, None]
-    thigh = joints[:, _KNEE] - joints[:, _HIP]  # (S, 2, 3)
-    shank = joints[:, _ANKLE] - joints[:, _KNEE]
-    foot_v = joints[:, _FOOT] - joints[:, _ANKLE]
-    upper = joints[:, _ELBOW] - joints[:, _SHOULDER]
-    fore = joints[:, _WRIST] - joints[:, _ELBOW]
-    down = -up_
-    out = np.empty((n, 13))
-    # Flexion swings the shank backwards: positive about the person's left axis.
-    out[:, 0:2] = _signed_angle(thigh, shank, left_)
-    # Hip: thigh against the trunk's down axis; flexion forward, abduction outward.
-    out[:, 2:4] = np.degrees(np.arctan2((thigh * forward_).sum(-1), (thigh * down).sum(-1)))
-    # Abduction: how far the thigh leaves the sagittal plane (outwards positive).
-    outwards = _SIDE_SIGN * (_unit(thigh) * left_).sum(-1)
-    out[:, 4:6] = np.degrees(np.arcsin(np.clip(outwards, -1.0, 1.0)))
-    # Foot points forward from the shank: positive about the person's right axis.
-    out[:, 6:8] = _signed_angle(shank, foot_v, -left_)
-    out[:, 8:10] = _unsigned_angle(upper, fore)
-    # Shoulder extension: the arm behind the trunk while below shoulder height.
-    behind = -(upper * forward_).sum(-1)
-    below = (upper * down).sum(-1)
-    out[:, 10:12] = np.where(below > 0, np.degrees(np.arctan2(behind, below)), 0.0)
-    neck = joints[:, J.HEAD] - joints[:, J.NECK]
-    out[:, 12] = _unsigned_angle(up, neck)
-    return out
-
-
-def joint_angles(views: npt.ArrayLike) -> dict[str, tuple[FloatArray, int]]:
-    """The range-of-motion angles of each view (degrees) and the joint each one lands on.
-
-    Args:
-        views: (S, 25, 3) joints, metres, world frame.
-
-    Returns:
-        ``name_side`` → ((S,) angles in degrees, NaN where unknown; distal joint index).
-    """
-    joints = np.asarray(views, dtype=np.float64)
-    table = _angle_table(joints, *body_frame(joints))
-    out: dict[str, tuple[FloatArray, int]] = {}
-    for side_index, side in enumerate(("left", "right")):
-        for k, (name, distal) in enumerate(_SIDED_ANGLES):
-            out[f"{name}_{side}"] = (table[:, 2 * k + side_index], int(distal[side_index]))
-    out["neck_flexion"] = (table[:, 12], int(J.HEAD))
-    return out
-
-
-def rom_factors_and_forward(
-    views: npt.ArrayLike, scale_deg: float
-) -> tuple[FloatArray, FloatArray]:
-    """:func:`range_of_motion_factors` and the views' ``forward`` axes (:func:`body_frame`)."""
-    joints = np.asarray(views, dtype=np.float64)
-    left, up, forward = body_frame(joints)
-    angles = _angle_table(joints, left, up, forward)
-    excess = np.maximum(_ANGLE_LOW - angles, 0.0) + np.maximum(angles - _ANGLE_HIGH, 0.0)
-    factors = np.where(np.isfinite(excess), np.exp(-excess / scale_deg), 1.0)
-    out = np.ones(joints.shape[:2])
-    out[:, _SINGLE_JOINTS] = factors[:, _SINGLE_COLUMNS]
-    # The knee gets hip flexion × hip abduction (1 · a · b as a running product: the same bits).
-    out[:, J.KNEE_LEFT] = factors[:, _KNEE_COLUMNS[0]] * factors[:, _KNEE_COLUMNS[2]]
-    out[:, J.KNEE_RIGHT] = factors[:, _KNEE_COLUMNS[1]] * factors[:, _KNEE_COLUMNS[3]]
-    return out, forward
-
-
 def range_of_motion_factors(views: npt.ArrayLike, scale_deg: float) -> FloatArray:
     """Local range-of-motion factor of each joint (not yet propagated).
 
@@ -345,28 +139,6 @@ def range_of_motion_factors(views: npt.ArrayLike, scale_deg: float) -> FloatArra
         unknown.
     """
     return rom_factors_and_forward(views, scale_deg)[0]
-
-
-def facing_direction(joints: npt.ArrayLike) -> FloatArray:
-    """Horizontal unit vector the person faces (3,), from one skeleton; NaN if unknown.
-
-    Args:
-        joints: (25, 3) joints, metres, world frame (+Y up).
-    """
-    result: FloatArray = facing_directions(np.asarray(joints, dtype=np.float64)[None])[0]
-    return result
-
-
-def facing_directions(skeletons: npt.ArrayLike) -> FloatArray:
-    """:func:`facing_direction` of each of P skeletons (P, 25, 3) at once: (P, 3)."""
-    _, _, forward = body_frame(skeletons)
-    horizontal = forward * _HORIZONTAL
-    # np.vecdot is the dot product np.linalg.norm uses on one vector (the same bits).
-    norm = np.sqrt(np.vecdot(horizontal, horizontal))
-    ok = np.isfinite(horizontal).all(-1) & ~(norm < 1e-6)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        result: FloatArray = np.where(ok[:, None], horizontal / norm[:, None], np.nan)
-    return result
 
 
 def facing_cosines(
@@ -383,8 +155,8 @@ def facing_cosines(
         (S,) float64 in [−1, 1]; NaN where unknown.
     """
     to_sensor = np.asarray(sensor_positions, dtype=np.float64) - np.asarray(body_position)
-    to_sensor = to_sensor * _HORIZONTAL
-    cos: FloatArray = (_unit(to_sensor) * np.asarray(facing, dtype=np.float64)).sum(-1)
+    to_sensor = to_sensor * HORIZONTAL
+    cos: FloatArray = (unit(to_sensor) * np.asarray(facing, dtype=np.float64)).sum(-1)
     return cos
 
 
@@ -405,40 +177,6 @@ def facing_factors(
     return np.where(np.isfinite(cos), value, 1.0)
 
 
-def align_yaw(views: npt.ArrayLike, target_facing: npt.ArrayLike, max_deg: float) -> FloatArray:
-    """Turn each view about the vertical through its SpineBase to face ``target_facing``.
-
-    Corrects each sensor's bias of turning the skeleton towards itself (conventions.md §5)
-    once the person's true facing is known from the views the person faces most directly.
-
-    Args:
-        views: (S, 25, 3) joints, metres, world frame (labels already corrected).
-        target_facing: (3,) horizontal unit vector (NaN: nothing is changed).
-        max_deg: larger corrections are not applied (the view is left as it is).
-
-    Returns:
-        (S, 25, 3) float64 turned views.
-    """
-    joints = np.array(views, dtype=np.float64, copy=True)
-    target = np.asarray(target_facing, dtype=np.float64)
-    if not np.isfinite(target).all():
-        return joints
-    for i in range(joints.shape[0]):
-        own = facing_direction(joints[i])
-        pivot = joints[i, J.SPINE_BASE]
-        if not (np.isfinite(own).all() and np.isfinite(pivot).all()):
-            continue
-        # Signed yaw from own to target about +Y (heading atan2(x, z) as in the simulator).
-        angle = math.atan2(target[0], target[2]) - math.atan2(own[0], own[2])
-        angle = (angle + math.pi) % (2 * math.pi) - math.pi
-        if abs(math.degrees(angle)) > max_deg:
-            continue
-        c, s_ = math.cos(angle), math.sin(angle)
-        rotation = np.array([[c, 0.0, s_], [0.0, 1.0, 0.0], [-s_, 0.0, c]])
-        joints[i] = (joints[i] - pivot) @ rotation.T + pivot
-    return joints
-
-
 def distance_factors(
     body_position: npt.ArrayLike,
     sensor_positions: npt.ArrayLike,
@@ -452,6 +190,102 @@ def distance_factors(
         sensor_positions: (S, 3) metres, world; NaN rows give 1.
     """
     delta = np.asarray(sensor_positions, dtype=np.float64) - np.asarray(body_position)
-    distance = np.linalg.norm(delta * _HORIZONTAL, axis=-1)
+    distance = np.linalg.norm(delta * HORIZONTAL, axis=-1)
     outside = np.maximum(best_m[0] - distance, 0.0) + np.maximum(distance - best_m[1], 0.0)
     return np.where(np.isfinite(outside), np.exp(-((outside / scale_m) ** 2)), 1.0)
+
+
+def state_weights(states: npt.ArrayLike, table: tuple[float, float, float]) -> FloatArray:
+    """Per-joint weights from tracking states.
+
+    Args:
+        states: (S, J) uint8 TrackingState values.
+        table: weight of NotTracked, Inferred, Tracked.
+
+    Returns:
+        (S, J) float64 weights.
+    """
+    return np.asarray(table, dtype=np.float64)[np.asarray(states, dtype=np.intp)]
+
+
+def joint_confidence(joints: FloatArray, weights: FloatArray) -> FloatArray:
+    """The confidence apps receive with each fused joint (``confidence`` in docs/api.md).
+
+    ``1 − Π_k (1 − w_k)`` over the views that carry the joint, with each view's final weight
+    clipped to [0, 1]: the chance that at least one view is right if view k is right with
+    probability w_k. 0 exactly where no view has a position with a positive weight (the
+    fused joint is unknown).
+
+    Args:
+        joints: (P, S, J, 3) each person's views as fused, metres; NaN where a view has no
+            position (and on the padding after a person's real views).
+        weights: (P, S, J) the final fusion weights (0 on padding).
+
+    Returns:
+        (P, J) float64 in [0, 1].
+    """
+    usable = np.isfinite(joints).all(axis=3) & (weights > 0)
+    w = np.where(usable, weights, 0.0)
+    confidence: FloatArray = 1.0 - np.prod(1.0 - np.clip(w, 0.0, 1.0), axis=1)
+    confidence[w.sum(axis=1) <= 0] = 0.0
+    return confidence
+
+
+def body_weights(
+    joints: FloatArray,
+    states: npt.NDArray[np.uint8],
+    references: FloatArray | None,
+    rom: FloatArray | None,
+    settings: FusionSettings,
+) -> FloatArray:
+    """Each joint's weight from its view alone: tracking state × the body terms, propagated.
+
+    ``state weight × propagate(bone length × range of motion)``: a joint is doubted as much as
+    its own bone and angle and every joint between it and SpineBase (module docstring).
+
+    Args:
+        joints: (N, 25, 3) views, metres, world frame, labels already corrected.
+        states: (N, 25) TrackingState values.
+        references: (N, 24) the reference bone lengths of each view's person (metres, NaN:
+            unknown), or None when no person has any.
+        rom: (N, 25) range-of-motion factors already computed (by the mirror step), or None.
+        settings: which terms are on, and their scales.
+
+    Returns:
+        (N, 25) float64 weights ≥ 0.
+    """
+    s = settings
+    weights = state_weights(states, s.state_weights)
+    local = np.ones(joints.shape[:2])
+    if s.use_bone_length and references is not None:
+        local *= bone_length_factors(joints, references, s.bone_length_scale_m)
+    if s.use_range_of_motion:
+        local *= rom if rom is not None else range_of_motion_factors(joints, s.rom_scale_deg)
+    return weights * propagate(local)
+
+
+def view_factors(
+    cosines: FloatArray,
+    body_positions: FloatArray,
+    sensor_positions: FloatArray,
+    settings: FusionSettings,
+) -> FloatArray:
+    """Each view's factor from where its sensor stands: facing × distance (the ones switched on).
+
+    Args:
+        cosines: (N,) :func:`facing_cosines` of each view (NaN: unknown, factor 1).
+        body_positions: (N, 3) where each view's person stands (SpineBase), metres, world.
+        sensor_positions: (N, 3) each view's sensor, metres, world (NaN rows: unknown).
+
+    Returns:
+        (N,) float64 in (0, 1].
+    """
+    s = settings
+    factors = np.ones(len(cosines))
+    if s.use_facing:
+        factors *= facing_factors(cosines, s.facing_power, s.facing_floor, s.facing_back_factor)
+    if s.use_distance:
+        factors *= distance_factors(
+            body_positions, sensor_positions, s.distance_best_m, s.distance_scale_m
+        )
+    return factors

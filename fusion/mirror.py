@@ -27,19 +27,30 @@ jointly for all of the person's views by minimising
   small prior for reporting a view as mirrored at all.
 
 All 2^S combinations are scored at once (S ≤ 10 sensors per person; 3 views: 8 combinations).
-Pure functions on arrays; the per-(sensor, body) memory for the hysteresis lives in the tracker.
+Pure functions on arrays; the per-(sensor, body) memory for the hysteresis is kept by
+:mod:`skelfuse.fusion.labels`.
 """
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Sequence
 from typing import Final
 
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.confidence import facing_direction, rom_factors_and_forward
+from skelfuse.fusion.anatomy import facing_direction, rom_factors_and_forward
+from skelfuse.fusion.mirror_labellings import (
+    COMBOS,
+    MAX_VIEWS,
+    PAIR_TAKE,
+    PAIRS,
+    ROWS,
+    SCREEN_FROM_VIEWS,
+    SWAPS,
+    VIEW_TAKE,
+    screen,
+)
 from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION
 
 FloatArray = npt.NDArray[np.float64]
@@ -48,41 +59,12 @@ IntArray = npt.NDArray[np.intp]
 PERMUTATION: Final = np.array(MIRROR_PERMUTATION)
 LATERAL_JOINTS: Final = np.array([j for j in range(JOINT_COUNT) if MIRROR_PERMUTATION[j] != j])
 """The 20 joints that have a left or right side."""
-MAX_VIEWS: Final = 10
+
 SWAP_PRIOR_M: Final = 0.01
 """Cost of calling a view mirrored at all: sensors are right more often than not."""
 
 _HORIZONTAL: Final = np.array([1.0, 0.0, 1.0])
-# Per view count n (0 … MAX_VIEWS), built once: every labelling (C = 2^n, n), its transpose,
-# its number of swapped views, the view pairs i < j in the order they are summed, and 0 … n−1.
-_COMBOS: Final = tuple(
-    ((np.arange(2**n)[:, None] >> np.arange(n)[None, :]) & 1).astype(np.intp)
-    for n in range(MAX_VIEWS + 1)
-)
-_PAIRS: Final = tuple(
-    (
-        np.array([i for i in range(n) for j in range(i + 1, n)], dtype=np.intp),
-        np.array([j for i in range(n) for j in range(i + 1, n)], dtype=np.intp),
-    )
-    for n in range(MAX_VIEWS + 1)
-)
-_ROWS: Final = tuple(np.arange(n)[None, :] for n in range(MAX_VIEWS + 1))
-_PAIR_ROWS: Final = tuple(np.arange(n * (n - 1) // 2)[:, None] for n in range(MAX_VIEWS + 1))
-# Flat indices into a (pairs, 2, 2) block and an (n, 2) per-view table: entry [pair, c] is
-# D[pair, c_i, c_j] and [c, i] is T[i, c_i] for labelling c (one take instead of a fancy index).
-_PAIR_TAKE: Final = tuple(
-    4 * _PAIR_ROWS[n] + 2 * _COMBOS[n].T[_PAIRS[n][0]] + _COMBOS[n].T[_PAIRS[n][1]]
-    for n in range(MAX_VIEWS + 1)
-)
-_VIEW_TAKE: Final = tuple(2 * _ROWS[n] + _COMBOS[n] for n in range(MAX_VIEWS + 1))
-_SWAPS: Final = tuple(c.sum(axis=1) for c in _COMBOS)
 _LABELS: Final = np.array([0.0, 1.0])
-_SCREEN_FROM_VIEWS: Final = 6
-"""From this many views on, labellings are screened with a quick estimate before exact scoring."""
-_SCREEN_MARGIN_M: Final = 1e-9
-"""Labellings whose estimate is within this of the best are scored exactly. The estimate differs
-from the exact cost by rounding only (≈ 1e-14 m), far below it, so the exact minimum is always
-among them and the choice is the one the full enumeration makes."""
 _NO_LATERAL: Final = np.full((len(LATERAL_JOINTS), 3), np.nan)
 
 
@@ -221,7 +203,7 @@ def choose_labellings(
     firsts, seconds = [], []
     for p, n in enumerate(counts):
         if n > 1:
-            first, second = _PAIRS[n]
+            first, second = PAIRS[n]
             firsts.append(first + starts[p])
             seconds.append(second + starts[p])
     pair = None
@@ -283,8 +265,8 @@ def choose_labellings(
     for p, n in enumerate(counts):
         groups.setdefault((n, has_ref[p], row_geometry[p]), []).append(p)
     for (n, with_ref, known_facing), members in groups.items():
-        combos = _COMBOS[n]
-        take = _VIEW_TAKE[n]
+        combos = COMBOS[n]
+        take = VIEW_TAKE[n]
         people = np.array(members)
         views_of = (starts[people][:, None] + np.arange(n)[None, :]).ravel()  # (G·n,)
         size = len(members)
@@ -322,16 +304,16 @@ def choose_labellings(
 
         # For many views, one matrix product first estimates every labelling's cost: a person
         # whose best estimate beats all others by more than rounding could ever explain has
-        # its labelling (see _screen); the others are scored exactly.
+        # its labelling (see screen); the others are scored exactly.
         exact = np.arange(size)
-        if n >= _SCREEN_FROM_VIEWS and geometry_sum is None:
+        if n >= SCREEN_FROM_VIEWS and geometry_sum is None:
             unary = SWAP_PRIOR_M * np.tile(_LABELS, (size, n))
             for weight, table in tables:
                 unary = unary + weight * table
             if mine is not None and mine_known is not None:
                 changed = (_LABELS[None, None, :] != mine[:, :, None]) & mine_known[:, :, None]
                 unary = unary + hysteresis_m * changed.reshape(size, 2 * n)
-            clear = _screen(n, block, unary)
+            clear = screen(n, block, unary)
             for g in np.flatnonzero(clear >= 0):
                 mirrored[views_of[g * n : (g + 1) * n]] = combos[clear[g]].astype(bool)
             exact = np.flatnonzero(clear < 0)
@@ -341,7 +323,7 @@ def choose_labellings(
         # Exact costs of every labelling, (G, C), term by term as for one person alone.
         if k:
             # Agreement between views: Σ over pairs i < j of D[i, j, c_i, c_j], pair by pair.
-            cost = block[exact][:, _PAIR_TAKE[n]].sum(axis=1)
+            cost = block[exact][:, PAIR_TAKE[n]].sum(axis=1)
         else:
             cost = np.zeros((len(exact), len(combos)))
         term = 0
@@ -358,7 +340,7 @@ def choose_labellings(
         if anatomy is not None:
             weight, table = tables[term]
             cost += weight * table[exact][:, take].sum(axis=2)
-        cost += SWAP_PRIOR_M * _SWAPS[n]
+        cost += SWAP_PRIOR_M * SWAPS[n]
         if mine is not None and mine_known is not None:
             changed_all = (combos[None] != mine[exact][:, None, :]) & mine_known[exact][:, None, :]
             cost += hysteresis_m * changed_all.sum(axis=2)
@@ -384,58 +366,9 @@ def _candidate_geometry(
         _, flat_forward = rom_factors_and_forward(both.reshape(-1, JOINT_COUNT, 3), rom_scale_deg)
         forward = flat_forward.reshape(n, 2, 3)
     own = np.nan_to_num(forward * _HORIZONTAL)
-    facing = own[_ROWS[n], combos].sum(axis=1)  # (C, 3)
+    facing = own[ROWS[n], combos].sum(axis=1)  # (C, 3)
     with np.errstate(invalid="ignore", divide="ignore"):
         facing = facing / np.linalg.norm(facing, axis=-1, keepdims=True)
     cos = np.nan_to_num(facing @ np.ascontiguousarray(to_sensor).T)  # (C, S)
     geometry: FloatArray = np.where(combos == 0, np.maximum(-cos, 0.0), np.maximum(cos, 0.0))
     return geometry
-
-
-def _per_view_sum(table: FloatArray, views_of: IntArray, take: IntArray) -> FloatArray:
-    """(G, C) Σ over a person's views of ``table[view, c_view]``, for G persons of n views.
-
-    ``views_of``: (G·n,) each person's views in order; ``take``: :data:`_VIEW_TAKE` of n.
-    """
-    size = len(views_of) // take.shape[1]
-    summed: FloatArray = table[views_of].reshape(size, -1)[:, take].sum(axis=2)
-    return summed
-
-
-@functools.cache
-def _design(n: int) -> FloatArray:
-    """(C, 4·pairs + 2·n) one-hot design: labelling c's pair states, then its view labels."""
-    count = 2**n
-    pairs = n * (n - 1) // 2
-    design = np.zeros((count, 4 * pairs + 2 * n))
-    rows = np.arange(count)[:, None]
-    design[rows, _PAIR_TAKE[n].T] = 1.0
-    design[rows, 4 * pairs + _VIEW_TAKE[n]] = 1.0
-    return design
-
-
-def _screen(n: int, block: FloatArray, unary: FloatArray) -> IntArray:
-    """Each person's labelling when a quick estimate settles it, else −1 (score exactly).
-
-    The cost of labelling c is Σ_pairs D[pair, c_i, c_j] + Σ_views U[view, c_view], linear in
-    c's one-hot design, so one matrix product estimates every cost of every person. The
-    estimate sums in another order than the exact cost, so they differ by rounding only (about
-    1e-15 m). When the best estimate beats every other by more than :data:`_SCREEN_MARGIN_M`,
-    the exact minimum is that labelling and no other: it is returned. Otherwise (near-ties,
-    where rounding decides as in the exact enumeration, or an estimate that is not finite) −1.
-
-    Args:
-        block: (G, 4·pairs) D flattened; unary: (G, 2·n) U flattened (view-major).
-
-    Returns:
-        (G,) index of the labelling in :data:`_COMBOS` ``[n]``, or −1.
-    """
-    estimate = np.concatenate([block, unary], axis=1) @ _design(n).T  # (G, C)
-    best = np.argmin(estimate, axis=1)
-    rows = np.arange(len(best))
-    lowest = estimate[rows, best]
-    estimate[rows, best] = np.inf
-    runner_up = estimate.min(axis=1)
-    settled = np.isfinite(lowest) & (runner_up > lowest + _SCREEN_MARGIN_M)
-    result: IntArray = np.where(settled, best, -1)
-    return result

@@ -6,6 +6,9 @@ import socket
 import time
 from collections.abc import Callable
 
+import numpy as np
+import numpy.typing as npt
+
 
 def free_port() -> int:
     """A TCP port free on 127.0.0.1 right now."""
@@ -26,3 +29,19 @@ def wait_until(predicate: Callable[[], object], timeout_s: float, interval_s: fl
             pass
         time.sleep(interval_s)
     return False
+
+
+def mpjpe(estimate: npt.ArrayLike, truth: npt.ArrayLike) -> tuple[float, int]:
+    """Mean per-joint position error over the joints the estimate has (metres), and how many.
+
+    Args:
+        estimate, truth: (..., 25, 3) positions in the same frame; NaN in ``estimate`` means the
+            joint was not reported and is left out (the count tells how many were scored).
+    """
+    est = np.asarray(estimate, dtype=np.float64).reshape(-1, 25, 3)
+    ref = np.asarray(truth, dtype=np.float64).reshape(-1, 25, 3)
+    err = np.linalg.norm(est - ref, axis=-1)
+    present = np.isfinite(err)
+    if not present.any():
+        return float("nan"), 0
+    return float(err[present].mean()), int(present.sum())

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from skelfuse.agent.sim.performer import ProceduralPerformer
-from skelfuse.fusion.confidence import BONE_NAMES
+from skelfuse.fusion.bones import BONE_NAMES
 from skelfuse.fusion.hub import FusionHub
-from skelfuse.fusion.tracking import View
+from skelfuse.fusion.views import View
 from skelfuse.protocol.skeleton import JOINT_COUNT, TrackingState
 from skelfuse.server.app import create_app
 from skelfuse.server.routes_fusion import router
@@ -37,7 +37,7 @@ async def client() -> AsyncIterator[httpx.AsyncClient]:
 
 
 def _add_person(client: httpx.AsyncClient) -> int:
-    tracker = client.app.state.hub.tracker  # type: ignore[attr-defined]
+    tracker = client.app.state.hub.pipeline  # type: ignore[attr-defined]
     joints = ProceduralPerformer(1).joints_at(20.0)[0]
     states = np.full(JOINT_COUNT, TrackingState.TRACKED, np.uint8)
     person_id: int = tracker.update([View("s0", 1, joints, states)], 0.0)[0].person_id

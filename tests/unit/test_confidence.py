@@ -6,14 +6,12 @@ import numpy as np
 import pytest
 
 from skelfuse.agent.sim.performer import BodyShape, Pose, pose_joints
+from skelfuse.fusion.anatomy import CHAIN_ORDER, facing_direction, joint_angles
 from skelfuse.fusion.confidence import (
-    CHAIN_ORDER,
     bone_length_factors,
     distance_factors,
     facing_cosines,
-    facing_direction,
     facing_factors,
-    joint_angles,
     propagate,
     range_of_motion_factors,
 )
@@ -97,7 +95,7 @@ def test_facing_and_distance_terms() -> None:
 
 
 def test_batched_facing_and_range_of_motion_match_single_skeletons() -> None:
-    from skelfuse.fusion.confidence import facing_directions, rom_factors_and_forward
+    from skelfuse.fusion.anatomy import facing_directions, rom_factors_and_forward
 
     rng = np.random.default_rng(2)
     skeletons = np.stack([body(Pose()) + rng.normal(scale=0.05, size=(25, 3)) for _ in range(5)])

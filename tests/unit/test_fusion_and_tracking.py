@@ -6,10 +6,14 @@ import numpy as np
 import pytest
 
 from skelfuse.agent.sim.performer import ProceduralPerformer
+from skelfuse.fusion.confidence import state_weights
+from skelfuse.fusion.identity import trunk_distance
+from skelfuse.fusion.pipeline import FusionPipeline
 from skelfuse.fusion.settings import FusionSettings
-from skelfuse.fusion.tracking import FusedPerson, PersonTracker, View
-from skelfuse.fusion.weighted import fuse_views, mpjpe, state_weights, trunk_distance
+from skelfuse.fusion.views import FusedPerson, View
+from skelfuse.fusion.weighted import fuse_views
 from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION, JointId, TrackingState
+from tests.support import mpjpe
 
 TRACKED = np.full(JOINT_COUNT, TrackingState.TRACKED, np.uint8)
 
@@ -97,14 +101,14 @@ def views_for(people: list[np.ndarray], sensors: int, t_ids: int = 100) -> list[
 
 
 def test_one_person_seen_by_three_sensors_is_one_person() -> None:
-    tracker = PersonTracker(FusionSettings(track_min_frames=1))
+    tracker = FusionPipeline(FusionSettings(track_min_frames=1))
     person = standing()
     out = tracker.update(views_for([person], 3), 0.0)
     assert len(out) == 1 and out[0].sources == ("s0", "s1", "s2")
 
 
 def test_ids_are_stable_and_people_are_not_merged() -> None:
-    tracker = PersonTracker(FusionSettings(track_min_frames=1))
+    tracker = FusionPipeline(FusionSettings(track_min_frames=1))
     ids_seen: list[tuple[int, ...]] = []
     for step in range(60):
         t = step / 30
@@ -117,7 +121,7 @@ def test_ids_are_stable_and_people_are_not_merged() -> None:
 
 def test_tracking_id_change_keeps_person_id() -> None:
     """A sensor re-acquiring a body under a new tracking id must not create a new person."""
-    tracker = PersonTracker(FusionSettings(track_min_frames=1))
+    tracker = FusionPipeline(FusionSettings(track_min_frames=1))
     person = standing()
     first = tracker.update(views_for([person], 2), 0.0)[0].person_id
     renamed = [View(v.sensor_id, v.tracking_id + 7, v.joints_world, v.states)
@@ -126,14 +130,14 @@ def test_tracking_id_change_keeps_person_id() -> None:
 
 
 def test_new_person_waits_for_min_frames() -> None:
-    tracker = PersonTracker(FusionSettings(track_min_frames=3))
+    tracker = FusionPipeline(FusionSettings(track_min_frames=3))
     person = standing()
     published = [len(tracker.update(views_for([person], 1), i / 30)) for i in range(4)]
     assert published == [0, 0, 1, 1]
 
 
 def test_person_dies_after_timeout_and_returns_with_new_id() -> None:
-    tracker = PersonTracker(FusionSettings(track_min_frames=1, track_timeout_s=0.5))
+    tracker = FusionPipeline(FusionSettings(track_min_frames=1, track_timeout_s=0.5))
     person = standing()
     first = tracker.update(views_for([person], 1), 0.0)[0].person_id
     tracker.update([], 0.3)
@@ -145,7 +149,7 @@ def test_person_dies_after_timeout_and_returns_with_new_id() -> None:
 
 
 def test_one_sensor_never_gives_one_person_two_bodies() -> None:
-    tracker = PersonTracker(FusionSettings(track_min_frames=1))
+    tracker = FusionPipeline(FusionSettings(track_min_frames=1))
     person = standing()
     views = [View("s0", 1, person, TRACKED), View("s0", 2, person + 0.05, TRACKED)]
     out = tracker.update(views, 0.0)
@@ -166,16 +170,16 @@ def test_mirrored_view_is_swapped_back_before_fusion() -> None:
         View("front", 1, truth, TRACKED, np.array([0.0, 1.0, 2.5])),
         View("back", 2, back, TRACKED, np.array([0.0, 1.0, -2.5])),
     ]
-    tracker = PersonTracker(FusionSettings(track_min_frames=1, filter="none"))
+    tracker = FusionPipeline(FusionSettings(track_min_frames=1, filter="none"))
     person = tracker.update(views, 0.0)[0]
     assert person.mirrored == ("back",)
     np.testing.assert_allclose(person.joints, truth, atol=1e-9)
-    baseline = PersonTracker(FusionSettings(track_min_frames=1, use_mirror_correction=False))
+    baseline = FusionPipeline(FusionSettings(track_min_frames=1, use_mirror_correction=False))
     assert mpjpe(baseline.update(views, 0.0)[0].joints, truth)[0] > 0.05
 
 
 def test_joint_sources_name_the_contributing_sensors() -> None:
-    tracker = PersonTracker(FusionSettings(track_min_frames=1))
+    tracker = FusionPipeline(FusionSettings(track_min_frames=1))
     person = standing()
     views = views_for([person], 2)
     missing = person.copy()
@@ -189,8 +193,8 @@ def test_joint_sources_name_the_contributing_sensors() -> None:
 def test_bone_lengths_are_estimated_online_and_can_be_set() -> None:
     from skelfuse.protocol.skeleton import bone_lengths
 
-    tracker = PersonTracker(FusionSettings(track_min_frames=1, bone_estimate_min_samples=5))
-    from skelfuse.fusion.confidence import facing_direction
+    tracker = FusionPipeline(FusionSettings(track_min_frames=1, bone_estimate_min_samples=5))
+    from skelfuse.fusion.anatomy import facing_direction
 
     person = standing()
     sensor = person[0] + 2.5 * facing_direction(person)  # in front of the person
@@ -205,7 +209,7 @@ def test_bone_lengths_are_estimated_online_and_can_be_set() -> None:
 
 
 def test_crossing_people_keep_their_ids() -> None:
-    tracker = PersonTracker(FusionSettings(track_min_frames=1, filter="none"))
+    tracker = FusionPipeline(FusionSettings(track_min_frames=1, filter="none"))
     history: dict[int, set[int]] = {0: set(), 1: set()}
     for step in range(90):
         t = step / 30
@@ -220,7 +224,7 @@ def test_crossing_people_keep_their_ids() -> None:
 
 
 def test_duplicate_person_from_disjoint_sensors_is_merged() -> None:
-    tracker = PersonTracker(FusionSettings(track_min_frames=1))
+    tracker = FusionPipeline(FusionSettings(track_min_frames=1))
     person = standing()
     tracker.update([View("s0", 1, person, TRACKED)], 0.0)
     tracker.update([View("s1", 2, person + [0.6, 0, 0], TRACKED)], 1 / 30)  # a second person
@@ -236,15 +240,16 @@ def test_duplicate_person_from_disjoint_sensors_is_merged() -> None:
 
 
 def test_batched_fusion_helpers_match_single_calls() -> None:
-    from skelfuse.fusion.tracking import nanmedian_axis
-    from skelfuse.fusion.weighted import enforce_bone_lengths, fuse_views_batch
+    from skelfuse.fusion.bones import enforce_bone_lengths, nanmedian_axis
+    from skelfuse.fusion.confidence import joint_confidence
+    from skelfuse.fusion.weighted import weighted_mean
 
     rng = np.random.default_rng(5)
     joints = rng.normal(size=(3, 4, JOINT_COUNT, 3))
     joints[rng.random((3, 4, JOINT_COUNT)) < 0.1] = np.nan
     weights = rng.random((3, 4, JOINT_COUNT))
     joints[2, 3], weights[2, 3] = np.nan, 0.0  # padding
-    fused, confidence = fuse_views_batch(joints, weights)
+    fused, confidence = weighted_mean(joints, weights), joint_confidence(joints, weights)
     for p, n in enumerate((4, 4, 3)):
         one, one_confidence = fuse_views(joints[p, :n], weights[p, :n])
         np.testing.assert_array_equal(fused[p], one)
@@ -277,8 +282,8 @@ def test_several_persons_fuse_as_if_alone() -> None:
         ]
         for _ in range(5)
     ]
-    together = PersonTracker()
-    alone = [PersonTracker() for _ in people]
+    together = FusionPipeline(FusionSettings())
+    alone = [FusionPipeline(FusionSettings()) for _ in people]
     for k, step in enumerate(steps):
         t = k / 30
         views = [View(s, i, j, TRACKED, sensors[s]) for person in step for s, i, j in person]
@@ -294,7 +299,7 @@ def test_several_persons_fuse_as_if_alone() -> None:
 
 
 def test_bone_projection_gives_exact_lengths_and_moves_joints_less_than_the_chain() -> None:
-    from skelfuse.fusion.weighted import enforce_bone_lengths, project_bone_lengths
+    from skelfuse.fusion.bones import enforce_bone_lengths, project_bone_lengths
     from skelfuse.protocol.skeleton import bone_lengths
 
     rng = np.random.default_rng(21)
@@ -324,7 +329,7 @@ def test_bone_projection_gives_exact_lengths_and_moves_joints_less_than_the_chai
 
 
 def test_bone_projection_leaves_unknown_bones_missing_joints_and_right_lengths_alone() -> None:
-    from skelfuse.fusion.weighted import project_bone_lengths
+    from skelfuse.fusion.bones import project_bone_lengths
     from skelfuse.protocol.skeleton import JointId, bone_lengths
 
     joints = standing()
@@ -345,7 +350,7 @@ def test_bone_projection_leaves_unknown_bones_missing_joints_and_right_lengths_a
 
 
 def test_online_bone_estimate_pools_left_and_right_and_falls_back_to_any_view() -> None:
-    from skelfuse.fusion.tracking import BoneModel
+    from skelfuse.fusion.bones import BoneModel
     from skelfuse.protocol.skeleton import BONE_MIRROR_PERMUTATION, BONES, JointId
 
     index = {bone: b for b, bone in enumerate(BONES)}
@@ -378,7 +383,7 @@ def test_online_bone_estimate_pools_left_and_right_and_falls_back_to_any_view() 
 
 
 def test_online_bone_estimate_can_lock() -> None:
-    from skelfuse.fusion.tracking import BoneModel
+    from skelfuse.fusion.bones import BoneModel
 
     model = BoneModel(min_samples=3, lock_samples=10)
     for _ in range(10):
@@ -396,13 +401,13 @@ def test_online_bone_estimate_can_lock() -> None:
 def test_a_person_walking_backwards_is_unmirrored_as_a_whole(walk_check_s: float) -> None:
     """A track mirrored as a whole stays so (every view is labelled to agree with it); only the
     walking direction can tell, and with the check it does."""
-    from skelfuse.fusion.confidence import facing_direction
+    from skelfuse.fusion.anatomy import facing_direction
 
     body = standing()
     forward = facing_direction(body)
     side = np.cross([0.0, 1.0, 0.0], forward)
     sensors = {"left": body[0] + 3.0 * side + [0, 1, 0], "right": body[0] - 3.0 * side + [0, 1, 0]}
-    tracker = PersonTracker(FusionSettings(mirror_walk_check_s=walk_check_s, filter="none"))
+    tracker = FusionPipeline(FusionSettings(mirror_walk_check_s=walk_check_s, filter="none"))
 
     def step(k: int, t: float) -> list[FusedPerson]:
         truth = body + forward * t
@@ -413,9 +418,10 @@ def test_a_person_walking_backwards_is_unmirrored_as_a_whole(walk_check_s: float
     # What a track born while every sensor saw the person's side or back looks like (the
     # benchmark's three-person scenario had one for 8 s): its skeleton and every view's
     # labelling swapped.
-    (track,) = tracker._tracks.values()
+    (track,) = tracker.tracker.tracks.values()
     track.joints = track.joints[list(MIRROR_PERMUTATION)]
-    track.mirror_memory = {key: not m for key, m in track.mirror_memory.items()}
+    memory = tracker.memories[track.person_id]
+    memory.labels = {key: not m for key, m in memory.labels.items()}
     out: list[FusedPerson] = []
     for k in range(5, 65):  # 2 s walking forwards at 1 m/s
         out = step(k, (k - 5) / 30)

@@ -57,7 +57,7 @@ def test_no_views() -> None:
 
 
 def test_several_persons_at_once_decide_as_one_by_one() -> None:
-    from skelfuse.fusion.confidence import facing_direction
+    from skelfuse.fusion.anatomy import facing_direction
     from skelfuse.fusion.mirror import choose_labellings
 
     rng = np.random.default_rng(7)

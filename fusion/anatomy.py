@@ -1,0 +1,334 @@
+"""The body's own geometry: kinematic chain order, body frame, joint angles, facing, yaw.
+
+Pure functions on arrays of joints, (S, 25, 3) or (25, 3), metres, world frame (+Y up); NaN
+where a joint is unknown. :mod:`skelfuse.fusion.confidence` turns the angles into confidence
+terms; its docstring gives the sources of :data:`ROM_LIMITS_DEG`.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+
+from skelfuse.protocol.skeleton import JOINT_COUNT, PARENTS, JointId
+
+FloatArray = npt.NDArray[np.float64]
+J = JointId
+
+
+def _topological_order() -> tuple[int, ...]:
+    depth = [0] * JOINT_COUNT
+    for joint in range(JOINT_COUNT):
+        node, d = joint, 0
+        while PARENTS[node] >= 0:
+            node, d = PARENTS[node], d + 1
+        depth[joint] = d
+    return tuple(sorted(range(JOINT_COUNT), key=lambda j: (depth[j], j)))
+
+
+CHAIN_ORDER: Final[tuple[int, ...]] = _topological_order()
+"""Joints sorted so that every parent comes before its children (SpineBase first)."""
+
+
+def _depth_levels() -> tuple[tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]], ...]:
+    depth = {0: 0}
+    for joint in CHAIN_ORDER[1:]:
+        depth[joint] = depth[PARENTS[joint]] + 1
+    levels = []
+    for d in range(1, max(depth.values()) + 1):
+        children = [j for j in CHAIN_ORDER if depth[j] == d]
+        levels.append(
+            (np.array(children, dtype=np.intp), np.array([PARENTS[j] for j in children], np.intp))
+        )
+    return tuple(levels)
+
+
+CHAIN_LEVELS: Final = _depth_levels()
+"""(children, their parents) per depth below SpineBase: each level only needs the one above."""
+
+
+HORIZONTAL: Final = np.array([1.0, 0.0, 1.0])
+
+
+def unit(v: FloatArray) -> FloatArray:
+    norm = np.sqrt((v * v).sum(-1, keepdims=True))  # == np.linalg.norm(v, axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        result: FloatArray = v / norm
+    return result
+
+
+def _cross(a: FloatArray, b: FloatArray) -> FloatArray:
+    """``np.cross`` for 3-vectors (the same operations, so the same bits), without its overhead."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    out: FloatArray = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a1 * b2 - a2 * b1
+    out[..., 1] = a2 * b0 - a0 * b2
+    out[..., 2] = a0 * b1 - a1 * b0
+    return out
+
+
+def body_frame(views: npt.ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Each view's own body axes, from its labels.
+
+    Args:
+        views: (S, 25, 3) joints, metres, world frame.
+
+    Returns:
+        left, up, forward: (S, 3) unit vectors (NaN where the trunk is missing). ``left`` is the
+        mean of the hip and shoulder left-minus-right vectors made orthogonal to ``up``
+        (SpineBase → SpineShoulder); ``forward = left × up``.
+    """
+    joints = np.asarray(views, dtype=np.float64)
+    up = unit(joints[:, J.SPINE_SHOULDER] - joints[:, J.SPINE_BASE])
+    hips = joints[:, J.HIP_LEFT] - joints[:, J.HIP_RIGHT]
+    shoulders = joints[:, J.SHOULDER_LEFT] - joints[:, J.SHOULDER_RIGHT]
+    hips_ok = np.isfinite(hips)
+    shoulders_ok = np.isfinite(shoulders)
+    lateral = np.where(hips_ok, hips, 0.0) + np.where(shoulders_ok, shoulders, 0.0)
+    lateral[~(hips_ok.all(-1) | shoulders_ok.all(-1))] = np.nan
+    lateral = lateral - (lateral * up).sum(-1, keepdims=True) * up
+    left = unit(lateral)
+    forward = _cross(left, up)
+    return left, up, forward
+
+
+def _signed_angle(a: FloatArray, b: FloatArray, axis: FloatArray) -> FloatArray:
+    """Angle from ``a`` to ``b`` (degrees), positive counter-clockwise about ``axis``."""
+    cross = (_cross(a, b) * axis).sum(-1)
+    dot = (a * b).sum(-1)
+    angle: FloatArray = np.degrees(np.arctan2(cross, dot))
+    return angle
+
+
+def _unsigned_angle(a: FloatArray, b: FloatArray) -> FloatArray:
+    cos = (unit(a) * unit(b)).sum(-1)
+    angle: FloatArray = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    return angle
+
+
+ROM_LIMITS_DEG: Final[dict[str, tuple[float, float]]] = {
+    "knee_flexion": (-5.0, 145.0),
+    "elbow_flexion": (0.0, 150.0),
+    "hip_flexion": (-30.0, 130.0),
+    "hip_abduction": (-30.0, 50.0),
+    "shoulder_extension": (-180.0, 60.0),
+    "ankle_shank_foot": (25.0, 150.0),
+    "neck_flexion": (0.0, 70.0),
+}
+"""Anatomical range of each angle (degrees); sources and conventions in the module docstring."""
+
+
+# Both sides at once: index 0 left, 1 right (sign +1 / −1 for abduction).
+_SIDE_SIGN: Final = np.array([1.0, -1.0])
+
+
+_HIP: Final = np.array([J.HIP_LEFT, J.HIP_RIGHT])
+
+
+_KNEE: Final = np.array([J.KNEE_LEFT, J.KNEE_RIGHT])
+
+
+_ANKLE: Final = np.array([J.ANKLE_LEFT, J.ANKLE_RIGHT])
+
+
+_FOOT: Final = np.array([J.FOOT_LEFT, J.FOOT_RIGHT])
+
+
+_SHOULDER: Final = np.array([J.SHOULDER_LEFT, J.SHOULDER_RIGHT])
+
+
+_ELBOW: Final = np.array([J.ELBOW_LEFT, J.ELBOW_RIGHT])
+
+
+_WRIST: Final = np.array([J.WRIST_LEFT, J.WRIST_RIGHT])
+
+
+_SIDED_ANGLES: Final = (
+    ("knee_flexion", _ANKLE),
+    ("hip_flexion", _KNEE),
+    ("hip_abduction", _KNEE),
+    ("ankle_shank_foot", _FOOT),
+    ("elbow_flexion", _WRIST),
+    ("shoulder_extension", _ELBOW),
+)
+"""The per-side angles in the order :func:`_angle_table` returns them, and their distal joints."""
+
+
+_ANGLE_LOW: Final = np.array(
+    [ROM_LIMITS_DEG[name][0] for name, _ in _SIDED_ANGLES for _side in range(2)]
+    + [ROM_LIMITS_DEG["neck_flexion"][0]]
+)
+
+
+_ANGLE_HIGH: Final = np.array(
+    [ROM_LIMITS_DEG[name][1] for name, _ in _SIDED_ANGLES for _side in range(2)]
+    + [ROM_LIMITS_DEG["neck_flexion"][1]]
+)
+
+
+_KNEE_COLUMNS: Final = (2, 3, 4, 5)
+"""Columns of the angle table landing on the knees (hip flexion L/R, hip abduction L/R)."""
+
+
+_SINGLE_COLUMNS: Final = np.array([0, 1, 6, 7, 8, 9, 10, 11, 12])
+
+
+_SINGLE_JOINTS: Final = np.array(
+    [J.ANKLE_LEFT, J.ANKLE_RIGHT, J.FOOT_LEFT, J.FOOT_RIGHT, J.WRIST_LEFT, J.WRIST_RIGHT,
+     J.ELBOW_LEFT, J.ELBOW_RIGHT, J.HEAD]
+)  # fmt: skip
+
+
+def _angle_table(
+    joints: FloatArray, left: FloatArray, up: FloatArray, forward: FloatArray
+) -> FloatArray:
+    """(S, 13) angles in degrees: each of :data:`_SIDED_ANGLES` left then right, then the neck."""
+    n = joints.shape[0]
+    left_, up_, forward_ = left[:, None], up[:, None], forward[:, None]
+    thigh = joints[:, _KNEE] - joints[:, _HIP]  # (S, 2, 3)
+    shank = joints[:, _ANKLE] - joints[:, _KNEE]
+    foot_v = joints[:, _FOOT] - joints[:, _ANKLE]
+    upper = joints[:, _ELBOW] - joints[:, _SHOULDER]
+    fore = joints[:, _WRIST] - joints[:, _ELBOW]
+    down = -up_
+    out = np.empty((n, 13))
+    # Flexion swings the shank backwards: positive about the person's left axis.
+    out[:, 0:2] = _signed_angle(thigh, shank, left_)
+    # Hip: thigh against the trunk's down axis; flexion forward, abduction outward.
+    out[:, 2:4] = np.degrees(np.arctan2((thigh * forward_).sum(-1), (thigh * down).sum(-1)))
+    # Abduction: how far the thigh leaves the sagittal plane (outwards positive).
+    outwards = _SIDE_SIGN * (unit(thigh) * left_).sum(-1)
+    out[:, 4:6] = np.degrees(np.arcsin(np.clip(outwards, -1.0, 1.0)))
+    # Foot points forward from the shank: positive about the person's right axis.
+    out[:, 6:8] = _signed_angle(shank, foot_v, -left_)
+    out[:, 8:10] = _unsigned_angle(upper, fore)
+    # Shoulder extension: the arm behind the trunk while below shoulder height.
+    behind = -(upper * forward_).sum(-1)
+    below = (upper * down).sum(-1)
+    out[:, 10:12] = np.where(below > 0, np.degrees(np.arctan2(behind, below)), 0.0)
+    neck = joints[:, J.HEAD] - joints[:, J.NECK]
+    out[:, 12] = _unsigned_angle(up, neck)
+    return out
+
+
+def joint_angles(views: npt.ArrayLike) -> dict[str, tuple[FloatArray, int]]:
+    """The range-of-motion angles of each view (degrees) and the joint each one lands on.
+
+    Args:
+        views: (S, 25, 3) joints, metres, world frame.
+
+    Returns:
+        ``name_side`` → ((S,) angles in degrees, NaN where unknown; distal joint index).
+    """
+    joints = np.asarray(views, dtype=np.float64)
+    table = _angle_table(joints, *body_frame(joints))
+    out: dict[str, tuple[FloatArray, int]] = {}
+    for side_index, side in enumerate(("left", "right")):
+        for k, (name, distal) in enumerate(_SIDED_ANGLES):
+            out[f"{name}_{side}"] = (table[:, 2 * k + side_index], int(distal[side_index]))
+    out["neck_flexion"] = (table[:, 12], int(J.HEAD))
+    return out
+
+
+def rom_factors_and_forward(
+    views: npt.ArrayLike, scale_deg: float
+) -> tuple[FloatArray, FloatArray]:
+    """:func:`range_of_motion_factors` and the views' ``forward`` axes (:func:`body_frame`)."""
+    joints = np.asarray(views, dtype=np.float64)
+    left, up, forward = body_frame(joints)
+    angles = _angle_table(joints, left, up, forward)
+    excess = np.maximum(_ANGLE_LOW - angles, 0.0) + np.maximum(angles - _ANGLE_HIGH, 0.0)
+    factors = np.where(np.isfinite(excess), np.exp(-excess / scale_deg), 1.0)
+    out = np.ones(joints.shape[:2])
+    out[:, _SINGLE_JOINTS] = factors[:, _SINGLE_COLUMNS]
+    # The knee gets hip flexion × hip abduction (1 · a · b as a running product: the same bits).
+    out[:, J.KNEE_LEFT] = factors[:, _KNEE_COLUMNS[0]] * factors[:, _KNEE_COLUMNS[2]]
+    out[:, J.KNEE_RIGHT] = factors[:, _KNEE_COLUMNS[1]] * factors[:, _KNEE_COLUMNS[3]]
+    return out, forward
+
+
+def facing_direction(joints: npt.ArrayLike) -> FloatArray:
+    """Horizontal unit vector the person faces (3,), from one skeleton; NaN if unknown.
+
+    Args:
+        joints: (25, 3) joints, metres, world frame (+Y up).
+    """
+    result: FloatArray = facing_directions(np.asarray(joints, dtype=np.float64)[None])[0]
+    return result
+
+
+def facing_directions(skeletons: npt.ArrayLike) -> FloatArray:
+    """:func:`facing_direction` of each of P skeletons (P, 25, 3) at once: (P, 3)."""
+    _, _, forward = body_frame(skeletons)
+    horizontal = forward * HORIZONTAL
+    # np.vecdot is the dot product np.linalg.norm uses on one vector (the same bits).
+    norm = np.sqrt(np.vecdot(horizontal, horizontal))
+    ok = np.isfinite(horizontal).all(-1) & ~(norm < 1e-6)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        result: FloatArray = np.where(ok[:, None], horizontal / norm[:, None], np.nan)
+    return result
+
+
+def align_yaw(views: npt.ArrayLike, target_facing: npt.ArrayLike, max_deg: float) -> FloatArray:
+    """Turn each view about the vertical through its SpineBase to face ``target_facing``.
+
+    Corrects each sensor's bias of turning the skeleton towards itself (conventions.md §5)
+    once the person's true facing is known from the views the person faces most directly.
+
+    Args:
+        views: (S, 25, 3) joints, metres, world frame (labels already corrected).
+        target_facing: (3,) horizontal unit vector (NaN: nothing is changed).
+        max_deg: larger corrections are not applied (the view is left as it is).
+
+    Returns:
+        (S, 25, 3) float64 turned views.
+    """
+    joints = np.array(views, dtype=np.float64, copy=True)
+    target = np.asarray(target_facing, dtype=np.float64)
+    if not np.isfinite(target).all():
+        return joints
+    for i in range(joints.shape[0]):
+        own = facing_direction(joints[i])
+        pivot = joints[i, J.SPINE_BASE]
+        if not (np.isfinite(own).all() and np.isfinite(pivot).all()):
+            continue
+        # Signed yaw from own to target about +Y (heading atan2(x, z) as in the simulator).
+        angle = math.atan2(target[0], target[2]) - math.atan2(own[0], own[2])
+        angle = (angle + math.pi) % (2 * math.pi) - math.pi
+        if abs(math.degrees(angle)) > max_deg:
+            continue
+        c, s_ = math.cos(angle), math.sin(angle)
+        rotation = np.array([[c, 0.0, s_], [0.0, 1.0, 0.0], [-s_, 0.0, c]])
+        joints[i] = (joints[i] - pivot) @ rotation.T + pivot
+    return joints
+
+
+def corrected_yaw(joints: FloatArray, cosines: FloatArray, max_deg: float) -> FloatArray:
+    """One person's views turned to the facing of the views seen most squarely.
+
+    The person's facing is the mean of each view's own facing weighted by how squarely its
+    sensor sees the person (least turned by the sensor's bias), then every view is turned to it
+    (``correct_view_yaw``).
+
+    Args:
+        joints: (S, 25, 3) one person's views, metres, world frame, labels corrected.
+        cosines: (S,) each view's facing cosine (:func:`~skelfuse.fusion.confidence.
+            facing_cosines`), NaN where unknown.
+        max_deg: larger corrections are not applied.
+
+    Returns:
+        (S, 25, 3) float64.
+    """
+    frontal = np.nan_to_num(np.abs(cosines), nan=0.5) ** 4 + 1e-6
+    own = np.stack([facing_direction(v) for v in joints])
+    usable = np.isfinite(own).all(axis=1)
+    if usable.any():
+        mean = (frontal[usable, None] * own[usable]).sum(axis=0)
+        norm = float(np.linalg.norm(mean))
+        if norm > 1e-6:
+            return align_yaw(joints, mean / norm, max_deg)
+    return joints

@@ -1,0 +1,310 @@
+"""Bone lengths: each person's reference lengths (set by hand or estimated online) and the fit
+that gives a fused skeleton those lengths.
+
+Shapes: 25 joints, 24 bones in :data:`skelfuse.protocol.skeleton.BONES` order; metres.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import Final, Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from skelfuse.fusion.anatomy import CHAIN_LEVELS
+from skelfuse.protocol.skeleton import BONE_MIRROR_PERMUTATION, BONES, JointId, TrackingState
+
+FloatArray = npt.NDArray[np.float64]
+BONE_COUNT: Final = len(BONES)
+_BONE_PARENT: Final = np.array([parent for parent, _ in BONES])
+_BONE_CHILD: Final = np.array([child for _, child in BONES])
+_BONE_MIRROR: Final = np.array(BONE_MIRROR_PERMUTATION)
+BoneFit = Literal["projection", "chain"]
+GOOD_VIEW_COS: Final = 0.5
+"""A view feeds the online bone-length estimate only if the person faces it within 60°."""
+
+
+BONE_NAMES: Final[tuple[str, ...]] = tuple(
+    f"{JointId(p).name.lower()}-{JointId(c).name.lower()}" for p, c in BONES
+)
+"""Bone names for the API: ``parent-child`` in snake case, e.g. ``hip_right-knee_right``."""
+
+
+def enforce_bone_lengths(joints: npt.ArrayLike, reference: npt.ArrayLike) -> FloatArray:
+    """Give a skeleton the reference bone lengths, keeping every bone's direction.
+
+    Walks outward from SpineBase: each child is put at ``parent' + unit(child − parent)·l_ref``
+    where ``parent'`` is the already-corrected parent. A bone whose reference is unknown (NaN)
+    keeps its measured offset; NaN joints stay NaN.
+
+    Args:
+        joints: (25, 3) metres; reference: (24,) metres in :data:`BONES` order. Or several
+            skeletons at once: (..., 25, 3) and (..., 24).
+
+    Returns:
+        (25, 3) float64 (or (..., 25, 3)).
+    """
+    original = np.asarray(joints, dtype=np.float64)
+    ref = np.asarray(reference, dtype=np.float64)
+    offsets = original[..., _BONE_CHILD, :] - original[..., _BONE_PARENT, :]  # (..., 24, 3)
+    # np.vecdot is the dot product np.linalg.norm uses on one vector (the same bits).
+    norms = np.sqrt(np.vecdot(offsets, offsets))
+    scale = np.isfinite(ref) & np.isfinite(norms) & (norms > 1e-9)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        factors = ref / norms
+    offset_of = np.empty(original.shape)
+    offset_of[..., _BONE_CHILD, :] = np.where(
+        scale[..., None], offsets * factors[..., None], offsets
+    )
+    out = original.copy()
+    # Outward one depth level at a time; a joint whose parent is missing keeps its measurement.
+    for children, parents in CHAIN_LEVELS:
+        hung = np.isfinite(out[..., parents, :]).all(axis=-1, keepdims=True)
+        out[..., children, :] = np.where(
+            hung, out[..., parents, :] + offset_of[..., children, :], out[..., children, :]
+        )
+    return out
+
+
+def _bone_groups() -> tuple[npt.NDArray[np.intp], ...]:
+    """Bones split into groups that share no joint (a greedy edge colouring of the tree), so a
+    group's corrections can be applied at once without two bones writing the same joint."""
+    groups: list[list[int]] = []
+    used: list[set[int]] = []
+    for b, (parent, child) in enumerate(BONES):
+        for group, joints in zip(groups, used, strict=True):
+            if parent not in joints and child not in joints:
+                group.append(b)
+                joints.update((parent, child))
+                break
+        else:
+            groups.append([b])
+            used.append({parent, child})
+    return tuple(np.array(g, dtype=np.intp) for g in groups)
+
+
+BONE_GROUPS: Final = _bone_groups()
+
+
+def project_bone_lengths(
+    joints: npt.ArrayLike,
+    reference: npt.ArrayLike,
+    mobility: npt.ArrayLike | None = None,
+    iterations: int = 3,
+) -> FloatArray:
+    """Give a skeleton the reference bone lengths while moving its joints as little as possible.
+
+    Position-based distance constraints: each pass shortens or lengthens every bone to its
+    reference by moving both ends along the bone, the parent by the share ``m_p / (m_p + m_c)``
+    of the mobilities; ``iterations`` passes (Gauss–Seidel over :data:`BONE_GROUPS`) then one
+    outward :func:`enforce_bone_lengths` pass make the lengths exact. Unlike that pass alone,
+    which keeps SpineBase fixed and pushes a whole subtree along with every correction, the
+    correction is spread over both ends, so errors do not pile up towards the hands and feet.
+
+    Args:
+        joints: (..., 25, 3) metres. reference: (..., 24) metres in :data:`BONES` order, NaN for
+            a bone to leave alone. mobility: (..., 25) how freely each joint may move (> 0;
+            e.g. 1 − confidence); None: all alike.
+
+    Returns:
+        (..., 25, 3) float64; NaN joints stay NaN.
+    """
+    original = np.asarray(joints, dtype=np.float64)
+    ref = np.asarray(reference, dtype=np.float64)
+    missing = np.asarray(~np.isfinite(original).all(axis=-1))  # (..., 25)
+    out = np.where(missing[..., None], 0.0, original)  # NaN-free while iterating
+    move = np.ones(out.shape[:-1]) if mobility is None else np.asarray(mobility, np.float64)
+    move = np.maximum(move, 1e-6)
+    # Per group, fixed over the passes: its bones' ends, targets and the ends' shares (0 for a
+    # bone with an unknown target or a missing end: it moves nothing).
+    plan = []
+    for group in BONE_GROUPS:
+        parents, children = _BONE_PARENT[group], _BONE_CHILD[group]
+        target = ref[..., group]
+        usable = np.isfinite(target) & ~missing[..., parents] & ~missing[..., children]
+        m_parent, m_child = move[..., parents], move[..., children]
+        share = np.where(usable, m_parent / (m_parent + m_child), 0.0)[..., None]
+        rest = np.where(usable, 1.0, 0.0)[..., None] - share
+        plan.append((parents, children, np.where(usable, target, 0.0), share, rest))
+    for _ in range(iterations):
+        for parents, children, target, share, rest in plan:
+            offsets = out[..., children, :] - out[..., parents, :]
+            norms = np.maximum(np.sqrt(np.vecdot(offsets, offsets)), 1e-12)
+            delta = offsets * ((norms - target) / norms)[..., None]
+            out[..., parents, :] += share * delta
+            out[..., children, :] -= rest * delta
+    out[missing] = np.nan
+    return enforce_bone_lengths(out, ref)
+
+
+def nanmedian_axis(data: FloatArray, axis: int) -> FloatArray:
+    """``np.nanmedian`` along ``axis`` (the same values: mean of the two middle ones), faster.
+
+    All-NaN slices give NaN without a warning.
+    """
+    ordered = np.sort(data, axis=axis)  # NaN last
+    count = np.isfinite(data).sum(axis=axis, keepdims=True)
+    low = np.take_along_axis(ordered, np.maximum((count - 1) // 2, 0), axis=axis)
+    high = np.take_along_axis(ordered, count // 2, axis=axis)
+    median = np.where(count > 0, (low + high) / 2.0, np.nan)
+    result: FloatArray = np.squeeze(median, axis=axis)
+    return result
+
+
+BoneSource = Literal["set", "estimated", "none"]
+
+
+class BoneModel:
+    """A person's reference bone lengths: set by hand, or estimated online.
+
+    The online estimate is, per bone, the median of the last ``window`` observations from good
+    views (both ends Tracked, the person facing the sensor within 60°, after mirror
+    correction). A bone that good views have not shown ``min_samples`` times yet (hand tips and
+    thumbs, often) takes the median of any view where both ends are Tracked instead. With
+    ``symmetric``, a left bone and its right counterpart share their observations: people are
+    left-right symmetric to a percent or two, and twice the samples settle the estimate sooner.
+    The estimate is refreshed every step while it settles, then every ``_REFRESH_EVERY`` steps.
+    """
+
+    _REFRESH_EVERY = 10
+
+    def __init__(
+        self,
+        window: int = 300,
+        min_samples: int = 30,
+        symmetric: bool = True,
+        lock_samples: int | None = None,
+    ) -> None:
+        self.set_lengths: FloatArray | None = None
+        self.min_samples = min_samples
+        self.symmetric = symmetric
+        self.lock_samples = lock_samples
+        self._locked = np.zeros(BONE_COUNT, dtype=bool)
+        self._samples: deque[FloatArray] = deque(maxlen=window)
+        self._fallback: deque[FloatArray] = deque(maxlen=window)
+        self._estimate = np.full(BONE_COUNT, np.nan)
+        self._since_update = 0
+
+    @property
+    def source(self) -> BoneSource:
+        if self.set_lengths is not None:
+            return "set"
+        return "estimated" if np.isfinite(self._estimate).any() else "none"
+
+    @property
+    def estimate(self) -> FloatArray:
+        """(24,) online estimate, metres; NaN for bones without enough observations."""
+        return self._estimate.copy()
+
+    def reference(self) -> FloatArray:
+        """(24,) the lengths fusion uses: the set ones, else the estimate (NaN: unknown)."""
+        return self.set_lengths.copy() if self.set_lengths is not None else self.estimate
+
+    def observe(self, lengths: FloatArray, fallback: FloatArray | None = None) -> None:
+        """Add one step's observed lengths.
+
+        Args:
+            lengths: (24,) metres from good views, NaN for bones not observed well.
+            fallback: (24,) metres from any view with both ends Tracked, or None.
+        """
+        good = bool(np.isfinite(lengths).any())
+        spare = fallback is not None and bool(np.isfinite(fallback).any())
+        if not (good or spare):
+            return
+        if good:
+            self._samples.append(lengths)
+        if spare:
+            assert fallback is not None
+            self._fallback.append(fallback)
+        self._since_update += 1
+        settling = len(self._samples) < 2 * self.min_samples
+        if settling or self._since_update >= self._REFRESH_EVERY:
+            self._since_update = 0
+            estimate, counts = self._median(self._samples)
+            missing = ~np.isfinite(estimate)
+            if missing.any():
+                estimate[missing] = self._median(self._fallback)[0][missing]
+            self._estimate = np.where(self._locked, self._estimate, estimate)
+            if self.lock_samples is not None:
+                self._locked |= counts >= self.lock_samples
+
+    def mirror(self) -> None:
+        """Swap left and right in the online samples (the track they came from was mirrored)."""
+        for samples in (self._samples, self._fallback):
+            swapped = [sample[_BONE_MIRROR] for sample in samples]
+            samples.clear()
+            samples.extend(swapped)
+        self._estimate = self._estimate[_BONE_MIRROR]
+        self._locked = self._locked[_BONE_MIRROR]
+
+    def _median(self, samples: deque[FloatArray]) -> tuple[FloatArray, FloatArray]:
+        """Per-bone median of ``samples`` (NaN where fewer than ``min_samples``) and the
+        observations behind it, per bone (with ``symmetric``: the mean of a left/right pair's)."""
+        if not samples:
+            return np.full(BONE_COUNT, np.nan), np.zeros(BONE_COUNT)
+        data = np.stack(samples)
+        sides = 1
+        if self.symmetric:
+            data = np.concatenate([data, data[:, _BONE_MIRROR]], axis=0)
+            sides = 2
+        counts = np.isfinite(data).sum(axis=0) / sides
+        median = np.where(counts >= self.min_samples, nanmedian_axis(data, axis=0), np.nan)
+        return median, counts  # all-NaN bones stay NaN
+
+
+def observe_bone_lengths(
+    models: list[BoneModel],
+    joints: FloatArray,
+    states: npt.NDArray[np.uint8],
+    cosines: FloatArray,
+    person_of: npt.NDArray[np.intp],
+    slot_of: npt.NDArray[np.intp],
+    widest: int,
+) -> None:
+    """Feed each person's online estimate with this step's views of that person.
+
+    Args:
+        models: one per person (P).
+        joints: (N, 25, 3) all persons' views, metres, labels corrected; states: (N, 25).
+        cosines: (N,) each view's facing cosine: good views face their sensor within 60°.
+        person_of, slot_of: (N,) each view's person and its index among that person's views.
+        widest: the most views any person has.
+    """
+    estimating = np.array([model.set_lengths is None for model in models])
+    if not estimating.any():
+        return
+    good_view = np.isfinite(cosines) & (cosines >= GOOD_VIEW_COS)
+    tracked = states == TrackingState.TRACKED
+    both_tracked = tracked[:, _BONE_PARENT] & tracked[:, _BONE_CHILD]
+    lengths = np.linalg.norm(joints[:, _BONE_CHILD] - joints[:, _BONE_PARENT], axis=-1)
+    usable = both_tracked & np.isfinite(lengths)
+    # (persons, views, bones, 2): good views only, then any view.
+    padded = np.full((len(models), widest, BONE_COUNT, 2), np.nan)
+    padded[person_of, slot_of, :, 0] = np.where(usable & good_view[:, None], lengths, np.nan)
+    padded[person_of, slot_of, :, 1] = np.where(usable, lengths, np.nan)
+    observed = np.isfinite(padded[..., 1]).any(axis=(1, 2)) & estimating
+    if not observed.any():
+        return
+    per_bone = nanmedian_axis(padded, axis=1)  # (persons, bones, 2)
+    for p in np.flatnonzero(observed):
+        models[p].observe(per_bone[p, :, 0], per_bone[p, :, 1])
+
+
+def fit_bone_lengths(
+    skeletons: FloatArray, references: FloatArray, method: BoneFit, iterations: int
+) -> FloatArray:
+    """Give each skeleton its person's reference lengths, by the method the settings name.
+
+    Args:
+        skeletons: (P, 25, 3) metres; references: (P, 24) metres (NaN: leave that bone).
+        method: ``projection`` (:func:`project_bone_lengths`, both ends of each bone move) or
+            ``chain`` (:func:`enforce_bone_lengths`, outward from SpineBase).
+        iterations: passes of the projection.
+
+    Returns:
+        (P, 25, 3) float64.
+    """
+    if method == "chain":
+        return enforce_bone_lengths(skeletons, references)
+    return project_bone_lengths(skeletons, references, iterations=iterations)

@@ -1,0 +1,271 @@
+"""Who is who: group each instant's views into persons and keep every person's id stable.
+
+Each fusion step receives every sensor's bodies at one instant, already in the world frame
+(:class:`~skelfuse.fusion.views.View`). :class:`PersonTracker` groups them into persons
+(docs/fusion.md §3):
+
+1. **Sticky**: a body a sensor keeps tracking (same sensor, same tracking id) stays with the
+   person it belonged to, while it stays within twice the gate of that person's predicted
+   position (constant-velocity prediction of the trunk).
+2. **Assignment**: other bodies are matched to existing persons, one sensor at a time, by the
+   Hungarian algorithm on midline-joint distance to the predicted position, gated (a sensor
+   never gives one person two bodies).
+3. **Birth**: bodies left over are grouped across sensors (gated) into new persons; a new
+   person is published only after ``track_min_frames`` consecutive steps.
+4. **No duplicates**: two persons whose views come from different sensors and whose trunks are
+   within half the gate are one person seen twice; the younger is merged into the older.
+5. **Death**: a person no sensor has seen for ``track_timeout_s`` is dropped.
+
+The tracker keeps identity and motion only (where each person is, how fast they move, which
+bodies are theirs); what fusion remembers per person (filter, bone lengths, mirror labels) is in
+:mod:`skelfuse.fusion.pipeline`. State is in memory only; nothing here does I/O.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+from scipy.optimize import linear_sum_assignment
+
+from skelfuse.fusion.mirror import PERMUTATION
+from skelfuse.fusion.settings import FusionSettings
+from skelfuse.fusion.views import View
+from skelfuse.protocol.skeleton import JointId
+
+FloatArray = npt.NDArray[np.float64]
+ViewKey = tuple[str, int]
+"""(sensor id, the sensor's own tracking id): one body as one sensor follows it."""
+
+TRUNK_JOINTS: Final = np.array(
+    [JointId.SPINE_BASE, JointId.SPINE_MID, JointId.SPINE_SHOULDER, JointId.NECK, JointId.HEAD]
+)
+"""Joints on the body's midline: the same whatever a sensor thinks is left or right."""
+MAX_SPEED_MPS: Final = 3.0
+"""Trunk speed used for prediction is clipped to this (a person, not a glitch)."""
+
+
+def trunk_distance(a: npt.ArrayLike, b: npt.ArrayLike) -> float:
+    """Mean distance between the midline joints two skeletons both have (metres).
+
+    Used to decide whether two views (or a view and a track) are the same person. Midline
+    joints make it immune to a sensor swapping left and right. ``inf`` with nothing in common.
+
+    Args:
+        a, b: (25, 3) joints, metres, same frame; NaN where unknown.
+    """
+    pa = np.asarray(a, dtype=np.float64)[TRUNK_JOINTS]
+    pb = np.asarray(b, dtype=np.float64)[TRUNK_JOINTS]
+    both = np.isfinite(pa).all(axis=1) & np.isfinite(pb).all(axis=1)
+    if both.sum() < 2:
+        return float("inf")
+    return float(np.linalg.norm(pa[both] - pb[both], axis=1).mean())
+
+
+def trunk_distances(a: FloatArray, b: FloatArray) -> FloatArray:
+    """:func:`trunk_distance` of many pairs: a, b (M, 5, 3) midline joints, metres → (M,)."""
+    both = np.isfinite(a).all(-1) & np.isfinite(b).all(-1)
+    diff = a - b
+    d = np.sqrt((diff * diff).sum(-1))
+    count = both.sum(-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(both, d, 0.0).sum(-1) / count
+    result: FloatArray = np.where(count < 2, np.inf, mean)
+    return result
+
+
+@dataclass(slots=True)
+class Track:
+    """One person's identity and motion.
+
+    joints: (25, 3) the last fused skeleton (world, metres), or the first view at birth.
+    velocity: (3,) horizontal trunk velocity, m/s, for prediction.
+    members: the (sensor, tracking id) bodies that were this person's at the last step.
+    """
+
+    person_id: int
+    joints: FloatArray
+    last_seen_s: float
+    born_s: float
+    hits: int = 0
+    published: bool = False
+    members: set[ViewKey] = field(default_factory=set)
+    velocity: FloatArray = field(default_factory=lambda: np.zeros(3))
+    fused_once: bool = False
+
+    def predicted(self, t_s: float) -> FloatArray:
+        """Joints moved by the trunk's velocity to ``t_s`` (association only)."""
+        dt = min(max(t_s - self.last_seen_s, 0.0), 0.5)
+        moved: FloatArray = self.joints + self.velocity * dt
+        return moved
+
+
+class PersonTracker:
+    """Groups views into persons and keeps their ids (module docstring, steps 1–5)."""
+
+    def __init__(self, settings: FusionSettings) -> None:
+        self.settings = settings
+        self.tracks: dict[int, Track] = {}
+        self._next_id = 1
+
+    def associate(self, views: list[View], t_s: float) -> dict[int, list[View]]:
+        """Steps 1–4: the views of each person at ``t_s``, by person id (new persons included).
+
+        A sensor gives a person at most one view. Persons born here are in :attr:`tracks`
+        (unpublished); a person merged into an older one is gone from it.
+        """
+        clusters = self._assign(views, t_s)
+        self._merge_duplicates(clusters)
+        return clusters
+
+    def confirm(self, clusters: dict[int, list[View]], t_s: float) -> set[int]:
+        """Step 5 and publication, after the step's fusion: the ids published now.
+
+        Each person seen counts a hit (published after ``track_min_frames`` in a row) and keeps
+        its bodies for the sticky step; a person not seen starts its confirmation over if not
+        yet published, and is dropped after ``track_timeout_s``.
+        """
+        for person_id, cluster in clusters.items():
+            track = self.tracks[person_id]
+            track.hits += 1
+            track.members = {(v.sensor_id, v.tracking_id) for v in cluster}
+            if track.hits >= self.settings.track_min_frames:
+                track.published = True
+        for person_id, track in list(self.tracks.items()):
+            if person_id in clusters:
+                continue
+            if not track.published:
+                track.hits = 0
+            if t_s - track.last_seen_s > self.settings.track_timeout_s:
+                del self.tracks[person_id]
+        return {pid for pid in clusters if self.tracks[pid].published}
+
+    def move(self, person_id: int, fused: FloatArray, t_s: float) -> None:
+        """Keep a person's fused skeleton (25, 3) and its trunk velocity for prediction."""
+        track = self.tracks[person_id]
+        dt = t_s - track.last_seen_s
+        moving = np.isfinite(fused[0]).all() and np.isfinite(track.joints[0]).all()
+        if track.fused_once and 0 < dt < 0.5 and moving:
+            velocity = (fused[0] - track.joints[0]) / dt
+            velocity[1] = 0.0
+            track.velocity = 0.6 * track.velocity + 0.4 * velocity
+            speed = float(np.linalg.norm(track.velocity))
+            if speed > MAX_SPEED_MPS:
+                track.velocity *= MAX_SPEED_MPS / speed
+        track.joints = np.where(np.isfinite(fused), fused, track.joints)
+        track.last_seen_s = t_s
+        track.fused_once = True
+
+    def swap_sides(self, person_id: int) -> None:
+        """Swap left and right in a person's skeleton (the whole track was mirrored)."""
+        track = self.tracks[person_id]
+        track.joints = track.joints[PERMUTATION]
+
+    # --- steps 1-4 -----------------------------------------------------------------------------
+
+    def _new_track(self, joints: FloatArray, t_s: float) -> Track:
+        track = Track(self._next_id, joints.copy(), t_s, t_s)
+        self._next_id += 1
+        self.tracks[track.person_id] = track
+        return track
+
+    def _assign(self, views: list[View], t_s: float) -> dict[int, list[View]]:
+        gate = self.settings.association_gate_m
+        clusters: dict[int, list[View]] = {}
+        remaining: list[View] = []
+        predicted = {pid: t.predicted(t_s) for pid, t in self.tracks.items()}
+
+        # 1. Sticky membership (every view's distance to its track in one pass).
+        owner: dict[ViewKey, Track] = {}
+        for t in reversed(self.tracks.values()):  # the first track holding a key wins
+            for member in t.members:
+                owner[member] = t
+        sticky = [owner.get((view.sensor_id, view.tracking_id)) for view in views]
+        with_track = [(i, t) for i, t in enumerate(sticky) if t is not None]
+        distances = np.full(len(views), np.inf)
+        if with_track:
+            distances[[i for i, _ in with_track]] = trunk_distances(
+                np.stack([views[i].joints_world[TRUNK_JOINTS] for i, _ in with_track]),
+                np.stack([predicted[t.person_id][TRUNK_JOINTS] for _, t in with_track]),
+            )
+        for view, track, distance in zip(views, sticky, distances, strict=True):
+            if track is None or distance > 2 * gate:
+                remaining.append(view)
+                continue
+            cluster = clusters.setdefault(track.person_id, [])
+            if any(v.sensor_id == view.sensor_id for v in cluster):
+                remaining.append(view)
+            else:
+                cluster.append(view)
+
+        # 2. Hungarian assignment to existing tracks, sensor by sensor.
+        leftovers: list[View] = []
+        for sensor_id in sorted({v.sensor_id for v in remaining}):
+            mine = [v for v in remaining if v.sensor_id == sensor_id]
+            free = [
+                t
+                for t in self.tracks.values()
+                if not any(v.sensor_id == sensor_id for v in clusters.get(t.person_id, []))
+            ]
+            if not free:
+                leftovers.extend(mine)
+                continue
+            cost = np.array(
+                [[trunk_distance(v.joints_world, predicted[t.person_id]) for t in free]
+                 for v in mine]
+            )  # fmt: skip
+            cost_finite = np.where(np.isfinite(cost), cost, 1e6)
+            rows, cols = linear_sum_assignment(cost_finite)
+            taken = set()
+            for r, c in zip(rows, cols, strict=True):
+                if cost[r, c] <= gate:
+                    clusters.setdefault(free[c].person_id, []).append(mine[r])
+                    taken.add(r)
+            leftovers.extend(v for i, v in enumerate(mine) if i not in taken)
+
+        # 3. Births: group leftovers across sensors.
+        new_clusters: list[list[View]] = []
+        for view in leftovers:
+            best, best_distance = None, gate
+            for cluster in new_clusters:
+                if any(v.sensor_id == view.sensor_id for v in cluster):
+                    continue
+                distance = float(
+                    np.mean([trunk_distance(view.joints_world, v.joints_world) for v in cluster])
+                )
+                if distance <= best_distance:
+                    best, best_distance = cluster, distance
+            if best is None:
+                new_clusters.append([view])
+            else:
+                best.append(view)
+        for cluster in new_clusters:
+            track = self._new_track(cluster[0].joints_world, t_s)
+            clusters[track.person_id] = cluster
+        return clusters
+
+    def _merge_duplicates(self, clusters: dict[int, list[View]]) -> None:
+        """4. Merge persons that are one person seen by disjoint sets of sensors (older id wins)."""
+        half_gate = self.settings.association_gate_m / 2
+        ids = sorted(clusters)
+        for i, older in enumerate(ids):
+            if older not in clusters:
+                continue
+            for younger in ids[i + 1 :]:
+                if younger not in clusters:
+                    continue
+                a, b = clusters[older], clusters[younger]
+                if {v.sensor_id for v in a} & {v.sensor_id for v in b}:
+                    continue
+                distance = np.mean(
+                    [trunk_distance(x.joints_world, y.joints_world) for x in a for y in b]
+                )
+                if distance <= half_gate:
+                    a.extend(b)
+                    del clusters[younger]
+                    young, old = self.tracks[younger], self.tracks[older]
+                    if young.published and not old.published:
+                        old.published = True
+                    del self.tracks[younger]

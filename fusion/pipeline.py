@@ -1,0 +1,394 @@
+"""The fusion pipeline: every sensor's bodies at one instant in, one skeleton per person out.
+
+:meth:`FusionPipeline.step` reads top to bottom as the data flows (docs/fusion.md):
+
+1. **align in time**: each sensor's body frames interpolated to the instant
+   (:func:`skelfuse.fusion.sensors.bodies_at`);
+2. **world frame**: each body moved by its sensor's ``T_world_from_sensor`` (:func:`views_at`);
+3. **associate**: views grouped into persons with stable ids (:mod:`skelfuse.fusion.identity`);
+4. **mirror labels**: views whose left and right are swapped are swapped back
+   (:mod:`skelfuse.fusion.labels`, :mod:`skelfuse.fusion.mirror`);
+5. **per-joint confidence**: tracking state × bone length × range of motion, propagated along
+   the body, then × facing × distance per view (:mod:`skelfuse.fusion.confidence`);
+6. **weighted fusion**: the weighted mean of the views (:mod:`skelfuse.fusion.weighted`);
+   the confidence apps receive with each joint (:func:`~skelfuse.fusion.confidence.
+   joint_confidence`);
+7. **filter**: each person's joints smoothed over time (:mod:`skelfuse.fusion.filters`);
+8. **bone-length fit**: the filtered skeleton given the person's reference bone lengths
+   (:mod:`skelfuse.fusion.bones`). The fit comes after the filter so that the lengths apps
+   receive are exactly the reference ones.
+
+Step 5 runs twice around step 6: facing and distance need to know where the person stands and
+faces, which the first fusion (with the body terms alone) tells for a person seen the first time.
+
+Every step is a pure function on arrays except the state each person carries from one instant
+to the next: its identity and motion (:class:`~skelfuse.fusion.identity.PersonTracker`) and what
+fusion remembers of it (:class:`PersonMemory`). In memory only; nothing here does I/O or reads a
+clock.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from skelfuse.fusion.anatomy import corrected_yaw, facing_directions
+from skelfuse.fusion.bones import BoneModel, fit_bone_lengths, observe_bone_lengths
+from skelfuse.fusion.confidence import (
+    body_weights,
+    facing_cosines,
+    joint_confidence,
+    view_factors,
+)
+from skelfuse.fusion.filters import JointFilter, filter_all, make_filter
+from skelfuse.fusion.identity import PersonTracker
+from skelfuse.fusion.labels import Labels, label_views, walking_backwards
+from skelfuse.fusion.mirror_labellings import MAX_VIEWS
+from skelfuse.fusion.sensors import SensorState, bodies_at
+from skelfuse.fusion.settings import FusionSettings
+from skelfuse.fusion.views import FusedPerson, View
+from skelfuse.fusion.weighted import carriers, cauchy_reweight, weighted_mean
+from skelfuse.protocol.transform import Matrix4, apply
+
+FloatArray = npt.NDArray[np.float64]
+PoseLookup = Callable[[str], Matrix4 | None]
+"""A sensor's ``T_world_from_sensor`` (4×4, metres), or None while it is uncalibrated."""
+_NO_POSITION = np.full(3, np.nan)
+
+
+def views_at(
+    sensors: Iterable[SensorState], pose_of: PoseLookup, t_s: float, gap_s: float
+) -> list[View]:
+    """Steps 1–2: every connected, calibrated sensor's bodies at ``t_s``, in the world frame.
+
+    Args:
+        sensors: the sensors' frame buffers (times on the server clock).
+        pose_of: each sensor's pose; sensors without one are left out.
+        t_s: the instant, server clock, seconds.
+        gap_s: frames further apart than this are not interpolated between.
+    """
+    views: list[View] = []
+    for sensor in sensors:
+        if not sensor.connected:
+            continue
+        pose = pose_of(sensor.sensor_id)
+        if pose is None:
+            continue
+        max_age = 1.5 / max(sensor.nominal_fps, 1.0)
+        for body in bodies_at(sensor.frames, t_s, gap_s, max_age) or ():
+            joints_world = apply(pose, body.joints_m)
+            views.append(
+                View(sensor.sensor_id, body.tracking_id, joints_world, body.states, pose[:3, 3])
+            )
+    return views
+
+
+@dataclass(slots=True)
+class PersonMemory:
+    """What fusion carries over for one person: filter, bone lengths, mirror labels."""
+
+    filter: JointFilter
+    bones: BoneModel
+    labels: Labels = field(default_factory=dict)
+    backward_since_s: float | None = None
+    walk_swaps: int = 0
+    """How often the whole person was swapped for walking backwards (diagnostics, tests)."""
+
+
+@dataclass(slots=True)
+class ViewBatch:
+    """The views of P persons stacked: person ``person_of[i]``'s ``slot_of[i]``-th view.
+
+    joints: (N, 25, 3) float64 metres, world; states: (N, 25) uint8; sensors: (N, 3) metres.
+    Per-person sums use (P, widest, ...) blocks padded after the real views (:meth:`pad`).
+    """
+
+    views: list[View]
+    counts: list[int]
+    joints: FloatArray
+    states: npt.NDArray[np.uint8]
+    sensors: FloatArray
+    person_of: npt.NDArray[np.intp]
+    slot_of: npt.NDArray[np.intp]
+    starts: npt.NDArray[np.intp]
+
+    @classmethod
+    def of(cls, clusters: list[list[View]]) -> ViewBatch:
+        counts = [len(cluster) for cluster in clusters]
+        views = [view for cluster in clusters for view in cluster]
+        person_of = np.repeat(np.arange(len(clusters)), counts)
+        starts = np.cumsum([0, *counts])
+        return cls(
+            views,
+            counts,
+            np.stack([v.joints_world for v in views]).astype(np.float64),
+            np.stack([v.states for v in views]),
+            np.stack(
+                [_NO_POSITION if v.sensor_position is None else v.sensor_position for v in views]
+            ).astype(np.float64),
+            person_of,
+            np.arange(len(views)) - starts[person_of],
+            starts,
+        )
+
+    @property
+    def widest(self) -> int:
+        return max(self.counts)
+
+    def pad(self, values: FloatArray, fill: float) -> FloatArray:
+        """(N, ...) per-view values as (P, widest, ...), ``fill`` after each person's views."""
+        padded = np.full((len(self.counts), self.widest, *values.shape[1:]), fill, np.float64)
+        padded[self.person_of, self.slot_of] = values
+        return padded
+
+    def fuse(self, weights: FloatArray) -> FloatArray:
+        """Step 6 on the batch: (P, 25, 3) each person's weighted mean."""
+        return weighted_mean(self.pad(self.joints, np.nan), self.pad(weights, 0.0))
+
+    def body_positions(self, fused: FloatArray) -> FloatArray:
+        """(P, 3) where each person stands: fused SpineBase, else the mean of the views'."""
+        spine = self.joints[:, 0]
+        seen = np.isfinite(spine)
+        sums = self.pad(np.where(seen, spine, 0.0), 0.0).sum(axis=1)
+        counts = self.pad(seen.astype(np.float64), 0.0).sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean_spine = sums / counts
+        fused_spine_ok = np.isfinite(fused[:, 0]).all(axis=-1, keepdims=True)
+        positions: FloatArray = np.where(fused_spine_ok, fused[:, 0], mean_spine)
+        return positions
+
+
+class FusionPipeline:
+    """The state fusion keeps between instants, and the step (module docstring)."""
+
+    def __init__(self, settings: FusionSettings) -> None:
+        self.settings = settings
+        self.tracker = PersonTracker(settings)
+        self.memories: dict[int, PersonMemory] = {}
+        self.default_bone_lengths: FloatArray | None = None
+        """(24,) lengths every new person starts with as "set" (None: estimate online)."""
+
+    def step(
+        self, sensors: Iterable[SensorState], pose_of: PoseLookup, t_s: float, gap_s: float
+    ) -> tuple[list[FusedPerson], list[View]]:
+        """Fuse the instant ``t_s``: the published persons by id, and every view used."""
+        views = views_at(sensors, pose_of, t_s, gap_s)  # 1. align in time, 2. world frame
+        return self.update(views, t_s), views
+
+    def update(self, views: list[View], t_s: float) -> list[FusedPerson]:
+        """Steps 3–8 on the views of one instant (world frame); the published persons, by id."""
+        s = self.settings
+        clusters = self.tracker.associate(views, t_s)  # 3. associate
+        ids = sorted(clusters)
+        for person_id in ids:
+            if person_id not in self.memories:
+                self.memories[person_id] = self._new_memory()
+        tracks = [self.tracker.tracks[pid] for pid in ids]
+        memories = [self.memories[pid] for pid in ids]
+        outputs: dict[int, FusedPerson] = {}
+        if ids:
+            batch = ViewBatch.of([clusters[pid][:MAX_VIEWS] for pid in ids])
+            track_facing = facing_directions(np.stack([t.joints for t in tracks]))
+
+            # 4. Mirror labels: swap mirrored views back before anything looks at left or right.
+            mirrored = np.zeros(len(batch.views), dtype=bool)
+            rom = None
+            if s.use_mirror_correction:
+                mirrored, rom = label_views(
+                    batch.joints,
+                    batch.states,
+                    batch.sensors,
+                    [(v.sensor_id, v.tracking_id) for v in batch.views],
+                    batch.counts,
+                    [t.joints if t.fused_once else None for t in tracks],
+                    track_facing,
+                    [m.labels for m in memories],
+                    s,
+                )
+
+            # 5. Per-joint confidence from each view's body alone, 6. a first fusion.
+            references = np.stack([m.bones.reference() for m in memories])
+            weights = body_weights(
+                batch.joints,
+                batch.states,
+                references[batch.person_of] if np.isfinite(references).any() else None,
+                rom,
+                s,
+            )
+            fused = batch.fuse(weights)
+
+            # 5. Facing and distance: each view's factor from where the person stands and faces.
+            fused_once = np.array([t.fused_once for t in tracks])
+            facing = track_facing
+            if not fused_once.all():
+                facing = np.where(fused_once[:, None], track_facing, facing_directions(fused))
+            stands = batch.body_positions(fused)[batch.person_of]
+            cosines = facing_cosines(facing[batch.person_of], stands, batch.sensors)
+            if s.correct_view_yaw:
+                for lo, hi in zip(batch.starts[:-1], batch.starts[1:], strict=True):
+                    if hi - lo > 1:
+                        batch.joints[lo:hi] = corrected_yaw(
+                            batch.joints[lo:hi], cosines[lo:hi], s.yaw_max_deg
+                        )
+            if s.use_facing or s.use_distance or s.correct_view_yaw:
+                weights = weights * view_factors(cosines, stands, batch.sensors, s)[:, None]
+                fused = batch.fuse(weights)  # 6. weighted fusion
+
+            if s.outlier_scale_m > 0:  # 6. one Cauchy pass where a person has several views
+                several = np.array(batch.counts)[batch.person_of] > 1
+                if several.any():
+                    reweighted = cauchy_reweight(
+                        batch.joints, fused[batch.person_of], weights, s.outlier_scale_m
+                    )
+                    weights = np.where(several[:, None], reweighted, weights)
+                    fused = batch.fuse(weights)
+            padded_joints, padded_weights = batch.pad(batch.joints, np.nan), batch.pad(weights, 0.0)
+            confidence = joint_confidence(padded_joints, padded_weights)
+            carried = carriers(padded_joints, padded_weights)
+
+            observe_bone_lengths(
+                [m.bones for m in memories],
+                batch.joints,
+                batch.states,
+                cosines,
+                batch.person_of,
+                batch.slot_of,
+                batch.widest,
+            )
+            for p, person_id in enumerate(ids):
+                self.tracker.move(person_id, fused[p], t_s)
+                self._check_walking_direction(person_id, t_s)
+
+            # 7. Filter, 8. bone-length fit.
+            alive = [p for p in range(len(ids)) if np.isfinite(fused[p]).any()]
+            filtered = filter_all([memories[p].filter for p in alive], fused[alive], t_s)
+            skeletons = dict(zip(alive, filtered, strict=True))
+            if s.enforce_bone_lengths and alive:
+                # The references as they are now: this step's observations are in.
+                lengths = {p: memories[p].bones.reference() for p in alive}
+                fitted = [p for p in alive if np.isfinite(lengths[p]).any()]
+                if fitted:
+                    fit = fit_bone_lengths(
+                        np.stack([skeletons[p] for p in fitted]),
+                        np.stack([lengths[p] for p in fitted]),
+                        s.bone_length_fit,
+                        s.bone_fit_iterations,
+                    )
+                    skeletons.update(zip(fitted, fit, strict=True))
+            for p in alive:
+                outputs[ids[p]] = _person(
+                    ids[p],
+                    skeletons[p],
+                    confidence[p],
+                    batch.views[batch.starts[p] : batch.starts[p + 1]],
+                    carried[p],
+                    mirrored[batch.starts[p] : batch.starts[p + 1]],
+                )
+
+        published = self.tracker.confirm(clusters, t_s)
+        for person_id in list(self.memories):
+            if person_id not in self.tracker.tracks:
+                del self.memories[person_id]
+        return [outputs[pid] for pid in sorted(published) if pid in outputs]
+
+    # --- per-person state ----------------------------------------------------------------------
+
+    def _new_memory(self) -> PersonMemory:
+        s = self.settings
+        bones = BoneModel(
+            s.bone_estimate_window,
+            s.bone_estimate_min_samples,
+            s.bone_estimate_symmetric,
+            s.bone_estimate_lock_samples,
+        )
+        if self.default_bone_lengths is not None:
+            bones.set_lengths = self.default_bone_lengths.copy()
+        return PersonMemory(self._new_filter(), bones)
+
+    def _new_filter(self) -> JointFilter:
+        s = self.settings
+        return make_filter(
+            s.filter,
+            min_cutoff_hz=s.one_euro_min_cutoff_hz,
+            beta=s.one_euro_beta,
+            d_cutoff_hz=s.one_euro_d_cutoff_hz,
+            accel_std=s.kalman_accel_std,
+            meas_std_m=s.kalman_meas_std_m,
+            predict_s=s.kalman_predict_s,
+        )
+
+    def _check_walking_direction(self, person_id: int, t_s: float) -> None:
+        """Swap a whole person that walks backwards for too long (labels.walking_backwards).
+
+        The swap takes effect from the next step: the person's skeleton and every view's
+        remembered label are swapped, the filter restarts (it would otherwise sweep the limbs
+        across), the online bone samples swap sides.
+        """
+        track, memory = self.tracker.tracks[person_id], self.memories[person_id]
+        swap, memory.backward_since_s = walking_backwards(
+            track.joints, track.velocity, t_s, memory.backward_since_s, self.settings
+        )
+        if not swap:
+            return
+        self.tracker.swap_sides(person_id)
+        memory.labels = {key: not m for key, m in memory.labels.items()}
+        memory.filter = self._new_filter()
+        memory.bones.mirror()
+        memory.walk_swaps += 1
+
+    # --- reference bone lengths (REST: server/routes_fusion.py) ---------------------------------
+
+    @property
+    def track_count(self) -> int:
+        return len(self.tracker.tracks)
+
+    def person_ids(self) -> list[int]:
+        """Ids of the persons currently published."""
+        return sorted(pid for pid, t in self.tracker.tracks.items() if t.published)
+
+    def bone_model(self, person_id: int) -> BoneModel | None:
+        memory = self.memories.get(person_id)
+        return None if memory is None else memory.bones
+
+    def set_bone_lengths(self, person_id: int, lengths: FloatArray | None) -> bool:
+        """Set (or with None, clear back to automatic) a person's reference lengths.
+
+        Args:
+            lengths: (24,) metres in :data:`~skelfuse.protocol.skeleton.BONES` order, or None.
+
+        Returns:
+            False if there is no such person.
+        """
+        memory = self.memories.get(person_id)
+        if memory is None:
+            return False
+        memory.bones.set_lengths = None if lengths is None else np.array(lengths, dtype=float)
+        return True
+
+
+def _person(
+    person_id: int,
+    joints: FloatArray,
+    confidence: FloatArray,
+    views: list[View],
+    carried: npt.NDArray[np.bool_],
+    mirrored: npt.NDArray[np.bool_],
+) -> FusedPerson:
+    """One fused person as apps receive it, with which sensors carried each joint."""
+    sources = tuple(sorted({v.sensor_id for v in views}))
+    slots = np.array([sources.index(v.sensor_id) for v in views], dtype=np.int64)
+    joint_sources = np.bitwise_or.reduce(
+        carried[: len(views)].astype(np.int64) << slots[:, None], axis=0
+    )
+    return FusedPerson(
+        person_id=person_id,
+        joints=joints,
+        confidence=confidence,
+        sources=sources,
+        views=tuple(views),
+        joint_sources=joint_sources,
+        mirrored=tuple(sorted(v.sensor_id for v, m in zip(views, mirrored, strict=True) if m)),
+    )
