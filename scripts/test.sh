@@ -9,9 +9,9 @@ echo "==> installing skelfuse with the dev extras"
 "$VENV/bin/pip" install --quiet --disable-pip-version-check -e '.[dev]'
 
 if ! command -v chromium >/dev/null 2>&1; then
-  install_debian_package chromium "the viewer's browser tests need it (skipped without it)"
+  install_debian_packages "the viewer's browser tests need it (skipped without it)" chromium
 fi
-ensure_libusb
+ensure_open3d_libraries
 
 echo "==> ruff"
 "$VENV/bin/ruff" check .
@@ -19,6 +19,10 @@ echo "==> ruff"
 echo "==> mypy"
 "$VENV/bin/python" scripts/typecheck_tree.py  # mypy reads the layers through these links
 "$VENV/bin/mypy"
+echo "==> import-linter (layers point down, no cycles)"
+# Run inside the link tree so that `skelfuse` is the tree of real folders, not ./skelfuse alone.
+lint_imports="$(cd "$VENV/bin" && pwd)/lint-imports"
+(cd build/typecheck && PYTHONPATH=. "$lint_imports" --no-cache --config ../../pyproject.toml)
 echo "==> pytest"
 set +e
 "$VENV/bin/python" -m pytest "$@"
