@@ -1,5 +1,9 @@
 """Closed-form rigid fit between corresponding 3-D points (Kabsch), and pose-error helpers.
 
+The rotation itself is :func:`protocol.transform.kabsch_rotation` (the BVH exporter fits bone
+rotations with it too); this module adds weights, centroids, the translation, degeneracy checks
+and residuals.
+
 All computations are float64. Frames follow ``protocol.transform``: ``T_dst_from_src`` maps
 points expressed in frame ``src`` into frame ``dst`` (``p_dst = T_dst_from_src @ p_src``).
 """
@@ -13,7 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.calibration.errors import DegenerateGeometry, InvalidInput, NotEnoughCorrespondences
-from skelfuse.protocol.transform import Matrix4
+from skelfuse.protocol.transform import Matrix4, kabsch_rotation
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -114,10 +118,7 @@ def fit_rigid(
                 f"{spread[1] * 1000:.2f} mm < {min_spread_m * 1000:.2f} mm); add a point off "
                 "that line"
             )
-    h = p0.T @ q0  # cross-covariance (3, 3)
-    u, _, vt = np.linalg.svd(h)
-    fix = np.diag([1.0, 1.0, float(np.sign(np.linalg.det(vt.T @ u.T)) or 1.0)])
-    rotation = vt.T @ fix @ u.T
+    rotation = kabsch_rotation(p0, q0)
     transform = np.eye(4)
     transform[:3, :3] = rotation
     transform[:3, 3] = c_q - rotation @ c_p

@@ -3,8 +3,11 @@
 Joint indices follow the Kinect for Windows SDK 2.0 ``JointType`` enum; parents orient the
 SDK's bone list away from the root, SpineBase (``shared/conventions.md`` §1.1).
 
-Azure Kinect / Orbbec Femto bodies (32 joints, millimetres, +X right, +Y down, +Z forward)
-map onto this set with :func:`azure_to_kinect_v2`, so mixed sensor types fuse together.
+Other joint sets map onto this one here, and only here: Azure Kinect / Orbbec Femto bodies
+(32 joints, millimetres, +X right, +Y down, +Z forward) with :func:`azure_to_kinect_v2`, so mixed
+sensor types fuse together; the CMU motion-capture skeletons the simulator replays with
+:data:`CMU_ASF_TO_KINECT_V2` and :data:`CMU_BVH_TO_KINECT_V2`. NTU RGB+D files are Kinect v2
+already.
 
 Frames
 ------
@@ -16,7 +19,9 @@ floor at y = 0. ``T_world_from_sensor`` (4×4) maps sensor points into the world
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 from enum import IntEnum
+from types import MappingProxyType
 from typing import Final
 
 import numpy as np
@@ -78,6 +83,11 @@ BONES: Final[tuple[tuple[int, int], ...]] = tuple(
     (parent, child) for child, parent in enumerate(PARENTS) if parent >= 0
 )
 """(parent, child) pairs, 24 bones."""
+
+CHILDREN: Final[tuple[tuple[int, ...], ...]] = tuple(
+    tuple(c for c in range(JOINT_COUNT) if PARENTS[c] == j) for j in range(JOINT_COUNT)
+)
+"""Child joints of each joint, in index order (none for the tips)."""
 
 _LEFT_RIGHT_PAIRS: Final = (
     (JointId.SHOULDER_LEFT, JointId.SHOULDER_RIGHT),
@@ -221,3 +231,111 @@ def bone_lengths(joints_m: npt.NDArray[np.floating]) -> npt.NDArray[np.float64]:
     diff = joints[..., children, :] - joints[..., parents, :]
     lengths: npt.NDArray[np.float64] = np.linalg.norm(diff, axis=-1)
     return lengths
+
+
+# --- CMU motion capture (the simulator's recorded motion) ------------------------------------
+#
+# ASF points are *bone ends* (``root`` is the root position); BVH points are *joint origins*
+# (``X.end`` is the End Site of joint X; names match case-insensitively). Both CMU layouts
+# describe the same body model: the BVH ``lhand`` joint sits on the wrist and ``LFingers`` one
+# hand bone further, like the ASF ``lwrist`` end and ``lhand`` end. Left/right are the person's
+# own (CMU: facing +Z, the left side is +X, which is also the Kinect world convention: left =
+# up × facing); the right-side joints mirror the left ones.
+#
+# =============  =====================================  ===================================
+# Kinect v2      ASF bone ends (CMU ``02.asf``)          BVH joints (CMU cgspeed naming)
+# =============  =====================================  ===================================
+# SpineBase      ``root`` (pelvis centre)                ``Hips``
+# SpineMid       ½(``lowerback`` + ``upperback``):       ``Chest``: halfway along the
+#                halfway along the spine chain           spine chain Hips → Chest2
+#                root → thorax end (*derived*)
+# SpineShoulder  ``thorax`` (base of the neck; the       ``Chest2`` (where the neck and the
+#                clavicles start here)                   collars start)
+# Neck           ``lowerneck`` (middle of the neck)      ``Neck``
+# Head           ½(``upperneck`` + ``head``): middle     ½(``Head`` + ``Head.end``): middle
+#                of the head bone ≈ head centre          of the head bone (*derived*)
+#                (*derived*)
+# ShoulderLeft   ``lclavicle`` (upper arm start)         ``LeftShoulder``
+# ElbowLeft      ``lhumerus``                            ``LeftElbow``
+# WristLeft      ``lwrist`` (after the forearm-twist     ``LeftWrist``
+#                segment, where hand flexion happens)
+# HandLeft       ``lhand`` (finger base, ~4 cm past      ``LFingers``
+#                the wrist)
+# HandTipLeft    ``lfingers`` (end of the finger bone)   ``LFingers.end``
+# ThumbLeft      ``lthumb``                              ``LThumb.end``
+# HipLeft        ``lhipjoint`` (upper leg start)         ``LeftHip``
+# KneeLeft       ``lfemur``                              ``LeftKnee``
+# AnkleLeft      ``ltibia``                              ``LeftAnkle``
+# FootLeft       ``lfoot`` (toe base, ball of the foot)  ``LeftToe``
+# (right side)   ``r…`` bones likewise                   ``Right…`` / ``R…`` likewise
+# =============  =====================================  ===================================
+#
+# Caveats: the CMU hand is coarse (wrist → "fingers" end is only ~7 cm, so HandTip lies short
+# of real fingertips); the SpineMid and Head points are derived, so their bones are only nearly
+# rigid (length CV ~0.05 %).
+
+JointRecipe = Mapping[JointId, tuple[tuple[str, float], ...]]
+"""For each Kinect v2 joint, the weighted sum of another skeleton's named points it is."""
+
+
+def _with_right_side(
+    left: Mapping[JointId, tuple[tuple[str, float], ...]], rename: Callable[[str], str]
+) -> dict[JointId, tuple[tuple[str, float], ...]]:
+    """The left-side entries plus their mirror images, each point renamed by ``rename``."""
+    out = dict(left)
+    for joint, terms in left.items():
+        out[JointId(MIRROR_PERMUTATION[joint])] = tuple((rename(name), w) for name, w in terms)
+    return out
+
+
+_J = JointId
+_ASF_LEFT: Final = {
+    _J.SHOULDER_LEFT: (("lclavicle", 1.0),),
+    _J.ELBOW_LEFT: (("lhumerus", 1.0),),
+    _J.WRIST_LEFT: (("lwrist", 1.0),),
+    _J.HAND_LEFT: (("lhand", 1.0),),
+    _J.HAND_TIP_LEFT: (("lfingers", 1.0),),
+    _J.THUMB_LEFT: (("lthumb", 1.0),),
+    _J.HIP_LEFT: (("lhipjoint", 1.0),),
+    _J.KNEE_LEFT: (("lfemur", 1.0),),
+    _J.ANKLE_LEFT: (("ltibia", 1.0),),
+    _J.FOOT_LEFT: (("lfoot", 1.0),),
+}
+CMU_ASF_TO_KINECT_V2: Final[JointRecipe] = MappingProxyType(
+    {
+        _J.SPINE_BASE: (("root", 1.0),),
+        _J.SPINE_MID: (("lowerback", 0.5), ("upperback", 0.5)),
+        _J.SPINE_SHOULDER: (("thorax", 1.0),),
+        _J.NECK: (("lowerneck", 1.0),),
+        _J.HEAD: (("upperneck", 0.5), ("head", 0.5)),
+        **_with_right_side(_ASF_LEFT, lambda name: "r" + name[1:]),
+    }
+)
+"""Kinect v2 joint ← weighted sum of CMU ASF bone ends (``root`` = root position)."""
+
+_BVH_LEFT: Final = {
+    _J.SHOULDER_LEFT: (("LeftShoulder", 1.0),),
+    _J.ELBOW_LEFT: (("LeftElbow", 1.0),),
+    _J.WRIST_LEFT: (("LeftWrist", 1.0),),
+    _J.HAND_LEFT: (("LFingers", 1.0),),
+    _J.HAND_TIP_LEFT: (("LFingers.end", 1.0),),
+    _J.THUMB_LEFT: (("LThumb.end", 1.0),),
+    _J.HIP_LEFT: (("LeftHip", 1.0),),
+    _J.KNEE_LEFT: (("LeftKnee", 1.0),),
+    _J.ANKLE_LEFT: (("LeftAnkle", 1.0),),
+    _J.FOOT_LEFT: (("LeftToe", 1.0),),
+}
+CMU_BVH_TO_KINECT_V2: Final[JointRecipe] = MappingProxyType(
+    {
+        _J.SPINE_BASE: (("Hips", 1.0),),
+        _J.SPINE_MID: (("Chest", 1.0),),
+        _J.SPINE_SHOULDER: (("Chest2", 1.0),),
+        _J.NECK: (("Neck", 1.0),),
+        _J.HEAD: (("Head", 0.5), ("Head.end", 0.5)),
+        **_with_right_side(
+            _BVH_LEFT,
+            lambda name: "Right" + name[4:] if name.startswith("Left") else "R" + name[1:],
+        ),
+    }
+)
+"""Kinect v2 joint ← weighted sum of CMU BVH joint origins (``X.end`` = End Site of X)."""

@@ -1,4 +1,4 @@
-"""Rigid transforms as 4×4 float64 matrices.
+"""Rigid transforms as 4×4 float64 matrices, and the 3×3 rotations they are built from.
 
 Naming: ``T_b_from_a`` maps points expressed in frame ``a`` into frame ``b``
 (``p_b = T_b_from_a @ p_a``), so compositions read right to left.
@@ -6,10 +6,13 @@ Naming: ``T_b_from_a`` maps points expressed in frame ``a`` into frame ``b``
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import numpy.typing as npt
 
 Matrix4 = npt.NDArray[np.float64]
+FloatArray = npt.NDArray[np.float64]
 
 
 def pose_from_position_yaw_pitch(
@@ -72,3 +75,58 @@ def is_rigid(transform: npt.ArrayLike, atol: float = 1e-6) -> bool:
         and np.linalg.det(rotation) > 0
         and np.allclose(matrix[3], [0.0, 0.0, 0.0, 1.0], atol=atol)
     )
+
+
+# --- rotations (3×3) ----------------------------------------------------------------------------
+
+
+def axis_rotation(axis: str, angle_rad: npt.ArrayLike) -> FloatArray:
+    """(..., 3, 3) right-handed rotations by ``angle_rad`` (shape ...) about ``axis`` (x, y or z).
+
+    Raises:
+        KeyError: ``axis`` is not one of "x", "y", "z".
+    """
+    c = np.cos(angle_rad)
+    s = np.sin(angle_rad)
+    out = np.zeros((*np.shape(angle_rad), 3, 3))
+    a, b = {"x": (1, 2), "y": (2, 0), "z": (0, 1)}[axis]
+    k = 3 - a - b
+    out[..., k, k] = 1.0
+    out[..., a, a] = c
+    out[..., a, b] = -s
+    out[..., b, a] = s
+    out[..., b, b] = c
+    return out
+
+
+def compose_rotations(axes: Sequence[str], angles_rad: Sequence[npt.ArrayLike]) -> FloatArray:
+    """The product R(axes[0])·R(axes[1])·… of axis rotations, broadcast over the angle arrays.
+
+    ``axes`` "zyx" with angles (a, b, c) gives Rz(a)·Ry(b)·Rx(c): the last factor acts first on
+    a vector. No axes gives the (3, 3) identity.
+    """
+    result: FloatArray | None = None
+    for axis, angle in zip(axes, angles_rad, strict=True):
+        rotation = axis_rotation(axis, angle)
+        result = rotation if result is None else result @ rotation
+    if result is None:
+        return np.eye(3)
+    return result
+
+
+def kabsch_rotation(src: FloatArray, dst: FloatArray) -> FloatArray:
+    """The proper rotation R (3, 3) minimising Σ‖R·src_i − dst_i‖² (Kabsch).
+
+    Args:
+        src: (N, 3) vectors; centre (and weight, by √w) them first for a fit between points.
+        dst: (N, 3) corresponding vectors.
+
+    Never a reflection: when the best orthogonal fit has det −1, the axis of least variance is
+    flipped. Degenerate input (fewer than two independent vectors) gives one of the rotations
+    that fit equally well; callers that need a unique answer check the spread first.
+    """
+    h = src.T @ dst  # cross-covariance (3, 3)
+    u, _, vt = np.linalg.svd(h)
+    fix = np.diag([1.0, 1.0, float(np.sign(np.linalg.det(vt.T @ u.T)) or 1.0)])
+    rotation: FloatArray = vt.T @ fix @ u.T
+    return rotation

@@ -19,7 +19,7 @@ from typing import Final, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.agent.sim.mocap import MotionClip
+from skelfuse.agent.sim.clip import MotionClip
 from skelfuse.protocol.skeleton import JOINT_COUNT, JointId
 
 J = JointId

@@ -12,14 +12,11 @@ import pytest
 
 from skelfuse.agent.sim.mocap import load_asf_amc, load_bvh
 from skelfuse.agent.sim.performer import ProceduralPerformer
+from skelfuse.protocol.bvh import parse_bvh
 from skelfuse.protocol.skeleton import JOINT_NAMES
-from skelfuse.recording.export_bvh import (
-    NODES,
-    bvh_from_joints,
-    euler_zxy_deg,
-    read_bvh,
-    roundtrip_errors_m,
-)
+from skelfuse.protocol.transform import axis_rotation
+from skelfuse.recording.bvh_rig import NODES
+from skelfuse.recording.export_bvh import bvh_from_joints, euler_zxy_deg, roundtrip_errors_m
 from skelfuse.recording.export_c3d import export_c3d, read_c3d, z_up_mm
 from skelfuse.recording.export_table import csv_header, export_csv, export_json
 from skelfuse.recording.take import PersonTrack, Take, TakeError, resample, take_from_jsonl
@@ -49,7 +46,7 @@ def test_bvh_round_trip_on_the_simulator_routine_with_missing_joints() -> None:
     text = bvh_from_joints(joints, 15.0)
     errors = roundtrip_errors_m(joints, text)
     assert errors.max() < 0.01 and errors.size == np.isfinite(joints[..., 0]).sum()
-    bvh = read_bvh(text)
+    bvh = parse_bvh(text)
     assert [j.name for j in bvh.joints if j.name in JOINT_NAMES] == [
         n.name for n in NODES if n.child is None
     ]
@@ -65,8 +62,6 @@ def test_bvh_stretch_mode_reproduces_noisy_bone_lengths() -> None:
 
 
 def test_euler_zxy_inverts_rotation_matrices() -> None:
-    from skelfuse.recording.export_bvh import _axis_matrix
-
     rng = np.random.default_rng(2)
     q = rng.normal(size=(50, 4))
     q /= np.linalg.norm(q, axis=1, keepdims=True)
@@ -77,8 +72,9 @@ def test_euler_zxy_inverts_rotation_matrices() -> None:
         np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
     ], axis=1)  # fmt: skip
     angles = euler_zxy_deg(rotation)
-    rebuilt = (_axis_matrix("Z", angles[:, 0]) @ _axis_matrix("X", angles[:, 1])
-               @ _axis_matrix("Y", angles[:, 2]))  # fmt: skip
+    radians = np.radians(angles)
+    rebuilt = (axis_rotation("z", radians[:, 0]) @ axis_rotation("x", radians[:, 1])
+               @ axis_rotation("y", radians[:, 2]))  # fmt: skip
     np.testing.assert_allclose(rebuilt, rotation, atol=1e-9)
 
 

@@ -1,4 +1,4 @@
-"""agent.sim.mocap: BVH and ASF/AMC forward kinematics and the Kinect v2 mapping."""
+"""agent.sim.mocap and its parts: BVH and ASF/AMC forward kinematics, the Kinect v2 mapping."""
 
 from __future__ import annotations
 
@@ -9,15 +9,9 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from skelfuse.agent.sim.mocap import (
-    FOOT_JOINT_FLOOR_HEIGHT_M,
-    MocapFormatError,
-    MotionClip,
-    asf_amc_points,
-    bvh_points,
-    load_asf_amc,
-    load_bvh,
-)
+from skelfuse.agent.sim.asf_amc import asf_amc_points
+from skelfuse.agent.sim.clip import MocapFormatError, MotionClip
+from skelfuse.agent.sim.mocap import FOOT_JOINT_FLOOR_HEIGHT_M, bvh_points, load_asf_amc, load_bvh
 from skelfuse.protocol.skeleton import BONES, JOINT_COUNT, JOINT_NAMES, JointId as J, bone_lengths
 
 DATA_DIR = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "cmu-mocap"
