@@ -1,0 +1,103 @@
+"""In-process fusion cost per fused frame on the production classes, in simulated time."""
+
+from __future__ import annotations
+
+import math
+import statistics
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from bench.load_agents import FPS, PERIOD_S, hello, sensor_layout
+from skelfuse.agent.sim.performer import ProceduralPerformer
+from skelfuse.calibration.store import Calibration, SensorCalibration
+from skelfuse.protocol.skeleton import JOINT_COUNT, TrackingState
+from skelfuse.protocol.transform import apply, invert
+from skelfuse.protocol.wire import Body, Frame, encode
+
+
+@dataclass
+class FusionTiming:
+    sensors: int
+    bodies: int
+    steps: int
+    fuse_step_ms: float
+    fuse_step_p99_ms: float
+    fuse_step_cpu_ms: float
+    tracker_ms: float
+    encode_json_ms: float
+    handle_message_ms: float
+
+
+def fusion_timing(sensors: int, bodies: int, steps: int = 1000, warmup: int = 100) -> FusionTiming:
+    """Median cost of one fused frame (and of ingesting one frame) on the production classes."""
+    from skelfuse.fusion.hub import FusionHub
+    from skelfuse.fusion.pipeline import FusionPipeline
+    from skelfuse.fusion.views import FusedPerson, View
+    from skelfuse.protocol.feed import frame_json
+    from skelfuse.server.broadcast import encode_message
+    from skelfuse.server.settings import Settings
+
+    tracker_times: list[float] = []
+
+    class TimedPipeline(FusionPipeline):
+        def update(self, views: list[View], t_s: float) -> list[FusedPerson]:
+            start = time.perf_counter()
+            out = super().update(views, t_s)
+            tracker_times.append(time.perf_counter() - start)
+            return out
+
+    poses = sensor_layout(sensors)
+    settings = Settings()
+    calibration = Calibration(1, 0.0, {s: SensorCalibration(p, "bench") for s, p in poses.items()})
+    hub = FusionHub(settings, calibration)
+    hub.pipeline = TimedPipeline(settings.fusion)
+    performer = ProceduralPerformer(bodies)
+    states = np.full(JOINT_COUNT, TrackingState.TRACKED, dtype=np.uint8)
+    t_start = math.floor(1_800_000_000.0 * FPS) / FPS
+    ids = sorted(poses)
+    for s in ids:
+        hub.handle_message(s.encode(), [encode(hello(s))], t_start, 0.0)
+    sensor_from_world = {s: invert(poses[s]) for s in ids}
+    fuse: list[float] = []
+    fuse_cpu: list[float] = []
+    encode_times: list[float] = []
+    handle: list[float] = []
+    for k in range(warmup + steps):
+        t = t_start + k * PERIOD_S
+        world = performer.joints_at(k * PERIOD_S)
+        for j, s in enumerate(ids):
+            phase = 0.002 + j * 0.004  # sensors out of phase, as real ones are
+            bodies_ = tuple(
+                Body(b + 1, apply(sensor_from_world[s], world[b]).astype(np.float32), states)
+                for b in range(bodies)
+            )
+            payload = encode(Frame(k + 1, int((t + phase) * 1e9), bodies_))
+            start = time.perf_counter()
+            hub.handle_message(s.encode(), [payload], t + phase + 0.0005, k * PERIOD_S)
+            handle.append(time.perf_counter() - start)
+        start, start_cpu = time.perf_counter(), time.thread_time()
+        fused = hub.fuse_step(t + PERIOD_S)
+        elapsed, elapsed_cpu = time.perf_counter() - start, time.thread_time() - start_cpu
+        if fused is None:
+            raise RuntimeError(f"fusion produced nothing at step {k}")
+        start = time.perf_counter()
+        encode_message(frame_json(fused, False, time.time()), binary=False)
+        encode_elapsed = time.perf_counter() - start
+        if k >= warmup:
+            fuse.append(elapsed)
+            fuse_cpu.append(elapsed_cpu)
+            encode_times.append(encode_elapsed)
+    tracked = tracker_times[warmup:]
+    return FusionTiming(
+        sensors,
+        bodies,
+        steps,
+        statistics.median(fuse) * 1e3,
+        float(np.percentile(fuse, 99)) * 1e3,
+        statistics.median(fuse_cpu) * 1e3,
+        statistics.median(tracked) * 1e3,
+        statistics.median(encode_times) * 1e3,
+        statistics.median(handle[warmup * sensors :]) * 1e3,
+    )

@@ -1,0 +1,152 @@
+"""The load benchmark's fake agents: the sensor rig, the people they see, and the sending loop.
+
+Every agent is a real ZeroMQ DEALER (``agent.link.AgentLink``) in one child process, sending
+30 frames per second at its own random phase; the people are ``ProceduralPerformer`` bodies
+moved into each sensor's frame.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+import multiprocessing as mp
+import random
+import time
+from functools import partial
+from multiprocessing.synchronize import Event as MpEvent
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from skelfuse.agent.link import AgentLink
+from skelfuse.agent.sim.performer import ProceduralPerformer
+from skelfuse.protocol.skeleton import JOINT_COUNT, TrackingState
+from skelfuse.protocol.transform import Matrix4, apply, invert, look_at_pose
+from skelfuse.protocol.wire import Body, Frame, Hello
+
+FPS = 30.0
+PERIOD_S = 1.0 / FPS
+SENSOR_RADIUS_M = 5.0
+FloatArray = npt.NDArray[np.float64]
+
+
+def sensor_layout(count: int) -> dict[str, Matrix4]:
+    """``count`` sensors on a 5 m circle, 1 m high, all looking at the middle of the room."""
+    poses: dict[str, Matrix4] = {}
+    for i in range(count):
+        angle = 2 * math.pi * i / count
+        position = (SENSOR_RADIUS_M * math.sin(angle), 1.0, SENSOR_RADIUS_M * math.cos(angle))
+        poses[f"load-{i + 1:02d}"] = look_at_pose(position, (0.0, 1.0, 0.0))
+    return poses
+
+
+class WorldMotion:
+    """The performer's world joints at any instant: a 30 Hz grid, linearly interpolated.
+
+    ``ProceduralPerformer.joints_at`` costs about 1 ms for six people; sampling it once per
+    grid step instead of once per agent frame keeps the agents process light with 16 agents.
+    """
+
+    def __init__(self, bodies: int) -> None:
+        self._performer = ProceduralPerformer(bodies)
+        self._t0 = time.time()
+        self._cache: dict[int, FloatArray] = {}
+
+    def _grid(self, k: int) -> FloatArray:
+        joints = self._cache.get(k)
+        if joints is None:
+            joints = self._performer.joints_at(k * PERIOD_S)
+            self._cache[k] = joints
+            for old in [key for key in self._cache if key < k - 2]:
+                del self._cache[old]
+        return joints
+
+    def at(self, t_s: float) -> FloatArray:
+        x = (t_s - self._t0) * FPS
+        k = math.floor(x)
+        a = x - k
+        out: FloatArray = (1 - a) * self._grid(k) + a * self._grid(k + 1)
+        return out
+
+
+def hello(sensor_id: str) -> Hello:
+    """What every fake agent says first: a simulated sensor at 30 fps, clock stamp now."""
+    return Hello(sensor_id, "sim", "bench-load", FPS, time.time_ns())
+
+
+def agents_process(
+    endpoint: str,
+    poses: dict[str, list[float]],
+    bodies: int,
+    seed: int,
+    max_runtime_s: float,
+    stop: MpEvent,
+    results: mp.Queue[Any],
+) -> None:
+    """Run every fake agent in one thread, each on its own 30 fps schedule, until ``stop``."""
+    import zmq
+
+    ids = sorted(poses)
+    sensor_from_world = [invert(np.asarray(poses[s]).reshape(4, 4)) for s in ids]
+    motion = WorldMotion(bodies)
+    states = np.full(JOINT_COUNT, TrackingState.TRACKED, dtype=np.uint8)
+    context: zmq.Context[Any] = zmq.Context()
+    links = [AgentLink(endpoint, partial(hello, s), context=context) for s in ids]
+    rng = random.Random(seed)
+    start = time.time() + 0.05
+    due: list[tuple[float, int]] = [(start + rng.random() * PERIOD_S, i) for i in range(len(ids))]
+    heapq.heapify(due)
+    seqs = [0] * len(ids)
+    captures: list[list[float]] = [[] for _ in ids]
+    dropped_registered = [0] * len(ids)
+    late = 0
+    deadline = time.monotonic() + max_runtime_s
+    while not stop.is_set() and time.monotonic() < deadline:
+        when, i = due[0]
+        now = time.time()
+        if when > now:
+            time.sleep(min(when - now, 0.02))
+            continue
+        heapq.heappop(due)
+        t_ns = time.time_ns()
+        seqs[i] += 1
+        world = motion.at(t_ns / 1e9)
+        frame = Frame(
+            seqs[i],
+            t_ns,
+            tuple(
+                Body(
+                    i * 100 + b + 1,
+                    apply(sensor_from_world[i], world[b]).astype(np.float32),
+                    states,
+                )
+                for b in range(bodies)
+            ),
+        )
+        registered = links[i].registered
+        if links[i].send_frame(frame):
+            captures[i].append(t_ns / 1e9)
+        elif registered:
+            dropped_registered[i] += 1
+        links[i].poll(0.0)
+        nxt = when + PERIOD_S
+        if nxt < now - PERIOD_S:  # this process fell more than a frame behind: skip ahead
+            late += 1
+            nxt = now + PERIOD_S
+        heapq.heappush(due, (nxt, i))
+    out = {
+        s: {
+            "captured": seqs[i],
+            "sent": links[i].stats.frames_sent,
+            "dropped_unregistered": links[i].stats.frames_dropped - dropped_registered[i],
+            "dropped_registered": dropped_registered[i],
+            "registrations": links[i].stats.registrations,
+            "captures": captures[i],
+        }
+        for i, s in enumerate(ids)
+    }
+    for link in links:
+        link.close()
+    context.term()
+    results.put({"agents": out, "late": late})

@@ -1,0 +1,146 @@
+"""The load benchmark's tables (Markdown, as in docs/benchmarks.md) and the median of repeats."""
+
+from __future__ import annotations
+
+import math
+import statistics
+from dataclasses import asdict
+
+from bench.fusion_timing import FusionTiming
+from bench.load_agents import FPS
+from bench.load_run import RunResult
+
+# Targets of the load issue (docs/benchmarks.md, /work/shared/reliability.md L1/L2).
+TARGET_P50_MS = 10.0
+TARGET_P99_MS = 30.0
+TARGET_FUSE_MS = 1.0
+
+
+def median_result(runs: list[RunResult]) -> RunResult:
+    """Field-wise median of several runs (counts: the worst run, so a loss is never hidden)."""
+    out = RunResult(runs[0].config)
+    worst = {"lost_frames", "sequence_gaps", "frames_rejected", "client_gaps_total",
+             "client_gaps_max", "agent_drops_registered"}  # fmt: skip
+    for name, value in asdict(runs[0]).items():
+        if name in ("config", "notes"):
+            continue
+        values = [getattr(r, name) for r in runs]
+        if name in worst:
+            setattr(out, name, max(values))
+        elif isinstance(value, int | float) or value is None:
+            numbers = [v for v in values if v is not None and not math.isnan(v)]
+            if numbers:
+                median = statistics.median(numbers)
+                setattr(out, name, type(value)(median) if isinstance(value, int) else median)
+    out.notes = [n for r in runs for n in r.notes]
+    out.rejected_reasons = {}
+    for r in runs:
+        for reason, n in r.rejected_reasons.items():
+            out.rejected_reasons[reason] = max(n, out.rejected_reasons.get(reason, 0))
+    return out
+
+
+def ms(value: float) -> str:
+    return "–" if math.isnan(value) else f"{value:.1f}"
+
+
+def print_main(r: RunResult, repeat: int) -> None:
+    c = r.config
+    expected_ingest = c.agents * FPS
+    evicted = "not evicted" if r.stalled_evicted_after_s is None else (
+        f"evicted after {r.stalled_evicted_after_s:.1f} s"
+    )  # fmt: skip
+    rows = [
+        ("frames sent by agents (whole run)", "—", f"{r.agent_frames_sent}"),
+        ("frames received by the server (whole run)", "= sent", f"{r.server_frames_received}"),
+        ("lost frames (sent − received)", "0", f"{r.lost_frames}"),
+        ("agent-side drops while registered (HWM full)", "0", f"{r.agent_drops_registered}"),
+        ("server `sequence_gaps`", "0", f"{r.sequence_gaps}"),
+        ("server `frames_rejected` (by reason)", "0",
+         f"{r.frames_rejected} {r.rejected_reasons or ''}"),
+        ("agent frames dropped while not registered (incl. start-up)", "small",
+         f"{r.agent_drops_unregistered}"),
+        ("ingest rate (frames/s)", f"{expected_ingest:.0f}", f"{r.ingest_fps:.1f}"),
+        ("fused output rate (frames/s)", "30 ± 1", f"{r.fused_fps:.2f}"),
+        (f"per healthy client frames/s (min / median of {c.clients})", "30 ± 1",
+         f"{r.client_fps_min:.2f} / {r.client_fps_median:.2f}"),
+        ("gaps in `seq`, all healthy clients (max per client)", "0",
+         f"{r.client_gaps_total} ({r.client_gaps_max})"),
+        ("30 Hz grid instants never fused (median per client)", "0", f"{r.skipped_instants}"),
+        ("latency capture→client, raw p50 / p99 / max (ms)", "—",
+         f"{ms(r.latency_p50_ms)} / {ms(r.latency_p99_ms)} / {ms(r.latency_max_ms)}"),
+        ("of which alignment wait p50 / p99 (ms)", "≤ 33 by design",
+         f"{ms(r.wait_p50_ms)} / {ms(r.wait_p99_ms)}"),
+        ("latency beyond the alignment wait p50 / p99 (ms)",
+         f"≤ {TARGET_P50_MS:.0f} / ≤ {TARGET_P99_MS:.0f}",
+         f"{ms(r.beyond_p50_ms)} / {ms(r.beyond_p99_ms)}"),
+        ("server share `t_sent − t` p50 / p99 (ms)", "—",
+         f"{ms(r.server_p50_ms)} / {ms(r.server_p99_ms)}"),
+        ("server share beyond the wait p50 / p99 (ms)", "—",
+         f"{ms(r.server_beyond_p50_ms)} / {ms(r.server_beyond_p99_ms)}"),
+        ("healthy clients' p99 while the stalled one was connected / after (ms)",
+         "unaffected", f"{ms(r.p99_while_stalled_ms)} / {ms(r.p99_after_evicted_ms)}"),
+        ("stalled client", "evicted ≤ 10 s",
+         f"{evicted}; {r.stalled_sent} sent, {r.stalled_dropped} dropped before"),
+        ("server CPU (% of one core)", "—", f"{r.server_cpu_pct:.0f}"),
+        ("server RSS start → end (max) (MB)", "growth < 10 %",
+         f"{r.server_rss_start_mb:.0f} → {r.server_rss_end_mb:.0f} ({r.server_rss_max_mb:.0f})"),
+        ("fused persons in the last frame", f"{c.bodies}", f"{r.persons_last}"),
+    ]  # fmt: skip
+    runs = f", median of {repeat} runs" if repeat > 1 else ""
+    print(
+        f"\n{c.agents} agents × {FPS:.0f} fps × {c.bodies} bodies, {c.clients} healthy WebSocket "
+        f"clients + {c.stalled} stalled, {r.window_s:.0f} s window after {c.warmup_s:.0f} s "
+        f"warm-up{runs}\n"
+    )
+    print("| metric | target | measured |")
+    print("|---|---|---|")
+    for name, target, value in rows:
+        print(f"| {name} | {target} | {value} |")
+    if r.agents_late:
+        print(f"\nThe agents process fell behind its schedule {r.agents_late} times.")
+    for note in dict.fromkeys(r.notes):
+        print(f"\nNote: {note}")
+
+
+def print_scaling(results: list[RunResult], repeat: int) -> None:
+    runs = f" (median of {repeat} runs each)" if repeat > 1 else ""
+    print(f"\nScaling{runs}: latency in ms; 'beyond' = beyond the alignment wait\n")
+    print(
+        "| agents | bodies | ingest/s (expected) | lost | seq gaps | fused/s | client gaps | "
+        "instants skipped | "
+        "raw p50 / p99 | wait p50 | beyond p50 / p99 | server beyond p50 / p99 | "
+        "server CPU % | RSS MB | stalled evicted (s) |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for r in results:
+        c = r.config
+        ev = "–" if r.stalled_evicted_after_s is None else f"{r.stalled_evicted_after_s:.1f}"
+        print(
+            f"| {c.agents} | {c.bodies} | {r.ingest_fps:.0f} ({c.agents * FPS:.0f}) | "
+            f"{r.lost_frames} | {r.sequence_gaps} | {r.fused_fps:.1f} | {r.client_gaps_total} | "
+            f"{r.skipped_instants} | "
+            f"{ms(r.latency_p50_ms)} / {ms(r.latency_p99_ms)} | {ms(r.wait_p50_ms)} | "
+            f"{ms(r.beyond_p50_ms)} / {ms(r.beyond_p99_ms)} | "
+            f"{ms(r.server_beyond_p50_ms)} / {ms(r.server_beyond_p99_ms)} | "
+            f"{r.server_cpu_pct:.0f} | {r.server_rss_end_mb:.0f} | {ev} |"
+        )
+    for note in dict.fromkeys(n for r in results for n in r.notes):
+        print(f"\nNote: {note}")
+
+
+def print_fusion(timings: list[FusionTiming]) -> None:
+    print("\nIn-process fusion cost (production classes, simulated time), median over steps\n")
+    print(
+        "| sensors × bodies | `fuse_step` wall median (p99) ms | `fuse_step` CPU median ms "
+        "| target | `FusionPipeline.update` wall ms | JSON encode per frame ms "
+        "| `handle_message` per frame ms |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    for f in timings:
+        target = f"≤ {TARGET_FUSE_MS:.0f}" if (f.sensors, f.bodies) == (4, 6) else "—"
+        print(
+            f"| {f.sensors} × {f.bodies} | {f.fuse_step_ms:.2f} ({f.fuse_step_p99_ms:.2f}) | "
+            f"{f.fuse_step_cpu_ms:.2f} | {target} | {f.tracker_ms:.2f} | {f.encode_json_ms:.3f} | "
+            f"{f.handle_message_ms:.3f} |"
+        )

@@ -1,0 +1,305 @@
+"""One load run: the server, the agents and the clients together, measured over one window."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import multiprocessing as mp
+import socket
+import statistics
+import subprocess
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from bench.load_agents import FPS, agents_process, sensor_layout
+from bench.load_clients import ClientLog, healthy_client, open_stalled_client
+from bench.load_server import (
+    free_port,
+    get,
+    http_json,
+    proc_cpu_s,
+    proc_rss_mb,
+    start_server,
+    wait_for,
+)
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass
+class RunConfig:
+    agents: int
+    bodies: int
+    duration_s: float
+    warmup_s: float = 3.0
+    clients: int = 20
+    stalled: int = 1
+
+
+@dataclass
+class RunResult:
+    config: RunConfig
+    window_s: float = 0.0
+    agent_frames_sent: int = 0
+    agent_drops_registered: int = 0
+    server_frames_received: int = 0
+    lost_frames: int = 0
+    sequence_gaps: int = 0
+    frames_rejected: int = 0
+    rejected_reasons: dict[str, int] = field(default_factory=dict)
+    agent_drops_unregistered: int = 0
+    ingest_fps: float = 0.0
+    fused_fps: float = 0.0
+    client_fps_min: float = 0.0
+    client_fps_median: float = 0.0
+    client_gaps_total: int = 0
+    client_gaps_max: int = 0
+    skipped_instants: int = 0
+    latency_p50_ms: float = math.nan
+    latency_p99_ms: float = math.nan
+    latency_max_ms: float = math.nan
+    server_p50_ms: float = math.nan
+    server_p99_ms: float = math.nan
+    wait_p50_ms: float = math.nan
+    wait_p99_ms: float = math.nan
+    beyond_p50_ms: float = math.nan
+    beyond_p99_ms: float = math.nan
+    server_beyond_p50_ms: float = math.nan
+    server_beyond_p99_ms: float = math.nan
+    p99_while_stalled_ms: float = math.nan
+    p99_after_evicted_ms: float = math.nan
+    server_cpu_pct: float = 0.0
+    server_rss_start_mb: float = 0.0
+    server_rss_end_mb: float = 0.0
+    server_rss_max_mb: float = 0.0
+    persons_last: int = 0
+    stalled_evicted_after_s: float | None = None
+    stalled_sent: int = 0
+    stalled_dropped: int = 0
+    evicted_total: int = 0
+    agents_late: int = 0
+    notes: list[str] = field(default_factory=list)
+
+
+def _pct(values: Sequence[float], q: float) -> float:
+    return float(np.percentile(np.asarray(values), q)) * 1e3 if len(values) else math.nan
+
+
+def alignment_waits(
+    fused_t: FloatArray, captures: dict[str, FloatArray], offsets: dict[str, float]
+) -> FloatArray:
+    """Per fused instant: capture time of the last frame it needed, minus the instant.
+
+    The server maps a capture stamp onto its clock by adding the sensor's estimated offset, and
+    fuses instant ``t`` once every sensor has a frame at or past ``t``; the frame that completes
+    ``t`` is, per sensor, the first one with ``capture + offset >= t``.
+    """
+    completing = np.full(fused_t.shape, -np.inf)
+    for sensor_id, caps in captures.items():
+        if not len(caps):
+            continue
+        offset = offsets.get(sensor_id, 0.0)
+        idx = np.searchsorted(caps + offset, fused_t, side="left")
+        first = caps[np.minimum(idx, len(caps) - 1)]
+        first = np.where(idx < len(caps), first, np.nan)
+        completing = np.fmax(completing, first)
+    out: FloatArray = completing - fused_t
+    return out
+
+
+async def run_once(config: RunConfig, seed: int, log_dir: Path) -> RunResult:
+    result = RunResult(config)
+    http_port, zmq_port = free_port(), free_port()
+    base = f"http://127.0.0.1:{http_port}"
+    poses = sensor_layout(config.agents)
+    log_path = log_dir / f"server-{config.agents}x{config.bodies}-{seed}.log"
+    server, log_file = start_server(poses, http_port, zmq_port, log_path)
+    ctx = mp.get_context("spawn")
+    stop = ctx.Event()
+    queue: mp.Queue[Any] = ctx.Queue()
+    agents: mp.process.BaseProcess | None = None
+    tasks: list[asyncio.Task[None]] = []
+    stalled: list[tuple[socket.socket, int, float]] = []
+    try:
+        await asyncio.to_thread(
+            wait_for, lambda: http_json(base + "/api/health"), 20, "the server to start"
+        )
+        logs = [ClientLog() for _ in range(config.clients)]
+        ws_url = f"ws://127.0.0.1:{http_port}/ws/skeletons"
+        tasks = [asyncio.create_task(healthy_client(ws_url, log)) for log in logs]
+        for _ in range(config.stalled):
+            sock, port = await asyncio.to_thread(open_stalled_client, http_port)
+            stalled.append((sock, port, time.time()))
+        agents = ctx.Process(
+            target=agents_process,
+            args=(
+                f"tcp://127.0.0.1:{zmq_port}",
+                {s: [float(x) for x in p.reshape(16)] for s, p in poses.items()},
+                config.bodies, seed, config.warmup_s + config.duration_s + 60.0, stop, queue,
+            ),
+            daemon=True,
+        )  # fmt: skip
+        agents.start()
+
+        def all_online() -> bool:
+            health = http_json(base + "/api/health")
+            return bool(health["sensors_online"] == config.agents and health["fused_frames"] > 30)
+
+        await asyncio.to_thread(wait_for, all_online, 30, "every sensor online and fusing")
+        await asyncio.sleep(config.warmup_s)
+
+        async def snapshot() -> tuple[float, float, dict[str, Any], dict[str, Any]]:
+            t = time.time()
+            cpu = proc_cpu_s(server.pid)
+            sensors, health = await asyncio.gather(
+                get(base + "/api/sensors"), get(base + "/api/health")
+            )
+            return t, cpu, sensors, health
+
+        t0, cpu0, sensors0, health0 = await snapshot()
+        result.server_rss_start_mb = proc_rss_mb(server.pid)
+        rss_max = result.server_rss_start_mb
+        stalled_seen: dict[int, dict[str, Any]] = {}
+        evicted_at: dict[int, float] = {}
+        end = t0 + config.duration_s
+        while (now := time.time()) < end:
+            await asyncio.sleep(min(1.0, end - now))
+            rss_max = max(rss_max, proc_rss_mb(server.pid))
+            clients = await get(base + "/api/clients")
+            for _, port, _ in stalled:
+                entry = next(
+                    (c for c in clients["clients"] if str(c["remote"]).endswith(f"{port})")), None
+                )
+                if entry is not None:
+                    stalled_seen[port] = entry
+                elif port not in evicted_at:
+                    evicted_at[port] = time.time()
+        t1, cpu1, sensors1, health1 = await snapshot()
+        result.server_rss_end_mb = proc_rss_mb(server.pid)
+        result.server_rss_max_mb = max(rss_max, result.server_rss_end_mb)
+        result.window_s = t1 - t0
+        result.server_cpu_pct = 100 * (cpu1 - cpu0) / result.window_s
+        result.persons_last = int(health1["persons"])
+        result.evicted_total = int((await get(base + "/api/clients"))["evicted"])
+
+        stop.set()
+        agent_out: dict[str, Any] = await asyncio.to_thread(queue.get, True, 30)
+        await asyncio.to_thread(agents.join, 10)
+        await asyncio.sleep(0.5)  # the last frames in flight
+        sensors_end = await get(base + "/api/sensors")
+    finally:
+        stop.set()
+        for task in tasks:
+            task.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+        for sock, _, _ in stalled:
+            sock.close()
+        if agents is not None and agents.is_alive():
+            agents.kill()
+        server.send_signal(2)
+        try:
+            server.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            server.kill()
+            server.wait()
+        log_file.close()
+
+    # --- ingest -----------------------------------------------------------------------------
+    per_agent = agent_out["agents"]
+    result.agents_late = int(agent_out["late"])
+    received_end = {s["id"]: s for s in sensors_end["sensors"]}
+    result.agent_frames_sent = sum(a["sent"] for a in per_agent.values())
+    result.agent_drops_registered = sum(a["dropped_registered"] for a in per_agent.values())
+    result.agent_drops_unregistered = sum(a["dropped_unregistered"] for a in per_agent.values())
+    reasons: dict[str, int] = dict(sensors_end["rejected_unregistered"])
+    for s in received_end.values():
+        for reason, n in s["frames_rejected"].items():
+            reasons[reason] = reasons.get(reason, 0) + n
+    result.rejected_reasons = reasons
+    result.server_frames_received = sum(s["frames_received"] for s in received_end.values())
+    result.lost_frames = result.agent_frames_sent - result.server_frames_received
+    result.sequence_gaps = sum(s["sequence_gaps"] for s in received_end.values())
+    result.frames_rejected = sum(
+        sum(s["frames_rejected"].values()) for s in received_end.values()
+    ) + sum(sensors_end["rejected_unregistered"].values())
+    rx0 = sum(s["frames_received"] for s in sensors0["sensors"])
+    rx1 = sum(s["frames_received"] for s in sensors1["sensors"])
+    result.ingest_fps = (rx1 - rx0) / result.window_s
+    result.fused_fps = (health1["fused_frames"] - health0["fused_frames"]) / result.window_s
+    offsets = {s["id"]: float(s["clock_offset_s"] or 0.0) for s in sensors1["sensors"]}
+    captures = {s: np.asarray(a["captures"], dtype=np.float64) for s, a in per_agent.items()}
+
+    # --- clients ----------------------------------------------------------------------------
+    fps: list[float] = []
+    gaps: list[int] = []
+    skipped: list[int] = []
+    latency: list[float] = []
+    server_share: list[float] = []
+    beyond: list[float] = []
+    server_beyond: list[float] = []
+    waits_all: list[float] = []
+    evicted = min(evicted_at.values()) if evicted_at else None
+    stalled_lat: list[float] = []
+    after_lat: list[float] = []
+    for log in logs:
+        if log.error:
+            result.notes.append(f"a healthy client failed: {log.error}")
+        rows = np.asarray([r for r in log.records if t0 <= r[0] <= t1], dtype=np.float64)
+        if not len(rows):
+            fps.append(0.0)
+            continue
+        fps.append(len(rows) / result.window_s)
+        seqs = rows[:, 1].astype(np.int64)
+        gaps.append(int(np.sum(np.maximum(np.diff(seqs) - 1, 0))))
+        # seq counts frames produced; instants of the 30 Hz grid the server never fused
+        # (it resyncs to the newest instant when fusion falls behind) show in t only.
+        steps = np.rint(np.diff(rows[:, 2]) * FPS).astype(np.int64)
+        skipped.append(int(np.sum(np.maximum(steps - 1, 0))))
+        lat = rows[:, 0] - rows[:, 2]
+        waits = alignment_waits(rows[:, 2], captures, offsets)
+        latency.extend(lat)
+        server_share.extend(rows[:, 3] - rows[:, 2])
+        ok = np.isfinite(waits)
+        waits_all.extend(waits[ok])
+        beyond.extend((lat - waits)[ok])
+        server_beyond.extend((rows[:, 3] - rows[:, 2] - waits)[ok])
+        if evicted is not None:
+            stalled_lat.extend(lat[rows[:, 0] < evicted])
+            after_lat.extend(lat[rows[:, 0] >= evicted])
+    result.client_fps_min = min(fps) if fps else 0.0
+    result.client_fps_median = statistics.median(fps) if fps else 0.0
+    result.client_gaps_total = sum(gaps)
+    result.client_gaps_max = max(gaps, default=0)
+    result.skipped_instants = int(statistics.median(skipped)) if skipped else 0
+    result.latency_p50_ms = _pct(latency, 50)
+    result.latency_p99_ms = _pct(latency, 99)
+    result.latency_max_ms = _pct(latency, 100)
+    result.server_p50_ms = _pct(server_share, 50)
+    result.server_p99_ms = _pct(server_share, 99)
+    result.wait_p50_ms = _pct(waits_all, 50)
+    result.wait_p99_ms = _pct(waits_all, 99)
+    result.beyond_p50_ms = _pct(beyond, 50)
+    result.beyond_p99_ms = _pct(beyond, 99)
+    result.server_beyond_p50_ms = _pct(server_beyond, 50)
+    result.server_beyond_p99_ms = _pct(server_beyond, 99)
+    result.p99_while_stalled_ms = _pct(stalled_lat, 99)
+    result.p99_after_evicted_ms = _pct(after_lat, 99)
+
+    # --- the stalled client -----------------------------------------------------------------
+    if stalled:
+        _, port, connected = stalled[0]
+        if port in evicted_at:
+            result.stalled_evicted_after_s = evicted_at[port] - connected
+        last = stalled_seen.get(port)
+        if last is not None:
+            result.stalled_sent = int(last["sent"])
+            result.stalled_dropped = int(last["dropped"])
+        elif port not in evicted_at:
+            result.notes.append("the stalled client never appeared in /api/clients")
+    return result
