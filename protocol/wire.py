@@ -3,7 +3,8 @@
 ``encode(message) -> bytes`` and ``decode(buf) -> message`` are the only way messages cross the
 wire, on both sides. ``decode`` is the trust boundary: everything it returns has been checked
 (version, types, shapes, finite values, ranges, sizes), and everything it refuses raises
-:class:`~protocol.errors.DecodeError` with a short ``reason`` used for counting.
+:class:`~protocol.errors.DecodeError` with a short ``reason`` used for counting. The checks of
+single values (typed fields, joint arrays, a rigid pose) are in :mod:`protocol.wire_checks`.
 
 The byte-level format is specified in ``docs/protocol.md``; keep the two in step.
 """
@@ -20,21 +21,21 @@ import msgpack
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.protocol.constants import (
-    MAX_BODIES,
-    MAX_COORDINATE_M,
-    MAX_MESSAGE_BYTES,
-    PROTOCOL_VERSION,
-)
+from skelfuse.protocol.constants import MAX_BODIES, MAX_MESSAGE_BYTES, PROTOCOL_VERSION
 from skelfuse.protocol.errors import DecodeError, VersionMismatch
-from skelfuse.protocol.skeleton import JOINT_COUNT, SKELETON_NAME, TrackingState
+from skelfuse.protocol.skeleton import JOINT_COUNT, SKELETON_NAME
+from skelfuse.protocol.wire_checks import (
+    UINT64_MAX,
+    field_of,
+    finite_float,
+    joint_arrays,
+    rigid_pose,
+    uint,
+)
 
 SENSOR_ID_PATTERN: Final = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
 SENSOR_TYPES: Final = frozenset({"kinect_v2", "azure_kinect", "femto", "sim", "replay"})
 POSE_HINT_SOURCES: Final = frozenset({"sim_truth", "manual"})
-_JOINT_BYTES: Final = JOINT_COUNT * 3 * 4
-_UINT64_MAX: Final = 2**64 - 1
-_INT64_MAX: Final = 2**63 - 1
 
 
 # --- messages ---------------------------------------------------------------------------------
@@ -261,36 +262,10 @@ def decode(buf: bytes, max_bytes: int = MAX_MESSAGE_BYTES) -> Message:
     return decoder(raw)
 
 
-def _field(raw: dict[str, Any], name: str, kind: type | tuple[type, ...]) -> Any:
-    if name not in raw:
-        raise DecodeError("bad_field", f"missing field {name!r} in {raw.get('type')!r} message")
-    value = raw[name]
-    # bool is an int subclass; a True where a number belongs is a bug on the other side.
-    if isinstance(value, bool) and bool not in (kind if isinstance(kind, tuple) else (kind,)):
-        raise DecodeError("bad_field", f"field {name!r} must be {kind}, got bool")
-    if not isinstance(value, kind):
-        raise DecodeError("bad_field", f"field {name!r} must be {kind}, got {type(value).__name__}")
-    return value
-
-
-def _uint(raw: dict[str, Any], name: str, maximum: int = _INT64_MAX) -> int:
-    value: int = _field(raw, name, int)
-    if not 0 <= value <= maximum:
-        raise DecodeError("out_of_range", f"field {name!r} = {value} out of range 0..{maximum}")
-    return value
-
-
-def _finite_float(raw: dict[str, Any], name: str) -> float:
-    value = float(_field(raw, name, (int, float)))
-    if not math.isfinite(value):
-        raise DecodeError("non_finite", f"field {name!r} must be finite, got {value}")
-    return value
-
-
 def _decode_frame(raw: dict[str, Any]) -> Frame:
-    seq = _uint(raw, "seq")
-    t_capture_ns = _uint(raw, "t_capture_ns")
-    bodies_raw = _field(raw, "bodies", list)
+    seq = uint(raw, "seq")
+    t_capture_ns = uint(raw, "t_capture_ns")
+    bodies_raw = field_of(raw, "bodies", list)
     if len(bodies_raw) > MAX_BODIES:
         raise DecodeError("bad_shape", f"{len(bodies_raw)} bodies > {MAX_BODIES}")
     bodies = tuple(_decode_body(b, i) for i, b in enumerate(bodies_raw))
@@ -301,7 +276,7 @@ def _decode_frame(raw: dict[str, Any]) -> Frame:
     if floor_raw is not None:
         if not isinstance(floor_raw, list) or len(floor_raw) != 4:
             raise DecodeError("bad_shape", "floor must be [a, b, c, d] or nil")
-        values = tuple(_finite_float({"floor": x}, "floor") for x in floor_raw)
+        values = tuple(finite_float({"floor": x}, "floor") for x in floor_raw)
         normal = math.sqrt(sum(v * v for v in values[:3]))
         if abs(normal - 1.0) > 1e-3:
             raise DecodeError("out_of_range", f"floor normal must be a unit vector, |n| = {normal}")
@@ -312,58 +287,32 @@ def _decode_frame(raw: dict[str, Any]) -> Frame:
 def _decode_body(raw: object, index: int) -> Body:
     if not isinstance(raw, dict):
         raise DecodeError("bad_field", f"body {index} must be a map")
-    tracking_id = _uint(raw, "id", _UINT64_MAX)
-    joints_buf = _field(raw, "joints", bytes)
-    states_buf = _field(raw, "states", bytes)
-    if len(joints_buf) != _JOINT_BYTES:
-        raise DecodeError(
-            "bad_shape",
-            f"body {index}: joints must be {_JOINT_BYTES} bytes (25×3 float32), "
-            f"got {len(joints_buf)}",
-        )
-    if len(states_buf) != JOINT_COUNT:
-        raise DecodeError(
-            "bad_shape", f"body {index}: states must be 25 bytes, got {len(states_buf)}"
-        )
-    # Copy: frombuffer views are read-only and tied to the message buffer.
-    joints = np.frombuffer(joints_buf, dtype="<f4").reshape(JOINT_COUNT, 3).astype(np.float32)
-    states = np.frombuffer(states_buf, dtype=np.uint8).copy()
-    if states.max() > TrackingState.TRACKED:
-        raise DecodeError("out_of_range", f"body {index}: tracking state {states.max()} > 2")
-    seen = states != TrackingState.NOT_TRACKED
-    seen_joints = joints[seen]
-    if not np.isfinite(seen_joints).all():
-        raise DecodeError("non_finite", f"body {index}: NaN or infinity in a tracked joint")
-    if np.isinf(joints).any():
-        raise DecodeError("non_finite", f"body {index}: infinity in joints")
-    if seen_joints.size and np.abs(seen_joints).max() > MAX_COORDINATE_M:
-        raise DecodeError(
-            "out_of_range", f"body {index}: a joint is more than {MAX_COORDINATE_M} m away"
-        )
-    # NOT_TRACKED positions carry no meaning; normalise them so nothing downstream uses them.
-    joints[~seen] = np.nan
+    tracking_id = uint(raw, "id", UINT64_MAX)
+    joints_buf = field_of(raw, "joints", bytes)
+    states_buf = field_of(raw, "states", bytes)
+    joints, states = joint_arrays(joints_buf, states_buf, index)
     return Body(tracking_id=tracking_id, joints_m=joints, states=states)
 
 
 def _decode_hello(raw: dict[str, Any]) -> Hello:
-    sensor_id = _field(raw, "sensor_id", str)
+    sensor_id = field_of(raw, "sensor_id", str)
     if not SENSOR_ID_PATTERN.fullmatch(sensor_id):  # match() + "$" accepts a final "\n"
         raise DecodeError(
             "bad_field",
             f"sensor_id {sensor_id[:80]!r} must be 1-64 characters of A-Z a-z 0-9 . _ - "
             "starting with a letter or digit",
         )
-    sensor_type = _field(raw, "sensor_type", str)
+    sensor_type = field_of(raw, "sensor_type", str)
     if sensor_type not in SENSOR_TYPES:
         raise DecodeError(
             "bad_field", f"sensor_type {sensor_type[:40]!r} not one of {sorted(SENSOR_TYPES)}"
         )
-    skeleton = _field(raw, "skeleton", str)
+    skeleton = field_of(raw, "skeleton", str)
     if skeleton != SKELETON_NAME:
         raise DecodeError(
             "bad_field", f"skeleton {skeleton[:40]!r} not supported (agents send {SKELETON_NAME})"
         )
-    fps = _finite_float(raw, "fps")
+    fps = finite_float(raw, "fps")
     if not 0 < fps <= 240:
         raise DecodeError("out_of_range", f"fps {fps} out of range (0, 240]")
     pose_hint = None
@@ -372,32 +321,17 @@ def _decode_hello(raw: dict[str, Any]) -> Hello:
     if hint is not None:
         if not isinstance(hint, dict):
             raise DecodeError("bad_field", "pose_hint must be a map")
-        matrix = _field(hint, "T_world_from_sensor", list)
-        pose_source = _field(hint, "source", str)
+        matrix = field_of(hint, "T_world_from_sensor", list)
+        pose_source = field_of(hint, "source", str)
         if pose_source not in POSE_HINT_SOURCES:
             raise DecodeError("bad_field", f"pose_hint source must be one of {POSE_HINT_SOURCES}")
-        if len(matrix) != 16 or not all(
-            isinstance(x, int | float) and not isinstance(x, bool) for x in matrix
-        ):
-            raise DecodeError("bad_shape", "pose_hint T_world_from_sensor must be 16 numbers")
-        pose_hint = np.asarray(matrix, dtype=np.float64).reshape(4, 4)
-        if not np.isfinite(pose_hint).all():
-            raise DecodeError("non_finite", "pose_hint has NaN or infinity")
-        rotation = pose_hint[:3, :3]
-        if np.abs(rotation).max() > 1.001:  # also keeps the products below from overflowing
-            raise DecodeError("bad_field", "pose_hint is not a rigid transform")
-        if (
-            not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-4)
-            or not np.allclose(pose_hint[3], [0, 0, 0, 1])
-            or np.linalg.det(rotation) < 0
-        ):
-            raise DecodeError("bad_field", "pose_hint is not a rigid transform")
+        pose_hint = rigid_pose(matrix)
     return Hello(
         sensor_id=sensor_id,
         sensor_type=sensor_type,
-        agent_version=_field(raw, "agent_version", str)[:64],
+        agent_version=field_of(raw, "agent_version", str)[:64],
         fps=fps,
-        t_ns=_uint(raw, "t_ns"),
+        t_ns=uint(raw, "t_ns"),
         skeleton=skeleton,
         pose_hint=pose_hint,
         pose_hint_source=pose_source,
@@ -406,34 +340,34 @@ def _decode_hello(raw: dict[str, Any]) -> Hello:
 
 def _decode_welcome(raw: dict[str, Any]) -> Welcome:
     return Welcome(
-        server_version=_field(raw, "server_version", str),
-        heartbeat_interval_s=_finite_float(raw, "heartbeat_interval_s"),
-        t_ns=_uint(raw, "t_ns"),
+        server_version=field_of(raw, "server_version", str),
+        heartbeat_interval_s=finite_float(raw, "heartbeat_interval_s"),
+        t_ns=uint(raw, "t_ns"),
     )
 
 
 def _decode_heartbeat(raw: dict[str, Any]) -> Heartbeat:
-    echo = _uint(raw, "echo_ns") if raw.get("echo_ns") is not None else None
-    return Heartbeat(t_ns=_uint(raw, "t_ns"), echo_ns=echo)
+    echo = uint(raw, "echo_ns") if raw.get("echo_ns") is not None else None
+    return Heartbeat(t_ns=uint(raw, "t_ns"), echo_ns=echo)
 
 
 def _decode_request(raw: dict[str, Any]) -> Request:
     return Request(
-        request_id=_uint(raw, "id"),
-        method=_field(raw, "method", str),
-        params=_field(raw, "params", dict),
+        request_id=uint(raw, "id"),
+        method=field_of(raw, "method", str),
+        params=field_of(raw, "params", dict),
     )
 
 
 def _decode_response(raw: dict[str, Any]) -> Response:
-    ok = _field(raw, "ok", bool)
+    ok = field_of(raw, "ok", bool)
     if ok:
-        return Response(request_id=_uint(raw, "id"), ok=True, result=raw.get("result"))
-    return Response(request_id=_uint(raw, "id"), ok=False, error=_field(raw, "error", str))
+        return Response(request_id=uint(raw, "id"), ok=True, result=raw.get("result"))
+    return Response(request_id=uint(raw, "id"), ok=False, error=field_of(raw, "error", str))
 
 
 def _decode_error(raw: dict[str, Any]) -> ErrorMessage:
-    return ErrorMessage(code=_field(raw, "code", str), message=_field(raw, "message", str))
+    return ErrorMessage(code=field_of(raw, "code", str), message=field_of(raw, "message", str))
 
 
 def _decode_bye(raw: dict[str, Any]) -> Bye:
