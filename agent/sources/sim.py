@@ -8,9 +8,10 @@ from typing import Any
 
 import numpy as np
 
+from skelfuse.agent.sim.depth_camera import KINECT_V2_DEPTH
 from skelfuse.agent.sim.kinect_model import KinectV2Params, SimulatedKinect
 from skelfuse.agent.sim.performer import Performer
-from skelfuse.agent.sim.room import KINECT_V2_DEPTH, Room, capture_point_cloud, default_room
+from skelfuse.agent.sim.room import Room, capture_point_cloud, default_room
 from skelfuse.agent.sources.base import Capture
 from skelfuse.protocol.transform import Matrix4
 from skelfuse.protocol.wire import Body

@@ -1,4 +1,5 @@
-"""The simulated depth camera (agent/sim/room.py): image format, noise, geometry, imports."""
+"""The simulated depth camera (agent/sim/room.py, agent/sim/depth_camera.py): image format, noise,
+geometry, imports."""
 
 from __future__ import annotations
 
@@ -8,17 +9,10 @@ import sys
 import numpy as np
 import pytest
 
+from skelfuse.agent.sim.depth_camera import KINECT_V2_DEPTH, depth_to_points, voxel_downsample
 from skelfuse.agent.sim.kinect_model import SimulatedKinect
 from skelfuse.agent.sim.performer import ProceduralPerformer
-from skelfuse.agent.sim.room import (
-    KINECT_V2_DEPTH,
-    Room,
-    capture_point_cloud,
-    default_room,
-    depth_to_points,
-    render_depth,
-    voxel_downsample,
-)
+from skelfuse.agent.sim.room import Room, capture_point_cloud, default_room, render_depth
 from skelfuse.protocol.skeleton import JointId
 from skelfuse.protocol.transform import apply, invert, look_at_pose
 
@@ -103,7 +97,7 @@ def test_depth_to_points_rejects_wrong_size() -> None:
 
 def test_room_module_imports_numpy_only() -> None:
     code = (
-        "import sys, agent.sim.room; "
+        "import sys, skelfuse.agent.sim.room; "
         "bad = [m for m in ('scipy', 'open3d') if m in sys.modules]; "
         "print(','.join(bad))"
     )
