@@ -6,7 +6,11 @@ import math
 
 import pytest
 
-from bench.accuracy import BASELINE, FULL, METHODS, Log, Scenario, _row, run_once
+from bench.accuracy_methods import BASELINE, FULL, METHODS
+from bench.accuracy_metrics import Log
+from bench.accuracy_report import group_row
+from bench.accuracy_runner import run_once
+from bench.accuracy_scenarios import Scenario
 from skelfuse.agent.sim.kinect_model import KinectV2Params
 from skelfuse.agent.sim.performer import ProceduralPerformer
 from skelfuse.agent.sim.scenarios import Segment
@@ -41,4 +45,4 @@ def test_metrics_follow_their_definitions() -> None:
     assert summary["mpjpe_mm"] == pytest.approx(200.0 / 50)  # one joint in 50 is 200 mm off
     assert summary["erroneous"] == 0.5  # the head is one of report B's joints
     assert summary["id_switches"] == 0.0 and summary["coverage"] == 1.0
-    assert _row([{**summary, "mpjpe_mm": v} for v in (1.0, 2.0, 9.0)])["mpjpe_mm"] == 2.0
+    assert group_row([{**summary, "mpjpe_mm": v} for v in (1.0, 2.0, 9.0)])["mpjpe_mm"] == 2.0
