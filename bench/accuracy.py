@@ -59,6 +59,7 @@ from skelfuse.agent.sim.kinect_model import KinectV2Params
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Parse the command line, run what it asks for, print the tables; returns the exit status."""
     parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
     parser.add_argument("--runs", type=int, default=1, help="noise seeds per scenario")
     parser.add_argument("--quick", action="store_true", help="a short subset of scenarios")

@@ -107,6 +107,7 @@ class Log:
 
 
 def _trunk(a: FloatArray, b: FloatArray) -> float:
+    """Mean distance (m) between two (25, 3) skeletons on the trunk joints both have, else inf."""
     pa, pb = a[TRUNK_JOINTS], b[TRUNK_JOINTS]
     both = np.isfinite(pa).all(axis=1) & np.isfinite(pb).all(axis=1)
     return float(np.linalg.norm(pa[both] - pb[both], axis=1).mean()) if both.any() else math.inf

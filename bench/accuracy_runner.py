@@ -37,6 +37,7 @@ def sensor_poses(count: int, radius: float = 3.0, height: float = 1.0) -> list[F
 
 
 def _new_hub(fusion: FusionSettings, names: list[str], poses: list[FloatArray]) -> FusionHub:
+    """A production hub with ``fusion`` settings, the named sensors registered at true poses."""
     hub = FusionHub(Settings(fusion=fusion))
     for name, pose in zip(names, poses, strict=True):
         hello = Hello(name, "sim", "bench", FPS, 0, pose_hint=pose, pose_hint_source="sim_truth")

@@ -16,6 +16,11 @@ CMU_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "cmu-mocap"
 
 @dataclass
 class Scenario:
+    """Who moves (``performer``, world frame) for how long, seen by how many sensors.
+
+    ``group`` is the report row the scenario counts towards.
+    """
+
     name: str
     performer: Performer
     duration_s: float
@@ -24,6 +29,7 @@ class Scenario:
 
 
 def scenarios(quick: bool) -> list[Scenario]:
+    """Every scenario of the benchmark (``quick``: a subset); CMU walks when the data is there."""
     out: list[Scenario] = []
     routine = ProceduralPerformer(1)
     # The routine of person 0: walk 0–6.3 s, turn 6.3–14.3 s, arms 14.3–20.3 s, squats 20.3–26.3 s.

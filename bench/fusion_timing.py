@@ -19,6 +19,8 @@ from skelfuse.protocol.wire import Body, Frame, encode
 
 @dataclass
 class FusionTiming:
+    """Medians (ms) per fused frame for ``sensors`` × ``bodies`` over ``steps`` steps."""
+
     sensors: int
     bodies: int
     steps: int

@@ -65,6 +65,7 @@ from bench.load_run import RunConfig, RunResult, run_once
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Parse the command line, run what it asks for, print the tables; returns the exit status."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0] if __doc__ else None)
     parser.add_argument("--agents", type=int, default=10)
     parser.add_argument("--bodies", type=int, default=6, choices=range(1, 7))

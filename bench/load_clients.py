@@ -12,11 +12,14 @@ from dataclasses import dataclass, field
 
 @dataclass
 class ClientLog:
+    """One healthy client's frames (receive wall time s, seq, t s, t_sent s) and why it stopped."""
+
     records: list[tuple[float, int, float, float]] = field(default_factory=list)
     error: str | None = None
 
 
 async def healthy_client(url: str, log: ClientLog) -> None:
+    """Log every frame from ``url`` until cancelled; a failure goes in ``log.error``."""
     from websockets.asyncio.client import connect
 
     try:

@@ -41,10 +41,12 @@ def median_result(runs: list[RunResult]) -> RunResult:
 
 
 def ms(value: float) -> str:
+    """A figure in ms to one decimal, a dash when there was nothing to measure."""
     return "–" if math.isnan(value) else f"{value:.1f}"
 
 
 def print_main(r: RunResult, repeat: int) -> None:
+    """The main run's table: every metric, its target and the measured figure."""
     c = r.config
     expected_ingest = c.agents * FPS
     evicted = "not evicted" if r.stalled_evicted_after_s is None else (
@@ -104,6 +106,7 @@ def print_main(r: RunResult, repeat: int) -> None:
 
 
 def print_scaling(results: list[RunResult], repeat: int) -> None:
+    """One row per (agents, bodies) configuration."""
     runs = f" (median of {repeat} runs each)" if repeat > 1 else ""
     print(f"\nScaling{runs}: latency in ms; 'beyond' = beyond the alignment wait\n")
     print(
@@ -130,6 +133,7 @@ def print_scaling(results: list[RunResult], repeat: int) -> None:
 
 
 def print_fusion(timings: list[FusionTiming]) -> None:
+    """The in-process fusion cost, one row per sensors × bodies."""
     print("\nIn-process fusion cost (production classes, simulated time), median over steps\n")
     print(
         "| sensors × bodies | `fuse_step` wall median (p99) ms | `fuse_step` CPU median ms "

@@ -34,6 +34,8 @@ FloatArray = npt.NDArray[np.float64]
 
 @dataclass
 class RunConfig:
+    """One configuration: agents × bodies, the measured window and warm-up (s), the clients."""
+
     agents: int
     bodies: int
     duration_s: float
@@ -44,6 +46,8 @@ class RunConfig:
 
 @dataclass
 class RunResult:
+    """Everything one run measured (latencies in ms, rates per second, memory in MB)."""
+
     config: RunConfig
     window_s: float = 0.0
     agent_frames_sent: int = 0
@@ -88,6 +92,7 @@ class RunResult:
 
 
 def _pct(values: Sequence[float], q: float) -> float:
+    """The ``q``-th percentile of ``values`` (s) in ms; NaN when there are none."""
     return float(np.percentile(np.asarray(values), q)) * 1e3 if len(values) else math.nan
 
 
@@ -114,6 +119,11 @@ def alignment_waits(
 
 
 async def run_once(config: RunConfig, seed: int, log_dir: Path) -> RunResult:
+    """Start the server, the agents and the clients, measure one window, stop them all.
+
+    Raises:
+        RuntimeError: the server did not start, or the sensors never came online.
+    """
     result = RunResult(config)
     http_port, zmq_port = free_port(), free_port()
     base = f"http://127.0.0.1:{http_port}"

@@ -22,6 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def free_port() -> int:
+    """A TCP port on loopback that was free a moment ago."""
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
         port: int = s.getsockname()[1]
@@ -29,6 +30,7 @@ def free_port() -> int:
 
 
 def http_json(url: str, timeout_s: float = 5.0) -> Any:
+    """GET ``url`` and decode its JSON body."""
     with urllib.request.urlopen(url, timeout=timeout_s) as response:
         return json.load(response)
 
@@ -65,10 +67,16 @@ def start_server(
 
 
 async def get(url: str) -> Any:
+    """``http_json`` off the event loop."""
     return await asyncio.to_thread(http_json, url)
 
 
 def wait_for(predicate: Callable[[], object], timeout_s: float, what: str) -> None:
+    """Poll ``predicate`` every 0.1 s until it is true; an exception counts as not yet.
+
+    Raises:
+        RuntimeError: still not true after ``timeout_s``.
+    """
     deadline = time.monotonic() + timeout_s
     last: Exception | None = None
     while time.monotonic() < deadline:
