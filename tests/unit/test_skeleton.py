@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 
 import numpy as np
 import pytest
@@ -12,6 +13,9 @@ from skelfuse.protocol.skeleton import (
     AZURE_JOINT_COUNT,
     AZURE_TO_KINECT_V2,
     BONES,
+    CHILDREN,
+    CMU_ASF_TO_KINECT_V2,
+    CMU_BVH_TO_KINECT_V2,
     JOINT_COUNT,
     JOINT_NAMES,
     MIRROR_PERMUTATION,
@@ -256,6 +260,27 @@ def test_mirroring_keeps_the_tree() -> None:
     for joint, parent in enumerate(PARENTS):
         if parent >= 0:
             assert PARENTS[MIRROR_PERMUTATION[joint]] == MIRROR_PERMUTATION[parent]
+
+
+def test_children_invert_parents() -> None:
+    assert [(p, c) for p, kids in enumerate(CHILDREN) for c in kids] == sorted(BONES)
+    assert CHILDREN[JointId.SPINE_BASE] == (JointId.SPINE_MID, JointId.HIP_LEFT, JointId.HIP_RIGHT)
+    assert CHILDREN[JointId.HEAD] == ()
+
+
+@pytest.mark.parametrize("recipe", [CMU_ASF_TO_KINECT_V2, CMU_BVH_TO_KINECT_V2])
+def test_cmu_maps_cover_every_joint_and_mirror_left_onto_right(recipe: object) -> None:
+    assert isinstance(recipe, Mapping) and sorted(recipe) == list(JointId)
+    for joint in JointId:
+        weights = [w for _, w in recipe[joint]]
+        assert sum(weights) == pytest.approx(1.0), joint.name
+    for left, right in ((JointId.HAND_TIP_LEFT, JointId.HAND_TIP_RIGHT),
+                        (JointId.KNEE_LEFT, JointId.KNEE_RIGHT)):  # fmt: skip
+        assert MIRROR_PERMUTATION[left] == right
+        (left_point, _), (right_point, _) = recipe[left][0], recipe[right][0]
+        assert left_point[0] in "lL" and right_point[0] in "rR"
+    assert CMU_BVH_TO_KINECT_V2[JointId.HAND_TIP_RIGHT] == (("RFingers.end", 1.0),)
+    assert CMU_ASF_TO_KINECT_V2[JointId.KNEE_RIGHT] == (("rfemur", 1.0),)
 
 
 def test_skeleton_definition() -> None:
