@@ -86,18 +86,30 @@ def _cloud_array(points: npt.ArrayLike, name: str) -> FloatArray:
     return array
 
 
+OPEN3D_SYSTEM_LIBRARIES: Final = {
+    "libusb-1.0.so.0": "libusb-1.0-0",
+    "libGL.so.1": "libgl1",
+    "libEGL.so.1": "libegl1",
+    "libX11.so.6": "libx11-6",
+    "libudev.so.1": "libudev1",
+}
+"""Shared libraries open3d links on Linux -> the Debian package with each (minimal systems lack
+some; scripts/venv.sh and the Dockerfile install the same)."""
+
+
 def _open3d() -> Any:
     """The open3d module, imported on first use.
 
     Raises:
-        IcpUnavailable: open3d is not installed, or its native library does not load (on Linux
-            it links libusb-1.0, absent from minimal systems); the message says what to install.
+        IcpUnavailable: open3d is not installed, or a system library it links is missing; the
+            message says what to install.
     """
     try:
         import open3d
     except ImportError as exc:
-        if "libusb" in str(exc):
-            fix = "it links the system library libusb-1.0: apt-get install libusb-1.0-0"
+        packages = [deb for lib, deb in OPEN3D_SYSTEM_LIBRARIES.items() if lib in str(exc)]
+        if packages:
+            fix = f"install the system library (Debian/Ubuntu: apt-get install {packages[0]})"
         else:
             fix = "install the server extras: pip install 'skelfuse[server]'"
         raise IcpUnavailable(f"ICP needs open3d, which does not import ({exc}): {fix}") from exc

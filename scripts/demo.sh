@@ -6,7 +6,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 . scripts/venv.sh
 ensure_venv
-ensure_libusb
+ensure_open3d_libraries
 echo "==> installing skelfuse with the server extras"
 "$VENV/bin/pip" install --quiet --disable-pip-version-check -e '.[server]'
 exec "$VENV/bin/skelfuse" demo "$@"

@@ -25,37 +25,48 @@ ensure_venv() {
   "$VENV/bin/pip" install --quiet --disable-pip-version-check --upgrade pip
 }
 
-# install_debian_package PACKAGE WHY: for a missing system library or tool, install the Debian
-# package when we may (root, or passwordless sudo); otherwise warn and go on, since what needs it
-# reports itself (a skipped browser test, an ICP calibration that names the library).
-install_debian_package() {
-  local package="$1" why="$2" sudo=""
+# install_debian_packages WHY PACKAGE...: install Debian packages a tool or library needs when we
+# may (root, or passwordless sudo); otherwise warn and go on, since what needs them reports itself
+# (a skipped browser test, an ICP calibration that names the library).
+install_debian_packages() {
+  local why="$1" sudo=""
+  shift
   if [ "$(id -u)" != 0 ]; then
     if command -v sudo >/dev/null 2>&1 && sudo -n true 2>/dev/null; then
       sudo="sudo"
     else
-      echo "warning: $package is missing and we are not root: $why" >&2
-      echo "         (install it with: sudo apt-get install $package)" >&2
+      echo "warning: $* missing and we are not root: $why" >&2
+      echo "         (install with: sudo apt-get install $*)" >&2
       return 0
     fi
   fi
   if ! command -v apt-get >/dev/null 2>&1; then
-    echo "warning: $package is missing and there is no apt-get: $why" >&2
+    echo "warning: $* missing and there is no apt-get: $why" >&2
     return 0
   fi
-  echo "==> installing Debian's $package: $why"
+  echo "==> installing Debian's $*: $why"
   if [ -z "${_SKELFUSE_APT_UPDATED:-}" ]; then
     $sudo apt-get update -qq
     _SKELFUSE_APT_UPDATED=1
   fi
-  $sudo env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "$package" >/dev/null
+  $sudo env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "$@" >/dev/null
 }
 
-# open3d (server extras, ICP calibration) links libusb-1.0 and does not import without it.
-ensure_libusb() {
-  # grep reads to the end (no -q): with pipefail, ldconfig cut off by SIGPIPE would count as absent
-  if { ldconfig -p || /sbin/ldconfig -p; } 2>/dev/null | grep 'libusb-1\.0\.so\.0' >/dev/null; then
-    return 0
+# open3d (server extras, ICP calibration) does not import without the system libraries it links,
+# and minimal Debian lacks some: libusb-1.0 nearly always, the GL and X11 ones on servers and in
+# containers. SONAME:PACKAGE pairs; the Dockerfile and calibration/icp.py name the same.
+OPEN3D_LIBRARIES="libusb-1.0.so.0:libusb-1.0-0 libGL.so.1:libgl1 libEGL.so.1:libegl1
+  libX11.so.6:libx11-6 libudev.so.1:libudev1"
+
+ensure_open3d_libraries() {
+  local known entry missing=()
+  known="$({ ldconfig -p || /sbin/ldconfig -p; } 2>/dev/null | awk '{print $1}')"
+  for entry in $OPEN3D_LIBRARIES; do
+    if ! grep -Fx "${entry%%:*}" >/dev/null <<<"$known"; then
+      missing+=("${entry#*:}")
+    fi
+  done
+  if [ "${#missing[@]}" -gt 0 ]; then
+    install_debian_packages "open3d (ICP calibration) does not import without them" "${missing[@]}"
   fi
-  install_debian_package libusb-1.0-0 "open3d (ICP calibration) needs it to import"
 }

@@ -44,7 +44,7 @@ def test_a_missing_libusb_is_named_with_the_package_that_provides_it(
 ) -> None:
     error = _refine_without_open3d(monkeypatch, LIBUSB_MISSING)
     assert "libusb-1.0.so.0" in str(error)
-    assert "apt-get install libusb-1.0-0" in str(error)
+    assert "apt-get install libusb-1.0-0)" in str(error)
     assert isinstance(error, CalibrationError)  # the calibration run reports it, not "internal"
 
 
