@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from skelfuse.cli import parse_pose
+from skelfuse.cli.values import parse_pose
 from skelfuse.demo import sensor_layout
 from skelfuse.protocol.transform import invert, pose_from_position_yaw_pitch
 from tests.support import free_port, wait_until

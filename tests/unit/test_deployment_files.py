@@ -16,7 +16,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from skelfuse.cli import build_parser, parse_pose
+from skelfuse.cli import build_parser
+from skelfuse.cli.values import parse_pose
 from skelfuse.demo import sensor_layout
 
 ROOT = Path(__file__).resolve().parents[2]

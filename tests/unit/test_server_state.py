@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from skelfuse.calibration.store import CalibrationFileError, CalibrationStore, SensorCalibration
-from skelfuse.cli import UsageError, parse_host_port, parse_pose
+from skelfuse.cli.values import UsageError, parse_host_port, parse_pose
 from skelfuse.fusion.hub import FusionHub
 from skelfuse.fusion.sensors import SlidingMinimum, TimedFrame, bodies_at
 from skelfuse.protocol.feed import frame_json

@@ -1,0 +1,25 @@
+"""``skelfuse doctor``: which sensor sources can run on this PC, and why not."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Add ``doctor`` to the command line."""
+    doctor = sub.add_parser("doctor", help="which sensor sources can run on this PC")
+    doctor.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Print Python, platform and one line per source kind; always 0."""
+    from skelfuse.agent.sources.registry import check_sources
+
+    bits = 64 if sys.maxsize > 2**32 else 32
+    lines = [f"Python {sys.version.split()[0]} ({bits}-bit) on {sys.platform}"]
+    for check in check_sources():
+        mark = "yes" if check.available else "no "
+        lines.append(f"  {check.kind:13s} {mark}  {check.reason}")
+    sys.stdout.write("\n".join(lines) + "\n")
+    return 0

@@ -1,0 +1,114 @@
+"""``skelfuse server``: the fusion server (REST, WebSocket feed, viewer, agents over ZeroMQ)."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+from pathlib import Path
+
+from skelfuse.cli.values import UsageError, fusion_settings, parse_host_port
+from skelfuse.protocol.constants import DEFAULT_HTTP_PORT, DEFAULT_ZMQ_PORT
+
+
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Add ``server`` and its options to the command line."""
+    server = sub.add_parser("server", help="run the fusion server")
+    server.add_argument(
+        "--http",
+        default=f"127.0.0.1:{DEFAULT_HTTP_PORT}",
+        help="HOST:PORT for REST, WebSocket and the viewer (default %(default)s)",
+    )
+    server.add_argument(
+        "--zmq",
+        default=f"tcp://*:{DEFAULT_ZMQ_PORT}",
+        help="ZeroMQ endpoint agents connect to (default %(default)s)",
+    )
+    server.add_argument(
+        "--data",
+        default="skelfuse-data",
+        help="folder for calibration and recordings (default %(default)s)",
+    )
+    server.add_argument(
+        "--token",
+        default=None,
+        help="require this token for REST changes and the WebSocket (or set SKELFUSE_TOKEN)",
+    )
+    server.add_argument(
+        "--allow-origin",
+        action="append",
+        default=None,
+        metavar="ORIGIN",
+        help="another browser origin allowed on the WebSocket (repeatable)",
+    )
+    server.add_argument(
+        "--fusion-config",
+        default=os.environ.get("SKELFUSE_FUSION_CONFIG") or None,
+        metavar="FILE",
+        help="TOML file with a [fusion] table overriding fusion settings (docs/fusion.md §9; "
+        "or set SKELFUSE_FUSION_CONFIG)",
+    )
+    server.add_argument(
+        "--curve",
+        action="store_true",
+        help="authenticate agents with CurveZMQ keys from <data>/keys ('skelfuse keys create')",
+    )
+    server.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Serve until stopped (SIGINT/SIGTERM); 0 after a clean stop, 1 if it never started.
+
+    Raises:
+        UsageError: the server extras are not installed, ``--curve`` without keys, a bad
+            ``--http`` or ``--fusion-config``.
+    """
+    try:
+        import uvicorn
+
+        from skelfuse.server.app import create_app
+        from skelfuse.server.settings import Settings
+    except ImportError as exc:
+        raise UsageError(
+            f"the server needs its extra dependencies ({exc.name} is missing): "
+            "pip install 'skelfuse[server]'"
+        ) from exc
+    host, port = parse_host_port(args.http, DEFAULT_HTTP_PORT)
+    token = args.token or os.environ.get("SKELFUSE_TOKEN") or None
+    if args.curve:
+        from skelfuse.server.auth import KeysMissing, server_keys
+
+        try:
+            server_keys(Path(args.data))  # fail closed, and say how to fix it
+        except KeysMissing as exc:
+            raise UsageError(str(exc)) from exc
+    fusion = fusion_settings(args.fusion_config)
+    settings = Settings(
+        fusion=fusion,
+        http_host=host,
+        http_port=port,
+        zmq_endpoint=args.zmq,
+        data_dir=Path(args.data),
+        api_token=token,
+        allowed_origins=tuple(args.allow_origin or ()),
+        curve=args.curve,
+    )
+    if token is None and host not in ("127.0.0.1", "localhost", "::1"):
+        logging.getLogger("skelfuse").warning(
+            "serving %s without --token: anyone on the network can change calibration", host
+        )
+    config = uvicorn.Config(
+        create_app(settings),
+        host=host,
+        port=port,
+        log_level=args.log_level.lower(),
+        ws_max_size=64 * 1024,
+        # A client that stops reading stops answering pings long before the kernel's socket
+        # buffers (megabytes) fill: this is what disconnects it within about 10 s.
+        ws_ping_interval=5.0,
+        ws_ping_timeout=5.0,
+        lifespan="on",
+    )
+    server = uvicorn.Server(config)
+    server.run()
+    return 0 if server.started else 1
