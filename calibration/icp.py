@@ -34,7 +34,8 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.calibration.errors import IcpUnavailable, InvalidInput, NoOverlap
+from skelfuse.calibration.errors import InvalidInput, NoOverlap
+from skelfuse.calibration.open3d_loader import load_open3d
 from skelfuse.calibration.rigid import rotation_angle_deg
 from skelfuse.protocol.transform import Matrix4, apply, is_rigid
 
@@ -86,38 +87,8 @@ def _cloud_array(points: npt.ArrayLike, name: str) -> FloatArray:
     return array
 
 
-OPEN3D_SYSTEM_LIBRARIES: Final = {
-    "libusb-1.0.so.0": "libusb-1.0-0",
-    "libGL.so.1": "libgl1",
-    "libEGL.so.1": "libegl1",
-    "libX11.so.6": "libx11-6",
-    "libudev.so.1": "libudev1",
-}
-"""Shared libraries open3d links on Linux -> the Debian package with each (minimal systems lack
-some; scripts/venv.sh and the Dockerfile install the same)."""
-
-
-def _open3d() -> Any:
-    """The open3d module, imported on first use.
-
-    Raises:
-        IcpUnavailable: open3d is not installed, or a system library it links is missing; the
-            message says what to install.
-    """
-    try:
-        import open3d
-    except ImportError as exc:
-        packages = [deb for lib, deb in OPEN3D_SYSTEM_LIBRARIES.items() if lib in str(exc)]
-        if packages:
-            fix = f"install the system library (Debian/Ubuntu: apt-get install {packages[0]})"
-        else:
-            fix = "install the server extras: pip install 'skelfuse[server]'"
-        raise IcpUnavailable(f"ICP needs open3d, which does not import ({exc}): {fix}") from exc
-    return open3d
-
-
 def _to_o3d(points: FloatArray) -> Any:
-    o3d = _open3d()
+    o3d = load_open3d()
     cloud = o3d.geometry.PointCloud()
     cloud.points = o3d.utility.Vector3dVector(points)
     return cloud
@@ -240,9 +211,9 @@ def refine_icp(
     Raises:
         InvalidInput: empty clouds, NaN/inf, wrong shapes, a non-rigid initial guess, no levels.
         NoOverlap: (almost) no source point near the target at the coarsest level.
-        IcpUnavailable: open3d does not import (see :func:`_open3d`).
+        IcpUnavailable: open3d does not import (see :func:`load_open3d`).
     """
-    o3d = _open3d()
+    o3d = load_open3d()
     reg = o3d.pipelines.registration
     src_all = _cloud_array(source_points, "source_points")
     tgt_all = _cloud_array(target_points, "target_points")

@@ -54,7 +54,7 @@ install_debian_packages() {
 
 # open3d (server extras, ICP calibration) does not import without the system libraries it links,
 # and minimal Debian lacks some: libusb-1.0 nearly always, the GL and X11 ones on servers and in
-# containers. SONAME:PACKAGE pairs; the Dockerfile and calibration/icp.py name the same.
+# containers. SONAME:PACKAGE pairs; the Dockerfile and calibration/open3d_loader.py name the same.
 OPEN3D_LIBRARIES="libusb-1.0.so.0:libusb-1.0-0 libGL.so.1:libgl1 libEGL.so.1:libegl1
   libX11.so.6:libx11-6 libudev.so.1:libudev1"
 

@@ -78,7 +78,7 @@ def test_the_image_installs_the_built_wheel_not_a_list_of_folders() -> None:
 
 
 def test_the_image_and_scripts_install_the_libraries_open3d_links() -> None:
-    from skelfuse.calibration.icp import OPEN3D_SYSTEM_LIBRARIES
+    from skelfuse.calibration.open3d_loader import OPEN3D_SYSTEM_LIBRARIES
 
     packages = set(OPEN3D_SYSTEM_LIBRARIES.values())
     _, image = _stages((ROOT / "Dockerfile").read_text())
