@@ -177,7 +177,7 @@ class AzureKinectSource:
         """The ``depth_cloud`` request: points of the latest depth image, our sensor frame.
 
         Params: ``max_points`` (default 20 000, at most
-        :data:`agent.sources.depth_reply.MAX_CLOUD_POINTS`) and
+        :data:`skelfuse.protocol.depth_cloud.MAX_POINTS`) and
         ``max_range_m`` (default 5.0). Result (docs/protocol.md §6.5): ``points``, one bin of
         float32 little-endian x, y, z triples (metres), ``count``, ``frame`` = ``"sensor"``,
         ``device_timestamp_us``.

@@ -1,22 +1,18 @@
 """The ``depth_cloud`` answer of an SDK source (docs/protocol.md §6.5), shared by all of them.
 
 A source turns its latest depth image into points in our sensor frame (metres, +X to the
-sensor's left, +Y up, +Z forward); this module applies the request's limits and packs the reply.
+sensor's left, +Y up, +Z forward); this module keeps the points the request asks for and packs
+the reply with the protocol's codec (:mod:`skelfuse.protocol.depth_cloud`).
 """
 
 from __future__ import annotations
 
-from typing import Any, Final
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.protocol.constants import MAX_RESPONSE_BYTES
-
-# One bin of N×3 float32; the server accepts answers up to MAX_RESPONSE_BYTES while it waits for
-# them, and asks for at most 60 000 points.
-DEFAULT_CLOUD_POINTS: Final = 20_000
-MAX_CLOUD_POINTS: Final = min(60_000, (MAX_RESPONSE_BYTES - 4096) // 12)
+from skelfuse.protocol.depth_cloud import decode_request, encode_reply
 
 
 def cloud_reply(
@@ -26,23 +22,19 @@ def cloud_reply(
 
     Args:
         points: (N, 3) metres in the sensor frame; rows with a non-finite value or z ≤ 0 (no
-            depth) are dropped.
-        params: the request's ``max_points`` (default 20 000, at most :data:`MAX_CLOUD_POINTS`)
-            and ``max_range_m`` (default 5.0).
+            depth) are dropped, and so are points beyond the request's ``max_range_m``; what is
+            left is subsampled evenly to the request's ``max_points``.
+        params: the request's params (``protocol.depth_cloud.decode_request``).
         extra: more fields for the reply (e.g. the device timestamp).
+
+    Raises:
+        DecodeError: bad params (the agent answers with a refusal).
     """
-    max_points = min(int(params.get("max_points", DEFAULT_CLOUD_POINTS)), MAX_CLOUD_POINTS)
-    max_range = float(params.get("max_range_m", 5.0))
+    request = decode_request(params)
     cloud = np.asarray(points, dtype=np.float32).reshape(-1, 3)
     cloud = cloud[np.isfinite(cloud).all(axis=1) & (cloud[:, 2] > 0)]
-    cloud = cloud[np.linalg.norm(cloud, axis=1) <= max_range]
-    if cloud.shape[0] > max_points:
-        step = int(np.ceil(cloud.shape[0] / max_points))
-        cloud = cloud[::step][:max_points]
-    return {
-        "frame": "sensor",
-        "units": "m",
-        "count": int(cloud.shape[0]),
-        "points": np.ascontiguousarray(cloud, dtype="<f4").tobytes(),
-        **extra,
-    }
+    cloud = cloud[np.linalg.norm(cloud, axis=1) <= request.max_range_m]
+    if cloud.shape[0] > request.max_points:
+        step = int(np.ceil(cloud.shape[0] / request.max_points))
+        cloud = cloud[::step][: request.max_points]
+    return encode_reply(cloud, **extra)
