@@ -1,30 +1,36 @@
 """The server's state machine: sessions, frames, calibration and the fusion step.
 
-Socket-free so it can be driven directly in tests: :mod:`server.ingest` feeds it raw messages
-and sends back what it returns; the fusion loop calls :meth:`FusionHub.fuse_step`.
+Socket-free so it can be driven directly in tests: ``skelfuse.server.ingest`` feeds it raw
+messages and sends back what it returns; the fusion loop calls :meth:`FusionHub.fuse_step`.
+Every method whose logic depends on time takes the time as an argument (``now_s``: wall clock,
+Unix seconds; ``now_mono``: monotonic seconds), so tests drive it with a clock of their own.
+
+State changes from outside go through methods: :meth:`FusionHub.use_calibration` (a committed,
+rolled back or imported calibration), :meth:`FusionHub.start_tap` / :meth:`FusionHub.stop_tap`
+(a recording), :meth:`FusionHub.attach_requests` (the server's requests to agents, whose
+responses the hub routes back).
 """
 
 from __future__ import annotations
 
 import asyncio
-import itertools
 import logging
 import math
 import time
 from collections import Counter
-from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Protocol
 
 from skelfuse import __version__
 from skelfuse.calibration.store import Calibration
-from skelfuse.fusion.sensors import SensorState, bodies_at, new_sensor
+from skelfuse.fusion.pipeline import FusionPipeline
+from skelfuse.fusion.sensors import SensorState, new_sensor
 from skelfuse.fusion.settings import HubSettings
 from skelfuse.fusion.stats import RollingStats
-from skelfuse.fusion.tracking import FusedPerson, PersonTracker, View
+from skelfuse.fusion.views import FusedPerson, View
 from skelfuse.protocol.constants import MAX_MESSAGE_BYTES, MAX_RESPONSE_BYTES
 from skelfuse.protocol.errors import DecodeError
-from skelfuse.protocol.transform import Matrix4, apply
+from skelfuse.protocol.transform import Matrix4
 from skelfuse.protocol.wire import (
     Bye,
     ErrorMessage,
@@ -32,21 +38,12 @@ from skelfuse.protocol.wire import (
     Heartbeat,
     Hello,
     Message,
-    Request,
     Response,
     Welcome,
     decode,
 )
 
 logger = logging.getLogger(__name__)
-
-
-class SensorUnavailable(Exception):
-    """The sensor is unknown or offline; the message says which."""
-
-
-class AgentRequestFailed(Exception):
-    """An agent answered a request with an error, or did not answer in time."""
 
 
 class MessageTap(Protocol):
@@ -57,7 +54,19 @@ class MessageTap(Protocol):
     def on_frame(self, sensor_id: str, payload: bytes, t_s: float) -> None: ...
 
 
-SendFunction = Callable[[bytes, Message], Awaitable[None]]
+class PendingRequests(Protocol):
+    """The server's requests to agents that wait for an answer
+    (``skelfuse.server.agent_requests.AgentRequests``)."""
+
+    def awaiting(self, sensor_id: str) -> bool:
+        """True while a request to this sensor waits for its answer."""
+        ...
+
+    def resolve(self, sensor_id: str, response: Response) -> bool:
+        """Hand over a response; False when no request of its id waits for this sensor."""
+        ...
+
+
 OFFLINE_AFTER_INTERVALS = 2.8
 
 
@@ -80,26 +89,47 @@ class FusedFrame:
 class FusionHub:
     def __init__(self, settings: HubSettings, calibration: Calibration | None = None) -> None:
         self.settings = settings
-        self.calibration = calibration
+        self._calibration = calibration
         self.sensors: dict[str, SensorState] = {}
         self._by_routing: dict[bytes, str] = {}
         self.rejected_unregistered: Counter[str] = Counter()
-        self.tracker = PersonTracker(settings.fusion)
+        self.pipeline = FusionPipeline(settings.fusion)
         self.latest: FusedFrame | None = None
         self.frame_arrived = asyncio.Event()
         self._seq = 0
         self._last_fused_t: float = 0.0
         self.started_s = time.time()
-        self.send: SendFunction | None = None
-        """Set by the ingest side: sends one message to the agent with this routing id."""
-        self._pending: dict[int, tuple[str, asyncio.Future[Response]]] = {}
-        self.recorder: MessageTap | None = None
-        """While a recording runs: every accepted hello and frame, as received."""
+        self._requests: PendingRequests | None = None
+        self._tap: MessageTap | None = None
         self.fusion_timing = RollingStats()
         """Seconds of compute per fusion step."""
         self.fusion_lag = RollingStats()
         """Server time when fusing minus the fused instant (the deliberate alignment wait)."""
-        self._request_ids = itertools.count(1)
+
+    # --- state set from outside --------------------------------------------------------------
+
+    @property
+    def calibration(self) -> Calibration | None:
+        """The active stored calibration (None: none committed yet)."""
+        return self._calibration
+
+    def use_calibration(self, calibration: Calibration) -> None:
+        """Fuse with ``calibration`` from the next step on (a commit, rollback or import)."""
+        self._calibration = calibration
+
+    def start_tap(self, tap: MessageTap) -> None:
+        """Hand every accepted hello and frame to ``tap`` from now on (a recording starts);
+        it replaces any tap already set."""
+        self._tap = tap
+
+    def stop_tap(self) -> None:
+        """Stop handing messages to the tap (the recording stops)."""
+        self._tap = None
+
+    def attach_requests(self, requests: PendingRequests) -> None:
+        """Route agents' ``response`` messages to ``requests`` (the server's request machinery);
+        without it every response is rejected as unexpected."""
+        self._requests = requests
 
     # --- sessions and messages ----------------------------------------------------------------
 
@@ -120,9 +150,7 @@ class FusionHub:
         if len(parts) != 1:
             self._reject(sensor, "malformed")
             return []
-        waiting = sensor is not None and any(
-            sensor_id == sensor.sensor_id for sensor_id, _ in self._pending.values()
-        )
+        waiting = sensor is not None and self._awaiting(sensor.sensor_id)
         try:
             message = decode(parts[0], MAX_RESPONSE_BYTES if waiting else MAX_MESSAGE_BYTES)
         except DecodeError as exc:
@@ -139,9 +167,11 @@ class FusionHub:
                         f"{message.sensor_id!r}: run it with --id {user_id}",
                     )
                 ]
-            reply = self._register(message, routing_id, now_mono, authenticated=user_id is not None)
-            if isinstance(reply, Welcome) and self.recorder is not None:
-                self.recorder.on_hello(message.sensor_id, parts[0], now_s)
+            reply = self._register(
+                message, routing_id, now_s, now_mono, authenticated=user_id is not None
+            )
+            if isinstance(reply, Welcome) and self._tap is not None:
+                self._tap.on_hello(message.sensor_id, parts[0], now_s)
             return [reply]
         if sensor is None:
             self.rejected_unregistered["not_registered"] += 1
@@ -158,8 +188,8 @@ class FusionHub:
                     self._reject(sensor, problem)
                     return []
                 sensor.add_frame(message, now_s, now_mono)
-                if self.recorder is not None:
-                    self.recorder.on_frame(sensor.sensor_id, parts[0], now_s)
+                if self._tap is not None:
+                    self._tap.on_frame(sensor.sensor_id, parts[0], now_s)
                 self.frame_arrived.set()
             case Heartbeat(echo_ns=echo) if echo is not None:
                 sensor.round_trip.add(echo / 1e9, message.t_ns / 1e9, now_s)
@@ -169,14 +199,14 @@ class FusionHub:
                 sensor.connected = False
                 self._by_routing.pop(routing_id, None)
             case Response():
-                pending = self._pending.get(message.request_id)
-                if pending is None or pending[0] != sensor.sensor_id:
+                if self._requests is None or not self._requests.resolve(sensor.sensor_id, message):
                     self._reject(sensor, "unexpected_response")
-                elif not pending[1].done():
-                    pending[1].set_result(message)
             case _:
                 self._reject(sensor, "unexpected_type")
         return []
+
+    def _awaiting(self, sensor_id: str) -> bool:
+        return self._requests is not None and self._requests.awaiting(sensor_id)
 
     def _sensor_for(self, routing_id: bytes) -> SensorState | None:
         sensor_id = self._by_routing.get(routing_id)
@@ -189,7 +219,12 @@ class FusionHub:
             sensor.frames_rejected[reason] += 1
 
     def _register(
-        self, hello: Hello, routing_id: bytes, now_mono: float, authenticated: bool = False
+        self,
+        hello: Hello,
+        routing_id: bytes,
+        now_s: float,
+        now_mono: float,
+        authenticated: bool = False,
     ) -> Message:
         existing = self.sensors.get(hello.sensor_id)
         liveness_s = self.settings.heartbeat_interval_s * 3
@@ -224,7 +259,7 @@ class FusionHub:
             hello.sensor_type,
             hello.agent_version,
         )
-        return Welcome(__version__, self.settings.heartbeat_interval_s, time.time_ns())
+        return Welcome(__version__, self.settings.heartbeat_interval_s, round(now_s * 1e9))
 
     def check_liveness(self, now_mono: float) -> list[SensorState]:
         """Mark silent sensors offline; returns the sensors still online.
@@ -235,11 +270,10 @@ class FusionHub:
         """
         liveness_s = self.settings.heartbeat_interval_s * OFFLINE_AFTER_INTERVALS
         online = []
-        waited_on = {sensor_id for sensor_id, _ in self._pending.values()}
         for sensor in self.sensors.values():
             # An agent busy answering our request (a depth capture) gets until the request's
             # own timeout before it counts as gone.
-            limit = liveness_s if sensor.sensor_id not in waited_on else 10 * liveness_s
+            limit = 10 * liveness_s if self._awaiting(sensor.sensor_id) else liveness_s
             if sensor.connected and now_mono - sensor.last_heard_mono > limit:
                 logger.warning("sensor %s went silent; marked offline", sensor.sensor_id)
                 sensor.connected = False
@@ -248,49 +282,19 @@ class FusionHub:
                 online.append(sensor)
         return online
 
-    # --- requests to agents ----------------------------------------------------------------
-
-    async def request(
-        self, sensor_id: str, method: str, params: dict[str, Any], timeout_s: float
-    ) -> Any:
-        """Ask one agent to do something (e.g. capture a depth point cloud) and await its result.
-
-        Raises:
-            SensorUnavailable: the sensor is unknown or offline.
-            AgentRequestFailed: the agent refused, failed, or did not answer within
-                ``timeout_s``.
-        """
-        sensor = self.sensors.get(sensor_id)
-        if sensor is None or not sensor.connected:
-            raise SensorUnavailable(f"sensor {sensor_id!r} is not connected")
-        if self.send is None:
-            raise SensorUnavailable("the server's agent socket is not running")
-        request_id = next(self._request_ids)
-        future: asyncio.Future[Response] = asyncio.get_running_loop().create_future()
-        self._pending[request_id] = (sensor_id, future)
-        try:
-            await self.send(sensor.routing_id, Request(request_id, method, params))
-            response = await asyncio.wait_for(future, timeout=timeout_s)
-        except TimeoutError as exc:
-            raise AgentRequestFailed(
-                f"sensor {sensor_id!r} did not answer {method!r} within {timeout_s:.0f} s"
-            ) from exc
-        finally:
-            self._pending.pop(request_id, None)
-        if not response.ok:
-            raise AgentRequestFailed(f"sensor {sensor_id!r} refused {method!r}: {response.error}")
-        return response.result
-
     # --- calibration ----------------------------------------------------------------------
 
     def pose_of(self, sensor_id: str) -> tuple[Matrix4 | None, str]:
         """``T_world_from_sensor`` and where it comes from: stored, sim_truth, manual, or none."""
-        if self.calibration is not None and sensor_id in self.calibration.sensors:
-            return self.calibration.sensors[sensor_id].T_world_from_sensor, "stored"
+        if self._calibration is not None and sensor_id in self._calibration.sensors:
+            return self._calibration.sensors[sensor_id].T_world_from_sensor, "stored"
         sensor = self.sensors.get(sensor_id)
         if sensor is not None and sensor.pose_hint is not None:
             return sensor.pose_hint, sensor.pose_hint_source or "manual"
         return None, "uncalibrated"
+
+    def _stored_pose(self, sensor_id: str) -> Matrix4 | None:
+        return self.pose_of(sensor_id)[0]
 
     # --- fusion ---------------------------------------------------------------------------
 
@@ -323,21 +327,9 @@ class FusionHub:
         t_target = next_t
         self._last_fused_t = t_target
         started = time.perf_counter()
-        views: list[View] = []
-        for sensor in self.sensors.values():
-            if not sensor.connected:
-                continue
-            pose, _ = self.pose_of(sensor.sensor_id)
-            if pose is None:
-                continue
-            max_age = 1.5 / max(sensor.nominal_fps, 1.0)
-            bodies = bodies_at(sensor.frames, t_target, s.interpolation_gap_s, max_age)
-            for body in bodies or ():
-                joints_world = apply(pose, body.joints_m)
-                views.append(
-                    View(sensor.sensor_id, body.tracking_id, joints_world, body.states, pose[:3, 3])
-                )
-        persons = self.tracker.update(views, t_target)
+        persons, views = self.pipeline.step(
+            self.sensors.values(), self._stored_pose, t_target, s.interpolation_gap_s
+        )
         self._seq += 1
         fused = FusedFrame(self._seq, t_target, now_s, tuple(persons), tuple(views))
         self.latest = fused

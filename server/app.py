@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
-import math
 import time
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -14,10 +12,9 @@ from typing import Any, Literal
 
 import zmq
 import zmq.asyncio
-from fastapi import FastAPI, Query, Request, WebSocket, WebSocketDisconnect
-from fastapi.encoders import jsonable_encoder
+from fastapi import FastAPI, Query, WebSocket
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import FileResponse, JSONResponse
+from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 from prometheus_client import CollectorRegistry, make_asgi_app
 
@@ -27,9 +24,11 @@ from skelfuse.fusion.hub import FusionHub
 from skelfuse.protocol.feed import person_json
 from skelfuse.protocol.skeleton import skeleton_definition
 from skelfuse.server import routes_calibration, routes_fusion, routes_recordings
+from skelfuse.server.agent_requests import AgentRequests
 from skelfuse.server.auth import SensorAuthenticator
-from skelfuse.server.broadcast import Broadcaster, Variant, encode_message, pump
+from skelfuse.server.broadcast import Broadcaster, Variant, encode_message
 from skelfuse.server.calibration_runs import CalibrationService
+from skelfuse.server.errors import HANDLED_ERRORS, error_response, invalid_body_response
 from skelfuse.server.ingest import fusion_loop, ingest_loop, liveness_loop, open_router, send_to
 from skelfuse.server.metrics import SkelfuseCollector
 from skelfuse.server.security import HttpGuard, origin_ok, token_ok
@@ -55,7 +54,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 ", ".join(sorted(calibration.sensors)) or "no sensors",
             )
         hub = FusionHub(settings, calibration)
-        broadcaster = Broadcaster(settings.ws_queue_size)
+        broadcaster = Broadcaster(settings.ws_queue_size, settings.ws_send_timeout_s)
         context = zmq.asyncio.Context()
         authenticator = None
         if settings.curve:
@@ -64,9 +63,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         socket = open_router(
             context, settings.zmq_endpoint, settings.data_dir if settings.curve else None
         )
-        hub.send = lambda routing_id, message: send_to(socket, routing_id, message)
+        agents = AgentRequests(
+            hub, lambda routing_id, message: send_to(socket, routing_id, message)
+        )
+        hub.attach_requests(agents)
         app.state.hub = hub
-        app.state.calibration = CalibrationService(hub, store)
+        app.state.calibration = CalibrationService(hub, store, agents)
         registry.register(SkelfuseCollector(hub, broadcaster))
         app.state.broadcaster = broadcaster
         app.state.zmq_endpoint = socket.getsockopt_string(zmq.LAST_ENDPOINT)
@@ -83,7 +85,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         finally:
             active = app.state.recording
             if active is not None:  # close the file properly, with its end record
-                hub.recorder = None
+                hub.stop_tap()
                 active[1].close()
             for task in tasks:
                 task.cancel()
@@ -103,11 +105,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings
     app.state.recording = None
 
-    @app.exception_handler(RequestValidationError)
-    async def invalid_request(request: Request, exc: RequestValidationError) -> JSONResponse:
-        # FastAPI echoes the offending input; a NaN in it would make the 422 itself fail.
-        detail = _finite_json(jsonable_encoder(exc.errors()))
-        return JSONResponse(status_code=422, content={"detail": detail})
+    # Routes raise; these two turn errors into responses (server/errors.py).
+    for error in HANDLED_ERRORS:
+        app.exception_handler(error)(error_response)
+    app.exception_handler(RequestValidationError)(invalid_body_response)
 
     def hub_of(request_app: Any) -> FusionHub:
         hub: FusionHub = request_app.state.hub
@@ -174,42 +175,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         await websocket.accept()
         broadcaster: Broadcaster = app.state.broadcaster
         binary = format == "msgpack"
-        client = broadcaster.add(
-            Variant(binary, raw), str(websocket.client), time.time(), settings.ws_send_timeout_s
-        )
-
-        async def send(payload: bytes | str) -> None:
-            if isinstance(payload, bytes):
-                await websocket.send_bytes(payload)
-            else:
-                await websocket.send_text(payload)
-
-        sender = asyncio.create_task(pump(client, send, settings.ws_send_timeout_s))
-        receiver = asyncio.create_task(_drain(websocket))
-        stalled = asyncio.create_task(client.stalled.wait())
-        try:
-            await asyncio.wait_for(
-                send(encode_message(skeleton_definition(), binary)), settings.ws_send_timeout_s
-            )
-            done, _ = await asyncio.wait(
-                {sender, receiver, stalled}, return_when=asyncio.FIRST_COMPLETED
-            )
-            if stalled in done or (sender in done and isinstance(sender.exception(), TimeoutError)):
-                broadcaster.remove(client)
-                broadcaster.evicted += 1
-                logger.warning("WebSocket client %s stalled; disconnected", client.remote)
-                # The close frame may never leave a full socket buffer: do not wait for it.
-                with contextlib.suppress(Exception):
-                    await asyncio.wait_for(
-                        websocket.close(code=1008, reason="client too slow"), timeout=1.0
-                    )
-        except (WebSocketDisconnect, RuntimeError, TimeoutError):
-            pass
-        finally:
-            for task in (sender, receiver, stalled):
-                task.cancel()
-            await asyncio.gather(sender, receiver, stalled, return_exceptions=True)
-            broadcaster.remove(client)
+        client = broadcaster.add(Variant(binary, raw), str(websocket.client), time.time())
+        greeting = encode_message(skeleton_definition(), binary)
+        await broadcaster.serve(client, _WebSocketFeed(websocket), greeting)
 
     app.include_router(routes_calibration.router)
     app.include_router(routes_recordings.router)
@@ -225,20 +193,23 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     return app
 
 
-def _finite_json(value: Any) -> Any:
-    """Replace NaN and infinities (which JSON cannot carry) by their names as strings."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return str(value)
-    if isinstance(value, dict):
-        return {k: _finite_json(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_finite_json(v) for v in value]
-    return value
+class _WebSocketFeed:
+    """Starlette's WebSocket as the broadcaster's :class:`FeedSocket`."""
 
+    def __init__(self, websocket: WebSocket) -> None:
+        self._websocket = websocket
 
-async def _drain(websocket: WebSocket) -> None:
-    """Read (and ignore) what the client sends, so a disconnect is noticed."""
-    while True:
-        message = await websocket.receive()
-        if message["type"] == "websocket.disconnect":
-            return
+    async def send(self, payload: bytes | str) -> None:
+        if isinstance(payload, bytes):
+            await self._websocket.send_bytes(payload)
+        else:
+            await self._websocket.send_text(payload)
+
+    async def closed(self) -> None:
+        while True:  # what the client sends is ignored; reading it notices the disconnect
+            message = await self._websocket.receive()
+            if message["type"] == "websocket.disconnect":
+                return
+
+    async def close(self, code: int, reason: str) -> None:
+        await self._websocket.close(code=code, reason=reason)

@@ -100,4 +100,4 @@ async def fusion_loop(hub: FusionHub, broadcaster: Broadcaster) -> None:
             logger.exception("fusion step failed; skipped")
             continue
         if fused is not None:
-            broadcaster.publish(fused)
+            broadcaster.publish(fused, time.time(), time.monotonic())

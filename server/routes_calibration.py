@@ -1,7 +1,8 @@
 """REST for calibration: runs, commit, the active version, history, rollback, export/import.
 
-Bad input is refused with a 4xx whose ``detail`` says what to do; nothing is half-applied:
-a run's result only reaches fusion through an explicit commit, which writes a new version.
+Bad input is refused with a 4xx whose ``detail`` says what to do (the routes raise the server's
+errors, ``server/errors.py`` answers them); nothing is half-applied: a run's result only reaches
+fusion through an explicit commit, which writes a new version.
 """
 
 from __future__ import annotations
@@ -9,18 +10,14 @@ from __future__ import annotations
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from fastapi import APIRouter, Body, HTTPException, Request
+from fastapi import APIRouter, Body, Request
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict, Field
 
-from skelfuse.calibration.errors import CalibrationError
-from skelfuse.calibration.store import Calibration, UnknownVersion
-from skelfuse.server.calibration_runs import (
-    CalibrationRequestError,
-    CalibrationService,
-    PointPairs,
-    RunSpec,
-)
+from skelfuse.calibration.solvers import PointPairs
+from skelfuse.calibration.store import Calibration
+from skelfuse.server.calibration_runs import CalibrationService, RunSpec
+from skelfuse.server.errors import Conflict, NotFound
 
 router = APIRouter(prefix="/api/calibration", tags=["calibration"])
 
@@ -70,10 +67,6 @@ def _service(request: Request) -> CalibrationService:
     return service
 
 
-def _http(exc: CalibrationRequestError) -> HTTPException:
-    return HTTPException(status_code=exc.status, detail=str(exc))
-
-
 def calibration_json(calibration: Calibration | None) -> dict[str, Any]:
     if calibration is None:
         return {"version": None, "created_unix_s": None, "note": "", "sensors": {}}
@@ -92,7 +85,7 @@ async def start_run(body: RunRequest, request: Request) -> dict[str, Any]:
     else:
         sensors = tuple(sorted(s for s, state in hub.sensors.items() if state.connected))
     if not sensors:
-        raise HTTPException(409, "no sensors to calibrate: connect at least one agent")
+        raise Conflict("no sensors to calibrate: connect at least one agent")
     reference = body.reference or sensors[0]
     points = tuple(
         PointPairs(
@@ -103,11 +96,7 @@ async def start_run(body: RunRequest, request: Request) -> dict[str, Any]:
         for entry in body.points or ()
     )
     spec = RunSpec(body.method, reference, sensors, body.duration_s, points, body.min_overlap)
-    try:
-        run = service.start(spec)
-    except CalibrationRequestError as exc:
-        raise _http(exc) from exc
-    return run.to_json()
+    return service.start(spec).to_json()
 
 
 @router.get("/runs")
@@ -118,20 +107,13 @@ async def list_runs(request: Request) -> dict[str, Any]:
 
 @router.get("/runs/{run_id}")
 async def get_run(run_id: str, request: Request) -> dict[str, Any]:
-    run = _service(request).runs.get(run_id)
-    if run is None:
-        raise HTTPException(404, f"no calibration run {run_id!r}")
-    return run.to_json()
+    return _service(request).run(run_id).to_json()
 
 
 @router.post("/runs/{run_id}/commit")
 async def commit_run(run_id: str, request: Request) -> dict[str, Any]:
     """Make the run's result the active calibration (a new version); fusion uses it at once."""
-    try:
-        calibration = _service(request).commit(run_id)
-    except CalibrationRequestError as exc:
-        raise _http(exc) from exc
-    return calibration_json(calibration)
+    return calibration_json(_service(request).commit(run_id))
 
 
 @router.get("")
@@ -172,18 +154,14 @@ async def history(request: Request) -> dict[str, Any]:
 @router.post("/rollback")
 async def rollback(body: RollbackRequest, request: Request) -> dict[str, Any]:
     """Make an earlier version active again (saved as a new version)."""
-    try:
-        calibration = _service(request).rollback(body.version)
-    except UnknownVersion as exc:
-        raise HTTPException(404, str(exc)) from exc
-    return calibration_json(calibration)
+    return calibration_json(_service(request).rollback(body.version))
 
 
 @router.get("/export")
 async def export(request: Request) -> JSONResponse:
     calibration = _service(request).hub.calibration
     if calibration is None:
-        raise HTTPException(404, "nothing to export: no calibration has been committed yet")
+        raise NotFound("nothing to export: no calibration has been committed yet")
     return JSONResponse(
         calibration.to_json(),
         headers={
@@ -197,8 +175,4 @@ async def import_calibration(
     request: Request, body: Annotated[dict[str, Any], Body(description="an exported file")]
 ) -> dict[str, Any]:
     """Validate an exported calibration and make it active (a new version)."""
-    try:
-        calibration = _service(request).import_json(body)
-    except CalibrationError as exc:
-        raise HTTPException(400, str(exc)) from exc
-    return calibration_json(calibration)
+    return calibration_json(_service(request).import_json(body))

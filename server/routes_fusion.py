@@ -15,7 +15,7 @@ both and let an application set, or clear, a person's lengths:
 - ``GET /api/fusion/settings``: the fusion settings in use (defaults, or the deployment's
   ``--fusion-config`` file; read-only: they are chosen when the server starts).
 
-Include with ``app.include_router(router)``; the routes read ``request.app.state.hub.tracker``.
+Include with ``app.include_router(router)``; the routes read ``request.app.state.hub.pipeline``.
 """
 
 from __future__ import annotations
@@ -24,12 +24,13 @@ import math
 
 import numpy as np
 import numpy.typing as npt
-from fastapi import APIRouter, HTTPException, Request
+from fastapi import APIRouter, Request
 from pydantic import BaseModel
 
-from skelfuse.fusion.confidence import BONE_NAMES
+from skelfuse.fusion.bones import BONE_NAMES
 from skelfuse.fusion.config import fusion_settings_as_dict
-from skelfuse.fusion.tracking import PersonTracker
+from skelfuse.fusion.pipeline import FusionPipeline
+from skelfuse.server.errors import InvalidRequest, NotFound
 
 router = APIRouter(tags=["fusion"])
 
@@ -43,8 +44,8 @@ class BoneLengths(BaseModel):
     lengths: dict[str, float]
 
 
-def _tracker(request: Request) -> PersonTracker:
-    tracker: PersonTracker = request.app.state.hub.tracker
+def _tracker(request: Request) -> FusionPipeline:
+    tracker: FusionPipeline = request.app.state.hub.pipeline
     return tracker
 
 
@@ -56,6 +57,11 @@ def _by_name(values: npt.NDArray[np.float64]) -> dict[str, float | None]:
 
 
 def _validated(body: BoneLengths) -> npt.NDArray[np.float64]:
+    """The lengths in :data:`BONE_NAMES` order (24,), metres.
+
+    Raises:
+        InvalidRequest: unknown or missing bones, or lengths outside 0.02–1.0 m (all listed).
+    """
     unknown = sorted(set(body.lengths) - set(BONE_NAMES))
     missing = [name for name in BONE_NAMES if name not in body.lengths]
     bad = sorted(
@@ -71,9 +77,8 @@ def _validated(body: BoneLengths) -> npt.NDArray[np.float64]:
     if bad:
         problems.append(f"lengths must be finite and within {MIN_BONE_M}–{MAX_BONE_M} m: {bad}")
     if problems:
-        raise HTTPException(
-            status_code=400,
-            detail="; ".join(problems) + f". Expected all of {list(BONE_NAMES)} in metres.",
+        raise InvalidRequest(
+            "; ".join(problems) + f". Expected all of {list(BONE_NAMES)} in metres."
         )
     return np.array([body.lengths[name] for name in BONE_NAMES], dtype=np.float64)
 
@@ -81,7 +86,7 @@ def _validated(body: BoneLengths) -> npt.NDArray[np.float64]:
 def _person(request: Request, person_id: int) -> dict[str, object]:
     model = _tracker(request).bone_model(person_id)
     if model is None:
-        raise HTTPException(status_code=404, detail=f"no person with id {person_id}")
+        raise NotFound(f"no person with id {person_id}")
     return {
         "id": person_id,
         "source": model.source,
@@ -102,7 +107,7 @@ async def put_bones(request: Request, person_id: int, body: BoneLengths) -> dict
     """Set a person's reference bone lengths (all 24, metres)."""
     lengths = _validated(body)
     if not _tracker(request).set_bone_lengths(person_id, lengths):
-        raise HTTPException(status_code=404, detail=f"no person with id {person_id}")
+        raise NotFound(f"no person with id {person_id}")
     return _person(request, person_id)
 
 
@@ -110,7 +115,7 @@ async def put_bones(request: Request, person_id: int, body: BoneLengths) -> dict
 async def delete_bones(request: Request, person_id: int) -> dict[str, object]:
     """Forget the set lengths: fusion goes back to the online estimate."""
     if not _tracker(request).set_bone_lengths(person_id, None):
-        raise HTTPException(status_code=404, detail=f"no person with id {person_id}")
+        raise NotFound(f"no person with id {person_id}")
     return _person(request, person_id)
 
 

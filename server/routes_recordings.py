@@ -1,9 +1,9 @@
 """REST for recordings: start, stop, list, download (``docs/recording.md``).
 
 One recording at a time. While it runs, the hub hands every accepted ``hello`` and ``frame`` to
-``hub.recorder`` with the raw wire bytes; the file's header holds the calibration active at the
-start and the sensors then known, and each sensor already online gets a ``hello`` record rebuilt
-from its session, so the file replays on its own.
+the recorder (``FusionHub.start_tap``) with the raw wire bytes; the file's header holds the
+calibration active at the start and the sensors then known, and each sensor already online gets
+a ``hello`` record rebuilt from its session, so the file replays on its own.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from fastapi import APIRouter, HTTPException, Request
+from fastapi import APIRouter, Request
 from fastapi.responses import FileResponse
 from pydantic import BaseModel, Field
 
@@ -31,6 +31,7 @@ from skelfuse.protocol.recording_file import (
 )
 from skelfuse.protocol.wire import Hello, encode
 from skelfuse.recording.recorder import Recorder
+from skelfuse.server.errors import Conflict, NotFound
 
 router = APIRouter(prefix="/api/recordings", tags=["recordings"])
 _ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$")
@@ -117,7 +118,7 @@ def _active(request: Request) -> tuple[str, Recorder] | None:
 async def start_recording(request: Request, body: StartBody | None = None) -> dict[str, Any]:
     """Start recording every agent's stream; 409 if a recording is already running."""
     if _active(request) is not None:
-        raise HTTPException(409, "a recording is already running; stop it first")
+        raise Conflict("a recording is already running; stop it first")
     hub = _hub(request)
     name = (body.name if body else None) or ""
     stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
@@ -130,10 +131,7 @@ async def start_recording(request: Request, body: StartBody | None = None) -> di
         suffix += 1
         path = folder / f"{recording_id}-{suffix}{FILE_SUFFIX}"
     recording_id = path.stem
-    try:
-        recorder = Recorder(path, _header_from_hub(hub, name))
-    except RecordingError as exc:
-        raise HTTPException(500, str(exc)) from exc
+    recorder = Recorder(path, _header_from_hub(hub, name))
     now = time.time()
     for sensor_id, sensor in sorted(hub.sensors.items()):
         if sensor.connected:
@@ -141,7 +139,7 @@ async def start_recording(request: Request, body: StartBody | None = None) -> di
                           sensor.nominal_fps, 0, pose_hint=sensor.pose_hint,
                           pose_hint_source=sensor.pose_hint_source)  # fmt: skip
             recorder.on_hello(sensor_id, encode(hello), now)
-    setattr(hub, "recorder", recorder)  # noqa: B010 (the lead adds FusionHub.recorder)
+    hub.start_tap(recorder)
     request.app.state.recording = (recording_id, recorder)
     return _entry(recording_id, path, recorder)
 
@@ -151,9 +149,8 @@ async def stop_recording(request: Request, recording_id: str) -> dict[str, Any]:
     """Stop the running recording (404 if that id is not the one running)."""
     active = _active(request)
     if active is None or active[0] != recording_id:
-        raise HTTPException(404, f"recording {recording_id!r} is not running")
-    hub = _hub(request)
-    setattr(hub, "recorder", None)  # noqa: B010
+        raise NotFound(f"recording {recording_id!r} is not running")
+    _hub(request).stop_tap()
     request.app.state.recording = None
     _, recorder = active
     stats = await asyncio.to_thread(recorder.close)
@@ -190,10 +187,10 @@ async def list_recordings(request: Request) -> dict[str, Any]:
 @router.get("/{recording_id}/download")
 async def download_recording(request: Request, recording_id: str) -> FileResponse:
     if not _ID.match(recording_id):
-        raise HTTPException(404, "no such recording")
+        raise NotFound("no such recording")
     path = _folder(request) / f"{recording_id}{FILE_SUFFIX}"
     if not path.is_file():
-        raise HTTPException(404, f"no recording {recording_id!r}")
+        raise NotFound(f"no recording {recording_id!r}")
     return FileResponse(
         path, media_type="application/octet-stream", filename=f"{recording_id}{FILE_SUFFIX}"
     )

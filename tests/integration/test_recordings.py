@@ -1,7 +1,7 @@
 """Recording over REST with real agents, then offline replay and a live replay agent.
 
-Needs the lead's wiring: ``server.app`` includes ``server.routes_recordings.router`` and
-``FusionHub.handle_message`` hands accepted hellos and frames to ``hub.recorder``.
+While a recording runs, ``FusionHub.handle_message`` hands accepted hellos and frames to the
+recorder (``FusionHub.start_tap``).
 """
 
 from __future__ import annotations

@@ -1,0 +1,114 @@
+"""The server's errors and the one place that turns them into HTTP responses.
+
+::
+
+    ServerError                 base of the errors the server raises itself (500)
+    ├── InvalidRequest          well-formed but unusable: unknown sensors, bad points (400)
+    ├── NotFound                no such run, person, recording (404)
+    ├── Conflict                not now: another run is active, a sensor is offline (409)
+    │   └── SensorUnavailable   the sensor is unknown or offline
+    └── AgentRequestFailed      an agent refused a request, failed, or did not answer (502)
+
+Errors of the layers below keep their own classes and are mapped here too (most specific class
+wins): ``CalibrationError`` is 400, its ``UnknownVersion`` 404; ``RecordingError`` is 500 (the
+data folder failed us, not the request). Routes raise; :func:`error_response`, registered once in
+:func:`skelfuse.server.app.create_app`, answers ``{"detail": <the error's message>}``, the
+message written for the user. Malformed bodies stay FastAPI's 422 (:func:`invalid_body_response`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, ClassVar, Final
+
+from fastapi import Request
+from fastapi.encoders import jsonable_encoder
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+
+from skelfuse.calibration.errors import CalibrationError
+from skelfuse.calibration.store import UnknownVersion
+from skelfuse.protocol.recording_file import RecordingError
+
+
+class ServerError(Exception):
+    """Base class of the server's own errors; ``status`` is the HTTP status it answers with."""
+
+    status: ClassVar[int] = 500
+
+
+class InvalidRequest(ServerError):
+    """The request is well-formed but cannot be used (unknown sensors, degenerate points...)."""
+
+    status = 400
+
+
+class NotFound(ServerError):
+    """The run, person, recording or version named in the request does not exist."""
+
+    status = 404
+
+
+class Conflict(ServerError):
+    """The request is valid but the server's state does not allow it now; retrying later may."""
+
+    status = 409
+
+
+class SensorUnavailable(Conflict):
+    """The sensor is unknown or offline; the message says which."""
+
+
+class AgentRequestFailed(ServerError):
+    """An agent answered a request with an error, or did not answer in time."""
+
+    status = 502
+
+
+STATUS_BY_ERROR: Final[dict[type[Exception], int]] = {
+    CalibrationError: 400,
+    UnknownVersion: 404,
+    RecordingError: 500,
+}
+"""Statuses of the lower layers' errors (the server's own carry theirs in ``status``)."""
+
+HANDLED_ERRORS: Final[tuple[type[Exception], ...]] = (ServerError, *STATUS_BY_ERROR)
+"""The exception classes :func:`error_response` is registered for."""
+
+
+def error_status(exc: Exception) -> int:
+    """The HTTP status of a domain error: the most specific mapped class in its MRO wins."""
+    if isinstance(exc, ServerError):
+        return exc.status
+    for cls in type(exc).__mro__:
+        if cls in STATUS_BY_ERROR:
+            return STATUS_BY_ERROR[cls]
+    return 500
+
+
+async def error_response(request: Request, exc: Exception) -> JSONResponse:
+    """The response to a domain error raised by a route: its status, ``{"detail": message}``."""
+    del request  # the same answer whatever the route
+    return JSONResponse(status_code=error_status(exc), content={"detail": str(exc)})
+
+
+async def invalid_body_response(request: Request, exc: RequestValidationError) -> JSONResponse:
+    """422 for a body or query FastAPI could not parse, listing every problem.
+
+    FastAPI echoes the offending input; a NaN in it would make the 422 itself fail to encode, so
+    non-finite numbers are sent as their names.
+    """
+    del request
+    detail = _finite_json(jsonable_encoder(exc.errors()))
+    return JSONResponse(status_code=422, content={"detail": detail})
+
+
+def _finite_json(value: Any) -> Any:
+    """Replace NaN and infinities (which JSON cannot carry) by their names as strings."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    if isinstance(value, dict):
+        return {k: _finite_json(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite_json(v) for v in value]
+    return value

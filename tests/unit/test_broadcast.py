@@ -1,0 +1,153 @@
+"""WebSocket fan-out (server/broadcast.py) with a fake socket and the time passed in: bounded
+per-client queues that drop the oldest frame, stalled clients disconnected, one encoding per
+(format, raw) variant. No test waits on the wall clock."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+
+import msgpack
+import numpy as np
+import pytest
+from starlette.websockets import WebSocketDisconnect
+
+from skelfuse.fusion.hub import FusedFrame
+from skelfuse.fusion.views import FusedPerson, View
+from skelfuse.protocol.skeleton import JOINT_COUNT
+from skelfuse.server.broadcast import Broadcaster, Client, Variant, encode_message, pump
+
+JSON, JSON_RAW, MSGPACK = Variant(False, False), Variant(False, True), Variant(True, False)
+
+
+def fused_frame(seq: int = 7) -> FusedFrame:
+    joints = np.zeros((JOINT_COUNT, 3)) + [0.0, 1.0, 2.0]
+    joints[3] = np.nan
+    view = View("cam", 2**63 + 5, joints, np.full(JOINT_COUNT, 2, np.uint8))
+    person = FusedPerson(1, joints, np.full(JOINT_COUNT, 0.8), ("cam",), (view,))
+    return FusedFrame(seq, 1000.25, 1000.3, (person,), (view,))
+
+
+class FakeSocket:
+    """Records what is sent; ``block_after`` sends complete, later ones never do."""
+
+    def __init__(self, block_after: int | None = None, refuse: bool = False) -> None:
+        self.sent: list[bytes | str] = []
+        self.closes: list[tuple[int, str]] = []
+        self.disconnected = asyncio.Event()
+        self.block_after = block_after
+        self.refuse = refuse
+        self.delivered = asyncio.Event()
+
+    async def send(self, payload: bytes | str) -> None:
+        if self.refuse:
+            raise WebSocketDisconnect(1001)
+        if self.block_after is not None and len(self.sent) >= self.block_after:
+            await asyncio.Event().wait()  # a client that reads nothing: the send never ends
+        self.sent.append(payload)
+        self.delivered.set()
+
+    async def closed(self) -> None:
+        await self.disconnected.wait()
+
+    async def close(self, code: int, reason: str) -> None:
+        self.closes.append((code, reason))
+
+
+def test_a_full_queue_drops_its_oldest_frame() -> None:
+    client = Broadcaster(queue_size=2).add(JSON, "a", 0.0)
+    for payload in ("f1", "f2", "f3", "f4"):
+        client.offer(payload, 0.0)
+    assert [client.queue.get_nowait() for _ in range(2)] == ["f3", "f4"]
+    assert client.dropped == 2 and not client.stalled.is_set()
+
+
+def test_a_queue_full_for_longer_than_the_limit_marks_the_client_stalled() -> None:
+    client = Broadcaster(queue_size=1, send_timeout_s=5.0).add(JSON, "a", 0.0)
+    client.offer("f0", 10.0)
+    client.offer("f1", 10.0)  # full from t = 10
+    client.offer("f2", 15.0)  # 5 s: at the limit, not past it
+    assert not client.stalled.is_set() and client.full_since == 10.0
+    client.offer("f3", 15.1)
+    assert client.stalled.is_set()
+
+
+async def test_a_completed_send_restarts_the_stall_clock() -> None:
+    client = Broadcaster(queue_size=1).add(JSON, "a", 0.0)
+    client.offer("f0", 1.0)
+    client.offer("f1", 1.0)
+    assert client.full_since == 1.0
+    socket = FakeSocket()
+    task = asyncio.create_task(pump(client, socket.send, 5.0))
+    await socket.delivered.wait()
+    task.cancel()
+    await asyncio.gather(task, return_exceptions=True)
+    assert socket.sent == ["f1"] and client.sent == 1 and client.full_since is None
+
+
+async def test_pump_gives_up_on_a_send_that_takes_too_long() -> None:
+    client = Broadcaster().add(JSON, "a", 0.0)
+    client.offer("f0", 0.0)
+    with pytest.raises(TimeoutError):
+        await pump(client, FakeSocket(block_after=0).send, 0.0)  # zero timeout: at once
+
+
+def test_publish_encodes_once_per_variant_with_the_given_send_time() -> None:
+    broadcaster = Broadcaster(queue_size=4)
+    clients = [broadcaster.add(v, str(i), 0.0) for i, v in enumerate([JSON, JSON, JSON_RAW])]
+    binary = broadcaster.add(MSGPACK, "m", 0.0)
+    broadcaster.publish(fused_frame(), 1000.5, 3.0)
+    first, second, raw = (c.queue.get_nowait() for c in clients)
+    assert first is second, "one encoding shared by the clients of a variant"
+    message = json.loads(first)  # type: ignore[arg-type]
+    assert message["t_sent"] == 1000.5 and message["seq"] == 7 and "raw" not in message
+    assert message["persons"][0]["joints"][3] is None
+    assert json.loads(raw)["raw"][0]["tracking_id"] == str(2**63 + 5)  # type: ignore[arg-type]
+    assert msgpack.unpackb(binary.queue.get_nowait()) == message
+    assert broadcaster.published == 1
+
+
+def test_encode_message_refuses_nan_in_json() -> None:
+    assert msgpack.unpackb(encode_message({"a": 1}, binary=True)) == {"a": 1}
+    with pytest.raises(ValueError, match="JSON compliant"):
+        encode_message({"a": float("nan")}, binary=False)
+
+
+async def test_serve_greets_then_streams_until_the_client_leaves() -> None:
+    broadcaster = Broadcaster(queue_size=2)
+    client = broadcaster.add(JSON, "a", 0.0)
+    socket = FakeSocket()
+    serving = asyncio.create_task(broadcaster.serve(client, socket, "hello"))
+    client.offer("f1", 0.0)
+    await socket.delivered.wait()
+    while len(socket.sent) < 2:
+        socket.delivered.clear()
+        await socket.delivered.wait()
+    socket.disconnected.set()
+    await serving
+    assert socket.sent == ["hello", "f1"]
+    assert broadcaster.clients == {} and broadcaster.evicted == 0 and socket.closes == []
+
+
+async def test_serve_disconnects_a_stalled_client_and_counts_it() -> None:
+    broadcaster = Broadcaster(queue_size=1, send_timeout_s=5.0)
+    client: Client = broadcaster.add(MSGPACK, "slow", 0.0)
+    socket = FakeSocket(block_after=1)  # takes the greeting, then reads nothing
+    serving = asyncio.create_task(broadcaster.serve(client, socket, b"hello"))
+    await socket.delivered.wait()
+    for step in range(10):  # 30 Hz for a third of a second, then 6 s later
+        broadcaster.publish(fused_frame(step), 1000.0 + step / 30, step / 30)
+        await asyncio.sleep(0)
+    assert not client.stalled.is_set()
+    broadcaster.publish(fused_frame(11), 1006.5, 6.5)
+    await serving
+    assert socket.closes == [(1008, "client too slow")]
+    assert broadcaster.evicted == 1 and broadcaster.clients == {}
+    assert client.dropped >= 9
+
+
+async def test_serve_forgets_a_client_that_is_gone_before_the_greeting() -> None:
+    broadcaster = Broadcaster()
+    client = broadcaster.add(JSON, "gone", 0.0)
+    await broadcaster.serve(client, FakeSocket(refuse=True), "hello")
+    assert broadcaster.clients == {} and broadcaster.evicted == 0
