@@ -44,9 +44,9 @@ class BoneLengths(BaseModel):
     lengths: dict[str, float]
 
 
-def _tracker(request: Request) -> FusionPipeline:
-    tracker: FusionPipeline = request.app.state.hub.pipeline
-    return tracker
+def _pipeline(request: Request) -> FusionPipeline:
+    pipeline: FusionPipeline = request.app.state.hub.pipeline
+    return pipeline
 
 
 def _by_name(values: npt.NDArray[np.float64]) -> dict[str, float | None]:
@@ -84,7 +84,7 @@ def _validated(body: BoneLengths) -> npt.NDArray[np.float64]:
 
 
 def _person(request: Request, person_id: int) -> dict[str, object]:
-    model = _tracker(request).bone_model(person_id)
+    model = _pipeline(request).bone_model(person_id)
     if model is None:
         raise NotFound(f"no person with id {person_id}")
     return {
@@ -106,7 +106,7 @@ async def get_bones(request: Request, person_id: int) -> dict[str, object]:
 async def put_bones(request: Request, person_id: int, body: BoneLengths) -> dict[str, object]:
     """Set a person's reference bone lengths (all 24, metres)."""
     lengths = _validated(body)
-    if not _tracker(request).set_bone_lengths(person_id, lengths):
+    if not _pipeline(request).set_bone_lengths(person_id, lengths):
         raise NotFound(f"no person with id {person_id}")
     return _person(request, person_id)
 
@@ -114,7 +114,7 @@ async def put_bones(request: Request, person_id: int, body: BoneLengths) -> dict
 @router.delete("/api/persons/{person_id}/bones")
 async def delete_bones(request: Request, person_id: int) -> dict[str, object]:
     """Forget the set lengths: fusion goes back to the online estimate."""
-    if not _tracker(request).set_bone_lengths(person_id, None):
+    if not _pipeline(request).set_bone_lengths(person_id, None):
         raise NotFound(f"no person with id {person_id}")
     return _person(request, person_id)
 
@@ -122,18 +122,19 @@ async def delete_bones(request: Request, person_id: int) -> dict[str, object]:
 @router.put("/api/bones/default")
 async def put_default_bones(request: Request, body: BoneLengths) -> dict[str, object]:
     """Lengths every new person starts with (as ``set``); existing persons are unchanged."""
-    _tracker(request).default_bone_lengths = _validated(body)
-    return {"default": _by_name(_validated(body))}
+    lengths = _validated(body)
+    _pipeline(request).default_bone_lengths = lengths
+    return {"default": _by_name(lengths)}
 
 
 @router.delete("/api/bones/default")
 async def delete_default_bones(request: Request) -> dict[str, object]:
     """New persons go back to online estimation."""
-    _tracker(request).default_bone_lengths = None
+    _pipeline(request).default_bone_lengths = None
     return {"default": None}
 
 
 @router.get("/api/fusion/settings")
 async def get_fusion_settings(request: Request) -> dict[str, object]:
     """The fusion settings in use (docs/fusion.md §9), by name."""
-    return {"fusion": fusion_settings_as_dict(_tracker(request).settings)}
+    return {"fusion": fusion_settings_as_dict(_pipeline(request).settings)}
