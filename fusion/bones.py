@@ -13,7 +13,7 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.anatomy import CHAIN_LEVELS
-from skelfuse.protocol.skeleton import BONE_MIRROR_PERMUTATION, BONES, JointId, TrackingState
+from skelfuse.protocol.skeleton import BONE_MIRROR_PERMUTATION, BONES, TrackingState
 
 FloatArray = npt.NDArray[np.float64]
 BONE_COUNT: Final = len(BONES)
@@ -23,12 +23,6 @@ _BONE_MIRROR: Final = np.array(BONE_MIRROR_PERMUTATION)
 BoneFit = Literal["projection", "chain"]
 GOOD_VIEW_COS: Final = 0.5
 """A view feeds the online bone-length estimate only if the person faces it within 60°."""
-
-
-BONE_NAMES: Final[tuple[str, ...]] = tuple(
-    f"{JointId(p).name.lower()}-{JointId(c).name.lower()}" for p, c in BONES
-)
-"""Bone names for the API: ``parent-child`` in snake case, e.g. ``hip_right-knee_right``."""
 
 
 def enforce_bone_lengths(joints: npt.ArrayLike, reference: npt.ArrayLike) -> FloatArray:

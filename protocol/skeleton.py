@@ -84,6 +84,12 @@ BONES: Final[tuple[tuple[int, int], ...]] = tuple(
 )
 """(parent, child) pairs, 24 bones."""
 
+BONE_NAMES: Final[tuple[str, ...]] = tuple(
+    f"{JointId(p).name.lower()}-{JointId(c).name.lower()}" for p, c in BONES
+)
+"""Bone names for the API, in :data:`BONES` order: ``parent-child`` in snake case, e.g.
+``hip_right-knee_right``."""
+
 CHILDREN: Final[tuple[tuple[int, ...], ...]] = tuple(
     tuple(c for c in range(JOINT_COUNT) if PARENTS[c] == j) for j in range(JOINT_COUNT)
 )

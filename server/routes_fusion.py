@@ -27,9 +27,9 @@ import numpy.typing as npt
 from fastapi import APIRouter, Request
 from pydantic import BaseModel
 
-from skelfuse.fusion.bones import BONE_NAMES
 from skelfuse.fusion.config import fusion_settings_as_dict
 from skelfuse.fusion.pipeline import FusionPipeline
+from skelfuse.protocol.skeleton import BONE_NAMES
 from skelfuse.server.errors import InvalidRequest, NotFound
 
 router = APIRouter(tags=["fusion"])

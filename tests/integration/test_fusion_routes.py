@@ -13,10 +13,9 @@ import numpy as np
 import pytest
 
 from skelfuse.agent.sim.performer import ProceduralPerformer
-from skelfuse.fusion.bones import BONE_NAMES
 from skelfuse.fusion.hub import FusionHub
 from skelfuse.fusion.views import View
-from skelfuse.protocol.skeleton import JOINT_COUNT, TrackingState
+from skelfuse.protocol.skeleton import BONE_NAMES, JOINT_COUNT, TrackingState
 from skelfuse.server.app import create_app
 from skelfuse.server.routes_fusion import router
 from skelfuse.server.settings import FusionSettings, Settings
