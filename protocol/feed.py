@@ -19,7 +19,7 @@ FEED_VERSION: Final = 1
 
 
 class FeedPerson(Protocol):
-    """What a fused person message is built from (``skelfuse.fusion.tracking.FusedPerson``).
+    """What a fused person message is built from (``skelfuse.fusion.views.FusedPerson``).
 
     joints: (25, 3) metres, world frame, NaN where unknown.
     confidence: (25,) in [0, 1].
@@ -42,7 +42,7 @@ class FeedPerson(Protocol):
 
 
 class FeedView(Protocol):
-    """One sensor's body in the world frame (``skelfuse.fusion.tracking.View``).
+    """One sensor's body in the world frame (``skelfuse.fusion.views.View``).
 
     joints_world: (25, 3) metres, world frame, NaN where not tracked.
     states: (25,) TrackingState values.
