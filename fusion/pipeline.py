@@ -36,6 +36,7 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.anatomy import corrected_yaw, facing_directions
+from skelfuse.fusion.batch import ViewBatch
 from skelfuse.fusion.bones import BoneModel, fit_bone_lengths, observe_bone_lengths
 from skelfuse.fusion.confidence import (
     body_weights,
@@ -50,13 +51,12 @@ from skelfuse.fusion.mirror_labellings import MAX_VIEWS
 from skelfuse.fusion.sensors import SensorState, bodies_at
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.views import FusedPerson, View
-from skelfuse.fusion.weighted import carriers, cauchy_reweight, weighted_mean
+from skelfuse.fusion.weighted import carriers, cauchy_reweight
 from skelfuse.protocol.transform import Matrix4, apply
 
 FloatArray = npt.NDArray[np.float64]
 PoseLookup = Callable[[str], Matrix4 | None]
 """A sensor's ``T_world_from_sensor`` (4×4, metres), or None while it is uncalibrated."""
-_NO_POSITION = np.full(3, np.nan)
 
 
 def views_at(
@@ -98,69 +98,6 @@ class PersonMemory:
     """How often the whole person was swapped for walking backwards (diagnostics, tests)."""
 
 
-@dataclass(slots=True)
-class ViewBatch:
-    """The views of P persons stacked: person ``person_of[i]``'s ``slot_of[i]``-th view.
-
-    joints: (N, 25, 3) float64 metres, world; states: (N, 25) uint8; sensors: (N, 3) metres.
-    Per-person sums use (P, widest, ...) blocks padded after the real views (:meth:`pad`).
-    """
-
-    views: list[View]
-    counts: list[int]
-    joints: FloatArray
-    states: npt.NDArray[np.uint8]
-    sensors: FloatArray
-    person_of: npt.NDArray[np.intp]
-    slot_of: npt.NDArray[np.intp]
-    starts: npt.NDArray[np.intp]
-
-    @classmethod
-    def of(cls, clusters: list[list[View]]) -> ViewBatch:
-        counts = [len(cluster) for cluster in clusters]
-        views = [view for cluster in clusters for view in cluster]
-        person_of = np.repeat(np.arange(len(clusters)), counts)
-        starts = np.cumsum([0, *counts])
-        return cls(
-            views,
-            counts,
-            np.stack([v.joints_world for v in views]).astype(np.float64),
-            np.stack([v.states for v in views]),
-            np.stack(
-                [_NO_POSITION if v.sensor_position is None else v.sensor_position for v in views]
-            ).astype(np.float64),
-            person_of,
-            np.arange(len(views)) - starts[person_of],
-            starts,
-        )
-
-    @property
-    def widest(self) -> int:
-        return max(self.counts)
-
-    def pad(self, values: FloatArray, fill: float) -> FloatArray:
-        """(N, ...) per-view values as (P, widest, ...), ``fill`` after each person's views."""
-        padded = np.full((len(self.counts), self.widest, *values.shape[1:]), fill, np.float64)
-        padded[self.person_of, self.slot_of] = values
-        return padded
-
-    def fuse(self, weights: FloatArray) -> FloatArray:
-        """Step 6 on the batch: (P, 25, 3) each person's weighted mean."""
-        return weighted_mean(self.pad(self.joints, np.nan), self.pad(weights, 0.0))
-
-    def body_positions(self, fused: FloatArray) -> FloatArray:
-        """(P, 3) where each person stands: fused SpineBase, else the mean of the views'."""
-        spine = self.joints[:, 0]
-        seen = np.isfinite(spine)
-        sums = self.pad(np.where(seen, spine, 0.0), 0.0).sum(axis=1)
-        counts = self.pad(seen.astype(np.float64), 0.0).sum(axis=1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            mean_spine = sums / counts
-        fused_spine_ok = np.isfinite(fused[:, 0]).all(axis=-1, keepdims=True)
-        positions: FloatArray = np.where(fused_spine_ok, fused[:, 0], mean_spine)
-        return positions
-
-
 class FusionPipeline:
     """The state fusion keeps between instants, and the step (module docstring)."""
 
@@ -168,8 +105,7 @@ class FusionPipeline:
         self.settings = settings
         self.tracker = PersonTracker(settings)
         self.memories: dict[int, PersonMemory] = {}
-        self.default_bone_lengths: FloatArray | None = None
-        """(24,) lengths every new person starts with as "set" (None: estimate online)."""
+        self._default_bone_lengths: FloatArray | None = None
 
     def step(
         self, sensors: Iterable[SensorState], pose_of: PoseLookup, t_s: float, gap_s: float
@@ -304,8 +240,8 @@ class FusionPipeline:
             s.bone_estimate_symmetric,
             s.bone_estimate_lock_samples,
         )
-        if self.default_bone_lengths is not None:
-            bones.set_lengths = self.default_bone_lengths.copy()
+        if self._default_bone_lengths is not None:
+            bones.set_lengths = self._default_bone_lengths.copy()
         return PersonMemory(self._new_filter(), bones)
 
     def _new_filter(self) -> JointFilter:
@@ -352,6 +288,21 @@ class FusionPipeline:
     def bone_model(self, person_id: int) -> BoneModel | None:
         memory = self.memories.get(person_id)
         return None if memory is None else memory.bones
+
+    @property
+    def default_bone_lengths(self) -> FloatArray | None:
+        """(24,) lengths every new person starts with as "set" (None: estimated online)."""
+        return None if self._default_bone_lengths is None else self._default_bone_lengths.copy()
+
+    def set_default_bone_lengths(self, lengths: npt.ArrayLike | None) -> None:
+        """Set (or with None, clear) the lengths new persons start with; existing ones keep theirs.
+
+        Args:
+            lengths: (24,) metres in :data:`~skelfuse.protocol.skeleton.BONES` order, or None.
+        """
+        self._default_bone_lengths = (
+            None if lengths is None else np.array(lengths, dtype=np.float64).reshape(-1)
+        )
 
     def set_bone_lengths(self, person_id: int, lengths: FloatArray | None) -> bool:
         """Set (or with None, clear back to automatic) a person's reference lengths.

@@ -123,14 +123,14 @@ async def delete_bones(request: Request, person_id: int) -> dict[str, object]:
 async def put_default_bones(request: Request, body: BoneLengths) -> dict[str, object]:
     """Lengths every new person starts with (as ``set``); existing persons are unchanged."""
     lengths = _validated(body)
-    _pipeline(request).default_bone_lengths = lengths
+    _pipeline(request).set_default_bone_lengths(lengths)
     return {"default": _by_name(lengths)}
 
 
 @router.delete("/api/bones/default")
 async def delete_default_bones(request: Request) -> dict[str, object]:
     """New persons go back to online estimation."""
-    _pipeline(request).default_bone_lengths = None
+    _pipeline(request).set_default_bone_lengths(None)
     return {"default": None}
 
 

@@ -13,6 +13,7 @@ from skelfuse.agent.sim.kinect_model import KinectV2Params, SimulatedKinect
 from skelfuse.agent.sim.performer import Performer
 from skelfuse.agent.sim.room import Room, capture_point_cloud, default_room
 from skelfuse.agent.sources.base import Capture
+from skelfuse.protocol.depth_cloud import decode_request, encode_reply
 from skelfuse.protocol.transform import Matrix4
 from skelfuse.protocol.wire import Body
 
@@ -83,15 +84,13 @@ class SimSource:
         """What the server may ask this sensor for (see docs/protocol.md, requests)."""
         return {"depth_cloud": self.depth_cloud}
 
-    def depth_cloud(self, params: dict[str, Any]) -> dict[str, Any]:
+    def depth_cloud(self, params: dict[str, Any]) -> dict[str, object]:
         """Render one depth frame of the room and the performers now, back-projected.
 
         Blocks the capture loop for the rendering time (a few hundred ms): frames due meanwhile
         are skipped, as a real agent busy with a depth capture would.
         """
-        max_points = params.get("max_points", 20000)
-        if not isinstance(max_points, int) or not 1000 <= max_points <= 60000:
-            raise ValueError("max_points must be an integer in 1000..60000")
+        request = decode_request(params)  # DecodeError: the agent answers with a refusal
         true_ns = self._wall_clock_ns()
         persons = self._performer.joints_at(true_ns / 1e9)
         points = capture_point_cloud(
@@ -99,15 +98,13 @@ class SimSource:
             persons,
             self._kinect.T_world_from_sensor,
             self._depth_rng,
-            max_points=max_points,
+            max_points=request.max_points,
         )
         intrinsics = KINECT_V2_DEPTH
-        return {
-            "points": np.ascontiguousarray(points, dtype="<f4").tobytes(),
-            "count": len(points),
-            "frame": "sensor",
-            "t_capture_ns": self.agent_clock_ns(true_ns),
-            "intrinsics": {
+        return encode_reply(
+            points,
+            t_capture_ns=self.agent_clock_ns(true_ns),
+            intrinsics={
                 "width": intrinsics.width,
                 "height": intrinsics.height,
                 "fx": intrinsics.fx,
@@ -115,7 +112,7 @@ class SimSource:
                 "cx": intrinsics.cx,
                 "cy": intrinsics.cy,
             },
-        }
+        )
 
     def capture_at(self, true_ns: int) -> Capture:
         """Render the frame captured at true time ``true_ns`` (no pacing)."""

@@ -161,6 +161,7 @@ def _recording_path(
     the caller cleans up)."""
     files = [Path(f) for f in args.file] if isinstance(args.file, list) else [Path(args.file)]
     if all(f.suffix == ".skeleton" for f in files):
+        from skelfuse.protocol.ntu import NtuFormatError
         from skelfuse.protocol.recording_file import write_recording
         from skelfuse.recording.ntu_import import ntu_recording
 
@@ -173,7 +174,10 @@ def _recording_path(
                 "NTU files carry no camera poses: without --pose nothing is fused "
                 "(skeleton calibration is a later issue)"
             )
-        header, records = ntu_recording(files, matrices)
+        try:
+            header, records = ntu_recording(files, matrices)
+        except NtuFormatError as exc:
+            raise UsageError(str(exc)) from exc
         tmp = tempfile.TemporaryDirectory(prefix="skelfuse-ntu-")
         path = Path(tmp.name) / "ntu.sfrec"
         write_recording(path, header, records)

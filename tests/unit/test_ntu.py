@@ -97,3 +97,14 @@ def test_three_cameras_with_poses_fuse_into_one_person(tmp_path: Path) -> None:
     assert len(last.persons) == 1
     assert set(last.persons[0].sources) == {"ntu-C001", "ntu-C002", "ntu-C003"}
     np.testing.assert_allclose(last.persons[0].joints, world, atol=1e-3)
+
+
+def test_replay_of_a_broken_ntu_file_is_a_usage_error_not_a_traceback(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from skelfuse.cli import main
+
+    broken = tmp_path / "S001C001P001R001A001.skeleton"
+    broken.write_text("garbage\n")
+    assert main(["replay", str(broken)]) == 2
+    assert "expected the frame count" in capsys.readouterr().err

@@ -1,0 +1,82 @@
+"""Many persons' views stacked into one array, so every per-view step runs once per instant.
+
+Views of P persons are stacked (N views; person ``person_of[i]``, its ``slot_of[i]``-th view);
+per-person sums use (P, widest, ...) blocks padded after the real views with NaN views of weight
+0, which leaves every sum and product as it is for one person alone.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from skelfuse.fusion.views import View
+from skelfuse.fusion.weighted import weighted_mean
+
+FloatArray = npt.NDArray[np.float64]
+_NO_POSITION = np.full(3, np.nan)
+
+
+@dataclass(slots=True)
+class ViewBatch:
+    """The views of P persons stacked: person ``person_of[i]``'s ``slot_of[i]``-th view.
+
+    joints: (N, 25, 3) float64 metres, world; states: (N, 25) uint8; sensors: (N, 3) metres.
+    Per-person sums use (P, widest, ...) blocks padded after the real views (:meth:`pad`).
+    """
+
+    views: list[View]
+    counts: list[int]
+    joints: FloatArray
+    states: npt.NDArray[np.uint8]
+    sensors: FloatArray
+    person_of: npt.NDArray[np.intp]
+    slot_of: npt.NDArray[np.intp]
+    starts: npt.NDArray[np.intp]
+
+    @classmethod
+    def of(cls, clusters: list[list[View]]) -> ViewBatch:
+        counts = [len(cluster) for cluster in clusters]
+        views = [view for cluster in clusters for view in cluster]
+        person_of = np.repeat(np.arange(len(clusters)), counts)
+        starts = np.cumsum([0, *counts])
+        return cls(
+            views,
+            counts,
+            np.stack([v.joints_world for v in views]).astype(np.float64),
+            np.stack([v.states for v in views]),
+            np.stack(
+                [_NO_POSITION if v.sensor_position is None else v.sensor_position for v in views]
+            ).astype(np.float64),
+            person_of,
+            np.arange(len(views)) - starts[person_of],
+            starts,
+        )
+
+    @property
+    def widest(self) -> int:
+        return max(self.counts)
+
+    def pad(self, values: FloatArray, fill: float) -> FloatArray:
+        """(N, ...) per-view values as (P, widest, ...), ``fill`` after each person's views."""
+        padded = np.full((len(self.counts), self.widest, *values.shape[1:]), fill, np.float64)
+        padded[self.person_of, self.slot_of] = values
+        return padded
+
+    def fuse(self, weights: FloatArray) -> FloatArray:
+        """Step 6 on the batch: (P, 25, 3) each person's weighted mean."""
+        return weighted_mean(self.pad(self.joints, np.nan), self.pad(weights, 0.0))
+
+    def body_positions(self, fused: FloatArray) -> FloatArray:
+        """(P, 3) where each person stands: fused SpineBase, else the mean of the views'."""
+        spine = self.joints[:, 0]
+        seen = np.isfinite(spine)
+        sums = self.pad(np.where(seen, spine, 0.0), 0.0).sum(axis=1)
+        counts = self.pad(seen.astype(np.float64), 0.0).sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean_spine = sums / counts
+        fused_spine_ok = np.isfinite(fused[:, 0]).all(axis=-1, keepdims=True)
+        positions: FloatArray = np.where(fused_spine_ok, fused[:, 0], mean_spine)
+        return positions
