@@ -1,18 +1,16 @@
 """Calibration runs: capture, solve, review, commit (driven by ``server/routes_calibration.py``).
 
 A run moves through ``capturing → solving → done`` (or ``failed``); only one runs at a time.
-Capturing happens on the event loop (sampling the hub's frame buffers, asking agents for depth
-clouds); the math (:mod:`skelfuse.calibration.solvers`) runs in a worker thread so fusion and
-the API stay responsive. A finished run changes nothing until it is committed: then its poses
-become a new stored calibration version and fusion uses them from the next frame.
+Capturing runs on the event loop (sampling the hub's frame buffers, asking agents for depth);
+the math (:mod:`skelfuse.calibration.solvers`) runs in a worker thread so fusion and the API
+stay responsive. A finished run changes nothing until it is committed: its poses then become a
+new stored calibration version, used by fusion from the next frame.
 
-Methods (docs/calibration.md):
-- ``points``: ≥ 3 corresponding points per sensor → Kabsch, with residuals;
-- ``skeleton``: a person walks; the bodies every sensor sees at common instants → relative
-  poses; world levelled with the reference's floor plane;
-- ``icp``: depth point clouds from every agent, ICP from the current poses, then the floor
-  fitted in the reference's cloud;
-- ``auto`` (default): skeleton → icp → floor.
+Methods (docs/calibration.md): ``points`` (≥ 3 corresponding points per sensor → Kabsch);
+``skeleton`` (a person walks; bodies seen at common instants → relative poses, levelled with the
+reference's floor plane); ``icp`` (depth clouds from every agent, ICP from the current poses,
+floor fitted in the reference's cloud); ``auto`` (default: skeleton → icp → floor, keeping the
+skeleton poses with a warning when a sensor has no depth or open3d cannot load).
 
 Time comes from an injected :class:`~skelfuse.server.clock.Clock` (capture pacing, sample
 instants, run stamps), so tests drive a whole run with a fake clock.
@@ -30,7 +28,7 @@ from typing import Any, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.calibration.errors import CalibrationError
+from skelfuse.calibration.errors import CalibrationError, IcpUnavailable
 from skelfuse.calibration.solvers import (
     PointPairs,
     Samples,
@@ -240,27 +238,7 @@ class CalibrationService:
                 run.warnings.extend(solution.warnings)
                 run.progress = share
             if spec.method in ("icp", "auto"):
-                run.state, run.stage = RunState.CAPTURING, "capturing depth clouds"
-                try:
-                    clouds = await self._capture_clouds(spec)
-                except AgentRequestFailed as exc:
-                    if spec.method == "icp":
-                        raise
-                    # auto degrades to the skeleton result rather than failing outright (a
-                    # source without depth, e.g. a replayed recording).
-                    run.warnings.append(f"no ICP refinement: {exc}; kept the skeleton poses")
-                    clouds = None
-                if clouds is not None:
-                    run.state, run.stage = RunState.SOLVING, "refining with ICP"
-                    if not poses:
-                        poses = {s: self._current(s) for s in spec.sensors}
-                    refined = await asyncio.to_thread(
-                        refine_with_depth, spec.reference, clouds, poses, spec.min_overlap
-                    )
-                    poses = refined.results
-                    if refined.floor is not None:  # else the skeleton step's floor stands
-                        run.floor = refined.floor
-                    run.warnings.extend(refined.warnings)
+                poses = await self._refine(run, spec, poses)
             run.results = poses
             self._finish(run)
         except (CalibrationError, ServerError) as exc:
@@ -268,6 +246,29 @@ class CalibrationService:
         except Exception as exc:  # never leave a run hanging in "capturing"
             logger.exception("calibration run %s failed", run.run_id)
             self._fail(run, f"internal error: {type(exc).__name__}: {exc}")
+
+    async def _refine(
+        self, run: CalibrationRun, spec: RunSpec, poses: dict[str, SensorResult]
+    ) -> dict[str, SensorResult]:
+        """ICP on depth clouds from ``poses`` (or the current ones); ``auto`` keeps ``poses`` when
+        a sensor has no depth (e.g. a replayed recording) or open3d cannot load here."""
+        run.state, run.stage = RunState.CAPTURING, "capturing depth clouds"
+        try:
+            clouds = await self._capture_clouds(spec)
+            run.state, run.stage = RunState.SOLVING, "refining with ICP"
+            start = poses or {s: self._current(s) for s in spec.sensors}
+            refined = await asyncio.to_thread(
+                refine_with_depth, spec.reference, clouds, start, spec.min_overlap
+            )
+        except (AgentRequestFailed, IcpUnavailable) as exc:
+            if spec.method == "icp":
+                raise
+            run.warnings.append(f"no ICP refinement: {exc}; kept the skeleton poses")
+            return poses
+        if refined.floor is not None:  # else the skeleton step's floor stands
+            run.floor = refined.floor
+        run.warnings.extend(refined.warnings)
+        return refined.results
 
     def _finish(self, run: CalibrationRun) -> None:
         run.state, run.stage, run.progress = RunState.DONE, "done", 1.0

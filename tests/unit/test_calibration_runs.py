@@ -270,3 +270,32 @@ async def test_a_sensor_silent_during_the_capture_fails_the_run_by_name(tmp_path
     assert run.state == RunState.FAILED
     assert run.error is not None and run.error.startswith("skeleton calibration failed for cam-b")
     assert "need 30 common instants" in run.error
+
+
+@pytest.mark.parametrize("method", ["auto", "icp"])
+async def test_without_open3d_auto_keeps_the_skeleton_poses_and_icp_says_why(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, method: str
+) -> None:
+    """A server whose open3d cannot load (a missing system library) still calibrates by
+    skeleton; an ICP-only run fails with what to install."""
+    import skelfuse.server.calibration_runs as runs
+    from skelfuse.calibration.errors import IcpUnavailable
+
+    def no_open3d(*_: object) -> None:
+        raise IcpUnavailable("open3d does not load: libusb-1.0.so.0 missing")
+
+    monkeypatch.setattr(runs, "refine_with_depth", no_open3d)
+    rig = Rig(tmp_path)
+    if method == "icp":
+        stored = {s: SensorCalibration(pose, "points") for s, pose in POSES.items()}
+        rig.hub.use_calibration(rig.store.save(stored))
+    cloud = encode_reply(np.random.default_rng(0).uniform(-2, 2, (600, 3)))
+    agents = FakeAgents(lambda _: cloud)
+    run = await finished(rig.service(agents).start(RunSpec(method, "cam-a", rig.sensors, 3.0)))
+    if method == "auto":
+        assert run.state == RunState.DONE, run.error
+        assert any("no ICP refinement: open3d does not load" in w for w in run.warnings)
+        assert {r.method for r in run.results.values()} == {"reference", "skeleton"}
+    else:
+        assert run.state == RunState.FAILED and run.error is not None
+        assert "libusb-1.0.so.0" in run.error
