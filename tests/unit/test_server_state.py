@@ -15,6 +15,7 @@ from skelfuse.cli.values import UsageError, parse_host_port, parse_pose
 from skelfuse.fusion.hub import FusionHub
 from skelfuse.fusion.sensors import SlidingMinimum, TimedFrame, bodies_at
 from skelfuse.protocol.depth_cloud import decode_reply
+from skelfuse.protocol.errors import DecodeError
 from skelfuse.protocol.feed import frame_json
 from skelfuse.protocol.skeleton import JOINT_COUNT
 from skelfuse.protocol.transform import pose_from_position_yaw_pitch
@@ -264,8 +265,9 @@ def test_sim_agent_answers_depth_cloud_in_its_own_frame() -> None:
     world = apply_pose(pose, points)
     # The floor is there: a good share of points lies at y ≈ 0 in the world.
     assert np.mean(np.abs(world[:, 1]) < 0.03) > 0.15
-    with pytest.raises(ValueError, match="max_points"):
-        source.depth_cloud({"max_points": 10})
+    # The request is read by the protocol's codec, as every source does (a refusal to the server).
+    with pytest.raises(DecodeError, match="max_points"):
+        source.depth_cloud({"max_points": 0})
 
 
 # --- clocks ---------------------------------------------------------------------------------
