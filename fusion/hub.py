@@ -23,6 +23,7 @@ from typing import Protocol
 
 from skelfuse import __version__
 from skelfuse.calibration.store import Calibration
+from skelfuse.fusion.drift import DriftMonitor
 from skelfuse.fusion.pipeline import FusionPipeline
 from skelfuse.fusion.sensors import SensorState, new_sensor
 from skelfuse.fusion.settings import HubSettings
@@ -105,6 +106,8 @@ class FusionHub:
         """Seconds of compute per fusion step."""
         self.fusion_lag = RollingStats()
         """Server time when fusing minus the fused instant (the deliberate alignment wait)."""
+        self.drift = DriftMonitor(settings.fusion) if settings.fusion.drift_detection else None
+        """Has a sensor moved since its calibration? (None: ``drift_detection`` off.)"""
 
     # --- state set from outside --------------------------------------------------------------
 
@@ -116,6 +119,8 @@ class FusionHub:
     def use_calibration(self, calibration: Calibration) -> None:
         """Fuse with ``calibration`` from the next step on (a commit, rollback or import)."""
         self._calibration = calibration
+        if self.drift is not None:  # its windows hold points placed with the old poses
+            self.drift.reset()
 
     def start_tap(self, tap: MessageTap) -> None:
         """Hand every accepted hello and frame to ``tap`` from now on (a recording starts);
@@ -333,6 +338,8 @@ class FusionHub:
         self._seq += 1
         fused = FusedFrame(self._seq, t_target, now_s, tuple(persons), tuple(views))
         self.latest = fused
+        if self.drift is not None:
+            self.drift.observe(t_target, fused.persons)
         self.fusion_timing.add(time.perf_counter() - started)
         self.fusion_lag.add(now_s - t_target)
         return fused
@@ -365,6 +372,9 @@ class FusionHub:
                         "state": state,
                         "T_world_from_sensor": None if pose is None else pose.tolist(),
                     },
+                    "drift": None
+                    if self.drift is None or (drift := self.drift.status(sensor.sensor_id)) is None
+                    else drift.to_json(),
                 }
             )
         return rows

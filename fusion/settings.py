@@ -111,6 +111,21 @@ class FusionSettings:
     bone_fit_iterations: int = 3
     """Passes of ``projection`` before its exact finishing pass."""
 
+    # --- drift detection (fusion/drift.py; issue 10 item 5) -----------------------------------
+    drift_detection: bool = False
+    """Watch every sensor for a move since its calibration (a bump): flags in ``/api/sensors``,
+    ``/metrics`` and the viewer. Observes only: the fused output is the same either way."""
+    drift_window_s: float = 8.0
+    """Sliding window of fusion instants the rigid correction is estimated over (seconds)."""
+    drift_check_interval_s: float = 1.0
+    """Seconds of fusion instants between two estimates."""
+    drift_threshold_deg: float = 1.2
+    """A correction rotating more than this (degrees) counts against the sensor."""
+    drift_threshold_mm: float = 20.0
+    """A correction shifting the person more than this (millimetres) counts against the sensor."""
+    drift_confirm_checks: int = 3
+    """Consecutive estimates over a threshold that flag a sensor (and under that clear it)."""
+
 
 @dataclass(frozen=True, slots=True)
 class HubSettings:

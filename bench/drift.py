@@ -1,0 +1,184 @@
+"""Drift benchmark: is a bumped sensor flagged in time, and is nothing flagged otherwise?
+
+Simulated Kinect v2 sensors (3 on a 3 m circle, ``bench.accuracy_runner.sensor_poses``) watch
+the built-in routine (walk a circle, turn, arm raises, squats, looped). One production
+:class:`fusion.hub.FusionHub` with ``drift_detection`` on receives every frame as wire bytes in
+simulated time (as ``bench/accuracy_runner.py`` drives it), calibrated with the true poses.
+
+- **bump**: after ``--bump-at`` seconds one sensor's true pose changes (a rotation about its own
+  vertical axis, a shift along its own x, or both) while the hub keeps the committed pose;
+  reported: the time from the bump to the flag (fusion instants), and any sensor flagged
+  that was not bumped, or before the bump;
+- **normal**: a take of ``--minutes`` of the routine with nothing bumped; reported: the
+  flags (false alarms), the largest correction estimated per sensor, and the wall time.
+
+Run: ``python bench/drift.py`` (``--seeds N``, ``--minutes M``, ``--json FILE``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import statistics
+import sys
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from bench.accuracy_runner import FPS, NETWORK_DELAY_S, T0, sensor_poses
+from skelfuse.agent.sim.kinect_model import KinectV2Params, SimulatedKinect
+from skelfuse.agent.sim.performer import ProceduralPerformer
+from skelfuse.fusion.hub import FusionHub
+from skelfuse.protocol.transform import invert
+from skelfuse.protocol.wire import Body, Frame, Hello, encode
+from skelfuse.server.settings import FusionSettings, Settings
+
+SETTINGS = FusionSettings(drift_detection=True)
+
+
+@dataclass(frozen=True, slots=True)
+class Bump:
+    """Sensor ``sensor`` (index) turns ``yaw_deg`` about its own +Y and shifts ``shift_mm``
+    along its own +X, ``at_s`` seconds into the take."""
+
+    sensor: int
+    yaw_deg: float
+    shift_mm: float
+    at_s: float
+
+
+def bumped_pose(pose: np.ndarray, bump: Bump) -> np.ndarray:
+    """(4, 4) ``T_world_from_sensor`` after ``bump`` (applied in the sensor's own frame)."""
+    yaw = math.radians(bump.yaw_deg)
+    delta = np.eye(4)
+    delta[:3, :3] = [
+        [math.cos(yaw), 0, math.sin(yaw)],
+        [0, 1, 0],
+        [-math.sin(yaw), 0, math.cos(yaw)],
+    ]
+    delta[0, 3] = bump.shift_mm / 1000.0
+    result: np.ndarray = pose @ delta
+    return result
+
+
+def run_take(
+    seed: int, duration_s: float, bump: Bump | None, settings: FusionSettings = SETTINGS
+) -> dict[str, object]:
+    """One simulated take; the flags seen (sensor → first flag time after the start, s)."""
+    rng = np.random.default_rng(seed)
+    poses = sensor_poses(3)
+    names = [f"sim-{k + 1}" for k in range(3)]
+    kinects = [
+        SimulatedKinect(p, KinectV2Params(), seed=seed * 100 + k) for k, p in enumerate(poses)
+    ]
+    hub = FusionHub(Settings(fusion=settings))
+    for name, pose in zip(names, poses, strict=True):
+        hello = Hello(name, "sim", "bench", FPS, 0, pose_hint=pose, pose_hint_source="sim_truth")
+        hub.handle_message(name.encode(), [encode(hello)], T0, 0.0)
+    assert hub.drift is not None
+    performer = ProceduralPerformer(1)
+    offset = rng.uniform(0, 30.0)  # where in the routine the take starts
+    events: list[tuple[float, int]] = []
+    for k in range(3):
+        phase = rng.uniform(0, 1 / FPS)
+        events += [(T0 + phase + n / FPS, k) for n in range(int(duration_s * FPS))]
+    events.sort()
+    seqs = [0] * 3
+    bumped = False
+    flags: dict[str, float] = {}
+    largest: dict[str, tuple[float, float]] = {}
+    started = time.perf_counter()
+    for t_capture, k in events:
+        if bump is not None and not bumped and t_capture - T0 >= bump.at_s:
+            moved = bumped_pose(poses[bump.sensor], bump)
+            target = kinects[bump.sensor]
+            target.T_world_from_sensor = moved
+            target._T_sensor_from_world = invert(moved)  # the simulator has no setter
+            bumped = True
+        truth = performer.joints_at(t_capture - T0 + offset)
+        observations = kinects[k].observe(truth, t_capture)
+        seqs[k] += 1
+        bodies = tuple(Body(o.tracking_id, o.joints_m, o.states) for o in observations)
+        message = encode(Frame(seqs[k], int(t_capture * 1e9), bodies))
+        received = t_capture + NETWORK_DELAY_S
+        hub.handle_message(names[k].encode(), [message], received, received - T0)
+        fused = hub.fuse_step(received)
+        if fused is None:
+            continue
+        for name, state in hub.drift.sensors.items():
+            if state.moved and name not in flags:
+                flags[name] = fused.t_s - T0
+            c = state.correction
+            if c is not None:
+                old = largest.get(name, (0.0, 0.0))
+                largest[name] = (max(old[0], c.rotation_deg), max(old[1], c.shift_mm))
+    return {
+        "flags": flags,
+        "largest": {k: (round(v[0], 2), round(v[1], 1)) for k, v in sorted(largest.items())},
+        "wall_s": time.perf_counter() - started,
+        "target": None if bump is None else names[bump.sensor],
+    }
+
+
+BUMPS = {
+    "2° yaw": Bump(1, 2.0, 0.0, 20.0),
+    "30 mm shift": Bump(1, 0.0, 30.0, 20.0),
+    "2° + 30 mm": Bump(1, 2.0, 30.0, 20.0),
+    "5° + 50 mm": Bump(1, 5.0, 50.0, 20.0),
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--minutes", type=float, default=10.0, help="normal take length")
+    parser.add_argument("--bump-at", type=float, default=20.0, help="seconds into a bump take")
+    parser.add_argument("--after", type=float, default=20.0, help="seconds a bump take goes on")
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args(argv)
+    out: dict[str, object] = {}
+    print(f"load average {os.getloadavg()[0]:.2f}")
+    print("| bump | detected (seeds) | time to flag, median (worst) | wrongly flagged |")
+    print("|---|---|---|---|")
+    for label, bump in BUMPS.items():
+        bump = replace(bump, at_s=args.bump_at)
+        times: list[float] = []
+        wrong = 0
+        for seed in range(args.seeds):
+            take = run_take(seed, args.bump_at + args.after, bump)
+            flags = take["flags"]
+            assert isinstance(flags, dict)
+            target = take["target"]
+            wrong += sum(1 for n, t in flags.items() if n != target or t < bump.at_s)
+            if target in flags and flags[target] >= bump.at_s:
+                times.append(flags[target] - bump.at_s)
+            out[f"{label} seed {seed}"] = take
+        detected = f"{len(times)}/{args.seeds}"
+        when = f"{statistics.median(times):.1f} s ({max(times):.1f} s)" if times else "-"
+        print(f"| {label} | {detected} | {when} | {wrong} |")
+    print()
+    print("| normal take | minutes | false alarms | largest correction per sensor (°, mm) | wall |")
+    print("|---|---|---|---|---|")
+    for seed in range(args.seeds):
+        take = run_take(1000 + seed, args.minutes * 60.0, None)
+        flags = take["flags"]
+        assert isinstance(flags, dict)
+        print(
+            f"| seed {seed} | {args.minutes:g} | {len(flags)} | {take['largest']} | "
+            f"{take['wall_s']:.0f} s |"
+        )
+        out[f"normal seed {seed}"] = take
+    if args.json:
+        args.json.write_text(json.dumps(out, indent=1, default=str))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
