@@ -12,7 +12,8 @@ simulated time (as ``bench/accuracy_runner.py`` drives it), calibrated with the 
 - **normal**: a take of ``--minutes`` of the routine with nothing bumped; reported: the
   flags (false alarms), the largest correction estimated per sensor, and the wall time.
 
-Run: ``python bench/drift.py`` (``--seeds N``, ``--minutes M``, ``--json FILE``).
+Run: ``python bench/drift.py`` (``--seeds N`` bump takes per bump, ``--normal-seeds N`` normal
+takes of ``--minutes M``, ``--json FILE``).
 """
 
 from __future__ import annotations
@@ -139,6 +140,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--minutes", type=float, default=10.0, help="normal take length")
+    parser.add_argument("--normal-seeds", type=int, default=1, help="normal takes")
     parser.add_argument("--bump-at", type=float, default=20.0, help="seconds into a bump take")
     parser.add_argument("--after", type=float, default=20.0, help="seconds a bump take goes on")
     parser.add_argument("--json", type=Path)
@@ -166,7 +168,7 @@ def main(argv: list[str] | None = None) -> int:
     print()
     print("| normal take | minutes | false alarms | largest correction per sensor (°, mm) | wall |")
     print("|---|---|---|---|---|")
-    for seed in range(args.seeds):
+    for seed in range(args.normal_seeds):
         take = run_take(1000 + seed, args.minutes * 60.0, None)
         flags = take["flags"]
         assert isinstance(flags, dict)

@@ -298,6 +298,11 @@ class FusionHub:
             return sensor.pose_hint, sensor.pose_hint_source or "manual"
         return None, "uncalibrated"
 
+    def connected_poses(self) -> dict[str, Matrix4]:
+        """Every connected sensor's ``T_world_from_sensor`` (copies; those without one left out)."""
+        poses = {s: self.pose_of(s)[0] for s, state in self.sensors.items() if state.connected}
+        return {s: pose.copy() for s, pose in poses.items() if pose is not None}
+
     def _stored_pose(self, sensor_id: str) -> Matrix4 | None:
         return self.pose_of(sensor_id)[0]
 

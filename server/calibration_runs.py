@@ -10,7 +10,9 @@ Methods (docs/calibration.md): ``points`` (≥ 3 corresponding points per sensor
 ``skeleton`` (a person walks; bodies seen at common instants → relative poses, levelled with the
 reference's floor plane); ``icp`` (depth clouds from every agent, ICP from the current poses,
 floor fitted in the reference's cloud); ``auto`` (default: skeleton → icp → floor, keeping the
-skeleton poses with a warning when a sensor has no depth or open3d cannot load).
+skeleton poses with a warning when a sensor has no depth or open3d cannot load); ``sensor``
+(one sensor, e.g. a bumped one, re-solved against the others, whose poses stay: skeletons, then
+ICP against their clouds where depth is available).
 
 Time comes from an injected :class:`~skelfuse.server.clock.Clock` (capture pacing, sample
 instants, run stamps), so tests drive a whole run with a fake clock.
@@ -21,20 +23,22 @@ from __future__ import annotations
 import asyncio
 import logging
 import uuid
-from dataclasses import dataclass, field
-from enum import StrEnum
+from collections.abc import Sequence
+from dataclasses import replace
 from typing import Any, Protocol
 
 import numpy as np
 import numpy.typing as npt
 
 from skelfuse.calibration.errors import CalibrationError, IcpUnavailable
+from skelfuse.calibration.rigid import pose_error
 from skelfuse.calibration.solvers import (
-    PointPairs,
     Samples,
     SensorResult,
+    refine_sensor_with_depth,
     refine_with_depth,
     solve_points,
+    solve_sensor,
     solve_skeletons,
 )
 from skelfuse.calibration.store import Calibration, CalibrationStore, SensorCalibration, merge
@@ -44,6 +48,11 @@ from skelfuse.protocol import depth_cloud
 from skelfuse.protocol.errors import DecodeError
 from skelfuse.protocol.transform import Matrix4
 from skelfuse.protocol.wire import Body
+from skelfuse.server.calibration_run import (
+    CalibrationRun as CalibrationRun,
+    RunSpec as RunSpec,
+    RunState as RunState,
+)
 from skelfuse.server.clock import Clock, SystemClock
 from skelfuse.server.errors import (
     AgentRequestFailed,
@@ -55,7 +64,7 @@ from skelfuse.server.errors import (
 
 logger = logging.getLogger(__name__)
 
-METHODS = ("auto", "skeleton", "points", "icp")
+METHODS = ("auto", "skeleton", "points", "icp", "sensor")
 SAMPLE_HZ = 30.0
 SAMPLE_DELAY_S = 0.15
 """Sample a little in the past so every sensor's frames around the instant have arrived."""
@@ -68,62 +77,6 @@ class AgentCaller(Protocol):
     async def request(
         self, sensor_id: str, method: str, params: dict[str, Any], timeout_s: float
     ) -> Any: ...
-
-
-class RunState(StrEnum):
-    CAPTURING = "capturing"
-    SOLVING = "solving"
-    DONE = "done"
-    FAILED = "failed"
-
-
-@dataclass(frozen=True, slots=True)
-class RunSpec:
-    method: str
-    reference: str
-    """A sensor id, or ``world`` (points method only: reference points are world coordinates)."""
-    sensors: tuple[str, ...]
-    duration_s: float = 15.0
-    points: tuple[PointPairs, ...] = ()
-    min_overlap: float = 0.3
-
-
-@dataclass(slots=True)
-class CalibrationRun:
-    run_id: str
-    spec: RunSpec
-    created_unix_s: float
-    state: RunState = RunState.CAPTURING
-    stage: str = "starting"
-    progress: float = 0.0
-    finished_unix_s: float | None = None
-    results: dict[str, SensorResult] = field(default_factory=dict)
-    floor: dict[str, Any] | None = None
-    warnings: list[str] = field(default_factory=list)
-    error: str | None = None
-    committed_version: int | None = None
-
-    @property
-    def active(self) -> bool:
-        return self.state in (RunState.CAPTURING, RunState.SOLVING)
-
-    def to_json(self) -> dict[str, Any]:
-        return {
-            "id": self.run_id,
-            "method": self.spec.method,
-            "reference": self.spec.reference,
-            "sensors": list(self.spec.sensors),
-            "state": str(self.state),
-            "stage": self.stage,
-            "progress": round(self.progress, 3),
-            "created_unix_s": self.created_unix_s,
-            "finished_unix_s": self.finished_unix_s,
-            "results": {k: v.to_json() for k, v in sorted(self.results.items())},
-            "floor": self.floor,
-            "warnings": self.warnings,
-            "error": self.error,
-            "committed_version": self.committed_version,
-        }
 
 
 class CalibrationService:
@@ -208,6 +161,15 @@ class CalibrationService:
         offline = [s for s in spec.sensors if not known[s].connected]
         if offline:
             raise Conflict(f"sensor(s) {offline} are offline; start their agents and retry")
+        if spec.method == "sensor":
+            if len(spec.sensors) != 1:
+                raise InvalidRequest("method sensor re-solves one sensor: name it in 'sensor'")
+            if set(self.hub.connected_poses()) <= {spec.sensors[0]}:
+                raise Conflict(
+                    "method sensor solves a sensor against the others: it needs at least one "
+                    "other connected sensor with a pose"
+                )
+            return
         if len(spec.sensors) < 2 and spec.method in ("skeleton", "auto"):
             raise Conflict(f"method {spec.method} needs at least 2 connected sensors")
         if spec.reference not in spec.sensors:
@@ -225,6 +187,10 @@ class CalibrationService:
     async def _execute(self, run: CalibrationRun) -> None:
         spec = run.spec
         try:
+            if spec.method == "sensor":
+                run.results = await self._resolve_sensor(run, spec.sensors[0])
+                self._finish(run)
+                return
             poses: dict[str, SensorResult] = {}
             if spec.method in ("skeleton", "auto"):
                 share = 0.7 if spec.method == "auto" else 0.95
@@ -254,7 +220,7 @@ class CalibrationService:
         a sensor has no depth (e.g. a replayed recording) or open3d cannot load here."""
         run.state, run.stage = RunState.CAPTURING, "capturing depth clouds"
         try:
-            clouds = await self._capture_clouds(spec)
+            clouds = await self._capture_clouds(spec.sensors)
             run.state, run.stage = RunState.SOLVING, "refining with ICP"
             start = poses or {s: self._current(s) for s in spec.sensors}
             refined = await asyncio.to_thread(
@@ -269,6 +235,33 @@ class CalibrationService:
             run.floor = refined.floor
         run.warnings.extend(refined.warnings)
         return refined.results
+
+    async def _resolve_sensor(self, run: CalibrationRun, sensor_id: str) -> dict[str, SensorResult]:
+        """Method ``sensor``: ``sensor_id`` against the other connected, posed sensors, whose
+        poses stay; skeletons, then ICP where every one of them has depth (else a warning)."""
+        fixed = {s: p for s, p in self.hub.connected_poses().items() if s != sensor_id}
+        committed = self._current(sensor_id).T_world_from_sensor
+        sensors = (sensor_id, *sorted(fixed))
+        samples = await self._capture_skeletons(run, 0.0, 0.7, sensors)
+        run.state, run.stage = RunState.SOLVING, f"solving {sensor_id} against {sorted(fixed)}"
+        result = await asyncio.to_thread(solve_sensor, sensor_id, fixed, samples)
+        run.progress = 0.7
+        run.state, run.stage = RunState.CAPTURING, "capturing depth clouds"
+        try:
+            clouds = await self._capture_clouds(sensors)
+            run.state, run.stage = RunState.SOLVING, "refining with ICP"
+            result = await asyncio.to_thread(
+                refine_sensor_with_depth, sensor_id, clouds, result, fixed, run.spec.min_overlap
+            )
+        except (AgentRequestFailed, CalibrationError) as exc:
+            run.warnings.append(f"no ICP refinement: {exc}; kept the skeleton pose")
+        moved_deg, moved_mm = pose_error(result.T_world_from_sensor, committed)
+        metrics = {
+            **result.metrics,
+            "moved_deg": round(moved_deg, 3),
+            "moved_mm": round(moved_mm, 1),
+        }
+        return {sensor_id: replace(result, metrics=metrics)}
 
     def _finish(self, run: CalibrationRun) -> None:
         run.state, run.stage, run.progress = RunState.DONE, "done", 1.0
@@ -292,18 +285,25 @@ class CalibrationService:
 
     # --- capture ----------------------------------------------------------------------------
 
-    async def _capture_skeletons(self, run: CalibrationRun, start: float, share: float) -> Samples:
-        """Every sensor's bodies at common instants (:data:`SAMPLE_HZ` per second) for
-        ``duration_s``, while progress goes from ``start`` to ``start + share``."""
+    async def _capture_skeletons(
+        self,
+        run: CalibrationRun,
+        start: float,
+        share: float,
+        sensors: Sequence[str] | None = None,
+    ) -> Samples:
+        """Every sensor's (default: the run's) bodies at common instants (:data:`SAMPLE_HZ` per
+        second) for ``duration_s``, while progress goes from ``start`` to ``start + share``."""
         spec = run.spec
+        sensors = spec.sensors if sensors is None else sensors
         run.stage = f"walk through the capture area ({spec.duration_s:.0f} s)"
-        samples: dict[str, list[tuple[Body, ...]]] = {s: [] for s in spec.sensors}
+        samples: dict[str, list[tuple[Body, ...]]] = {s: [] for s in sensors}
         began = self._clock.monotonic()
         gap = self.hub.settings.interpolation_gap_s
         while (elapsed := self._clock.monotonic() - began) < spec.duration_s:
             run.progress = start + share * elapsed / spec.duration_s
             t = self._clock.time() - SAMPLE_DELAY_S
-            for sensor_id in spec.sensors:
+            for sensor_id in sensors:
                 sensor = self.hub.sensors.get(sensor_id)
                 bodies = None
                 if sensor is not None and sensor.connected:
@@ -320,8 +320,8 @@ class CalibrationService:
                 return timed.frame.floor
         return None
 
-    async def _capture_clouds(self, spec: RunSpec) -> dict[str, npt.NDArray[np.float64]]:
-        """Every sensor's depth cloud, (N, 3) metres in its own frame.
+    async def _capture_clouds(self, sensors: Sequence[str]) -> dict[str, npt.NDArray[np.float64]]:
+        """Each sensor's depth cloud, (N, 3) metres in its own frame.
 
         Raises:
             SensorUnavailable: a sensor went offline.
@@ -337,7 +337,7 @@ class CalibrationService:
             except DecodeError as exc:
                 raise AgentRequestFailed(f"sensor {sensor_id!r}: {exc}") from exc
 
-        pairs = await asyncio.gather(*(one(s) for s in spec.sensors))
+        pairs = await asyncio.gather(*(one(s) for s in sensors))
         return dict(pairs)
 
     def _solve_points(self, spec: RunSpec) -> dict[str, SensorResult]:

@@ -64,6 +64,8 @@ class SkelfuseCollector(Collector):
         for reason, count in hub.rejected_unregistered.items():
             rejected.add_metric(["", reason], count)
         yield from (frames, rejected, gaps, connected, fps, age, offset)
+        if hub.drift is not None:
+            yield from _drift_metrics(hub)
 
         fused = CounterMetricFamily("skelfuse_fused_frames", "Fused frames produced")
         fused.add_metric([], hub.latest.seq if hub.latest else 0)
@@ -105,3 +107,29 @@ class SkelfuseCollector(Collector):
         clients = GaugeMetricFamily("skelfuse_ws_clients", "Connected WebSocket clients")
         clients.add_metric([], len(self.broadcaster.clients))
         yield from (sent, dropped, evicted, clients)
+
+
+def _drift_metrics(hub: FusionHub) -> Iterator[Metric]:
+    """Per sensor: moved since its calibration (1/0), and the latest correction estimated."""
+    assert hub.drift is not None
+    moved = GaugeMetricFamily(
+        "skelfuse_sensor_moved",
+        "1 while the sensor looks moved since its calibration (drift detection)",
+        labels=["sensor"],
+    )
+    rotation = GaugeMetricFamily(
+        "skelfuse_sensor_drift_degrees",
+        "Rotation the sensor's views need to agree with the others (latest estimate)",
+        labels=["sensor"],
+    )
+    shift = GaugeMetricFamily(
+        "skelfuse_sensor_drift_millimetres",
+        "Shift of the person the sensor's views need to agree with the others (latest estimate)",
+        labels=["sensor"],
+    )
+    for sensor_id, state in sorted(hub.drift.sensors.items()):
+        moved.add_metric([sensor_id], 1.0 if state.moved else 0.0)
+        if state.correction is not None:
+            rotation.add_metric([sensor_id], state.correction.rotation_deg)
+            shift.add_metric([sensor_id], state.correction.shift_mm)
+    yield from (moved, rotation, shift)

@@ -17,7 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from skelfuse.calibration.solvers import PointPairs
 from skelfuse.calibration.store import Calibration
 from skelfuse.server.calibration_runs import CalibrationService, RunSpec
-from skelfuse.server.errors import Conflict, NotFound
+from skelfuse.server.errors import Conflict, InvalidRequest, NotFound
 
 router = APIRouter(prefix="/api/calibration", tags=["calibration"])
 
@@ -43,7 +43,7 @@ class RunRequest(BaseModel):
     """Start a calibration run."""
 
     model_config = ConfigDict(allow_inf_nan=False, extra="forbid")
-    method: Literal["auto", "skeleton", "points", "icp"] = "auto"
+    method: Literal["auto", "skeleton", "points", "icp", "sensor"] = "auto"
     reference: str | None = Field(
         None,
         description="sensor whose frame anchors the world (default: the first sensor by id); "
@@ -51,6 +51,11 @@ class RunRequest(BaseModel):
     )
     sensors: list[str] | None = Field(
         None, description="sensors to calibrate (default: every connected sensor)"
+    )
+    sensor: str | None = Field(
+        None,
+        description="method sensor: the one sensor to re-solve against the others (a bumped "
+        "one), whose poses stay",
     )
     duration_s: float = Field(15.0, ge=3.0, le=120.0, description="skeleton capture time")
     points: list[SensorPoints] | None = Field(None, description="method points: the pairs")
@@ -78,7 +83,11 @@ async def start_run(body: RunRequest, request: Request) -> dict[str, Any]:
     """Start a run (``auto`` by default). Poll ``GET /api/calibration/runs/{id}``."""
     service = _service(request)
     hub = service.hub
-    if body.sensors is not None:
+    if body.method == "sensor":
+        if body.sensor is None:
+            raise InvalidRequest("method sensor needs 'sensor': the sensor to re-solve")
+        sensors = (body.sensor,)
+    elif body.sensors is not None:
         sensors = tuple(dict.fromkeys(body.sensors))
     elif body.method == "points":
         sensors = tuple(dict.fromkeys(p.sensor for p in body.points or ()))
@@ -86,7 +95,7 @@ async def start_run(body: RunRequest, request: Request) -> dict[str, Any]:
         sensors = tuple(sorted(s for s, state in hub.sensors.items() if state.connected))
     if not sensors:
         raise Conflict("no sensors to calibrate: connect at least one agent")
-    reference = body.reference or sensors[0]
+    reference = sensors[0] if body.method == "sensor" else body.reference or sensors[0]
     points = tuple(
         PointPairs(
             entry.sensor,

@@ -299,3 +299,66 @@ async def test_without_open3d_auto_keeps_the_skeleton_poses_and_icp_says_why(
     else:
         assert run.state == RunState.FAILED and run.error is not None
         assert "libusb-1.0.so.0" in run.error
+
+
+def bumped(pose: Matrix4, yaw_deg: float, shift_m: float) -> Matrix4:
+    """``pose`` turned by ``yaw_deg`` about its own +Y and shifted ``shift_m`` along its +X."""
+    yaw = np.radians(yaw_deg)
+    delta = np.eye(4)
+    delta[:3, :3] = [[np.cos(yaw), 0, np.sin(yaw)], [0, 1, 0], [-np.sin(yaw), 0, np.cos(yaw)]]
+    delta[0, 3] = shift_m
+    result: Matrix4 = pose @ delta
+    return result
+
+
+async def test_sensor_run_solves_a_moved_sensor_back_and_keeps_the_others(tmp_path: Path) -> None:
+    rig = Rig(tmp_path)
+    committed = {"cam-a": POSES["cam-a"], "cam-b": bumped(POSES["cam-b"], 3.0, 0.05)}
+    rig.hub.use_calibration(
+        rig.store.save({s: SensorCalibration(p, "points") for s, p in committed.items()})
+    )
+    service = rig.service()
+    run = await finished(service.start(RunSpec("sensor", "cam-b", ("cam-b",), duration_s=4.0)))
+    assert run.state == RunState.DONE, run.error
+    assert set(run.results) == {"cam-b"}  # cam-a is not touched
+    result = run.results["cam-b"]
+    rotation_deg, translation_mm = pose_error(result.T_world_from_sensor, POSES["cam-b"])
+    assert rotation_deg < 0.3 and translation_mm < 15.0
+    assert result.method == "sensor" and result.metrics["against"] == "cam-a"
+    assert result.metrics["moved_deg"] == pytest.approx(3.0, abs=0.3)
+    assert any(w.startswith("no ICP refinement") for w in run.warnings)
+    calibration = service.commit(run.run_id)
+    assert np.array_equal(calibration.sensors["cam-a"].T_world_from_sensor, POSES["cam-a"])
+
+
+async def test_sensor_run_refines_with_icp_against_the_others_clouds(tmp_path: Path) -> None:
+    rig = Rig(tmp_path)
+    committed = {"cam-a": POSES["cam-a"], "cam-b": bumped(POSES["cam-b"], 2.0, 0.03)}
+    rig.hub.use_calibration(
+        rig.store.save({s: SensorCalibration(p, "points") for s, p in committed.items()})
+    )
+    sources = {
+        s: SimSource(PERFORMER, POSES[s], seed=i, wall_clock_ns=lambda: round(START_S * 1e9))
+        for i, s in enumerate(POSES)
+    }
+    agents = FakeAgents(lambda s: sources[s].depth_cloud({"max_points": 20000}))
+    run = await finished(
+        rig.service(agents).start(RunSpec("sensor", "cam-b", ("cam-b",), duration_s=4.0))
+    )
+    assert run.state == RunState.DONE, run.error
+    result = run.results["cam-b"]
+    # The rig's skeletons are exact, so ICP finds the skeleton pose already right (not applied);
+    # it ran against cam-a's cloud placed with cam-a's pose, and agrees.
+    assert not run.warnings and "icp_applied" in result.metrics
+    assert result.metrics["fitness"] > 0.5 and result.metrics["correction_mm"] < 15.0
+    assert pose_error(result.T_world_from_sensor, POSES["cam-b"])[1] < 15.0
+    assert sorted(a[0] for a in agents.asked) == ["cam-a", "cam-b"]
+
+
+async def test_sensor_run_needs_one_sensor_and_another_with_a_pose(tmp_path: Path) -> None:
+    rig = Rig(tmp_path)
+    service = rig.service()
+    with pytest.raises(InvalidRequest, match="one sensor"):
+        service.start(RunSpec("sensor", "cam-a", ("cam-a", "cam-b")))
+    with pytest.raises(Conflict, match="at least one other connected sensor with a pose"):
+        service.start(RunSpec("sensor", "cam-b", ("cam-b",)))  # nobody has a pose yet
