@@ -104,36 +104,50 @@ class OneEuroFilter:
     def _params(self) -> tuple[float, float, float, float]:
         return (self.min_cutoff_hz, self.beta, self.d_cutoff_hz, self.reset_gap_s)
 
+    def _state(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """x, dx, t of a started filter (``filter_all`` stacks them)."""
+        assert self._x is not None
+        assert self._dx is not None
+        assert self._t is not None
+        return self._x, self._dx, self._t
+
+    def _set_state(self, x: FloatArray, dx: FloatArray, t: FloatArray) -> None:
+        self._x, self._dx, self._t = x, dx, t
+
 
 def filter_all(filters: list[JointFilter], joints: FloatArray, t_s: float) -> list[FloatArray]:
     """Filter one sample per filter (``filters[i]`` gets ``joints[i]``), as separate calls would.
 
-    One Euro filters with the same parameters and already started are stepped together in one
-    vectorised pass (the same element-wise arithmetic, so the same results); others one by one.
+    One Euro or Kalman filters of the same kind and parameters, already started, are stepped
+    together in one vectorised pass (the same element-wise arithmetic, so the same results);
+    others one by one.
 
     Args:
         joints: (P, ...) one sample per filter.
     """
     out: list[FloatArray | None] = [None] * len(filters)
-    groups: dict[tuple[float, float, float, float], list[int]] = {}
+    groups: dict[tuple[type, tuple[float, ...]], list[int]] = {}
     for i, f in enumerate(filters):
-        if isinstance(f, OneEuroFilter) and f._x is not None and f._x.shape == joints.shape[1:]:
-            groups.setdefault(f._params(), []).append(i)
+        if (
+            isinstance(f, OneEuroFilter | ConstantVelocityKalman)
+            and f._t is not None
+            and f._t.shape == joints.shape[1:]
+        ):
+            groups.setdefault((type(f), f._params()), []).append(i)
         else:
             out[i] = f(joints[i], t_s)
     for members in groups.values():
-        first = filters[members[0]]
-        assert isinstance(first, OneEuroFilter)
-        chosen = [f for i in members if isinstance(f := filters[i], OneEuroFilter)]
-        result, xs, dxs, ts = first._step(
-            np.asarray(joints[members], dtype=np.float64),
-            np.stack([f._x for f in chosen]),  # type: ignore[misc]
-            np.stack([f._dx for f in chosen]),  # type: ignore[misc]
-            np.stack([f._t for f in chosen]),  # type: ignore[misc]
-            t_s,
-        )
+        chosen = [
+            f
+            for i in members
+            if isinstance(f := filters[i], OneEuroFilter | ConstantVelocityKalman)
+        ]
+        first = chosen[0]
+        states = [f._state() for f in chosen]
+        x, second, t = (np.stack([s[k] for s in states]) for k in range(3))
+        result, *new = first._step(np.asarray(joints[members], dtype=np.float64), x, second, t, t_s)
         for k, (i, f) in enumerate(zip(members, chosen, strict=True)):
-            f._x, f._dx, f._t = xs[k], dxs[k], ts[k]
+            f._set_state(new[0][k], new[1][k], new[2][k])
             out[i] = result[k]
     return [o for o in out if o is not None]
 
@@ -170,17 +184,24 @@ class ConstantVelocityKalman:
 
     def __call__(self, joints: FloatArray, t_s: float) -> FloatArray:
         z = np.asarray(joints, dtype=np.float64)
-        present = np.isfinite(z)
         if self._x is None or self._p is None or self._t is None:
             self._x, self._p = self._init(z)
-            self._t = np.where(present, t_s, -np.inf)
+            self._t = np.where(np.isfinite(z), t_s, -np.inf)
             return z.copy()
-        dt = t_s - self._t
-        fresh = present & (~np.isfinite(self._x[..., 0]) | (dt > self.reset_gap_s))
+        out, self._x, self._p, self._t = self._step(z, self._x, self._p, self._t, t_s)
+        return out
+
+    def _step(
+        self, z: FloatArray, last_x: FloatArray, last_p: FloatArray, last_t: FloatArray, t_s: float
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """One sample on any stack of states: output, new state, new covariance, new t."""
+        present = np.isfinite(z)
+        dt = t_s - last_t
+        fresh = present & (~np.isfinite(last_x[..., 0]) | (dt > self.reset_gap_s))
         step = present & ~fresh & (dt > 0)
         h = np.where(step, dt, 0.0)
-        pos, vel = self._x[..., 0], self._x[..., 1]
-        p00, p01, p11 = self._p[..., 0], self._p[..., 1], self._p[..., 2]
+        pos, vel = last_x[..., 0], last_x[..., 1]
+        p00, p01, p11 = last_p[..., 0], last_p[..., 1], last_p[..., 2]
         # Predict: F = [[1, h], [0, 1]], Q from white acceleration.
         pos_p = pos + h * vel
         q = self.q
@@ -196,11 +217,24 @@ class ConstantVelocityKalman:
         new_p = np.stack([(1 - k0) * p00_p, (1 - k0) * p01_p, p11_p - k1 * p01_p], axis=-1)
         new_x = np.stack([pos_u, vel_u], axis=-1)
         init_x, init_p = self._init(np.where(fresh, z, 0.0))
-        self._x = np.where(step[..., None], new_x, np.where(fresh[..., None], init_x, self._x))
-        self._p = np.where(step[..., None], new_p, np.where(fresh[..., None], init_p, self._p))
-        self._t = np.where(present, t_s, self._t)
-        out = self._x[..., 0] + self.predict_s * self._x[..., 1]
-        return np.where(present, out, np.nan)
+        x = np.where(step[..., None], new_x, np.where(fresh[..., None], init_x, last_x))
+        p = np.where(step[..., None], new_p, np.where(fresh[..., None], init_p, last_p))
+        t = np.where(present, t_s, last_t)
+        out = x[..., 0] + self.predict_s * x[..., 1]
+        return np.where(present, out, np.nan), x, p, t
+
+    def _params(self) -> tuple[float, float, float, float]:
+        return (self.q, self.r, self.predict_s, self.reset_gap_s)
+
+    def _state(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """x, P, t of a started filter (``filter_all`` stacks them)."""
+        assert self._x is not None
+        assert self._p is not None
+        assert self._t is not None
+        return self._x, self._p, self._t
+
+    def _set_state(self, x: FloatArray, p: FloatArray, t: FloatArray) -> None:
+        self._x, self._p, self._t = x, p, t
 
 
 def make_filter(

@@ -7,7 +7,14 @@ import math
 import numpy as np
 import pytest
 
-from skelfuse.fusion.filters import ConstantVelocityKalman, OneEuroFilter, PassThrough, make_filter
+from bench.lag import SHIFTS_S, best_shift, shift_errors
+from skelfuse.fusion.filters import (
+    ConstantVelocityKalman,
+    JointFilter,
+    OneEuroFilter,
+    PassThrough,
+    make_filter,
+)
 
 
 class ScalarOneEuro:
@@ -90,15 +97,53 @@ def test_unknown_filter_is_refused() -> None:
     assert isinstance(make_filter("none"), PassThrough)
 
 
+def _mixed() -> list[JointFilter]:
+    return [OneEuroFilter(1.5, 10.0), OneEuroFilter(1.5, 10.0), PassThrough(),
+            ConstantVelocityKalman(6.0, 0.03, 0.01), ConstantVelocityKalman(6.0, 0.03, 0.01),
+            ConstantVelocityKalman(8.0, 0.03)]  # fmt: skip
+
+
 def test_filter_all_matches_separate_calls() -> None:
+    """One Euro and Kalman filters stepped together give exactly what separate calls give."""
     from skelfuse.fusion.filters import filter_all
 
     rng = np.random.default_rng(3)
-    together = [OneEuroFilter(1.5, 10.0), OneEuroFilter(1.5, 10.0), PassThrough()]
-    apart = [OneEuroFilter(1.5, 10.0), OneEuroFilter(1.5, 10.0), PassThrough()]
+    together, apart = _mixed(), _mixed()
     for k in range(20):
-        sample = rng.normal(size=(3, 25, 3))
-        sample[rng.random((3, 25, 3)) < 0.1] = np.nan
-        got = filter_all(together, sample, k / 30)  # type: ignore[arg-type]
+        sample = rng.normal(size=(6, 25, 3))
+        sample[rng.random((6, 25, 3)) < 0.1] = np.nan
+        got = filter_all(together, sample, k / 30)
         for f, x, y in zip(apart, sample, got, strict=True):
             np.testing.assert_array_equal(f(x, k / 30), y)
+
+
+def test_kalman_with_lead_leads_a_ramp_by_its_horizon_and_smooths_a_still_joint() -> None:
+    """The recommended lead-compensated Kalman: on a constant-velocity ramp its output is
+    ``predict_s`` ahead (no lag of its own); on a still joint it removes a third of the noise."""
+    ramp = ConstantVelocityKalman(6.0, 0.03, 0.010)
+    for n in range(150):
+        y = ramp(np.full((25, 3), n / 30), n / 30)
+    np.testing.assert_allclose(y, 149 / 30 + 0.010, atol=0.001)
+    rng = np.random.default_rng(5)
+    still = ConstantVelocityKalman(6.0, 0.03, 0.010)
+    noise = rng.normal(0, 0.01, size=(300, 25, 3))
+    values = np.stack([still(x, n / 30) for n, x in enumerate(noise)])
+    assert np.std(values[50:]) < 0.75 * 0.01
+
+
+def _sine(t: float) -> np.ndarray:
+    return np.array([[np.sin(2 * np.pi * 0.7 * t), 0.3 * np.cos(2 * np.pi * 1.3 * t), 0.0]])
+
+
+@pytest.mark.parametrize("shift_s", [0.0, 0.017, -0.009, 0.0333])
+def test_lag_measure_recovers_a_known_shift(shift_s: float) -> None:
+    """A trajectory that is the truth delayed by ``shift_s`` (plus a constant offset and noise,
+    which are not lag) is measured to lag by ``shift_s`` to within a millisecond."""
+    rng = np.random.default_rng(2)
+    times = np.arange(0, 6, 1 / 30)
+    fused = np.stack([_sine(t - shift_s) for t in times]) + 0.05
+    fused += rng.normal(0, 0.002, size=fused.shape)
+    fused[10:20] = np.nan
+    errors = shift_errors(times, fused, _sine)
+    assert best_shift(errors) == pytest.approx(shift_s, abs=0.001)
+    assert len(errors) == len(SHIFTS_S)
