@@ -31,7 +31,12 @@ by the Hungarian algorithm on trunk distance, gated at 1 m):
 
 Run: ``python bench/accuracy.py`` (``--runs N`` seeds per scenario, ``--quick`` for a short
 subset, ``--json FILE`` raw results, ``--paper`` report A's own experiment only,
-``--latency`` the filters' added latency only).
+``--latency`` the filters' added latency only, ``--birth`` the birth-labelling scenarios only,
+``--mirror-redecide`` with ``FusionSettings.mirror_redecide`` on).
+
+Labels: the wrong-label rate (share of sensor × frame labelling decisions that disagree with the
+simulator's truth: ``FusedPerson.mirrored`` against ``Observation.mirrored``) and the longest
+time a person stays wrong once a front or side view sees them (``print_labels``).
 
 The parts: ``accuracy_scenarios`` (who moves, seen by how many sensors), ``accuracy_methods``
 (the settings compared), ``accuracy_runner`` (one capture through every method),
@@ -45,15 +50,21 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.accuracy_methods import METHODS
 from bench.accuracy_paper import paper_experiment
-from bench.accuracy_report import print_accuracy, print_filter_latency, print_paper
+from bench.accuracy_report import (
+    print_accuracy,
+    print_filter_latency,
+    print_labels,
+    print_paper,
+)
 from bench.accuracy_runner import run_once
-from bench.accuracy_scenarios import CMU_DIR, scenarios
+from bench.accuracy_scenarios import CMU_DIR, birth_scenarios, scenarios
 from bench.filter_latency import filter_latency
 from skelfuse.agent.sim.kinect_model import KinectV2Params
 
@@ -66,14 +77,27 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, default=None, help="write raw results here")
     parser.add_argument("--paper", action="store_true", help="only report A's experiment")
     parser.add_argument("--latency", action="store_true", help="only the filters' latency")
+    parser.add_argument(
+        "--birth",
+        action="store_true",
+        help="only the birth-labelling scenarios (seen from behind first, ...)",
+    )
+    parser.add_argument("--mirror-redecide", action="store_true",
+                        help="every method with mirror correction re-decides labels "
+                             "(FusionSettings.mirror_redecide)")  # fmt: skip
     args = parser.parse_args(argv)
+    methods = METHODS
+    if args.mirror_redecide:
+        methods = {label: replace(m, mirror_redecide=m.use_mirror_correction)
+                   for label, m in METHODS.items()}  # fmt: skip
 
-    if not args.paper:
+    if not args.paper and not args.birth:
         print_filter_latency(filter_latency())
     if args.latency:
         return 0
-    paper = paper_experiment()
-    print_paper(paper)
+    paper = {} if args.birth else paper_experiment()
+    if not args.birth:
+        print_paper(paper)
     if args.paper:
         return 0
 
@@ -83,16 +107,17 @@ def main(argv: list[str] | None = None) -> int:
     started = time.perf_counter()
     results: dict[str, list[dict[str, dict[str, float]]]] = {}
     groups: dict[str, list[str]] = {}
-    for scenario in scenarios(args.quick):
+    for scenario in birth_scenarios(args.quick) if args.birth else scenarios(args.quick):
         groups.setdefault(scenario.group, []).append(scenario.name)
         t = time.perf_counter()
         results[scenario.name] = [
-            run_once(scenario, seed, params, METHODS) for seed in range(args.runs)
+            run_once(scenario, seed, params, methods) for seed in range(args.runs)
         ]
         print(f"  {scenario.name}: {time.perf_counter() - t:.0f} s", file=sys.stderr)
     elapsed = time.perf_counter() - started
 
     summary = print_accuracy(results, groups, args.runs, elapsed)
+    print_labels(results, groups)
     if args.json:
         args.json.write_text(json.dumps({"summary": summary, "runs": results, "paper": paper},
                                         indent=1))  # fmt: skip

@@ -20,6 +20,8 @@ ERROR_JOINTS = (JointId.HEAD, JointId.HAND_LEFT, JointId.HAND_RIGHT, JointId.ANK
 ERROR_LIMIT_M = 0.10
 SETTLE_FRAMES = 60
 """Fused frames (2 s at 30 Hz) left out of the settled bone CV."""
+FUSED_HZ = 30.0
+"""The benchmark's fused frame rate (the hub's default output grid)."""
 FloatArray = npt.NDArray[np.float64]
 
 
@@ -34,10 +36,20 @@ class Log:
     bones: dict[int, list[FloatArray]] = field(default_factory=dict)  # truth person → (24,)
     error_vectors: dict[int, list[tuple[int, FloatArray | None]]] = field(default_factory=dict)
     ids: dict[int, list[int]] = field(default_factory=dict)
+    label_total: int = 0  # (sensor × frame) labelling decisions
+    label_wrong: int = 0
+    # Per truth person: (frame index, any view wrong, a front or side view sees them) per frame.
+    label_frames: dict[int, list[tuple[int, bool, bool]]] = field(default_factory=dict)
 
     def add(
-        self, frame_index: int, persons: list[tuple[int, FloatArray]], truth: FloatArray
+        self,
+        frame_index: int,
+        persons: list[tuple[int, FloatArray]],
+        truth: FloatArray,
+        labels: dict[int, list[tuple[bool, bool]]] | None = None,
     ) -> None:
+        """One fused frame: the published (id, (25, 3) joints) against the truth (P, 25, 3);
+        ``labels``: per published id, each view's (swapped back by fusion, mirrored in truth)."""
         self.frames += 1
         self.expected += truth.shape[0]
         if len(persons) > truth.shape[0]:
@@ -62,13 +74,20 @@ class Log:
             ids = self.ids.setdefault(index, [])
             if not ids or ids[-1] != person_id:
                 ids.append(person_id)
+            decisions = (labels or {}).get(person_id, [])
+            if decisions:
+                wrong = sum(decided != true for decided, true in decisions)
+                self.label_total += len(decisions)
+                self.label_wrong += wrong
+                front = any(not true for _, true in decisions)
+                self.label_frames.setdefault(index, []).append((frame_index, wrong > 0, front))
 
     def summary(self) -> dict[str, float]:
         if not self.errors:
             nan = math.nan
             return {"mpjpe_mm": nan, "p95_mm": nan, "coverage": 0.0, "erroneous": 1.0,
                     "bone_cv": nan, "bone_cv_settled": nan, "jitter_mm": nan, "id_switches": 0.0,
-                    "duplicates": 0.0}  # fmt: skip
+                    "duplicates": 0.0, "wrong_labels": nan, "wrong_after_front_s": nan}  # fmt: skip
         errors = np.stack(self.errors)
         flat = errors[np.isfinite(errors)]
         key = errors[:, list(ERROR_JOINTS)]
@@ -103,7 +122,24 @@ class Log:
             "jitter_mm": float(np.mean(jitter) * 1000) if jitter else math.nan,
             "id_switches": float(sum(max(len(ids) - 1, 0) for ids in self.ids.values())),
             "duplicates": self.duplicate_frames / max(self.frames, 1),
+            "wrong_labels": self.label_wrong / self.label_total if self.label_total else math.nan,
+            "wrong_after_front_s": self._longest_wrong_after_front_s(),
         }
+
+    def _longest_wrong_after_front_s(self) -> float:
+        """The longest run of fused frames (in seconds at 30 Hz) in which some view of a person
+        is labelled wrong, counted from the first frame a front or side view sees them."""
+        longest = 0
+        for frames in self.label_frames.values():
+            run, seen_front, last = 0, False, None
+            for frame_index, wrong, front in frames:
+                seen_front = seen_front or front
+                if last is not None and frame_index != last + 1:
+                    run = 0
+                last = frame_index
+                run = run + 1 if wrong and seen_front else 0
+                longest = max(longest, run)
+        return longest / FUSED_HZ
 
 
 def _trunk(a: FloatArray, b: FloatArray) -> float:

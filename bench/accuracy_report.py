@@ -109,3 +109,29 @@ def print_accuracy(
     print("|---|---:|---:|---:|---:|---:|")
     print("\n".join(verdicts))
     return summary
+
+
+def print_labels(
+    results: dict[str, list[dict[str, Metrics]]], groups: dict[str, list[str]]
+) -> None:
+    """Wrong labels per group for every method that labels views (targets: ≤ 1 % of the
+    sensor × frame decisions, no person wrong for over 0.5 s once a front or side view sees
+    them): the median over runs and the worst run."""
+    print("\nMirror labels against the simulator's truth (median over runs; worst run)\n")
+    print("| scenario | method | wrong-label rate (≤ 1 %) | longest wrong after a front or side "
+          "view, s (≤ 0.5) |")  # fmt: skip
+    print("|---|---|---:|---:|")
+    for group, names in groups.items():
+        runs = [run for name in names for run in results[name]]
+        for label, settings in METHODS.items():
+            if not settings.use_mirror_correction:
+                continue
+            rates = [run[label]["wrong_labels"] for run in runs]
+            longest = [run[label]["wrong_after_front_s"] for run in runs]
+            finite = [r for r in rates if math.isfinite(r)]
+            if not finite:
+                continue
+            print(
+                f"| {group} | {label} | {np.median(finite):.2%} ({max(finite):.2%}) | "
+                f"{np.nanmedian(longest):.2f} ({np.nanmax(longest):.2f}) |"
+            )

@@ -4,6 +4,7 @@ to one production ``FusionHub`` per method in simulated time, scored against the
 from __future__ import annotations
 
 import math
+from bisect import bisect_left
 from collections.abc import Callable
 
 import numpy as np
@@ -13,7 +14,8 @@ from bench.accuracy_methods import BASE
 from bench.accuracy_metrics import Log
 from bench.accuracy_scenarios import Scenario
 from skelfuse.agent.sim.kinect_model import KinectV2Params, SimulatedKinect
-from skelfuse.fusion.hub import FusionHub
+from skelfuse.fusion.hub import FusedFrame, FusionHub
+from skelfuse.fusion.sensors import TimedFrame
 from skelfuse.protocol.transform import look_at_pose
 from skelfuse.protocol.wire import Body, Frame, Hello, encode
 from skelfuse.server.settings import FusionSettings, Settings
@@ -54,6 +56,9 @@ def run_once(
 ) -> dict[str, dict[str, float]]:
     """One simulated capture seen by every method; returns the metrics per method."""
     rng = np.random.default_rng(seed)
+    performer, delays = scenario.performer, [0.0] * scenario.sensors
+    if scenario.per_seed is not None:
+        performer, delays = scenario.per_seed(np.random.default_rng(10_000 + seed))
     poses = sensor_poses(scenario.sensors)
     kinects = [SimulatedKinect(p, params, seed=seed * 100 + k) for k, p in enumerate(poses)]
     names = [f"sim-{k + 1}" for k in range(len(kinects))]
@@ -67,16 +72,19 @@ def run_once(
             on_hub(label, hub)
     events: list[tuple[float, int]] = []
     for k in range(len(kinects)):
-        phase = rng.uniform(0, 1 / FPS)
-        events += [(T0 + phase + n / FPS, k) for n in range(int(scenario.duration_s * FPS))]
+        phase = rng.uniform(0, 1 / FPS) + delays[k]
+        count = int((scenario.duration_s - delays[k]) * FPS)
+        events += [(T0 + phase + n / FPS, k) for n in range(count)]
     events.sort()
     logs = {label: Log() for label in hubs}
     frame_counters = dict.fromkeys(hubs, 0)
     seqs = [0] * len(kinects)
+    swapped: dict[tuple[str, int], dict[int, bool]] = {}  # (sensor, seq) → tracking id → truth
     for t_capture, k in events:
-        truth = scenario.performer.joints_at(t_capture - T0)
+        truth = performer.joints_at(t_capture - T0)
         observations = kinects[k].observe(truth, t_capture)
         seqs[k] += 1
+        swapped[(names[k], seqs[k])] = {o.tracking_id: o.mirrored for o in observations}
         bodies = tuple(Body(o.tracking_id, o.joints_m, o.states) for o in observations)
         message = encode(Frame(seqs[k], int(t_capture * 1e9), bodies))
         received = t_capture + NETWORK_DELAY_S
@@ -88,7 +96,45 @@ def run_once(
             if fused is None:
                 continue
             frame_counters[label] += 1
-            truth_at = scenario.performer.joints_at(fused.t_s - T0)
+            truth_at = performer.joints_at(fused.t_s - T0)
             persons = [(p.person_id, p.joints) for p in fused.persons]
-            logs[label].add(frame_counters[label], persons, truth_at)
+            logs[label].add(frame_counters[label], persons, truth_at,
+                            label_decisions(hub, fused, swapped))  # fmt: skip
     return {label: log.summary() for label, log in logs.items()}
+
+
+def label_decisions(
+    hub: FusionHub, fused: FusedFrame, swapped: dict[tuple[str, int], dict[int, bool]]
+) -> dict[int, list[tuple[bool, bool]]]:
+    """Per fused person, each view's (swapped back by fusion, mirrored by the simulator).
+
+    The truth is that of the frame fusion took the view's labels from: the nearer of the two
+    frames around the fused instant (fusion.sensors.bodies_at).
+    """
+    out: dict[int, list[tuple[bool, bool]]] = {}
+    for person in fused.persons:
+        decisions = out.setdefault(person.person_id, [])
+        for view in person.views:
+            frame = _nearer_frame(list(hub.sensors[view.sensor_id].frames), fused.t_s)
+            if frame is None:
+                continue
+            truth = swapped.get((view.sensor_id, frame.frame.seq), {}).get(view.tracking_id)
+            if truth is not None:
+                decisions.append((view.sensor_id in person.mirrored, truth))
+    return out
+
+
+def _nearer_frame(frames: list[TimedFrame], t_s: float) -> TimedFrame | None:
+    """The frame whose bodies (and labels) ``bodies_at`` gives at ``t_s``."""
+    if not frames:
+        return None
+    index = bisect_left([f.t_server_s for f in frames], t_s)
+    if index == len(frames):
+        return frames[-1]
+    after = frames[index]
+    if after.t_server_s == t_s or index == 0:
+        return after
+    before = frames[index - 1]
+    gap = after.t_server_s - before.t_server_s
+    alpha = (t_s - before.t_server_s) / gap if gap > 0 else 1.0
+    return after if alpha >= 0.5 else before

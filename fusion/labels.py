@@ -3,13 +3,18 @@ swapped when they walk backwards.
 
 :func:`label_views` asks :func:`skelfuse.fusion.mirror.choose_labellings` for every person's
 labelling at once, remembers each (sensor, body)'s decision for the next step's hysteresis, and
-swaps the mirrored views in place. :func:`walking_backwards` is the one cue that does not depend
-on labels (docs/fusion.md §5).
+swaps the mirrored views in place. Two cues can swap a whole person whose labels were wrong
+from its birth: :func:`walking_backwards`, which does not depend on labels (docs/fusion.md §5),
+and, with ``mirror_redecide``, the anatomy of all its views (:func:`redecide`), which works
+standing still too.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
+from dataclasses import dataclass, field
+from itertools import pairwise
 
 import numpy as np
 import numpy.typing as npt
@@ -23,6 +28,22 @@ Labels = dict[tuple[str, int], bool]
 """Per (sensor id, tracking id): whether that body was mirrored at the last step."""
 
 
+@dataclass(slots=True)
+class LabelDoubt:
+    """One person's running evidence against its labels (``mirror_redecide``).
+
+    against: the running sum of evidence (joints, :func:`redecide`); sensors: the sensors that
+    saw the person at the last step; born_s, last_s: first and last step seen (seconds).
+    """
+
+    against: float = 0.0
+    sensors: frozenset[str] = field(default_factory=frozenset)
+    born_s: float | None = None
+    last_s: float | None = None
+    swaps: int = 0
+    """How often the person was swapped whole by this cue (diagnostics, tests)."""
+
+
 def label_views(
     joints: FloatArray,
     states: npt.NDArray[np.uint8],
@@ -33,7 +54,9 @@ def label_views(
     reference_facings: FloatArray,
     memories: list[Labels],
     settings: FusionSettings,
-) -> tuple[npt.NDArray[np.bool_], FloatArray | None]:
+    doubts: Sequence[LabelDoubt] | None = None,
+    t_s: float = 0.0,
+) -> tuple[npt.NDArray[np.bool_], FloatArray | None, npt.NDArray[np.bool_]]:
     """Choose every view's labelling, swap the mirrored views in place, remember the choice.
 
     Args:
@@ -47,11 +70,16 @@ def label_views(
         reference_facings: (P, 3) facing of each person's last skeleton (NaN: unknown).
         memories: each person's labels from the last step; replaced by this step's.
         settings: the mirror term weights, and whether range of motion is wanted too.
+        doubts: each person's evidence against its labels, updated here (with
+            ``mirror_redecide``; None: no re-decision).
+        t_s: the instant, seconds (for the running evidence).
 
     Returns:
         mirrored: (N,) bool.
         rom: (N, 25) range-of-motion factors of each view as labelled, when computed here
             (saves computing them again for the confidence), else None.
+        swapped: (P,) bool, the persons whose every view's labelling was turned over by
+            :func:`redecide` (the caller swaps their track, filter and bone samples).
     """
     s = settings
     starts = np.cumsum([0, *counts])
@@ -69,8 +97,15 @@ def label_views(
         track_weight=s.mirror_track_weight,
         anatomy_weight_m=s.mirror_anatomy_weight_m,
         rom_scale_deg=s.rom_scale_deg,
-        need_rom=s.use_range_of_motion,
+        need_rom=s.use_range_of_motion or (s.mirror_redecide and doubts is not None),
     )
+    swapped = np.zeros(len(counts), dtype=bool)
+    if s.mirror_redecide and doubts is not None and both_rom is not None:
+        sensors = [frozenset(k[0] for k in keys[lo:hi]) for lo, hi in pairwise(starts)]
+        evidence = evidence_against(both_rom, mirrored, counts)
+        for p, doubt in enumerate(doubts):
+            swapped[p] = redecide(doubt, float(evidence[p]), sensors[p], t_s, s)
+        mirrored ^= swapped[person_of]
     for p in range(len(counts)):
         lo, hi = starts[p], starts[p + 1]
         memories[p].clear()
@@ -79,9 +114,65 @@ def label_views(
         joints[mirrored] = joints[mirrored][:, PERMUTATION]
         states[mirrored] = states[mirrored][:, PERMUTATION]
     rom = None
-    if both_rom is not None:
+    if both_rom is not None and (s.use_range_of_motion or s.mirror_anatomy_weight_m > 0):
         rom = both_rom[np.arange(len(joints)), mirrored.astype(np.intp)]
-    return mirrored, rom
+    return mirrored, rom, swapped
+
+
+def evidence_against(
+    both_rom: FloatArray, mirrored: npt.NDArray[np.bool_], counts: Sequence[int]
+) -> FloatArray:
+    """(P,) each person's anatomical evidence against its labelling, in joints.
+
+    Σ over the person's views of (joints out of range of motion as labelled) − (as swapped),
+    a joint counting 1 − its range-of-motion factor. Agreement between views and the geometry
+    term cannot tell a labelling from its reverse (turning every view over keeps the views in
+    agreement and reverses the facing they imply); anatomy can: with left and right swapped,
+    feet point backwards and bent knees look hyperextended. A view that does not see the legs
+    (close to a sensor behind the person) adds next to nothing, however it was labelled.
+
+    Args:
+        both_rom: (N, 2, 25) range-of-motion factors of each view as reported (0) and swapped
+            (1), as :func:`~skelfuse.fusion.mirror.choose_labellings` gives them.
+        mirrored: (N,) the labelling chosen.
+        counts: views per person.
+    """
+    out_of_range = (1.0 - both_rom).sum(axis=2)  # (N, 2)
+    rows = np.arange(len(mirrored))
+    chosen = mirrored.astype(np.intp)
+    per_view = np.nan_to_num(out_of_range[rows, chosen] - out_of_range[rows, 1 - chosen])
+    person_of = np.repeat(np.arange(len(counts)), counts)
+    evidence: FloatArray = np.bincount(person_of, per_view, len(counts)).astype(np.float64)
+    return evidence
+
+
+def redecide(
+    doubt: LabelDoubt, evidence: float, sensors: frozenset[str], t_s: float, s: FusionSettings
+) -> bool:
+    """Whether a person's labels are turned over now; updates its running ``doubt``.
+
+    The evidence of each step (:func:`evidence_against`) is summed, decaying with
+    ``mirror_redecide_tau_s``; past ``mirror_redecide_evidence`` the person is swapped and the
+    sum starts over. A person younger than ``mirror_redecide_young_s`` that a sensor has just
+    joined re-decides on this step's evidence alone, against half the threshold: its labels
+    were a guess from fewer views.
+    """
+    if doubt.born_s is None:
+        doubt.born_s = t_s
+    dt = 0.0 if doubt.last_s is None else max(t_s - doubt.last_s, 0.0)
+    decay = math.exp(-dt / s.mirror_redecide_tau_s) if s.mirror_redecide_tau_s > 0 else 0.0
+    joined = bool(sensors - doubt.sensors) and doubt.last_s is not None
+    young = t_s - doubt.born_s < s.mirror_redecide_young_s
+    doubt.against = max(doubt.against * decay + evidence, 0.0)
+    doubt.sensors, doubt.last_s = sensors, t_s
+    threshold = s.mirror_redecide_evidence
+    if joined and young:
+        doubt.against, threshold = max(evidence, 0.0), 0.5 * threshold
+    if doubt.against <= threshold:
+        return False
+    doubt.against = 0.0
+    doubt.swaps += 1
+    return True
 
 
 def walking_backwards(

@@ -46,7 +46,7 @@ from skelfuse.fusion.confidence import (
 )
 from skelfuse.fusion.filters import JointFilter, filter_all, make_filter
 from skelfuse.fusion.identity import PersonTracker
-from skelfuse.fusion.labels import Labels, label_views, walking_backwards
+from skelfuse.fusion.labels import LabelDoubt, Labels, label_views, walking_backwards
 from skelfuse.fusion.mirror_labellings import MAX_VIEWS
 from skelfuse.fusion.sensors import SensorState, bodies_at
 from skelfuse.fusion.settings import FusionSettings
@@ -96,6 +96,8 @@ class PersonMemory:
     backward_since_s: float | None = None
     walk_swaps: int = 0
     """How often the whole person was swapped for walking backwards (diagnostics, tests)."""
+    doubt: LabelDoubt = field(default_factory=LabelDoubt)
+    """Running evidence against the labels (``mirror_redecide``, fusion.labels.redecide)."""
 
 
 class FusionPipeline:
@@ -133,7 +135,7 @@ class FusionPipeline:
             mirrored = np.zeros(len(batch.views), dtype=bool)
             rom = None
             if s.use_mirror_correction:
-                mirrored, rom = label_views(
+                mirrored, rom, swapped = label_views(
                     batch.joints,
                     batch.states,
                     batch.sensors,
@@ -143,7 +145,12 @@ class FusionPipeline:
                     track_facing,
                     [m.labels for m in memories],
                     s,
+                    [m.doubt for m in memories] if s.mirror_redecide else None,
+                    t_s,
                 )
+                for p in np.flatnonzero(swapped).tolist():  # turned over: the track goes too
+                    self._swap_person(ids[p], relabel=False)
+                    track_facing[p] = facing_directions(tracks[p].joints[None])[0]
 
             # 5. Per-joint confidence from each view's body alone, 6. a first fusion.
             references = np.stack([m.bones.reference() for m in memories])
@@ -267,13 +274,19 @@ class FusionPipeline:
         swap, memory.backward_since_s = walking_backwards(
             track.joints, track.velocity, t_s, memory.backward_since_s, self.settings
         )
-        if not swap:
-            return
+        if swap:
+            self._swap_person(person_id, relabel=True)
+            memory.walk_swaps += 1
+
+    def _swap_person(self, person_id: int, relabel: bool) -> None:
+        """Swap a whole person's sides: its track, its filter (which would otherwise sweep the
+        limbs across), its bone samples, and with ``relabel`` every view's remembered label."""
+        memory = self.memories[person_id]
         self.tracker.swap_sides(person_id)
-        memory.labels = {key: not m for key, m in memory.labels.items()}
+        if relabel:
+            memory.labels = {key: not m for key, m in memory.labels.items()}
         memory.filter = self._new_filter()
         memory.bones.mirror()
-        memory.walk_swaps += 1
 
     # --- reference bone lengths (REST: server/routes_fusion.py) ---------------------------------
 

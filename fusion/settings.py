@@ -126,6 +126,25 @@ class FusionSettings:
     drift_confirm_checks: int = 3
     """Consecutive estimates over a threshold that flag a sensor (and under that clear it)."""
 
+    # --- birth labelling that cannot lock in a guess (fusion/labels.py; issue 10 item 1) ------
+    mirror_redecide: bool = False
+    """Re-decide a whole person's left and right from the anatomy of all its views, standing
+    still included: evidence against the labels (bent knees and feet pointing the wrong way
+    under them, summed over views) that builds up past ``mirror_redecide_evidence`` swaps the
+    person (every view's labelling and the track). A view that cannot tell left from right
+    (seen from behind with the legs out of view, one view alone) adds next to nothing, so the
+    guess it made at birth is undone as soon as a front or side view sees the person
+    (docs/fusion.md §6)."""
+    mirror_redecide_evidence: float = 1.5
+    """Evidence (Σ over views of the joints out of range of motion as labelled minus as
+    swapped, in joints) that swaps a person, summed over time with ``mirror_redecide_tau_s``."""
+    mirror_redecide_tau_s: float = 0.2
+    """Time constant (seconds) of the running sum of evidence: a glitch of a frame or two
+    cannot reach the threshold, evidence that persists does within a few frames."""
+    mirror_redecide_young_s: float = 2.0
+    """A person younger than this (seconds since birth) re-decides from one step's evidence
+    when a sensor joins it (threshold halved, the running sum restarted)."""
+
 
 @dataclass(frozen=True, slots=True)
 class HubSettings:
