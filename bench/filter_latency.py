@@ -19,6 +19,9 @@ def filter_latency() -> dict[str, dict[str, float]]:
         "One Euro (default: min_cutoff 1.5 Hz, beta 10)": lambda: OneEuroFilter(1.5, 10.0, 1.0),
         "Kalman CV (accel 8 m/s², meas 30 mm)": lambda: ConstantVelocityKalman(8.0, 0.03),
         "Kalman CV + 33 ms prediction": lambda: ConstantVelocityKalman(8.0, 0.03, 1 / 30),
+        "Kalman CV + 12 ms lead (accel 5 m/s², proposed)": lambda: ConstantVelocityKalman(
+            5.0, 0.03, 0.012
+        ),
     }
     out: dict[str, dict[str, float]] = {}
     rng = np.random.default_rng(0)

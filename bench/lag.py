@@ -58,6 +58,9 @@ METHODS: dict[str, FusionSettings] = {
     "One Euro (today's default)": FusionSettings(),
     "Kalman CV": FusionSettings(filter="kalman"),
     "Kalman CV + 33 ms prediction": FusionSettings(filter="kalman", kalman_predict_s=1 / 30),
+    "Kalman CV + 12 ms lead, accel 5 (proposed)": FusionSettings(
+        filter="kalman", kalman_accel_std=5.0, kalman_predict_s=0.012
+    ),
 }
 SCENARIO_NAMES = ("CMU 131_01 start-walk-stop, heading 0°", "walking a circle", "arm raises",
                   "squats")  # fmt: skip

@@ -120,12 +120,12 @@ def test_filter_all_matches_separate_calls() -> None:
 def test_kalman_with_lead_leads_a_ramp_by_its_horizon_and_smooths_a_still_joint() -> None:
     """The recommended lead-compensated Kalman: on a constant-velocity ramp its output is
     ``predict_s`` ahead (no lag of its own); on a still joint it removes a third of the noise."""
-    ramp = ConstantVelocityKalman(6.0, 0.03, 0.010)
+    ramp = ConstantVelocityKalman(5.0, 0.03, 0.012)
     for n in range(150):
         y = ramp(np.full((25, 3), n / 30), n / 30)
-    np.testing.assert_allclose(y, 149 / 30 + 0.010, atol=0.001)
+    np.testing.assert_allclose(y, 149 / 30 + 0.012, atol=0.001)
     rng = np.random.default_rng(5)
-    still = ConstantVelocityKalman(6.0, 0.03, 0.010)
+    still = ConstantVelocityKalman(5.0, 0.03, 0.012)
     noise = rng.normal(0, 0.01, size=(300, 25, 3))
     values = np.stack([still(x, n / 30) for n, x in enumerate(noise)])
     assert np.std(values[50:]) < 0.75 * 0.01
