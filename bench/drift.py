@@ -10,7 +10,8 @@ simulated time (as ``bench/accuracy_runner.py`` drives it), calibrated with the 
   reported: the time from the bump to the flag (fusion instants), and any sensor flagged
   that was not bumped, or before the bump;
 - **normal**: a take of ``--minutes`` of the routine with nothing bumped; reported: the
-  flags (false alarms), the largest correction estimated per sensor, and the wall time.
+  flags (false alarms), the largest correction per sensor as it counts against the sensor
+  (the rotation only from ``ROTATION_MIN_SPREAD_M`` on), and the wall time.
 
 Run: ``python bench/drift.py`` (``--seeds N`` bump takes per bump, ``--normal-seeds N`` normal
 takes of ``--minutes M``, ``--json FILE``).
@@ -36,8 +37,9 @@ if __package__ in (None, ""):
 from bench.accuracy_runner import FPS, NETWORK_DELAY_S, T0, sensor_poses
 from skelfuse.agent.sim.kinect_model import KinectV2Params, SimulatedKinect
 from skelfuse.agent.sim.performer import ProceduralPerformer
+from skelfuse.fusion.drift import ROTATION_MIN_SPREAD_M
 from skelfuse.fusion.hub import FusionHub
-from skelfuse.protocol.transform import invert
+from skelfuse.protocol.transform import axis_rotation, invert
 from skelfuse.protocol.wire import Body, Frame, Hello, encode
 from skelfuse.server.settings import FusionSettings, Settings
 
@@ -59,11 +61,7 @@ def bumped_pose(pose: np.ndarray, bump: Bump) -> np.ndarray:
     """(4, 4) ``T_world_from_sensor`` after ``bump`` (applied in the sensor's own frame)."""
     yaw = math.radians(bump.yaw_deg)
     delta = np.eye(4)
-    delta[:3, :3] = [
-        [math.cos(yaw), 0, math.sin(yaw)],
-        [0, 1, 0],
-        [-math.sin(yaw), 0, math.cos(yaw)],
-    ]
+    delta[:3, :3] = axis_rotation("y", yaw)
     delta[0, 3] = bump.shift_mm / 1000.0
     result: np.ndarray = pose @ delta
     return result
@@ -117,9 +115,10 @@ def run_take(
             if state.moved and name not in flags:
                 flags[name] = fused.t_s - T0
             c = state.correction
-            if c is not None:
+            if c is not None:  # the rotation as it counts (drift.Correction.severity)
                 old = largest.get(name, (0.0, 0.0))
-                largest[name] = (max(old[0], c.rotation_deg), max(old[1], c.shift_mm))
+                rotation = c.rotation_deg if c.spread_m >= ROTATION_MIN_SPREAD_M else 0.0
+                largest[name] = (max(old[0], rotation), max(old[1], c.shift_mm))
     return {
         "flags": flags,
         "largest": {k: (round(v[0], 2), round(v[1], 1)) for k, v in sorted(largest.items())},

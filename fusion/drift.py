@@ -51,7 +51,12 @@ MIN_SAMPLES: Final = 30
 """Instants a pair needs in its window for an estimate (3 s at ``SAMPLE_HZ``)."""
 MIN_SPREAD_M: Final = 0.3
 """The pelvis positions of the window must spread this far (the second-largest standard
-deviation, metres): a person standing still pins the rotation about their axis poorly."""
+deviation, metres) for an estimate: a person standing still pins the fit poorly."""
+ROTATION_MIN_SPREAD_M: Final = 0.45
+"""The rotation counts against a sensor only from this spread on: below it, its noise reached
+1.5° in normal motion (bench/drift.py), while the shift of the person stayed under 15 mm. A
+bumped sensor's rotation shows as a shift too (2° at 3 m moves the person 100 mm), so the
+shift alone catches bumps while people move little."""
 DRIFT_CLEAR_RATIO: Final = 0.6
 """A flag clears once the correction stays below this share of the thresholds."""
 
@@ -65,7 +70,7 @@ def trunk_points(view: View) -> FloatArray:
     """(F, 3) the view's midline trunk points (``skeleton_pose.FEATURES``; world, metres),
     NaN where a joint they need is not Tracked."""
     tracked = view.states == TrackingState.TRACKED
-    points = (view.joints_world[_FEATURE_A] + view.joints_world[_FEATURE_B]) / 2.0
+    points: FloatArray = (view.joints_world[_FEATURE_A] + view.joints_world[_FEATURE_B]) / 2.0
     ok = tracked[_FEATURE_A] & tracked[_FEATURE_B]
     points[~ok] = np.nan
     return points
@@ -86,8 +91,12 @@ class Correction:
     samples: int
 
     def severity(self, threshold_deg: float, threshold_mm: float) -> float:
-        """The larger of the two as a share of its threshold (≥ 1: over a threshold)."""
-        return max(self.rotation_deg / threshold_deg, self.shift_mm / threshold_mm)
+        """The larger of the two as a share of its threshold (≥ 1: over a threshold); the
+        rotation only from ``ROTATION_MIN_SPREAD_M`` on."""
+        rotation = (
+            self.rotation_deg / threshold_deg if self.spread_m >= ROTATION_MIN_SPREAD_M else 0
+        )
+        return max(rotation, self.shift_mm / threshold_mm)
 
 
 def estimate_correction(src: FloatArray, dst: FloatArray) -> Correction | None:

@@ -115,7 +115,7 @@ class FusionSettings:
     drift_detection: bool = False
     """Watch every sensor for a move since its calibration (a bump): flags in ``/api/sensors``,
     ``/metrics`` and the viewer. Observes only: the fused output is the same either way."""
-    drift_window_s: float = 8.0
+    drift_window_s: float = 6.0
     """Sliding window of fusion instants the rigid correction is estimated over (seconds)."""
     drift_check_interval_s: float = 1.0
     """Seconds of fusion instants between two estimates."""

@@ -83,6 +83,7 @@ async def start_run(body: RunRequest, request: Request) -> dict[str, Any]:
     """Start a run (``auto`` by default). Poll ``GET /api/calibration/runs/{id}``."""
     service = _service(request)
     hub = service.hub
+    sensors: tuple[str, ...]
     if body.method == "sensor":
         if body.sensor is None:
             raise InvalidRequest("method sensor needs 'sensor': the sensor to re-solve")

@@ -33,6 +33,7 @@ const HOOK = {
   gpuGeometries: 0, // renderer.info.memory.geometries: constant while the scene content is steady
   gpuTextures: 0, // renderer.info.memory.textures
   sensorsListed: 0, // sensors in the last /api/sensors answer
+  sensorsMoved: [], // ids the last /api/sensors answer flags "moved?" (drift detection)
   // calibration panel
   calibrationVersion: null, // active calibration version (GET /api/calibration), null: none yet
   calibrationRunId: null, // the run the panel shows (the newest one), or null
@@ -184,6 +185,7 @@ function hashString(s) {
 }
 
 const GREY = new THREE.Color(0x6b7178);
+const MOVED_COLOR = new THREE.Color(0xf0735a); // a sensor drift detection flags "moved?" (as .bad)
 
 // Confidence ramp: red (0) → yellow (0.5) → green (1), interpolated in sRGB. Joints without a
 // confidence value are drawn white.
@@ -624,6 +626,7 @@ class SensorView {
   constructor(id) {
     this.id = id;
     this.color = sensorColor(id);
+    this.moved = false; // drift detection flags it "moved?" (fusion/drift.py)
     this.group = new THREE.Group();
     this.group.matrixAutoUpdate = false;
     this.lineMaterial = new THREE.LineBasicMaterial({ color: this.color });
@@ -666,13 +669,17 @@ class SensorView {
     this.group.visible = true;
     this.label.position.set(T[0][3], T[1][3] + 0.1, T[2][3]);
     this.label.visible = true;
+    this.moved = isMoved(info);
+    this.bodyMaterial.color.copy(this.moved ? MOVED_COLOR : connected ? this.color : GREY);
     this.updateLabel();
     return true;
   }
 
-  /** The label's second line: the residual of this sensor in the active calibration. */
+  /** The label's second line: "moved?" while drift detection flags the sensor, else the
+   * residual of this sensor in the active calibration. */
   updateLabel() {
-    drawSensorLabel(this.label, this.id, residualText(calibrationEntry(this.id)));
+    const sub = this.moved ? 'moved?' : residualText(calibrationEntry(this.id));
+    drawSensorLabel(this.label, this.id, sub);
   }
 
   hide() {
@@ -806,6 +813,7 @@ function applySensors(list) {
   for (const [id, v] of sensorViews) if (!seen.has(id)) v.hide();
   HOOK.sensorsDrawn = drawn;
   HOOK.sensorsListed = seen.size;
+  HOOK.sensorsMoved = list.filter(isMoved).map((s) => s.id);
   renderSensorTable(list);
   requestRender();
 }
@@ -1020,6 +1028,20 @@ function cell(text, className) {
   return td;
 }
 
+// Drift detection (fusion/drift.py): a sensor whose views disagree with every other sensor's
+// since its calibration looks moved (a bump). drift is null while detection is off or unknown.
+function isMoved(s) {
+  return Boolean(s && s.drift && s.drift.moved === true);
+}
+
+function driftText(drift) {
+  if (!drift) return '';
+  const deg = Number.isFinite(drift.rotation_deg) ? `${drift.rotation_deg.toFixed(1)}°` : '?°';
+  const mm = Number.isFinite(drift.shift_mm) ? `${Math.round(drift.shift_mm)} mm` : '? mm';
+  const against = typeof drift.against === 'string' ? ` vs ${drift.against}` : '';
+  return `off by ${deg} / ${mm}${against}`;
+}
+
 function renderSensorTable(list) {
   const rows = [];
   for (const s of list) {
@@ -1034,13 +1056,28 @@ function renderSensorTable(list) {
     let cal = s.calibration && typeof s.calibration.state === 'string' ? s.calibration.state : '–';
     const residual = residualText(calibrationEntry(s.id));
     if (residual && cal === 'stored') cal = `${cal} · ${residual}`;
+    const tdCal = cell(cal);
+    if (isMoved(s)) {
+      tr.classList.add('moved');
+      const flag = document.createElement('span');
+      flag.className = 'moved-flag';
+      flag.textContent = 'moved?';
+      flag.title = driftText(s.drift);
+      const fix = document.createElement('button');
+      fix.type = 'button';
+      fix.className = 'moved-fix';
+      fix.textContent = 're-solve';
+      fix.title = `re-solve ${s.id} against the other sensors (method sensor), then commit`;
+      fix.addEventListener('click', () => resolveSensor(s.id));
+      tdCal.append(' ', flag, ' ', fix);
+    }
     tr.append(
       tdSw,
       cell(s.id),
       cell(s.connected ? 'yes' : 'no', s.connected ? 'ok' : 'bad'),
       cell(Number.isFinite(s.fps) ? s.fps.toFixed(1) : '–', 'num'),
       cell(Number.isFinite(s.bodies) ? String(s.bodies) : '–', 'num'),
-      cell(cal),
+      tdCal,
     );
     rows.push(tr);
   }
@@ -1397,13 +1434,23 @@ function setCalBusy(busy) {
   updateCalButtons();
 }
 
-async function startRun() {
+function startRun() {
+  return startRunWith({ method: calUi.method.value });
+}
+
+// A sensor flagged "moved?" gets a re-solve button: method sensor re-solves it against the
+// others (their poses stay) while fusion runs; the run shows in the calibration panel.
+function resolveSensor(id) {
+  return startRunWith({ method: 'sensor', sensor: id });
+}
+
+async function startRunWith(request) {
   if (cal.busy) return;
-  const method = calUi.method.value;
+  const method = request.method;
   setCalBusy(true);
   showCalError('');
   try {
-    const r = await apiJson('POST', '/api/calibration/runs', { method });
+    const r = await apiJson('POST', '/api/calibration/runs', request);
     if (!r.ok) {
       showCalError(`start ${method}: ${errorDetail(r)}`);
       return;

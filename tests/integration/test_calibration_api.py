@@ -215,6 +215,9 @@ def test_calibration_survives_a_server_restart(
         ({"method": "magic"}, 422, ""),
         ({"method": "skeleton", "duration_s": 1}, 422, ""),
         ({"method": "skeleton", "sensors": ["cam-a", "ghost"]}, 400, "unknown sensor"),
+        ({"method": "sensor"}, 400, "method sensor needs 'sensor'"),
+        ({"method": "sensor", "sensor": "ghost"}, 400, "unknown sensor"),
+        ({"method": "sensor", "sensor": "cam-a"}, 409, "other connected sensor with a pose"),
     ],
 )
 def test_bad_calibration_requests_get_a_clear_4xx(

@@ -16,6 +16,7 @@ from websockets.asyncio.client import connect
 
 from skelfuse.protocol.skeleton import JOINT_COUNT, SKELETON_NAME
 from skelfuse.protocol.wire import Body, ErrorMessage, Frame, Hello, decode, encode
+from skelfuse.server.settings import FusionSettings
 from tests.integration.conftest import AgentThread, LiveServer
 from tests.support import wait_until
 
@@ -308,3 +309,20 @@ def test_a_dead_agent_is_offline_within_3_s(live_server: LiveServer) -> None:
     died = time.monotonic()
     assert wait_until(lambda: not sensors_by_id(live_server)["crashy"]["connected"], 6)
     assert time.monotonic() - died < 3.3  # 3 s plus one polling step of this test
+
+
+def test_drift_detection_shows_in_sensor_rows_and_metrics(
+    server_factory: Callable[..., LiveServer], agent_factory: Callable[..., AgentThread]
+) -> None:
+    """With drift detection on, two well-placed sensors are watched and not flagged."""
+    live = server_factory(fusion=FusionSettings(drift_detection=True))
+    start_two(live, agent_factory)
+
+    def watched() -> bool:
+        return all(isinstance(s["drift"], dict) for s in sensors_by_id(live).values())
+
+    assert wait_until(watched, timeout_s=20), sensors_by_id(live)
+    assert all(s["drift"]["moved"] is False for s in sensors_by_id(live).values())
+    text = httpx.get(live.http_url + "/metrics/").text
+    assert 'skelfuse_sensor_moved{sensor="cam-a"} 0.0' in text
+    assert 'skelfuse_sensor_moved{sensor="cam-b"} 0.0' in text

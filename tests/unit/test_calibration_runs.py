@@ -21,7 +21,7 @@ from skelfuse.calibration.store import CalibrationStore, SensorCalibration
 from skelfuse.fusion.hub import FusionHub
 from skelfuse.protocol.depth_cloud import encode_reply
 from skelfuse.protocol.skeleton import JOINT_COUNT, TrackingState
-from skelfuse.protocol.transform import Matrix4, apply, invert, look_at_pose
+from skelfuse.protocol.transform import Matrix4, apply, axis_rotation, invert, look_at_pose
 from skelfuse.protocol.wire import Body, Frame, Hello, encode
 from skelfuse.server.calibration_runs import (
     CalibrationRun,
@@ -305,7 +305,7 @@ def bumped(pose: Matrix4, yaw_deg: float, shift_m: float) -> Matrix4:
     """``pose`` turned by ``yaw_deg`` about its own +Y and shifted ``shift_m`` along its +X."""
     yaw = np.radians(yaw_deg)
     delta = np.eye(4)
-    delta[:3, :3] = [[np.cos(yaw), 0, np.sin(yaw)], [0, 1, 0], [-np.sin(yaw), 0, np.cos(yaw)]]
+    delta[:3, :3] = axis_rotation("y", yaw)
     delta[0, 3] = shift_m
     result: Matrix4 = pose @ delta
     return result

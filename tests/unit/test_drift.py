@@ -20,7 +20,7 @@ from skelfuse.fusion.hub import FusionHub
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.views import FusedPerson, View
 from skelfuse.protocol.skeleton import JOINT_COUNT, JointId, TrackingState
-from skelfuse.protocol.transform import Matrix4, apply, invert, look_at_pose
+from skelfuse.protocol.transform import Matrix4, apply, axis_rotation, invert, look_at_pose
 from skelfuse.protocol.wire import Body, Frame, Hello, encode
 from skelfuse.server.settings import Settings
 
@@ -45,11 +45,7 @@ def bumped(pose: Matrix4, yaw_deg: float, shift_m: float) -> Matrix4:
     """``pose`` turned ``yaw_deg`` about its own +Y and shifted ``shift_m`` along its own +X."""
     yaw = math.radians(yaw_deg)
     delta = np.eye(4)
-    delta[:3, :3] = [
-        [math.cos(yaw), 0, math.sin(yaw)],
-        [0, 1, 0],
-        [-math.sin(yaw), 0, math.cos(yaw)],
-    ]
+    delta[:3, :3] = axis_rotation("y", yaw)
     delta[0, 3] = shift_m
     result: Matrix4 = pose @ delta
     return result
