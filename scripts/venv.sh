@@ -2,8 +2,15 @@
 VENV="${SKELFUSE_VENV:-.venv}"
 
 ensure_venv() {
-  if [ -x "$VENV/bin/python" ]; then
+  if [ -x "$VENV/bin/python" ] && [ -x "$VENV/bin/pip" ] &&
+     "$VENV/bin/python" -m pip --version >/dev/null 2>&1; then
     return
+  fi
+  if [ -e "$VENV" ]; then
+    # A virtualenv whose creation was interrupted (Ctrl-C during the first run) has a python
+    # but no pip: make it again rather than fail on every later run.
+    echo "==> $VENV is incomplete (no pip); making it again"
+    rm -rf "$VENV"
   fi
   local python=""
   for candidate in python3.13 python3.12 python3.11 python3; do
