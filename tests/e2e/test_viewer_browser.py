@@ -751,3 +751,31 @@ def test_calibration_run_from_the_panel_and_commit(
     assert demo_stack.get_json("/api/calibration")["version"] == version_after
     # The error text is still the viewer's only report: no alert, no HOOK.errors entry.
     assert viewer.hook()["errors"] == []
+
+
+def test_a_moved_sensor_is_flagged_with_a_resolve_button(
+    viewer: ViewerPage, demo_stack: DemoStack
+) -> None:
+    """Drift detection's flag (the demo's sensors are not moved: /api/sensors is stubbed)."""
+    page = viewer.page
+    answer_json = demo_stack.get_json("/api/sensors")
+    flagged = answer_json["sensors"][0]["id"]
+    answer_json["sensors"][0]["drift"] = {
+        "moved": True, "rotation_deg": 2.1, "shift_mm": 95.0, "against": "x", "samples": 60,
+        "checked_t_s": 1.0, "flagged_t_s": 1.0,
+    }  # fmt: skip
+
+    def stub(route: Any) -> None:
+        route.fulfill(json=answer_json)
+
+    page.route("**/api/sensors", stub)
+    try:
+        viewer.wait_for(f"{HOOK}.sensorsMoved.length === 1", timeout_s=5)
+        assert viewer.hook()["sensorsMoved"] == [flagged]
+        row = page.locator("#hud-sensor-rows tr", has_text=flagged)
+        assert "moved?" in row.inner_text()
+        assert "2.1°" in (row.locator(".moved-flag").get_attribute("title") or "")
+        assert row.locator("button.moved-fix").is_visible()
+    finally:
+        page.unroute("**/api/sensors", stub)
+    viewer.wait_for(f"{HOOK}.sensorsMoved.length === 0", timeout_s=5)
