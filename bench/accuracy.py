@@ -32,7 +32,7 @@ by the Hungarian algorithm on trunk distance, gated at 1 m):
 Run: ``python bench/accuracy.py`` (``--runs N`` seeds per scenario, ``--quick`` for a short
 subset, ``--json FILE`` raw results, ``--paper`` report A's own experiment only,
 ``--latency`` the filters' added latency only, ``--birth`` the birth-labelling scenarios only,
-``--mirror-redecide`` with ``FusionSettings.mirror_redecide`` on).
+``--no-mirror-redecide`` with ``FusionSettings.mirror_redecide`` off, as before).
 
 Labels: the wrong-label rate (share of sensor × frame labelling decisions that disagree with the
 simulator's truth: ``FusedPerson.mirrored`` against ``Observation.mirrored``) and the longest
@@ -82,14 +82,13 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="only the birth-labelling scenarios (seen from behind first, ...)",
     )
-    parser.add_argument("--mirror-redecide", action="store_true",
-                        help="every method with mirror correction re-decides labels "
-                             "(FusionSettings.mirror_redecide)")  # fmt: skip
+    parser.add_argument("--no-mirror-redecide", action="store_true",
+                        help="no method re-decides labels from all views' anatomy "
+                             "(mirror_redecide off, as before issue 10)")  # fmt: skip
     args = parser.parse_args(argv)
     methods = METHODS
-    if args.mirror_redecide:
-        methods = {label: replace(m, mirror_redecide=m.use_mirror_correction)
-                   for label, m in METHODS.items()}  # fmt: skip
+    if args.no_mirror_redecide:
+        methods = {label: replace(m, mirror_redecide=False) for label, m in METHODS.items()}
 
     if not args.paper and not args.birth:
         print_filter_latency(filter_latency())

@@ -112,7 +112,7 @@ class FusionSettings:
     """Passes of ``projection`` before its exact finishing pass."""
 
     # --- drift detection (fusion/drift.py; issue 10 item 5) -----------------------------------
-    drift_detection: bool = False
+    drift_detection: bool = True
     """Watch every sensor for a move since its calibration (a bump): flags in ``/api/sensors``,
     ``/metrics`` and the viewer. Observes only: the fused output is the same either way."""
     drift_window_s: float = 6.0
@@ -127,7 +127,7 @@ class FusionSettings:
     """Consecutive estimates over a threshold that flag a sensor (and under that clear it)."""
 
     # --- birth labelling that cannot lock in a guess (fusion/labels.py; issue 10 item 1) ------
-    mirror_redecide: bool = False
+    mirror_redecide: bool = True
     """Re-decide a whole person's left and right from the anatomy of all its views, standing
     still included: evidence against the labels (bent knees and feet pointing the wrong way
     under them, summed over views) that builds up past ``mirror_redecide_evidence`` swaps the

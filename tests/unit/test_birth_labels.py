@@ -62,14 +62,14 @@ def run(settings: FusionSettings, steps: int = 20) -> list[tuple[str, ...]]:
 
 
 def test_without_redeciding_the_birth_guess_stays() -> None:
-    # Today's behaviour, pinned: the rear view alone cannot tell its sides, it is kept as
-    # reported, and the front views are then labelled to agree with the mirrored track.
-    labels = run(FusionSettings())
+    # The behaviour before mirror_redecide, pinned: the rear view alone cannot tell its sides,
+    # it is kept as reported, and the front views are then labelled to agree with the track.
+    labels = run(replace(FusionSettings(), mirror_redecide=False))
     assert labels[-1] == ("left", "right")
 
 
 def test_a_track_born_mirrored_is_labelled_right_once_front_views_join() -> None:
-    labels = run(replace(FusionSettings(), mirror_redecide=True))
+    labels = run(FusionSettings())  # mirror_redecide is the default
     joined = 3
     right = [i for i, m in enumerate(labels) if m == ("rear",)]
     assert right and right[0] - joined <= 0.5 / DT  # within 0.5 s of the front views joining

@@ -199,7 +199,7 @@ def test_the_hub_shows_the_flag_in_its_sensor_rows_and_forgets_on_a_new_calibrat
 
 
 def test_without_drift_detection_the_rows_say_none() -> None:
-    hub = FusionHub(Settings())
+    hub = FusionHub(Settings(fusion=FusionSettings(drift_detection=False)))
     hello = Hello("cam-0", "sim", "t", FPS, 0, pose_hint=POSES["cam-0"], pose_hint_source="manual")
     hub.handle_message(b"\x00", [encode(hello)], 1.0, 0.0)
     assert hub.drift is None and hub.sensor_summary(0.0)[0]["drift"] is None
