@@ -48,11 +48,7 @@ from skelfuse.protocol import depth_cloud
 from skelfuse.protocol.errors import DecodeError
 from skelfuse.protocol.transform import Matrix4
 from skelfuse.protocol.wire import Body
-from skelfuse.server.calibration_run import (
-    CalibrationRun as CalibrationRun,
-    RunSpec as RunSpec,
-    RunState as RunState,
-)
+from skelfuse.server.calibration_run import CalibrationRun, RunSpec, RunState
 from skelfuse.server.clock import Clock, SystemClock
 from skelfuse.server.errors import (
     AgentRequestFailed,

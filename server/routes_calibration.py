@@ -16,7 +16,8 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from skelfuse.calibration.solvers import PointPairs
 from skelfuse.calibration.store import Calibration
-from skelfuse.server.calibration_runs import CalibrationService, RunSpec
+from skelfuse.server.calibration_run import RunSpec
+from skelfuse.server.calibration_runs import CalibrationService
 from skelfuse.server.errors import Conflict, InvalidRequest, NotFound
 
 router = APIRouter(prefix="/api/calibration", tags=["calibration"])

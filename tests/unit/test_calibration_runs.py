@@ -23,12 +23,8 @@ from skelfuse.protocol.depth_cloud import encode_reply
 from skelfuse.protocol.skeleton import JOINT_COUNT, TrackingState
 from skelfuse.protocol.transform import Matrix4, apply, axis_rotation, invert, look_at_pose
 from skelfuse.protocol.wire import Body, Frame, Hello, encode
-from skelfuse.server.calibration_runs import (
-    CalibrationRun,
-    CalibrationService,
-    RunSpec,
-    RunState,
-)
+from skelfuse.server.calibration_run import CalibrationRun, RunSpec, RunState
+from skelfuse.server.calibration_runs import CalibrationService
 from skelfuse.server.errors import AgentRequestFailed, Conflict, InvalidRequest, NotFound
 from skelfuse.server.settings import Settings
 
