@@ -67,12 +67,14 @@ how far the horizontal distance is outside the best band.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Final
 
 import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.anatomy import CHAIN_LEVELS, HORIZONTAL, rom_factors_and_forward, unit
+from skelfuse.fusion.priors import SensorPrior
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.protocol.skeleton import BONES, JointId
 
@@ -237,11 +239,15 @@ def body_weights(
     references: FloatArray | None,
     rom: FloatArray | None,
     settings: FusionSettings,
+    priors: Sequence[SensorPrior] | None = None,
 ) -> FloatArray:
     """Each joint's weight from its view alone: tracking state × the body terms, propagated.
 
     ``state weight × propagate(bone length × range of motion)``: a joint is doubted as much as
-    its own bone and angle and every joint between it and SpineBase (module docstring).
+    its own bone and angle and every joint between it and SpineBase (module docstring). With
+    ``priors`` each view uses its sensor's state table, range-of-motion scale, noise
+    (``× 1/noise_scale²``) and, for a fixed-length body model, no bone-length term
+    (fusion/priors.py); a Kinect v2 prior gives the same numbers as none.
 
     Args:
         joints: (N, 25, 3) views, metres, world frame, labels already corrected.
@@ -250,18 +256,37 @@ def body_weights(
             unknown), or None when no person has any.
         rom: (N, 25) range-of-motion factors already computed (by the mirror step), or None.
         settings: which terms are on, and their scales.
+        priors: (N,) each view's sensor prior, or None: the settings' values for every view.
 
     Returns:
         (N, 25) float64 weights ≥ 0.
     """
     s = settings
-    weights = state_weights(states, s.state_weights)
+    if priors is None:
+        weights = state_weights(states, s.state_weights)
+    else:  # each view's own table, gathered (the same floats as the shared table for v2)
+        tables = np.array([p.table(s) for p in priors], dtype=np.float64)
+        weights = tables[np.arange(len(tables))[:, None], np.asarray(states, dtype=np.intp)]
     local = np.ones(joints.shape[:2])
     if s.use_bone_length and references is not None:
-        local *= bone_length_factors(joints, references, s.bone_length_scale_m)
+        bones = bone_length_factors(joints, references, s.bone_length_scale_m)
+        if priors is not None:  # a fixed-length body model's offset is not noise
+            fixed = np.array([p.fixed_bone_lengths for p in priors])
+            bones = np.where(fixed[:, None], 1.0, bones)
+        local *= bones
     if s.use_range_of_motion:
-        local *= rom if rom is not None else range_of_motion_factors(joints, s.rom_scale_deg)
-    return weights * propagate(local)
+        rom_local = rom if rom is not None else range_of_motion_factors(joints, s.rom_scale_deg)
+        if priors is not None:  # exp(−e/s)^(1/k) = exp(−e/(k·s)): scale k per view
+            k = np.array([p.rom_scale for p in priors], dtype=np.float64)
+            if (k != 1.0).any():
+                rom_local = np.where(k[:, None] == 1.0, rom_local, rom_local ** (1.0 / k[:, None]))
+        local *= rom_local
+    out: FloatArray = weights * propagate(local)
+    if priors is not None:
+        noise = np.array([p.noise_scale for p in priors], dtype=np.float64)
+        if (noise != 1.0).any():  # inverse-variance weighting against a Kinect v2 view
+            out = out / (noise**2)[:, None]
+    return out
 
 
 def view_factors(
@@ -269,6 +294,7 @@ def view_factors(
     body_positions: FloatArray,
     sensor_positions: FloatArray,
     settings: FusionSettings,
+    priors: Sequence[SensorPrior] | None = None,
 ) -> FloatArray:
     """Each view's factor from where its sensor stands: facing × distance (the ones switched on).
 
@@ -276,14 +302,22 @@ def view_factors(
         cosines: (N,) :func:`facing_cosines` of each view (NaN: unknown, factor 1).
         body_positions: (N, 3) where each view's person stands (SpineBase), metres, world.
         sensor_positions: (N, 3) each view's sensor, metres, world (NaN rows: unknown).
+        priors: (N,) each view's sensor prior (its facing model), or None: the settings'.
 
     Returns:
         (N,) float64 in (0, 1].
     """
     s = settings
     factors = np.ones(len(cosines))
-    if s.use_facing:
+    if s.use_facing and priors is None:
         factors *= facing_factors(cosines, s.facing_power, s.facing_floor, s.facing_back_factor)
+    elif s.use_facing and priors is not None:
+        models = [p.facing(s) for p in priors]
+        # One call per distinct facing model (a few sensor types): the same arithmetic, hence
+        # the same bits, as the shared model for every Kinect v2 view.
+        for model in set(models):
+            rows = np.array([m == model for m in models])
+            factors[rows] *= facing_factors(np.asarray(cosines)[rows], *model)
     if s.use_distance:
         factors *= distance_factors(
             body_positions, sensor_positions, s.distance_best_m, s.distance_scale_m

@@ -48,6 +48,7 @@ from skelfuse.fusion.filters import JointFilter, filter_all, make_filter
 from skelfuse.fusion.identity import PersonTracker
 from skelfuse.fusion.labels import LabelDoubt, Labels, label_views, walking_backwards
 from skelfuse.fusion.mirror_labellings import MAX_VIEWS
+from skelfuse.fusion.priors import priors_of
 from skelfuse.fusion.sensors import SensorState, bodies_at
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.views import FusedPerson, View
@@ -81,7 +82,14 @@ def views_at(
         for body in bodies_at(sensor.frames, t_s, gap_s, max_age) or ():
             joints_world = apply(pose, body.joints_m)
             views.append(
-                View(sensor.sensor_id, body.tracking_id, joints_world, body.states, pose[:3, 3])
+                View(
+                    sensor.sensor_id,
+                    body.tracking_id,
+                    joints_world,
+                    body.states,
+                    pose[:3, 3],
+                    sensor.sensor_type,
+                )
             )
     return views
 
@@ -154,12 +162,15 @@ class FusionPipeline:
 
             # 5. Per-joint confidence from each view's body alone, 6. a first fusion.
             references = np.stack([m.bones.reference() for m in memories])
+            types = [v.sensor_type for v in batch.views]
+            priors = priors_of(types) if s.use_sensor_priors else None  # fusion/priors.py
             weights = body_weights(
                 batch.joints,
                 batch.states,
                 references[batch.person_of] if np.isfinite(references).any() else None,
                 rom,
                 s,
+                priors,
             )
             fused = batch.fuse(weights)
 
@@ -177,7 +188,7 @@ class FusionPipeline:
                             batch.joints[lo:hi], cosines[lo:hi], s.yaw_max_deg
                         )
             if s.use_facing or s.use_distance or s.correct_view_yaw:
-                weights = weights * view_factors(cosines, stands, batch.sensors, s)[:, None]
+                weights = weights * view_factors(cosines, stands, batch.sensors, s, priors)[:, None]
                 fused = batch.fuse(weights)  # 6. weighted fusion
 
             if s.outlier_scale_m > 0:  # 6. one Cauchy pass where a person has several views

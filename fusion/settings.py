@@ -145,6 +145,13 @@ class FusionSettings:
     """A person younger than this (seconds since birth) re-decides from one step's evidence
     when a sensor joins it (threshold halved, the running sum restarted)."""
 
+    # --- priors per sensor type (fusion/priors.py; issue 10 item 4) -----------------------------
+    use_sensor_priors: bool = True
+    """Each view uses its sensor type's prior (fusion/priors.py, docs/fusion.md §7 "Priors per
+    sensor type"): state table, noise, facing model, range-of-motion scale, and no bone-length
+    term for a fixed-length body model (Azure Kinect / Femto Body Tracking). Kinect v2, sim and
+    replay views get the settings' values, so the output changes only where other types join."""
+
 
 @dataclass(frozen=True, slots=True)
 class HubSettings:

@@ -23,6 +23,8 @@ class View:
     joints_world: (25, 3) float64, metres, world frame, NaN where NotTracked.
     states: (25,) uint8 TrackingState.
     sensor_position: (3,) float64, where the sensor stands in the world (metres), if known.
+    sensor_type: what the sensor's agent announced (``protocol.wire.SENSOR_TYPES``); selects
+        the view's :class:`fusion.priors.SensorPrior`.
     """
 
     sensor_id: str
@@ -30,6 +32,7 @@ class View:
     joints_world: FloatArray
     states: npt.NDArray[np.uint8]
     sensor_position: FloatArray | None = None
+    sensor_type: str = "kinect_v2"
 
 
 @dataclass(frozen=True, slots=True)

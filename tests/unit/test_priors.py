@@ -1,0 +1,168 @@
+"""Priors per sensor type (fusion/priors.py): Kinect v2 unchanged, Azure its own, types mixed."""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+
+import numpy as np
+import pytest
+
+from skelfuse.agent.sim.performer import BodyShape, Pose, pose_joints
+from skelfuse.fusion.confidence import body_weights, view_factors
+from skelfuse.fusion.pipeline import FusionPipeline
+from skelfuse.fusion.priors import (
+    AZURE_BODY_TRACKING,
+    KINECT_V2,
+    PRIORS,
+    RGB_MONO,
+    SensorPrior,
+    prior_for,
+    priors_of,
+)
+from skelfuse.fusion.settings import FusionSettings
+from skelfuse.fusion.views import View
+from skelfuse.protocol.skeleton import JOINT_COUNT, JointId, bone_lengths
+from skelfuse.protocol.wire import SENSOR_TYPES
+
+SETTINGS = FusionSettings()
+
+
+def body(x: float = 0.0) -> np.ndarray:
+    return pose_joints(BodyShape(1.75), Pose(), (x, 0.0), 0.0)
+
+
+def noisy_views(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(n, 25, 3) views with 3 cm noise, random states, and a reference 2 cm off per bone."""
+    rng = np.random.default_rng(seed)
+    joints = body()[None] + rng.normal(0.0, 0.03, (n, JOINT_COUNT, 3))
+    states = rng.integers(0, 3, (n, JOINT_COUNT)).astype(np.uint8)
+    reference = bone_lengths(body()) + 0.02
+    return joints, states, np.repeat(reference[None], n, axis=0)
+
+
+def test_every_wire_type_has_a_prior_and_the_v2_like_ones_are_the_settings() -> None:
+    assert set(SENSOR_TYPES) <= set(PRIORS)
+    assert "rgb_mono" in PRIORS and "rgb_mono" not in SENSOR_TYPES  # ready, not on the wire
+    for name in ("kinect_v2", "sim", "replay"):
+        prior = PRIORS[name]
+        assert dataclasses.replace(prior, name="kinect_v2") == KINECT_V2
+        assert prior.table(SETTINGS) == SETTINGS.state_weights
+    femto = dataclasses.replace(PRIORS["femto"], name=AZURE_BODY_TRACKING.name)
+    assert femto == AZURE_BODY_TRACKING  # the same Body Tracking SDK
+
+
+def test_kinect_v2_prior_gives_todays_weights_bit_for_bit() -> None:
+    joints, states, refs = noisy_views(6)
+    joints[2, JointId.ELBOW_LEFT] += (0.0, -0.2, 0.25)  # a glitch: out of range, bone off
+    priors = [KINECT_V2] * 6
+    today = body_weights(joints, states, refs, None, SETTINGS)
+    assert np.array_equal(body_weights(joints, states, refs, None, SETTINGS, priors), today)
+    assert (today < np.array(SETTINGS.state_weights)[states]).any()  # the body terms bite
+
+    rng = np.random.default_rng(1)
+    cosines = rng.uniform(-1.0, 1.0, 6)
+    cosines[0] = np.nan
+    stands, sensors = rng.normal(size=(6, 3)), rng.normal(size=(6, 3)) * 3
+    settings = dataclasses.replace(SETTINGS, use_distance=True)
+    assert np.array_equal(
+        view_factors(cosines, stands, sensors, settings, priors),
+        view_factors(cosines, stands, sensors, settings),
+    )
+
+
+def test_azure_view_gets_its_own_table_and_no_bone_length_term() -> None:
+    joints, states, refs = noisy_views(1)
+    joints[0, JointId.KNEE_LEFT] = joints[0, JointId.HIP_LEFT] + (0.0, -0.55, 0.0)  # long thigh
+    v2 = body_weights(joints, states, refs, None, SETTINGS, [KINECT_V2])
+    azure = body_weights(joints, states, refs, None, SETTINGS, [AZURE_BODY_TRACKING])
+    no_bones = body_weights(
+        joints, states, refs, None, dataclasses.replace(SETTINGS, use_bone_length=False)
+    )
+    assert np.array_equal(azure, no_bones)  # its fixed-length model's offset is not noise
+    knee = JointId.KNEE_LEFT
+    assert states[0, knee] == 0 or azure[0, knee] > v2[0, knee]
+
+    own = dataclasses.replace(AZURE_BODY_TRACKING, state_weights=(0.0, 0.5, 0.9))
+    weights = body_weights(joints, states, refs, None, SETTINGS, [own])
+    settings_nb = dataclasses.replace(SETTINGS, use_bone_length=False, state_weights=(0, 0.5, 0.9))
+    assert np.array_equal(weights, body_weights(joints, states, refs, None, settings_nb))
+
+
+def test_mixed_types_in_one_batch_each_row_as_alone() -> None:
+    joints, states, refs = noisy_views(4, seed=3)
+    facing_prior = dataclasses.replace(AZURE_BODY_TRACKING, facing_power=4.0, rom_scale=2.0)
+    priors = [KINECT_V2, facing_prior, RGB_MONO, KINECT_V2]
+    mixed = body_weights(joints, states, refs, None, SETTINGS, priors)
+    for i, prior in enumerate(priors):
+        alone = body_weights(
+            joints[i : i + 1], states[i : i + 1], refs[i : i + 1], None, SETTINGS, [prior]
+        )
+        np.testing.assert_allclose(mixed[i], alone[0], rtol=1e-15)
+    assert np.array_equal(mixed[[0, 3]], body_weights(joints, states, refs, None, SETTINGS)[[0, 3]])
+
+    cosines = np.array([0.5, 0.5, -0.5, np.nan])
+    positions = np.zeros((4, 3))
+    factors = view_factors(cosines, positions, positions, SETTINGS, priors)
+    assert factors[0] == pytest.approx(0.1 + 0.9 * 0.25)
+    assert factors[1] == pytest.approx(0.1 + 0.9 * 0.5**4)  # its own facing power
+    assert factors[2] == pytest.approx((0.1 + 0.9 * 0.25) * 0.5)
+    assert factors[3] == 1.0
+
+
+def test_noise_and_range_of_motion_scale() -> None:
+    joints, states, refs = noisy_views(1, seed=5)
+    joints[0, JointId.ANKLE_LEFT] = joints[0, JointId.KNEE_LEFT] + (0.0, 0.0, -0.45)  # knee bent
+    base = SensorPrior("x", fixed_bone_lengths=True)
+    plain = body_weights(joints, states, refs, None, SETTINGS, [base])
+    noisy = body_weights(
+        joints, states, refs, None, SETTINGS, [dataclasses.replace(base, noise_scale=3.0)]
+    )
+    np.testing.assert_allclose(noisy, plain / 9.0, rtol=1e-15)
+    loose = body_weights(
+        joints, states, refs, None, SETTINGS, [dataclasses.replace(base, rom_scale=2.0)]
+    )
+    wider = dataclasses.replace(SETTINGS, rom_scale_deg=2.0 * SETTINGS.rom_scale_deg)
+    np.testing.assert_allclose(loose, body_weights(joints, states, refs, None, wider, [base]))
+
+
+def test_unknown_type_falls_back_to_kinect_v2_with_one_warning(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    with caplog.at_level(logging.WARNING, logger="skelfuse.fusion.priors"):
+        assert prior_for("gizmo_test_priors") is KINECT_V2
+        assert priors_of(["gizmo_test_priors", "azure_kinect"]) == [KINECT_V2, AZURE_BODY_TRACKING]
+    warnings = [r for r in caplog.records if "gizmo_test_priors" in r.getMessage()]
+    assert len(warnings) == 1
+
+
+def _fuse(types: list[str], settings: FusionSettings, thigh_m: float) -> np.ndarray:
+    pipeline = FusionPipeline(settings)
+    person = body()
+    out = []
+    for step in range(40):  # long enough for the online reference bone lengths
+        views = []
+        for k, sensor_type in enumerate(types):
+            joints = person.copy()
+            if k == 1:  # the second sensor's model puts the knees lower
+                joints[[JointId.KNEE_LEFT, JointId.ANKLE_LEFT, JointId.FOOT_LEFT]] += (
+                    0,
+                    -thigh_m,
+                    0,
+                )
+            states = np.full(JOINT_COUNT, 2, np.uint8)
+            views.append(View(f"s{k}", k, joints, states, np.array([0.0, 1.0, 3.0]), sensor_type))
+        out = pipeline.update(views, step / 30)
+    assert len(out) == 1 and out[0].sources == tuple(f"s{k}" for k in range(len(types)))
+    return out[0].joints
+
+
+def test_pipeline_mixes_kinect_and_azure_views_of_one_person() -> None:
+    settings = FusionSettings(track_min_frames=1, filter="none", enforce_bone_lengths=False)
+    off = dataclasses.replace(settings, use_sensor_priors=False)
+    same = _fuse(["kinect_v2", "azure_kinect"], off, 0.06)
+    assert np.array_equal(same, _fuse(["kinect_v2", "kinect_v2"], settings, 0.06))
+    mixed = _fuse(["kinect_v2", "azure_kinect"], settings, 0.06)
+    assert np.isfinite(mixed).all()
+    knee = JointId.KNEE_LEFT  # the Azure view's long thigh is its model, not noise: trusted more
+    assert mixed[knee, 1] < same[knee, 1] - 0.005
