@@ -66,6 +66,7 @@ from bench.accuracy_report import (
 from bench.accuracy_runner import run_once
 from bench.accuracy_scenarios import CMU_DIR, birth_scenarios, scenarios
 from bench.filter_latency import filter_latency
+from bench.oracle import print_oracle, run_oracle, with_reliability
 from skelfuse.agent.sim.kinect_model import KinectV2Params
 
 
@@ -85,10 +86,23 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-mirror-redecide", action="store_true",
                         help="no method re-decides labels from all views' anatomy "
                              "(mirror_redecide off, as before issue 10)")  # fmt: skip
+    parser.add_argument("--oracle", action="store_true",
+                        help="only fused vs the hindsight oracle (bench/oracle.py)")  # fmt: skip
+    parser.add_argument("--view-reliability", action="store_true",
+                        help="every method with use_view_reliability on")  # fmt: skip
     args = parser.parse_args(argv)
     methods = METHODS
     if args.no_mirror_redecide:
         methods = {label: replace(m, mirror_redecide=False) for label, m in METHODS.items()}
+    if args.view_reliability:
+        methods = with_reliability(methods)
+    if args.oracle:
+        oracle = {
+            sc.name: [run_oracle(sc, seed, KinectV2Params()) for seed in range(args.runs)]
+            for sc in scenarios(args.quick)
+        }
+        print_oracle(oracle)
+        return 0
 
     if not args.paper and not args.birth:
         print_filter_latency(filter_latency())

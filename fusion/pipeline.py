@@ -50,6 +50,7 @@ from skelfuse.fusion.labels import LabelDoubt, Labels, label_views, walking_back
 from skelfuse.fusion.mirror_labellings import MAX_VIEWS
 from skelfuse.fusion.priors import priors_of
 from skelfuse.fusion.reliability import reliability_factors
+from skelfuse.fusion.reliability import reliability_factors
 from skelfuse.fusion.sensors import SensorState, bodies_at
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.views import FusedPerson, View
@@ -191,6 +192,19 @@ class FusionPipeline:
             if s.use_facing or s.use_distance or s.correct_view_yaw:
                 weights = weights * view_factors(cosines, stands, batch.sensors, s, priors)[:, None]
                 fused = batch.fuse(weights)  # 6. weighted fusion
+            if s.use_view_reliability:  # 5. how well each view sees each joint
+                weights = weights * reliability_factors(
+                    batch.joints,
+                    cosines,
+                    batch.sensors,
+                    batch.starts.tolist(),
+                    s.view_lean_fraction,
+                    s.view_error_m,
+                    s.view_jitter_per_m2,
+                    s.view_occlusion_m,
+                    batch.states,
+                )
+                fused = batch.fuse(weights)
             if s.use_view_reliability:  # 5. how well each view sees each joint
                 weights = weights * reliability_factors(
                     batch.joints,

@@ -12,7 +12,7 @@ from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.views import View
 from skelfuse.protocol.skeleton import JointId as J
 
-ERRORS = (0.012, 0.02, 0.035)
+ERRORS = (0.021, 0.035, 0.06)
 
 
 def _body(ankle_forward_m: float = 0.3) -> np.ndarray:
