@@ -205,19 +205,6 @@ class FusionPipeline:
                     batch.states,
                 )
                 fused = batch.fuse(weights)
-            if s.use_view_reliability:  # 5. how well each view sees each joint
-                weights = weights * reliability_factors(
-                    batch.joints,
-                    cosines,
-                    batch.sensors,
-                    batch.starts.tolist(),
-                    s.view_lean_fraction,
-                    s.view_error_m,
-                    s.view_jitter_per_m2,
-                    s.view_occlusion_m,
-                    batch.states,
-                )
-                fused = batch.fuse(weights)
 
             if s.outlier_scale_m > 0:  # 6. one Cauchy pass where a person has several views
                 several = np.array(batch.counts)[batch.person_of] > 1

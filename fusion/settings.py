@@ -157,23 +157,6 @@ class FusionSettings:
     """Weigh each view's joint by how well that view sees it: the lean of a side view towards
     its sensor (largest at the ankles, feet and hands), the jitter growing with depth, and
     self-occlusion by the trunk, as an inverse error variance relative to the person's best
-    view of that joint (docs/fusion.md §7)."""
-    view_lean_fraction: float = 0.5
-    """Share of the person's yaw relative to a sensor by which its view turns towards it (the
-    Kinect v2 facing bias: 0.5 in the simulator, measured on NTU RGB+D)."""
-    view_error_m: tuple[float, float, float] = (0.012, 0.02, 0.035)
-    """The error floor (metres) of trunk, limb and extremity joints in a frontal view."""
-    view_jitter_per_m2: float = 0.001
-    """Jitter growth with the squared distance to the sensor (metres per m², Kinect v2)."""
-    view_occlusion_m: float = 0.08
-    """Extra error (metres) of a joint hidden from the sensor: by the person's own trunk, or
-    reported Inferred."""
-
-    # --- per-joint view reliability (fusion/reliability.py; issue 10 item 2) -------------------
-    use_view_reliability: bool = False
-    """Weigh each view's joint by how well that view sees it: the lean of a side view towards
-    its sensor (largest at the ankles, feet and hands), the jitter growing with depth, and
-    self-occlusion by the trunk, as an inverse error variance relative to the person's best
     view of that joint (docs/fusion.md §7). It models per joint what ``use_facing`` models per
     view, so the two are meant to be used one or the other (measured: reliability in place of
     facing is best, docs/benchmarks.md)."""
