@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from typing import Final
+from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
@@ -64,7 +64,10 @@ def group_mpjpe(errors: list[FloatArray]) -> dict[str, float]:
 
 
 def view_errors(
-    joints_sensor: FloatArray, mirrored: bool, pose: FloatArray, truth: FloatArray
+    joints_sensor: npt.NDArray[np.floating[Any]],
+    mirrored: bool,
+    pose: FloatArray,
+    truth: FloatArray,
 ) -> FloatArray:
     """(25,) per-joint error (m, NaN: not reported) of one view with its labels put right."""
     joints = np.asarray(joints_sensor, dtype=np.float64)

@@ -99,7 +99,9 @@ def hidden_by_trunk(joints: FloatArray, sensor_positions: FloatArray) -> npt.NDA
         # as the trunk, so sight lines are close to horizontal and the height test suffices.
         high = joints[..., 1] <= joints[:, J.SPINE_SHOULDER : J.SPINE_SHOULDER + 1, 1]
         low = joints[..., 1] >= joints[:, J.SPINE_BASE : J.SPINE_BASE + 1, 1]
-        hidden = (along < length) & (closest < TRUNK_RADIUS_M) & (along > 0) & high & low
+        hidden: npt.NDArray[np.bool_] = (
+            (along < length) & (closest < TRUNK_RADIUS_M) & (along > 0) & high & low
+        )
     hidden[:, list(TRUNK_JOINTS)] = False
     return hidden
 
@@ -142,7 +144,7 @@ def reliability_factors(
         hidden |= np.asarray(states) == TrackingState.INFERRED
     variance = floor2 + lean**2 + jitter**2 + np.where(hidden, occlusion_m**2, 0.0)
     raw = floor2 / variance
-    factors = np.ones_like(raw)
+    factors: FloatArray = np.ones_like(raw)
     for lo, hi in pairwise(starts):
         if hi - lo > 1:
             factors[lo:hi] = raw[lo:hi] / raw[lo:hi].max(axis=0)
