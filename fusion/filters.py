@@ -28,6 +28,8 @@ from typing import Protocol
 import numpy as np
 import numpy.typing as npt
 
+from skelfuse.fusion.filters_ca import DampedAccelerationKalman
+
 FloatArray = npt.NDArray[np.float64]
 
 
@@ -127,21 +129,14 @@ def filter_all(filters: list[JointFilter], joints: FloatArray, t_s: float) -> li
     """
     out: list[FloatArray | None] = [None] * len(filters)
     groups: dict[tuple[type, tuple[float, ...]], list[int]] = {}
+    stackable = (OneEuroFilter, ConstantVelocityKalman, DampedAccelerationKalman)
     for i, f in enumerate(filters):
-        if (
-            isinstance(f, OneEuroFilter | ConstantVelocityKalman)
-            and f._t is not None
-            and f._t.shape == joints.shape[1:]
-        ):
+        if isinstance(f, stackable) and f._t is not None and f._t.shape == joints.shape[1:]:
             groups.setdefault((type(f), f._params()), []).append(i)
         else:
             out[i] = f(joints[i], t_s)
     for members in groups.values():
-        chosen = [
-            f
-            for i in members
-            if isinstance(f := filters[i], OneEuroFilter | ConstantVelocityKalman)
-        ]
+        chosen = [f for i in members if isinstance(f := filters[i], stackable)]
         first = chosen[0]
         states = [f._state() for f in chosen]
         x, second, t = (np.stack([s[k] for s in states]) for k in range(3))
@@ -246,8 +241,13 @@ def make_filter(
     accel_std: float = 8.0,
     meas_std_m: float = 0.03,
     predict_s: float = 0.0,
+    jerk_std: float = 3.0,
+    accel_tau_s: float = 0.3,
+    ca_meas_std_m: float = 0.03,
+    ca_predict_s: float = 0.008,
+    jerk_per_speed: float = 20.0,
 ) -> JointFilter:
-    """A new filter by name: ``none``, ``one_euro`` or ``kalman``.
+    """A new filter by name: ``none``, ``one_euro``, ``kalman`` or ``kalman_ca``.
 
     Raises:
         ValueError: for any other name.
@@ -258,4 +258,8 @@ def make_filter(
         return OneEuroFilter(min_cutoff_hz, beta, d_cutoff_hz)
     if kind == "kalman":
         return ConstantVelocityKalman(accel_std, meas_std_m, predict_s)
-    raise ValueError(f"unknown filter {kind!r}: use 'none', 'one_euro' or 'kalman'")
+    if kind == "kalman_ca":
+        return DampedAccelerationKalman(
+            jerk_std, ca_meas_std_m, accel_tau_s, ca_predict_s, jerk_per_speed=jerk_per_speed
+        )
+    raise ValueError(f"unknown filter {kind!r}: use 'none', 'one_euro', 'kalman' or 'kalman_ca'")

@@ -287,6 +287,11 @@ class FusionPipeline:
             accel_std=s.kalman_accel_std,
             meas_std_m=s.kalman_meas_std_m,
             predict_s=s.kalman_predict_s,
+            jerk_std=s.kalman_ca_jerk_std,
+            accel_tau_s=s.kalman_ca_accel_tau_s,
+            ca_meas_std_m=s.kalman_ca_meas_std_m,
+            ca_predict_s=s.kalman_ca_predict_s,
+            jerk_per_speed=s.kalman_ca_jerk_per_speed,
         )
 
     def _check_walking_direction(self, person_id: int, t_s: float) -> None:

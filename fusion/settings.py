@@ -91,8 +91,9 @@ class FusionSettings:
     slower; brisk walking backwards for longer than ``mirror_walk_check_s`` is misread)."""
 
     # --- temporal filter (fusion/filters.py) --------------------------------------------------
-    filter: Literal["one_euro", "kalman", "none"] = "one_euro"
-    """``none``, ``one_euro`` (default) or ``kalman``; applied per person after fusion."""
+    filter: Literal["one_euro", "kalman", "none", "kalman_ca"] = "one_euro"
+    """``none``, ``one_euro`` (default), ``kalman`` or ``kalman_ca`` (fields ``kalman_ca_*``
+    below); applied per person after fusion."""
     one_euro_min_cutoff_hz: float = 1.5
     one_euro_beta: float = 10.0
     one_euro_d_cutoff_hz: float = 1.0
@@ -171,6 +172,19 @@ class FusionSettings:
     view_occlusion_m: float = 0.08
     """Extra error (metres) of a joint hidden from the sensor: by the person's own trunk, or
     reported Inferred."""
+
+    # --- damped-acceleration Kalman filter (fusion/filters_ca.py; issue 10 item 3) ----------
+    kalman_ca_jerk_std: float = 3.0
+    """``filter = "kalman_ca"``: white jerk, square root of its spectral density (m/s^2.5)."""
+    kalman_ca_meas_std_m: float = 0.03
+    """``filter = "kalman_ca"``: measurement noise of a fused joint, metres (per axis)."""
+    kalman_ca_accel_tau_s: float = 0.3
+    """``filter = "kalman_ca"``: time constant (s) with which the acceleration decays to 0."""
+    kalman_ca_predict_s: float = 0.008
+    """``filter = "kalman_ca"``: output extrapolated this far ahead (cancels the lag)."""
+    kalman_ca_jerk_per_speed: float = 20.0
+    """``filter = "kalman_ca"``: jerk added per m/s of a coordinate's speed (m/s^2.5 per m/s):
+    smooth when still, quick when moving, as One Euro's ``beta``."""
 
 
 @dataclass(frozen=True, slots=True)

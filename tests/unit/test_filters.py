@@ -15,6 +15,7 @@ from skelfuse.fusion.filters import (
     PassThrough,
     make_filter,
 )
+from skelfuse.fusion.filters_ca import DampedAccelerationKalman
 
 
 class ScalarOneEuro:
@@ -58,7 +59,7 @@ def test_one_euro_matches_the_scalar_reference() -> None:
         assert out[7, 1] == pytest.approx(expected, abs=1e-12)
 
 
-@pytest.mark.parametrize("kind", ["one_euro", "kalman"])
+@pytest.mark.parametrize("kind", ["one_euro", "kalman", "kalman_ca"])
 def test_filters_reduce_noise_on_a_still_joint(kind: str) -> None:
     rng = np.random.default_rng(0)
     f = make_filter(kind)
@@ -76,7 +77,7 @@ def test_kalman_follows_a_ramp_without_lag_and_prediction_leads() -> None:
     assert y_ahead == pytest.approx(t + 0.1, abs=0.01)
 
 
-@pytest.mark.parametrize("kind", ["one_euro", "kalman", "none"])
+@pytest.mark.parametrize("kind", ["one_euro", "kalman", "kalman_ca", "none"])
 def test_missing_joint_stays_missing_and_restarts_after_a_gap(kind: str) -> None:
     f = make_filter(kind)
     x = np.zeros((25, 3))
@@ -100,18 +101,20 @@ def test_unknown_filter_is_refused() -> None:
 def _mixed() -> list[JointFilter]:
     return [OneEuroFilter(1.5, 10.0), OneEuroFilter(1.5, 10.0), PassThrough(),
             ConstantVelocityKalman(6.0, 0.03, 0.01), ConstantVelocityKalman(6.0, 0.03, 0.01),
-            ConstantVelocityKalman(8.0, 0.03)]  # fmt: skip
+            ConstantVelocityKalman(8.0, 0.03),
+            DampedAccelerationKalman(3.0, 0.03, 0.3, 0.008, 0.5, 20.0),
+            DampedAccelerationKalman(3.0, 0.03, 0.3, 0.008, 0.5, 20.0)]  # fmt: skip
 
 
 def test_filter_all_matches_separate_calls() -> None:
-    """One Euro and Kalman filters stepped together give exactly what separate calls give."""
+    """One Euro and both Kalman filters stepped together give exactly what separate calls give."""
     from skelfuse.fusion.filters import filter_all
 
     rng = np.random.default_rng(3)
     together, apart = _mixed(), _mixed()
     for k in range(20):
-        sample = rng.normal(size=(6, 25, 3))
-        sample[rng.random((6, 25, 3)) < 0.1] = np.nan
+        sample = rng.normal(size=(8, 25, 3))
+        sample[rng.random((8, 25, 3)) < 0.1] = np.nan
         got = filter_all(together, sample, k / 30)
         for f, x, y in zip(apart, sample, got, strict=True):
             np.testing.assert_array_equal(f(x, k / 30), y)
@@ -147,3 +150,38 @@ def test_lag_measure_recovers_a_known_shift(shift_s: float) -> None:
     errors = shift_errors(times, fused, _sine)
     assert best_shift(errors) == pytest.approx(shift_s, abs=0.001)
     assert len(errors) == len(SHIFTS_S)
+
+
+def test_damped_acceleration_kalman_follows_a_parabola_and_its_lead_leads() -> None:
+    """Constant acceleration: no lag once settled (a constant-velocity model lags behind it),
+    and the lead extrapolates by its horizon; the acceleration decays once the joint stops."""
+    plain = DampedAccelerationKalman(60.0, 0.03, accel_tau_s=10.0)
+    ahead = DampedAccelerationKalman(60.0, 0.03, accel_tau_s=10.0, predict_s=0.05)
+    cv = ConstantVelocityKalman(8.0, 0.03)
+    for n in range(90):
+        t = n / 30
+        x = np.array([0.5 * t * t])  # 1 m/s²
+        y, y_ahead, y_cv = plain(x, t)[0], ahead(x, t)[0], cv(x, t)[0]
+    assert y == pytest.approx(x[0], abs=0.002)
+    assert y_ahead == pytest.approx(0.5 * (t + 0.05) ** 2, abs=0.003)
+    assert x[0] - y_cv > 3 * abs(x[0] - y)
+    damped = DampedAccelerationKalman(60.0, 0.03, accel_tau_s=0.2)
+    for n in range(60):
+        damped(np.array([0.5 * (n / 30) ** 2]), n / 30)
+    for n in range(60, 120):
+        damped(np.array([0.5 * 4.0]), n / 30)  # stopped at 2 m
+    assert damped._state()[0][0, 2] == pytest.approx(0.0, abs=0.05)
+
+
+def test_speed_raises_the_damped_acceleration_kalman_gain() -> None:
+    """With a jerk per unit of speed, a moving joint is followed more closely than with the
+    still joint's jerk alone, and a still one is smoothed as much."""
+    still, adaptive = (
+        DampedAccelerationKalman(3.0),
+        DampedAccelerationKalman(3.0, jerk_per_speed=40.0),
+    )
+    for n in range(60):
+        t = n / 30
+        x = np.array([np.sin(2 * math.pi * t)])
+        lag_still, lag_adaptive = x[0] - still(x, t)[0], x[0] - adaptive(x, t)[0]
+    assert abs(lag_adaptive) < 0.7 * abs(lag_still)

@@ -1,0 +1,127 @@
+"""Constant-acceleration Kalman filter with a damped acceleration (Singer model), vectorised.
+
+Why: a constant-velocity Kalman (fusion/filters.py) has no lag on a ramp but lags whenever the
+joint accelerates, which a limb does all the time (an arm swinging while walking lags 15 ms
+even with a 12 ms lead, docs/benchmarks.md "Lag against the truth"). Modelling the
+acceleration as well removes that lag; letting it decay towards zero with time constant
+``accel_tau_s`` (Singer, 1970) keeps the acceleration from running away when a joint stops,
+so the lead it allows overshoots less.
+
+Per coordinate, state (position, velocity, acceleration), transition over ``h`` seconds
+``F = [[1, h, h²/2], [0, 1, h], [0, 0, e^(−h/τ)]]``, process noise from white jerk of spectral
+density ``jerk_std²`` (m²/s⁵), measurement noise ``meas_std_m``. The output is the state
+extrapolated ``predict_s`` ahead (``p + v·L + a·L²/2``), which also cancels the pipeline's own
+delay.
+
+NaN handling, reset after ``reset_gap_s`` and the ``_step``/``_state`` protocol that
+``filters.filter_all`` stacks are as in the constant-velocity Kalman.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+FloatArray = npt.NDArray[np.float64]
+
+
+class DampedAccelerationKalman:
+    """Per-coordinate constant-acceleration Kalman with decaying acceleration.
+
+    Args:
+        jerk_std: process noise, square root of the white jerk's spectral density (m/s^2.5).
+        meas_std_m: measurement noise standard deviation (metres).
+        accel_tau_s: time constant (seconds) with which the acceleration decays to zero.
+        predict_s: output the state extrapolated this far ahead (0: the filtered position).
+        reset_gap_s: a coordinate missing for longer than this restarts from its next sample.
+        jerk_per_speed: jerk added per unit of the coordinate's estimated speed (m/s^2.5 per
+            m/s): as One Euro's ``beta``, smooth when still, quick when moving.
+    """
+
+    def __init__(
+        self,
+        jerk_std: float = 3.0,
+        meas_std_m: float = 0.03,
+        accel_tau_s: float = 0.3,
+        predict_s: float = 0.0,
+        reset_gap_s: float = 0.5,
+        jerk_per_speed: float = 0.0,
+    ) -> None:
+        self.jerk_std = jerk_std
+        self.jerk_per_speed = jerk_per_speed
+        self.r = meas_std_m**2
+        self.accel_tau_s = accel_tau_s
+        self.predict_s = predict_s
+        self.reset_gap_s = reset_gap_s
+        self._x: FloatArray | None = None  # (..., 3): position, velocity, acceleration
+        self._p: FloatArray | None = None  # (..., 3, 3) covariance
+        self._t: FloatArray | None = None
+
+    def _init(self, z: FloatArray) -> tuple[FloatArray, FloatArray]:
+        x = np.stack([z, np.zeros_like(z), np.zeros_like(z)], axis=-1)
+        p = np.zeros((*z.shape, 3, 3))
+        p[..., 0, 0], p[..., 1, 1], p[..., 2, 2] = self.r, 1.0, 100.0
+        return x, p
+
+    def __call__(self, joints: FloatArray, t_s: float) -> FloatArray:
+        z = np.asarray(joints, dtype=np.float64)
+        if self._x is None or self._p is None or self._t is None:
+            self._x, self._p = self._init(z)
+            self._t = np.where(np.isfinite(z), t_s, -np.inf)
+            return z.copy()
+        out, self._x, self._p, self._t = self._step(z, self._x, self._p, self._t, t_s)
+        return out
+
+    def _step(
+        self, z: FloatArray, last_x: FloatArray, last_p: FloatArray, last_t: FloatArray, t_s: float
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """One sample on any stack of states: output, new state, new covariance, new t."""
+        present = np.isfinite(z)
+        dt = t_s - last_t
+        fresh = present & (~np.isfinite(last_x[..., 0]) | (dt > self.reset_gap_s))
+        step = present & ~fresh & (dt > 0)
+        h = np.where(step, dt, 0.0)
+        f = np.zeros((*h.shape, 3, 3))
+        f[..., 0, 0] = f[..., 1, 1] = 1.0
+        f[..., 0, 1] = f[..., 1, 2] = h
+        f[..., 0, 2] = h * h / 2
+        f[..., 2, 2] = np.exp(-h / self.accel_tau_s)
+        # White-jerk process noise (exact for the undamped model; the damping is slow
+        # against one frame, so its effect on Q is negligible).
+        q = np.empty_like(f)
+        q[..., 0, 0] = h**5 / 20
+        q[..., 0, 1] = q[..., 1, 0] = h**4 / 8
+        q[..., 0, 2] = q[..., 2, 0] = h**3 / 6
+        q[..., 1, 1] = h**3 / 3
+        q[..., 1, 2] = q[..., 2, 1] = h**2 / 2
+        q[..., 2, 2] = h
+        x_p = np.einsum("...ij,...j->...i", f, last_x)
+        jerk = self.jerk_std + self.jerk_per_speed * np.abs(last_x[..., 1])
+        p_p = f @ last_p @ np.swapaxes(f, -1, -2) + (jerk**2)[..., None, None] * q
+        # Update with the position measurement (H = [1, 0, 0]).
+        s = p_p[..., 0, 0] + self.r
+        gain = p_p[..., :, 0] / s[..., None]
+        innovation = np.where(step, z, 0.0) - np.where(step, x_p[..., 0], 0.0)
+        new_x = x_p + gain * innovation[..., None]
+        new_p = p_p - gain[..., :, None] * p_p[..., 0, None, :]
+        init_x, init_p = self._init(np.where(fresh, z, 0.0))
+        x = np.where(step[..., None], new_x, np.where(fresh[..., None], init_x, last_x))
+        p = np.where(step[..., None, None], new_p, np.where(fresh[..., None, None], init_p, last_p))
+        t = np.where(present, t_s, last_t)
+        lead = self.predict_s
+        out = x[..., 0] + lead * x[..., 1] + lead * lead / 2 * x[..., 2]
+        return np.where(present, out, np.nan), x, p, t
+
+    def _params(self) -> tuple[float, ...]:
+        return (self.jerk_std, self.jerk_per_speed, self.r, self.accel_tau_s, self.predict_s,
+                self.reset_gap_s)  # fmt: skip
+
+    def _state(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """x, P, t of a started filter (``filters.filter_all`` stacks them)."""
+        assert self._x is not None
+        assert self._p is not None
+        assert self._t is not None
+        return self._x, self._p, self._t
+
+    def _set_state(self, x: FloatArray, p: FloatArray, t: FloatArray) -> None:
+        self._x, self._p, self._t = x, p, t
