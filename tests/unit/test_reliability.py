@@ -6,11 +6,12 @@ import math
 
 import numpy as np
 
+from bench.oracle import best_view, group_mpjpe, view_errors
 from skelfuse.fusion.pipeline import FusionPipeline
 from skelfuse.fusion.reliability import hidden_by_trunk, lean_errors, reliability_factors
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.views import View
-from skelfuse.protocol.skeleton import JointId as J
+from skelfuse.protocol.skeleton import MIRROR_PERMUTATION, JointId as J
 
 ERRORS = (0.021, 0.035, 0.06)
 
@@ -93,3 +94,23 @@ def test_off_by_default_and_on_moves_the_fused_ankle_towards_the_front_view() ->
             out = pipeline.update(views, n / 30)
         errors[on] = float(np.linalg.norm(out[0].joints[J.ANKLE_LEFT] - truth[J.ANKLE_LEFT]))
     assert errors[True] < 0.5 * errors[False]
+
+
+def test_the_oracle_picks_the_least_wrong_view_that_reports_enough_joints() -> None:
+    good = np.full(25, 0.02)
+    bad = np.full(25, 0.05)
+    legless = np.full(25, 0.001)
+    legless[[13, 14, 15, 17, 18, 19]] = np.nan  # legs out of the field of view
+    chosen = best_view([bad, legless, good])
+    assert chosen is good
+    assert best_view([legless]) is None
+    groups = group_mpjpe([good, bad])
+    assert math.isclose(groups["all"], 35.0) and math.isclose(groups["legs"], 35.0)
+
+
+def test_the_oracle_puts_a_mirrored_view_right_before_scoring_it() -> None:
+    truth = _body()
+    swapped = truth[list(MIRROR_PERMUTATION)]
+    pose = np.eye(4)
+    assert np.allclose(view_errors(swapped, True, pose, truth), 0.0)
+    assert view_errors(swapped, False, pose, truth)[J.ANKLE_LEFT] > 0.1
