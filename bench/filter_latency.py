@@ -9,6 +9,7 @@ import numpy as np
 
 from bench.accuracy_runner import FPS
 from skelfuse.fusion.filters import ConstantVelocityKalman, JointFilter, OneEuroFilter
+from skelfuse.fusion.filters_ca import DampedAccelerationKalman
 
 
 def filter_latency() -> dict[str, dict[str, float]]:
@@ -21,6 +22,9 @@ def filter_latency() -> dict[str, dict[str, float]]:
         "Kalman CV + 33 ms prediction": lambda: ConstantVelocityKalman(8.0, 0.03, 1 / 30),
         "Kalman CV + 12 ms lead (accel 5 m/s², proposed)": lambda: ConstantVelocityKalman(
             5.0, 0.03, 0.012
+        ),
+        "Kalman CA (jerk 3 + 30/speed, τ 0.1 s, 6 ms lead)": lambda: DampedAccelerationKalman(
+            3.0, 0.03, 0.1, 0.006, jerk_per_speed=30.0
         ),
     }
     out: dict[str, dict[str, float]] = {}

@@ -61,6 +61,7 @@ METHODS: dict[str, FusionSettings] = {
     "Kalman CV + 12 ms lead, accel 5 (proposed)": FusionSettings(
         filter="kalman", kalman_accel_std=5.0, kalman_predict_s=0.012
     ),
+    "Kalman CA, damped, speed-adaptive, 6 ms lead": FusionSettings(filter="kalman_ca"),
 }
 SCENARIO_NAMES = ("CMU 131_01 start-walk-stop, heading 0°", "walking a circle", "arm raises",
                   "squats")  # fmt: skip

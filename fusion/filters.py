@@ -242,10 +242,10 @@ def make_filter(
     meas_std_m: float = 0.03,
     predict_s: float = 0.0,
     jerk_std: float = 3.0,
-    accel_tau_s: float = 0.3,
+    accel_tau_s: float = 0.1,
     ca_meas_std_m: float = 0.03,
-    ca_predict_s: float = 0.008,
-    jerk_per_speed: float = 20.0,
+    ca_predict_s: float = 0.006,
+    jerk_per_speed: float = 30.0,
 ) -> JointFilter:
     """A new filter by name: ``none``, ``one_euro``, ``kalman`` or ``kalman_ca``.
 

@@ -178,11 +178,11 @@ class FusionSettings:
     """``filter = "kalman_ca"``: white jerk, square root of its spectral density (m/s^2.5)."""
     kalman_ca_meas_std_m: float = 0.03
     """``filter = "kalman_ca"``: measurement noise of a fused joint, metres (per axis)."""
-    kalman_ca_accel_tau_s: float = 0.3
+    kalman_ca_accel_tau_s: float = 0.1
     """``filter = "kalman_ca"``: time constant (s) with which the acceleration decays to 0."""
-    kalman_ca_predict_s: float = 0.008
+    kalman_ca_predict_s: float = 0.006
     """``filter = "kalman_ca"``: output extrapolated this far ahead (cancels the lag)."""
-    kalman_ca_jerk_per_speed: float = 20.0
+    kalman_ca_jerk_per_speed: float = 30.0
     """``filter = "kalman_ca"``: jerk added per m/s of a coordinate's speed (m/s^2.5 per m/s):
     smooth when still, quick when moving, as One Euro's ``beta``."""
 

@@ -64,7 +64,9 @@ def test_every_problem_is_reported_at_once_by_key(tmp_path: Path) -> None:
         )
     message = str(caught.value)
     assert "filtr: not a fusion setting (did you mean 'filter'?)" in message
-    assert "filter: expected one of 'one_euro', 'kalman', 'none', 'kalman_ca', got 'median'" in message
+    assert "filter: expected one of 'one_euro', 'kalman', 'none', 'kalman_ca', got 'median'" in (
+        message
+    )
     assert "use_facing: expected true or false, got 1" in message
     assert "one_euro_beta: expected a finite number ≥ 0, got -1" in message
     assert "track_min_frames: expected a whole number ≥ 0, got 2.5" in message
