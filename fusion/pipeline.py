@@ -50,7 +50,6 @@ from skelfuse.fusion.labels import LabelDoubt, Labels, label_views, walking_back
 from skelfuse.fusion.mirror_labellings import MAX_VIEWS
 from skelfuse.fusion.priors import priors_of
 from skelfuse.fusion.reliability import reliability_factors
-from skelfuse.fusion.reliability import reliability_factors
 from skelfuse.fusion.sensors import SensorState, bodies_at
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.views import FusedPerson, View
