@@ -13,14 +13,26 @@ by construction, and on the vertical axis about which a tracker turns the body t
 and only joints Tracked in both views. A window whose pelvis positions spread less than
 ``MIN_SPREAD_M`` (a person standing still: a poorly conditioned fit) gives no estimate.
 
+Baseline: the correction under the committed calibration is not zero for a rig whose
+calibration is only good to some millimetres and degrees (the skeleton + ICP calibration of the
+demo rig: ~18 mm, some degrees). So what is flagged is *change*: per ordered pair of sensors,
+the first ``BASELINE_CHECKS`` estimates after a reset whose pelvis spread reaches
+``ROTATION_MIN_SPREAD_M`` (both rotation and shift well conditioned) give the pair's baseline
+correction (their medoid: the one closest to the others); afterwards a check compares the
+correction with it (:func:`relative_correction`: the rotation ``R·R0ᵀ`` and how far the two
+corrections place the window's centroid apart). A bump before the baseline is complete is
+part of the baseline, so it is not flagged. The monitor is reset on every calibration change
+(commit, rollback, import), which starts the baselines afresh.
+
 Blame: a sensor's correction is the *smallest* of its pairwise corrections, so with three or
 more sensors only the sensor that disagrees with every other one is flagged (the others agree
 with each other). With two sensors the pair is ambiguous: both are flagged.
 
 Hysteresis: a sensor is flagged after ``drift_confirm_checks`` consecutive checks whose
-correction exceeds a threshold (``drift_threshold_deg`` or ``drift_threshold_mm``), and cleared
-after as many checks below ``DRIFT_CLEAR_RATIO`` of them. Checks without an estimate (nobody
-moving, one sensor alone) change nothing.
+correction relative to its baseline exceeds a threshold (``drift_threshold_deg`` or
+``drift_threshold_mm``), and cleared after as many checks below ``DRIFT_CLEAR_RATIO`` of
+them. Checks without an estimate (nobody moving, one sensor alone, no baseline yet) change
+nothing.
 
 Time is the fusion instants' (``t_s`` of each step); nothing here reads a clock. Frames and
 units: world frame, metres; corrections in degrees and millimetres.
@@ -57,6 +69,9 @@ ROTATION_MIN_SPREAD_M: Final = 0.45
 1.5° in normal motion (bench/drift.py), while the shift of the person stayed under 15 mm. A
 bumped sensor's rotation shows as a shift too (2° at 3 m moves the person 100 mm), so the
 shift alone catches bumps while people move little."""
+BASELINE_CHECKS: Final = 5
+"""Well-conditioned estimates (spread ≥ ``ROTATION_MIN_SPREAD_M``) a pair's baseline is taken
+from, after each reset: their medoid, so one odd window does not set it."""
 DRIFT_CLEAR_RATIO: Final = 0.6
 """A flag clears once the correction stays below this share of the thresholds."""
 
@@ -82,13 +97,17 @@ class Correction:
 
     rotation_deg: angle of the correcting rotation. shift_mm: how far it moves the centroid of
     the window's points (where the person was: what fusion suffers from). spread_m: the
-    pelvis spread of the window. samples: instants used.
+    pelvis spread of the window. samples: instants used. transform: the (4, 4) correction
+    ``T_dst_from_src`` (world frame, metres). centre: (3,) the weighted centroid of the window's
+    ``src`` points (world, metres). Both are None for a relative correction.
     """
 
     rotation_deg: float
     shift_mm: float
     spread_m: float
     samples: int
+    transform: FloatArray | None = field(default=None, repr=False, compare=False)
+    centre: FloatArray | None = field(default=None, repr=False, compare=False)
 
     def severity(self, threshold_deg: float, threshold_mm: float) -> float:
         """The larger of the two as a share of its threshold (≥ 1: over a threshold); the
@@ -132,7 +151,49 @@ def estimate_correction(src: FloatArray, dst: FloatArray) -> Correction | None:
         float(np.linalg.norm(moved)) * 1000.0,
         spread,
         len(src),
+        fit.T_dst_from_src,
+        centre,
     )
+
+
+def relative_correction(current: Correction, baseline: Correction) -> Correction:
+    """How far ``current`` has changed since ``baseline`` (same ordered pair).
+
+    rotation_deg: the angle of ``R·R0ᵀ``. shift_mm: how far apart the two corrections place the
+    centroid of the *current* window's points (the same terms as ``Correction.shift_mm``: what
+    the change means for where fusion puts the person). spread_m and samples: the current's.
+
+    Raises:
+        ValueError: a correction without its transform and centre (itself a relative one).
+    """
+    if current.transform is None or current.centre is None or baseline.transform is None:
+        raise ValueError("relative_correction needs estimated corrections, not relative ones")
+    t, t0, c = current.transform, baseline.transform, current.centre
+    rotation = t[:3, :3] @ t0[:3, :3].T
+    apart = (t[:3, :3] @ c + t[:3, 3]) - (t0[:3, :3] @ c + t0[:3, 3])
+    return Correction(
+        rotation_angle_deg(rotation),
+        float(np.linalg.norm(apart)) * 1000.0,
+        current.spread_m,
+        current.samples,
+    )
+
+
+def medoid(candidates: list[Correction], threshold_deg: float, threshold_mm: float) -> Correction:
+    """The candidate whose relative corrections to the others are smallest in sum (each as the
+    larger share of its threshold, rotation included): a median for rigid transforms.
+
+    Raises:
+        ValueError: no candidates.
+    """
+    if not candidates:
+        raise ValueError("medoid of no corrections")
+
+    def distance(a: Correction, b: Correction) -> float:
+        r = relative_correction(a, b)
+        return max(r.rotation_deg / threshold_deg, r.shift_mm / threshold_mm)
+
+    return min(candidates, key=lambda a: sum(distance(b, a) for b in candidates))
 
 
 @dataclass(slots=True)
@@ -141,22 +202,35 @@ class SensorDrift:
 
     moved: bool = False
     correction: Correction | None = None
-    """The latest estimate (None: none possible yet)."""
+    """The latest estimate under the committed calibration, against ``against`` (None: none
+    possible yet). Not zero on an imperfect calibration: what counts is ``relative``."""
     against: str | None = None
-    """The sensor the latest estimate compares with (the one it agrees with best)."""
+    """The sensor the latest estimate compares with: the one whose pair has changed least since
+    its baseline (before any baseline: the one it agrees with best)."""
+    baseline: Correction | None = None
+    """The pair's baseline correction (with ``against``; None: not complete yet)."""
+    relative: Correction | None = None
+    """The latest correction relative to ``baseline`` (what the flag is decided on)."""
     checked_t_s: float | None = None
     flagged_t_s: float | None = None
     over: int = 0
     under: int = 0
 
     def to_json(self) -> dict[str, object]:
-        c = self.correction
+        """The ``drift`` of a sensor row: ``rotation_deg``/``shift_mm`` the latest correction
+        under the committed calibration; ``baseline_*`` the pair's baseline (None: still being
+        taken); ``relative_*`` the change since it, which the flag is decided on."""
+        c, b, r = self.correction, self.baseline, self.relative
         return {
             "moved": self.moved,
             "rotation_deg": None if c is None else round(c.rotation_deg, 3),
             "shift_mm": None if c is None else round(c.shift_mm, 1),
             "against": self.against,
             "samples": None if c is None else c.samples,
+            "baseline_rotation_deg": None if b is None else round(b.rotation_deg, 3),
+            "baseline_shift_mm": None if b is None else round(b.shift_mm, 1),
+            "relative_rotation_deg": None if r is None else round(r.rotation_deg, 3),
+            "relative_shift_mm": None if r is None else round(r.shift_mm, 1),
             "checked_t_s": self.checked_t_s,
             "flagged_t_s": self.flagged_t_s,
         }
@@ -182,13 +256,19 @@ class DriftMonitor:
         self.settings = settings
         self.sensors: dict[str, SensorDrift] = {}
         self._pairs: dict[tuple[str, str], _PairWindow] = {}
+        self._candidates: dict[tuple[str, str], list[Correction]] = {}
+        """Per ordered pair (me, other): well-conditioned estimates collected for its baseline."""
+        self._baselines: dict[tuple[str, str], Correction] = {}
         self._last_sample_t: float | None = None
         self._last_check_t: float | None = None
 
     def reset(self) -> None:
-        """Forget every window and flag (a new calibration: the old points no longer apply)."""
+        """Forget every window, baseline and flag (a new calibration: the old points and
+        corrections no longer apply)."""
         self.sensors.clear()
         self._pairs.clear()
+        self._candidates.clear()
+        self._baselines.clear()
         self._last_sample_t = self._last_check_t = None
 
     def observe(self, t_s: float, persons: Iterable[FusedPerson]) -> None:
@@ -218,9 +298,13 @@ class DriftMonitor:
                 window.second.append(by_sensor[b])
 
     def check(self, t_s: float) -> None:
-        """Estimate every sensor's correction over the window ending at ``t_s``; update flags."""
+        """Estimate every sensor's correction over the window ending at ``t_s``, collect or
+        compare with the pairs' baselines, update flags."""
         s = self.settings
-        best: dict[str, tuple[float, Correction, str]] = {}
+        thresholds = (s.drift_threshold_deg, s.drift_threshold_mm)
+        # per sensor: (relative severity, raw, relative, baseline, other) of its best pair;
+        # raw-only candidates (no baseline yet) rank after any pair with a baseline
+        best: dict[str, tuple[bool, float, Correction, Correction | None, str]] = {}
         for (a, b), window in self._pairs.items():
             window.prune(t_s - s.drift_window_s)
             if len(window.times) < MIN_SAMPLES:
@@ -230,12 +314,21 @@ class DriftMonitor:
                 correction = estimate_correction(src, dst)
                 if correction is None:
                     continue
-                severity = correction.severity(s.drift_threshold_deg, s.drift_threshold_mm)
-                if me not in best or severity < best[me][0]:
-                    best[me] = (severity, correction, other)
-        for sensor_id, (severity, correction, other) in best.items():
+                relative = self._against_baseline((me, other), correction)
+                key: tuple[bool, float, Correction, Correction | None, str]
+                if relative is None:
+                    key = (True, correction.severity(*thresholds), correction, None, other)
+                else:
+                    key = (False, relative.severity(*thresholds), correction, relative, other)
+                if me not in best or key[:2] < best[me][:2]:
+                    best[me] = key
+        for sensor_id, (waiting, severity, correction, relative, other) in best.items():
             state = self.sensors.setdefault(sensor_id, SensorDrift())
             state.correction, state.against, state.checked_t_s = correction, other, t_s
+            state.baseline = self._baselines.get((sensor_id, other))
+            state.relative = relative
+            if waiting:
+                continue  # no baseline to compare with: no evidence either way
             if severity >= 1.0:
                 state.over, state.under = state.over + 1, 0
             elif severity < DRIFT_CLEAR_RATIO:
@@ -246,6 +339,23 @@ class DriftMonitor:
                 state.moved, state.flagged_t_s = True, t_s
             elif state.moved and state.under >= s.drift_confirm_checks:
                 state.moved, state.flagged_t_s = False, None
+
+    def _against_baseline(self, pair: tuple[str, str], correction: Correction) -> Correction | None:
+        """The correction relative to the pair's baseline; None while the baseline is still
+        being collected (a well-conditioned ``correction`` then joins its candidates)."""
+        baseline = self._baselines.get(pair)
+        if baseline is not None:
+            return relative_correction(correction, baseline)
+        if correction.spread_m >= ROTATION_MIN_SPREAD_M:
+            candidates = self._candidates.setdefault(pair, [])
+            candidates.append(correction)
+            if len(candidates) >= BASELINE_CHECKS:
+                s = self.settings
+                self._baselines[pair] = medoid(
+                    candidates, s.drift_threshold_deg, s.drift_threshold_mm
+                )
+                del self._candidates[pair]
+        return None
 
     def status(self, sensor_id: str) -> SensorDrift | None:
         """The sensor's drift state (None: never seen together with another sensor)."""
