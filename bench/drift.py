@@ -5,13 +5,17 @@ the built-in routine (walk a circle, turn, arm raises, squats, looped). One prod
 :class:`fusion.hub.FusionHub` with ``drift_detection`` on receives every frame as wire bytes in
 simulated time (as ``bench/accuracy_runner.py`` drives it), calibrated with the true poses.
 
-- **bump**: after ``--bump-at`` seconds one sensor's true pose changes (a rotation about its own
-  vertical axis, a shift along its own x, or both) while the hub keeps the committed pose;
-  reported: the time from the bump to the flag (fusion instants), and any sensor flagged
-  that was not bumped, or before the bump;
+- **bump**: after ``--bump-at`` seconds, and once the sensor has a baseline (a bump before it
+  would be part of it: ``fusion/drift.py``), one sensor's true pose changes (a rotation about
+  its own vertical axis, a shift along its own x, or both) while the hub keeps the committed pose;
+  reported: when the bump happened (the baseline's wait), the time from the bump to the flag
+  (fusion instants), and any sensor flagged that was not bumped, or before the bump;
 - **normal**: a take of ``--minutes`` of the routine with nothing bumped; reported: the
-  flags (false alarms), the largest correction per sensor as it counts against the sensor
-  (the rotation only from ``ROTATION_MIN_SPREAD_M`` on), and the wall time.
+  flags (false alarms), the largest correction per sensor relative to its baseline as it
+  counts against the sensor (the rotation only from ``ROTATION_MIN_SPREAD_M`` on), the largest
+  correction under the committed calibration (what flagged before the baseline), and the wall
+  time; once calibrated with the true poses, once with one sensor's committed pose off by
+  ``MISCALIBRATION`` (a constant calibration error, as a self-calibrated rig has).
 
 Run: ``python bench/drift.py`` (``--seeds N`` bump takes per bump, ``--normal-seeds N`` normal
 takes of ``--minutes M``, ``--json FILE``).
@@ -68,9 +72,15 @@ def bumped_pose(pose: np.ndarray, bump: Bump) -> np.ndarray:
 
 
 def run_take(
-    seed: int, duration_s: float, bump: Bump | None, settings: FusionSettings = SETTINGS
+    seed: int,
+    duration_s: float,
+    bump: Bump | None,
+    settings: FusionSettings = SETTINGS,
+    miscalibration: Bump | None = None,
 ) -> dict[str, object]:
-    """One simulated take; the flags seen (sensor → first flag time after the start, s)."""
+    """One simulated take; the flags seen (sensor → first flag time after the start, s).
+    ``miscalibration``: the committed pose of that sensor is its true pose moved so (from the
+    start, ``at_s`` unused)."""
     rng = np.random.default_rng(seed)
     poses = sensor_poses(3)
     names = [f"sim-{k + 1}" for k in range(3)]
@@ -78,7 +88,10 @@ def run_take(
         SimulatedKinect(p, KinectV2Params(), seed=seed * 100 + k) for k, p in enumerate(poses)
     ]
     hub = FusionHub(Settings(fusion=settings))
-    for name, pose in zip(names, poses, strict=True):
+    committed = list(poses)
+    if miscalibration is not None:
+        committed[miscalibration.sensor] = bumped_pose(poses[miscalibration.sensor], miscalibration)
+    for name, pose in zip(names, committed, strict=True):
         hello = Hello(name, "sim", "bench", FPS, 0, pose_hint=pose, pose_hint_source="sim_truth")
         hub.handle_message(name.encode(), [encode(hello)], T0, 0.0)
     assert hub.drift is not None
@@ -91,16 +104,20 @@ def run_take(
     events.sort()
     seqs = [0] * 3
     bumped = False
+    bumped_at: float | None = None
     flags: dict[str, float] = {}
     largest: dict[str, tuple[float, float]] = {}
+    largest_raw: dict[str, tuple[float, float]] = {}
     started = time.perf_counter()
     for t_capture, k in events:
-        if bump is not None and not bumped and t_capture - T0 >= bump.at_s:
+        target_state = hub.drift.sensors.get(names[bump.sensor]) if bump is not None else None
+        ready = target_state is not None and target_state.baseline is not None
+        if bump is not None and not bumped and t_capture - T0 >= bump.at_s and ready:
             moved = bumped_pose(poses[bump.sensor], bump)
             target = kinects[bump.sensor]
             target.T_world_from_sensor = moved
             target._T_sensor_from_world = invert(moved)  # the simulator has no setter
-            bumped = True
+            bumped, bumped_at = True, t_capture - T0
         truth = performer.joints_at(t_capture - T0 + offset)
         observations = kinects[k].observe(truth, t_capture)
         seqs[k] += 1
@@ -114,18 +131,25 @@ def run_take(
         for name, state in hub.drift.sensors.items():
             if state.moved and name not in flags:
                 flags[name] = fused.t_s - T0
-            c = state.correction
-            if c is not None:  # the rotation as it counts (drift.Correction.severity)
-                old = largest.get(name, (0.0, 0.0))
-                rotation = c.rotation_deg if c.spread_m >= ROTATION_MIN_SPREAD_M else 0.0
-                largest[name] = (max(old[0], rotation), max(old[1], c.shift_mm))
+            for c, table in ((state.relative, largest), (state.correction, largest_raw)):
+                if c is not None:  # the rotation as it counts (drift.Correction.severity)
+                    old = table.get(name, (0.0, 0.0))
+                    rotation = c.rotation_deg if c.spread_m >= ROTATION_MIN_SPREAD_M else 0.0
+                    table[name] = (max(old[0], rotation), max(old[1], c.shift_mm))
     return {
         "flags": flags,
         "largest": {k: (round(v[0], 2), round(v[1], 1)) for k, v in sorted(largest.items())},
+        "largest_raw": {
+            k: (round(v[0], 2), round(v[1], 1)) for k, v in sorted(largest_raw.items())
+        },
         "wall_s": time.perf_counter() - started,
         "target": None if bump is None else names[bump.sensor],
+        "bumped_at": bumped_at,
     }
 
+
+MISCALIBRATION = Bump(1, 3.0, 60.0, 0.0)
+"""The committed pose of sim-2 off by 3° and 60 mm in the miscalibrated normal take."""
 
 BUMPS = {
     "2° yaw": Bump(1, 2.0, 0.0, 20.0),
@@ -142,40 +166,54 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--normal-seeds", type=int, default=1, help="normal takes")
     parser.add_argument("--bump-at", type=float, default=20.0, help="seconds into a bump take")
     parser.add_argument("--after", type=float, default=20.0, help="seconds a bump take goes on")
+    parser.add_argument(
+        "--wait", type=float, default=60.0, help="longest wait for the baseline after --bump-at"
+    )
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
     out: dict[str, object] = {}
     print(f"load average {os.getloadavg()[0]:.2f}")
-    print("| bump | detected (seeds) | time to flag, median (worst) | wrongly flagged |")
-    print("|---|---|---|---|")
+    print(
+        "| bump | detected (seeds) | bumped at, median (latest) | time to flag, median (worst) "
+        "| wrongly flagged |"
+    )
+    print("|---|---|---|---|---|")
     for label, bump in BUMPS.items():
         bump = replace(bump, at_s=args.bump_at)
         times: list[float] = []
+        starts: list[float] = []
         wrong = 0
         for seed in range(args.seeds):
-            take = run_take(seed, args.bump_at + args.after, bump)
-            flags = take["flags"]
+            take = run_take(seed, args.bump_at + args.wait + args.after, bump)
+            flags, at = take["flags"], take["bumped_at"]
             assert isinstance(flags, dict)
             target = take["target"]
-            wrong += sum(1 for n, t in flags.items() if n != target or t < bump.at_s)
-            if target in flags and flags[target] >= bump.at_s:
-                times.append(flags[target] - bump.at_s)
+            wrong += sum(1 for n, t in flags.items() if n != target or at is None or t < at)
+            if isinstance(at, float):
+                starts.append(at)
+                if target in flags and flags[target] >= at:
+                    times.append(flags[target] - at)
             out[f"{label} seed {seed}"] = take
         detected = f"{len(times)}/{args.seeds}"
         when = f"{statistics.median(times):.1f} s ({max(times):.1f} s)" if times else "-"
-        print(f"| {label} | {detected} | {when} | {wrong} |")
+        bumped = f"{statistics.median(starts):.0f} s ({max(starts):.0f} s)" if starts else "never"
+        print(f"| {label} | {detected} | {bumped} | {when} | {wrong} |")
     print()
-    print("| normal take | minutes | false alarms | largest correction per sensor (°, mm) | wall |")
-    print("|---|---|---|---|---|")
+    print(
+        "| normal take | minutes | false alarms | largest change since the baseline (°, mm) "
+        "| largest correction under the calibration (°, mm) | wall |"
+    )
+    print("|---|---|---|---|---|---|")
     for seed in range(args.normal_seeds):
-        take = run_take(1000 + seed, args.minutes * 60.0, None)
-        flags = take["flags"]
-        assert isinstance(flags, dict)
-        print(
-            f"| seed {seed} | {args.minutes:g} | {len(flags)} | {take['largest']} | "
-            f"{take['wall_s']:.0f} s |"
-        )
-        out[f"normal seed {seed}"] = take
+        for label, error in (("calibrated", None), ("sim-2 off 3° + 60 mm", MISCALIBRATION)):
+            take = run_take(1000 + seed, args.minutes * 60.0, None, miscalibration=error)
+            flags = take["flags"]
+            assert isinstance(flags, dict)
+            print(
+                f"| seed {seed}, {label} | {args.minutes:g} | {len(flags)} | {take['largest']} "
+                f"| {take['largest_raw']} | {take['wall_s']:.0f} s |"
+            )
+            out[f"normal seed {seed} {label}"] = take
     if args.json:
         args.json.write_text(json.dumps(out, indent=1, default=str))
     return 0
