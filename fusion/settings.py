@@ -116,9 +116,9 @@ class FusionSettings:
     drift_detection: bool = False
     """Watch every sensor for a move since its calibration (a bump): flags in ``/api/sensors``,
     ``/metrics`` and the viewer. Observes only: the fused output is the same either way. Off by
-    default: it compares sensors with each other under the calibration, so a calibration whose
-    own error passes the thresholds (the demo's self-calibrated rig) flags every sensor; it
-    needs a baseline taken after each commit first (docs/calibration.md)."""
+    default until the lead decides: it flags change since a per-pair baseline taken after each
+    calibration change (so a calibration's own error is not flagged, but neither is a bump
+    before the baseline; docs/calibration.md)."""
     drift_window_s: float = 6.0
     """Sliding window of fusion instants the rigid correction is estimated over (seconds)."""
     drift_check_interval_s: float = 1.0
