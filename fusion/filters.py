@@ -29,6 +29,7 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.filters_ca import DampedAccelerationKalman
+from skelfuse.fusion.kalman_state import KalmanState
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -147,7 +148,7 @@ def filter_all(filters: list[JointFilter], joints: FloatArray, t_s: float) -> li
     return [o for o in out if o is not None]
 
 
-class ConstantVelocityKalman:
+class ConstantVelocityKalman(KalmanState):
     """Per-coordinate constant-velocity Kalman filter, vectorised over arrays of any shape.
 
     Args:
@@ -164,27 +165,14 @@ class ConstantVelocityKalman:
         predict_s: float = 0.0,
         reset_gap_s: float = 0.5,
     ) -> None:
+        super().__init__(meas_std_m, reset_gap_s)  # x: (..., 2) position, velocity; P: (..., 3)
         self.q = accel_std**2
-        self.r = meas_std_m**2
         self.predict_s = predict_s
-        self.reset_gap_s = reset_gap_s
-        self._x: FloatArray | None = None  # (..., 2): position, velocity
-        self._p: FloatArray | None = None  # (..., 3): P00, P01, P11
-        self._t: FloatArray | None = None
 
     def _init(self, z: FloatArray) -> tuple[FloatArray, FloatArray]:
         x = np.stack([z, np.zeros_like(z)], axis=-1)
         p = np.stack([np.full_like(z, self.r), np.zeros_like(z), np.full_like(z, 1.0)], axis=-1)
         return x, p
-
-    def __call__(self, joints: FloatArray, t_s: float) -> FloatArray:
-        z = np.asarray(joints, dtype=np.float64)
-        if self._x is None or self._p is None or self._t is None:
-            self._x, self._p = self._init(z)
-            self._t = np.where(np.isfinite(z), t_s, -np.inf)
-            return z.copy()
-        out, self._x, self._p, self._t = self._step(z, self._x, self._p, self._t, t_s)
-        return out
 
     def _step(
         self, z: FloatArray, last_x: FloatArray, last_p: FloatArray, last_t: FloatArray, t_s: float
@@ -220,16 +208,6 @@ class ConstantVelocityKalman:
 
     def _params(self) -> tuple[float, float, float, float]:
         return (self.q, self.r, self.predict_s, self.reset_gap_s)
-
-    def _state(self) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """x, P, t of a started filter (``filter_all`` stacks them)."""
-        assert self._x is not None
-        assert self._p is not None
-        assert self._t is not None
-        return self._x, self._p, self._t
-
-    def _set_state(self, x: FloatArray, p: FloatArray, t: FloatArray) -> None:
-        self._x, self._p, self._t = x, p, t
 
 
 def make_filter(

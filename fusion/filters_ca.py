@@ -22,10 +22,12 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
+from skelfuse.fusion.kalman_state import KalmanState
+
 FloatArray = npt.NDArray[np.float64]
 
 
-class DampedAccelerationKalman:
+class DampedAccelerationKalman(KalmanState):
     """Per-coordinate constant-acceleration Kalman with decaying acceleration.
 
     Args:
@@ -47,30 +49,17 @@ class DampedAccelerationKalman:
         reset_gap_s: float = 0.5,
         jerk_per_speed: float = 0.0,
     ) -> None:
+        super().__init__(meas_std_m, reset_gap_s)  # x: (..., 3) position, velocity, accel.
         self.jerk_std = jerk_std
         self.jerk_per_speed = jerk_per_speed
-        self.r = meas_std_m**2
         self.accel_tau_s = accel_tau_s
         self.predict_s = predict_s
-        self.reset_gap_s = reset_gap_s
-        self._x: FloatArray | None = None  # (..., 3): position, velocity, acceleration
-        self._p: FloatArray | None = None  # (..., 3, 3) covariance
-        self._t: FloatArray | None = None
 
     def _init(self, z: FloatArray) -> tuple[FloatArray, FloatArray]:
         x = np.stack([z, np.zeros_like(z), np.zeros_like(z)], axis=-1)
         p = np.zeros((*z.shape, 3, 3))
         p[..., 0, 0], p[..., 1, 1], p[..., 2, 2] = self.r, 1.0, 100.0
         return x, p
-
-    def __call__(self, joints: FloatArray, t_s: float) -> FloatArray:
-        z = np.asarray(joints, dtype=np.float64)
-        if self._x is None or self._p is None or self._t is None:
-            self._x, self._p = self._init(z)
-            self._t = np.where(np.isfinite(z), t_s, -np.inf)
-            return z.copy()
-        out, self._x, self._p, self._t = self._step(z, self._x, self._p, self._t, t_s)
-        return out
 
     def _step(
         self, z: FloatArray, last_x: FloatArray, last_p: FloatArray, last_t: FloatArray, t_s: float
@@ -115,13 +104,3 @@ class DampedAccelerationKalman:
     def _params(self) -> tuple[float, ...]:
         return (self.jerk_std, self.jerk_per_speed, self.r, self.accel_tau_s, self.predict_s,
                 self.reset_gap_s)  # fmt: skip
-
-    def _state(self) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """x, P, t of a started filter (``filters.filter_all`` stacks them)."""
-        assert self._x is not None
-        assert self._p is not None
-        assert self._t is not None
-        return self._x, self._p, self._t
-
-    def _set_state(self, x: FloatArray, p: FloatArray, t: FloatArray) -> None:
-        self._x, self._p, self._t = x, p, t
