@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import math
 from bisect import bisect_left
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
@@ -13,7 +14,7 @@ import numpy.typing as npt
 from bench.accuracy_methods import BASE
 from bench.accuracy_metrics import Log
 from bench.accuracy_scenarios import Scenario
-from skelfuse.agent.sim.kinect_model import KinectV2Params, SimulatedKinect
+from skelfuse.agent.sim.kinect_model import KinectV2Params, Observation, SimulatedKinect
 from skelfuse.fusion.hub import FusedFrame, FusionHub
 from skelfuse.fusion.sensors import TimedFrame
 from skelfuse.protocol.transform import look_at_pose
@@ -47,6 +48,69 @@ def _new_hub(fusion: FusionSettings, names: list[str], poses: list[FloatArray]) 
     return hub
 
 
+@dataclass(frozen=True, slots=True)
+class Capture:
+    """One sensor frame of a simulated capture, as every hub receives it.
+
+    truth: (persons, 25, 3) the performers at ``t_capture`` (world, metres); message: the frame
+    as wire bytes; received: its arrival time (capture + network delay, the server's clock).
+    """
+
+    sensor: int
+    name: str
+    seq: int
+    t_capture: float
+    truth: FloatArray
+    observations: list[Observation]
+    message: bytes
+
+    @property
+    def received(self) -> float:
+        return self.t_capture + NETWORK_DELAY_S
+
+
+class SimulatedRig:
+    """The performers and simulated Kinects of one capture (one seed), and its frames in
+    arrival order: what every benchmark feeds its hubs, so all compare the same frames.
+
+    Each sensor starts at a random capture phase (plus the scenario's per-seed start delay).
+    """
+
+    def __init__(self, scenario: Scenario, seed: int, params: KinectV2Params) -> None:
+        rng = np.random.default_rng(seed)
+        self.performer, delays = scenario.performer, [0.0] * scenario.sensors
+        if scenario.per_seed is not None:
+            self.performer, delays = scenario.per_seed(np.random.default_rng(10_000 + seed))
+        self.poses = sensor_poses(scenario.sensors)
+        self.kinects = [
+            SimulatedKinect(p, params, seed=seed * 100 + k) for k, p in enumerate(self.poses)
+        ]
+        self.names = [f"sim-{k + 1}" for k in range(len(self.kinects))]
+        events: list[tuple[float, int]] = []
+        for k in range(len(self.kinects)):
+            phase = rng.uniform(0, 1 / FPS) + delays[k]
+            count = int((scenario.duration_s - delays[k]) * FPS)
+            events += [(T0 + phase + n / FPS, k) for n in range(count)]
+        self._events = sorted(events)
+
+    def captures(self) -> Iterator[Capture]:
+        seqs = [0] * len(self.kinects)
+        for t_capture, k in self._events:
+            truth = self.performer.joints_at(t_capture - T0)
+            observations = self.kinects[k].observe(truth, t_capture)
+            seqs[k] += 1
+            bodies = tuple(Body(o.tracking_id, o.joints_m, o.states) for o in observations)
+            message = encode(Frame(seqs[k], int(t_capture * 1e9), bodies))
+            yield Capture(k, self.names[k], seqs[k], t_capture, truth, observations, message)
+
+
+def feed(hub: FusionHub, capture: Capture) -> FusedFrame | None:
+    """Hand one frame to a hub as it arrives and run the fusion step, as the live loop does."""
+    received = capture.received
+    hub.handle_message(capture.name.encode(), [capture.message], received, received - T0)
+    return hub.fuse_step(received)
+
+
 def run_once(
     scenario: Scenario,
     seed: int,
@@ -55,13 +119,8 @@ def run_once(
     on_hub: Callable[[str, FusionHub], None] | None = None,
 ) -> dict[str, dict[str, float]]:
     """One simulated capture seen by every method; returns the metrics per method."""
-    rng = np.random.default_rng(seed)
-    performer, delays = scenario.performer, [0.0] * scenario.sensors
-    if scenario.per_seed is not None:
-        performer, delays = scenario.per_seed(np.random.default_rng(10_000 + seed))
-    poses = sensor_poses(scenario.sensors)
-    kinects = [SimulatedKinect(p, params, seed=seed * 100 + k) for k, p in enumerate(poses)]
-    names = [f"sim-{k + 1}" for k in range(len(kinects))]
+    rig = SimulatedRig(scenario, seed, params)
+    names, poses = rig.names, rig.poses
     hubs: dict[str, tuple[FusionHub, set[int]]] = {}
     for label, fusion in methods.items():
         hubs[label] = (_new_hub(fusion, names, poses), set(range(len(names))))
@@ -70,33 +129,21 @@ def run_once(
     if on_hub is not None:
         for label, (hub, _) in hubs.items():
             on_hub(label, hub)
-    events: list[tuple[float, int]] = []
-    for k in range(len(kinects)):
-        phase = rng.uniform(0, 1 / FPS) + delays[k]
-        count = int((scenario.duration_s - delays[k]) * FPS)
-        events += [(T0 + phase + n / FPS, k) for n in range(count)]
-    events.sort()
     logs = {label: Log() for label in hubs}
     frame_counters = dict.fromkeys(hubs, 0)
-    seqs = [0] * len(kinects)
     swapped: dict[tuple[str, int], dict[int, bool]] = {}  # (sensor, seq) → tracking id → truth
-    for t_capture, k in events:
-        truth = performer.joints_at(t_capture - T0)
-        observations = kinects[k].observe(truth, t_capture)
-        seqs[k] += 1
-        swapped[(names[k], seqs[k])] = {o.tracking_id: o.mirrored for o in observations}
-        bodies = tuple(Body(o.tracking_id, o.joints_m, o.states) for o in observations)
-        message = encode(Frame(seqs[k], int(t_capture * 1e9), bodies))
-        received = t_capture + NETWORK_DELAY_S
+    for capture in rig.captures():
+        swapped[(capture.name, capture.seq)] = {
+            o.tracking_id: o.mirrored for o in capture.observations
+        }
         for label, (hub, members) in hubs.items():
-            if k not in members:
+            if capture.sensor not in members:
                 continue
-            hub.handle_message(names[k].encode(), [message], received, received - T0)
-            fused = hub.fuse_step(received)
+            fused = feed(hub, capture)
             if fused is None:
                 continue
             frame_counters[label] += 1
-            truth_at = performer.joints_at(fused.t_s - T0)
+            truth_at = rig.performer.joints_at(fused.t_s - T0)
             persons = [(p.person_id, p.joints) for p in fused.persons]
             logs[label].add(frame_counters[label], persons, truth_at,
                             label_decisions(hub, fused, swapped))  # fmt: skip

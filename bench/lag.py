@@ -34,11 +34,10 @@ import numpy.typing as npt
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.accuracy_metrics import Log
-from bench.accuracy_runner import FPS, NETWORK_DELAY_S, T0, _new_hub, sensor_poses
+from bench.accuracy_runner import T0, SimulatedRig, _new_hub, feed
 from bench.accuracy_scenarios import Scenario, scenarios
-from skelfuse.agent.sim.kinect_model import KinectV2Params, SimulatedKinect
+from skelfuse.agent.sim.kinect_model import KinectV2Params
 from skelfuse.protocol.skeleton import JointId
-from skelfuse.protocol.wire import Body, Frame, encode
 from skelfuse.server.settings import FusionSettings
 
 FloatArray = npt.NDArray[np.float64]
@@ -111,36 +110,18 @@ def run_lag(
 ) -> dict[str, dict[str, float]]:
     """One simulated capture seen by every method (as ``accuracy_runner.run_once``, without the
     single-sensor hubs); per method: lag per joint group (ms), MPJPE and jitter (mm)."""
-    params = KinectV2Params()
-    rng = np.random.default_rng(seed)
-    poses = sensor_poses(scenario.sensors)
-    kinects = [SimulatedKinect(p, params, seed=seed * 100 + k) for k, p in enumerate(poses)]
-    names = [f"sim-{k + 1}" for k in range(len(kinects))]
-    hubs = {label: _new_hub(fusion, names, poses) for label, fusion in methods.items()}
-    events: list[tuple[float, int]] = []
-    for k in range(len(kinects)):
-        phase = rng.uniform(0, 1 / FPS)
-        events += [(T0 + phase + n / FPS, k) for n in range(int(scenario.duration_s * FPS))]
-    events.sort()
+    rig = SimulatedRig(scenario, seed, KinectV2Params())
+    hubs = {label: _new_hub(fusion, rig.names, rig.poses) for label, fusion in methods.items()}
     logs = {label: Log() for label in hubs}
     instants: dict[str, list[float]] = {label: [] for label in hubs}  # simulated s per frame
-    seqs = [0] * len(kinects)
-    for t_capture, k in events:
-        observations = kinects[k].observe(scenario.performer.joints_at(t_capture - T0), t_capture)
-        seqs[k] += 1
-        bodies = tuple(Body(o.tracking_id, o.joints_m, o.states) for o in observations)
-        message = encode(Frame(seqs[k], int(t_capture * 1e9), bodies))
-        received = t_capture + NETWORK_DELAY_S
+    for capture in rig.captures():
         for label, hub in hubs.items():
-            hub.handle_message(names[k].encode(), [message], received, received - T0)
-            fused = hub.fuse_step(received)
+            fused = feed(hub, capture)
             if fused is None:
                 continue
             instants[label].append(fused.t_s - T0)
             persons = [(p.person_id, p.joints) for p in fused.persons]
-            logs[label].add(
-                len(instants[label]), persons, scenario.performer.joints_at(fused.t_s - T0)
-            )
+            logs[label].add(len(instants[label]), persons, rig.performer.joints_at(fused.t_s - T0))
     cache: dict[float, FloatArray] = {}
 
     def truth_at(t: float) -> FloatArray:

@@ -23,12 +23,11 @@ import numpy as np
 import numpy.typing as npt
 
 from bench.accuracy_metrics import Log
-from bench.accuracy_runner import FPS, NETWORK_DELAY_S, T0, _new_hub, sensor_poses
+from bench.accuracy_runner import FPS, T0, SimulatedRig, _new_hub, feed
 from bench.accuracy_scenarios import Scenario
-from skelfuse.agent.sim.kinect_model import KinectV2Params, SimulatedKinect
+from skelfuse.agent.sim.kinect_model import KinectV2Params
 from skelfuse.protocol.skeleton import MIRROR_PERMUTATION, JointId
 from skelfuse.protocol.transform import apply
-from skelfuse.protocol.wire import Body, Frame, encode
 from skelfuse.server.settings import FusionSettings
 
 J = JointId
@@ -94,43 +93,24 @@ def run_oracle(
 
     The oracle is sampled whenever the first method publishes a frame.
     """
-    rng = np.random.default_rng(seed)
-    performer, delays = scenario.performer, [0.0] * scenario.sensors
-    if scenario.per_seed is not None:
-        performer, delays = scenario.per_seed(np.random.default_rng(10_000 + seed))
-    poses = sensor_poses(scenario.sensors)
-    kinects = [SimulatedKinect(p, params, seed=seed * 100 + k) for k, p in enumerate(poses)]
-    names = [f"sim-{k + 1}" for k in range(len(kinects))]
-    hubs = {label: _new_hub(fusion, names, poses) for label, fusion in methods.items()}
+    rig = SimulatedRig(scenario, seed, params)
+    hubs = {label: _new_hub(fusion, rig.names, rig.poses) for label, fusion in methods.items()}
     first = next(iter(hubs))
-    events: list[tuple[float, int]] = []
-    for k in range(len(kinects)):
-        phase = rng.uniform(0, 1 / FPS) + delays[k]
-        count = int((scenario.duration_s - delays[k]) * FPS)
-        events += [(T0 + phase + n / FPS, k) for n in range(count)]
-    events.sort()
     logs = {label: Log() for label in hubs}
     oracle: list[FloatArray] = []
     latest: dict[tuple[int, int], tuple[float, FloatArray]] = {}  # (sensor, person) → t, errors
-    seqs = [0] * len(kinects)
-    for t_capture, k in events:
-        truth = performer.joints_at(t_capture - T0)
-        observations = kinects[k].observe(truth, t_capture)
-        for o in observations:
+    for capture in rig.captures():
+        k = capture.sensor
+        for o in capture.observations:
             latest[(k, o.person)] = (
-                t_capture,
-                view_errors(o.joints_m, o.mirrored, poses[k], truth[o.person]),
+                capture.t_capture,
+                view_errors(o.joints_m, o.mirrored, rig.poses[k], capture.truth[o.person]),
             )
-        seqs[k] += 1
-        bodies = tuple(Body(o.tracking_id, o.joints_m, o.states) for o in observations)
-        message = encode(Frame(seqs[k], int(t_capture * 1e9), bodies))
-        received = t_capture + NETWORK_DELAY_S
         for label, hub in hubs.items():
-            hub.handle_message(names[k].encode(), [message], received, received - T0)
-            fused = hub.fuse_step(received)
+            fused = feed(hub, capture)
             if fused is None:
                 continue
-            truth_at = performer.joints_at(fused.t_s - T0)
+            truth_at = rig.performer.joints_at(fused.t_s - T0)
             persons = [(p.person_id, p.joints) for p in fused.persons]
             logs[label].add(logs[label].frames + 1, persons, truth_at)
             if label != first:
