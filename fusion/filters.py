@@ -29,7 +29,7 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.filters_ca import DampedAccelerationKalman
-from skelfuse.fusion.kalman_state import KalmanState
+from skelfuse.fusion.kalman_state import BoolArray, KalmanState
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -174,15 +174,9 @@ class ConstantVelocityKalman(KalmanState):
         p = np.stack([np.full_like(z, self.r), np.zeros_like(z), np.full_like(z, 1.0)], axis=-1)
         return x, p
 
-    def _step(
-        self, z: FloatArray, last_x: FloatArray, last_p: FloatArray, last_t: FloatArray, t_s: float
-    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-        """One sample on any stack of states: output, new state, new covariance, new t."""
-        present = np.isfinite(z)
-        dt = t_s - last_t
-        fresh = present & (~np.isfinite(last_x[..., 0]) | (dt > self.reset_gap_s))
-        step = present & ~fresh & (dt > 0)
-        h = np.where(step, dt, 0.0)
+    def _update(
+        self, z: FloatArray, last_x: FloatArray, last_p: FloatArray, h: FloatArray, step: BoolArray
+    ) -> tuple[FloatArray, FloatArray]:
         pos, vel = last_x[..., 0], last_x[..., 1]
         p00, p01, p11 = last_p[..., 0], last_p[..., 1], last_p[..., 2]
         # Predict: F = [[1, h], [0, 1]], Q from white acceleration.
@@ -194,17 +188,13 @@ class ConstantVelocityKalman(KalmanState):
         # Update with the position measurement.
         s = p00_p + self.r
         k0, k1 = p00_p / s, p01_p / s
-        innovation = np.where(step, z, 0.0) - np.where(step, pos_p, 0.0)
-        pos_u = pos_p + k0 * innovation
-        vel_u = vel + k1 * innovation
+        innovation = z - np.where(step, pos_p, 0.0)
         new_p = np.stack([(1 - k0) * p00_p, (1 - k0) * p01_p, p11_p - k1 * p01_p], axis=-1)
-        new_x = np.stack([pos_u, vel_u], axis=-1)
-        init_x, init_p = self._init(np.where(fresh, z, 0.0))
-        x = np.where(step[..., None], new_x, np.where(fresh[..., None], init_x, last_x))
-        p = np.where(step[..., None], new_p, np.where(fresh[..., None], init_p, last_p))
-        t = np.where(present, t_s, last_t)
-        out = x[..., 0] + self.predict_s * x[..., 1]
-        return np.where(present, out, np.nan), x, p, t
+        return np.stack([pos_p + k0 * innovation, vel + k1 * innovation], axis=-1), new_p
+
+    def _output(self, x: FloatArray) -> FloatArray:
+        out: FloatArray = x[..., 0] + self.predict_s * x[..., 1]
+        return out
 
     def _params(self) -> tuple[float, float, float, float]:
         return (self.q, self.r, self.predict_s, self.reset_gap_s)

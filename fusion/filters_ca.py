@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.kalman_state import KalmanState
+from skelfuse.fusion.kalman_state import BoolArray, KalmanState
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -61,15 +61,9 @@ class DampedAccelerationKalman(KalmanState):
         p[..., 0, 0], p[..., 1, 1], p[..., 2, 2] = self.r, 1.0, 100.0
         return x, p
 
-    def _step(
-        self, z: FloatArray, last_x: FloatArray, last_p: FloatArray, last_t: FloatArray, t_s: float
-    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-        """One sample on any stack of states: output, new state, new covariance, new t."""
-        present = np.isfinite(z)
-        dt = t_s - last_t
-        fresh = present & (~np.isfinite(last_x[..., 0]) | (dt > self.reset_gap_s))
-        step = present & ~fresh & (dt > 0)
-        h = np.where(step, dt, 0.0)
+    def _update(
+        self, z: FloatArray, last_x: FloatArray, last_p: FloatArray, h: FloatArray, step: BoolArray
+    ) -> tuple[FloatArray, FloatArray]:
         f = np.zeros((*h.shape, 3, 3))
         f[..., 0, 0] = f[..., 1, 1] = 1.0
         f[..., 0, 1] = f[..., 1, 2] = h
@@ -90,16 +84,15 @@ class DampedAccelerationKalman(KalmanState):
         # Update with the position measurement (H = [1, 0, 0]).
         s = p_p[..., 0, 0] + self.r
         gain = p_p[..., :, 0] / s[..., None]
-        innovation = np.where(step, z, 0.0) - np.where(step, x_p[..., 0], 0.0)
-        new_x = x_p + gain * innovation[..., None]
-        new_p = p_p - gain[..., :, None] * p_p[..., 0, None, :]
-        init_x, init_p = self._init(np.where(fresh, z, 0.0))
-        x = np.where(step[..., None], new_x, np.where(fresh[..., None], init_x, last_x))
-        p = np.where(step[..., None, None], new_p, np.where(fresh[..., None, None], init_p, last_p))
-        t = np.where(present, t_s, last_t)
+        innovation = z - np.where(step, x_p[..., 0], 0.0)
+        new_x: FloatArray = x_p + gain * innovation[..., None]
+        new_p: FloatArray = p_p - gain[..., :, None] * p_p[..., 0, None, :]
+        return new_x, new_p
+
+    def _output(self, x: FloatArray) -> FloatArray:
         lead = self.predict_s
-        out = x[..., 0] + lead * x[..., 1] + lead * lead / 2 * x[..., 2]
-        return np.where(present, out, np.nan), x, p, t
+        out: FloatArray = x[..., 0] + lead * x[..., 1] + lead * lead / 2 * x[..., 2]
+        return out
 
     def _params(self) -> tuple[float, ...]:
         return (self.jerk_std, self.jerk_per_speed, self.r, self.accel_tau_s, self.predict_s,

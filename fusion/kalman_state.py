@@ -2,8 +2,11 @@
 
 A filter keeps, per coordinate, a state ``x`` (position first), its covariance ``P`` and the
 time of its last measurement ``t``; a subclass says how the state starts (:meth:`_init`) and how
-one sample moves it (:meth:`_step`, written for any stack of states so that
-:func:`skelfuse.fusion.filters.filter_all` can step several persons' filters in one pass).
+one sample moves it (:meth:`_update`: predict over ``h`` seconds, then correct with the
+measurement). :meth:`_step` does the rest for both, on any stack of states, so that
+:func:`skelfuse.fusion.filters.filter_all` can step several persons' filters in one pass: a
+missing coordinate keeps its state, one missing longer than ``reset_gap_s`` (or never seen)
+restarts from its next measurement.
 """
 
 from __future__ import annotations
@@ -14,6 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
 
 
 class KalmanState(ABC):
@@ -36,10 +40,31 @@ class KalmanState(ABC):
         """The state and covariance a filter starts from at its first sample ``z``."""
 
     @abstractmethod
+    def _update(
+        self, z: FloatArray, last_x: FloatArray, last_p: FloatArray, h: FloatArray, step: BoolArray
+    ) -> tuple[FloatArray, FloatArray]:
+        """Predict ``h`` seconds ahead and correct with ``z`` where ``step``; new state and P."""
+
+    @abstractmethod
+    def _output(self, x: FloatArray) -> FloatArray:
+        """The position the filter gives out from its state (with its lead, if any)."""
+
     def _step(
         self, z: FloatArray, last_x: FloatArray, last_p: FloatArray, last_t: FloatArray, t_s: float
     ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
         """One sample on any stack of states: output, new state, new covariance, new t."""
+        present = np.isfinite(z)
+        dt = t_s - last_t
+        fresh = present & (~np.isfinite(last_x[..., 0]) | (dt > self.reset_gap_s))
+        step = present & ~fresh & (dt > 0)
+        new_x, new_p = self._update(
+            np.where(step, z, 0.0), last_x, last_p, np.where(step, dt, 0.0), step
+        )
+        init_x, init_p = self._init(np.where(fresh, z, 0.0))
+        x = np.where(_per(step, new_x), new_x, np.where(_per(fresh, init_x), init_x, last_x))
+        p = np.where(_per(step, new_p), new_p, np.where(_per(fresh, init_p), init_p, last_p))
+        t = np.where(present, t_s, last_t)
+        return np.where(present, self._output(x), np.nan), x, p, t
 
     @abstractmethod
     def _params(self) -> tuple[float, ...]:
@@ -63,3 +88,8 @@ class KalmanState(ABC):
 
     def _set_state(self, x: FloatArray, p: FloatArray, t: FloatArray) -> None:
         self._x, self._p, self._t = x, p, t
+
+
+def _per(mask: BoolArray, values: FloatArray) -> BoolArray:
+    """A per-coordinate mask shaped to broadcast over per-coordinate state ``values``."""
+    return mask.reshape(mask.shape + (1,) * (values.ndim - mask.ndim))
