@@ -188,7 +188,8 @@ def run_demo(
     server = subprocess.Popen(
         [
             *python, "server", "--http", f"{host}:{port}", "--zmq", zmq_bind,
-            "--data", str(data_dir), "--curve", "--token", token,
+            # "--token=…": a random token may begin with "-", which argparse would take for a flag.
+            "--data", str(data_dir), "--curve", f"--token={token}",
         ],
         **own_group,
     )  # fmt: skip
@@ -206,9 +207,16 @@ def run_demo(
     url = f"http://{agent_host}:{port}"
     try:
         if not _wait_healthy(url, server, timeout_s=30.0):
-            logger.error(
-                "the server did not start (is port %d or %d already in use?)", port, zmq_port
-            )
+            if server.poll() is not None:
+                logger.error(
+                    "the server exited with code %s before it was ready (its message is above; "
+                    "a port in use, %d or %d, is a common cause)",
+                    server.returncode,
+                    port,
+                    zmq_port,
+                )
+            else:
+                logger.error("the server did not answer on %s within 30 s", url)
             return 1
         for sensor_id, pose in layout:
             processes.append(

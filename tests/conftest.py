@@ -36,7 +36,9 @@ def cmu_dir() -> Path:
     return CMU_DIR
 
 
-DEMO_TOKEN = "e2e-token"
+# Begins with "-" on purpose: secrets.token_urlsafe gives such a token one time in 64, and the
+# demo once passed it to the server as a separate argument, which argparse read as a flag.
+DEMO_TOKEN = "-e2e-token"
 
 
 @dataclass(frozen=True)
@@ -84,13 +86,15 @@ def demo_stack(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DemoStack]:
     process = subprocess.Popen(
         [sys.executable, "-m", "skelfuse", "demo", "--sensors", "3", "--persons", "2",
          "--http", f"127.0.0.1:{http_port}", "--zmq-port", str(zmq_port), "--duration", "300",
-         "--token", DEMO_TOKEN],
+         f"--token={DEMO_TOKEN}"],
         stdout=log, stderr=subprocess.STDOUT, cwd=PROJECT_ROOT,
     )  # fmt: skip
     stack = DemoStack(f"http://127.0.0.1:{http_port}", f"ws://127.0.0.1:{http_port}", zmq_port,
                       3, 2, process, log_path)  # fmt: skip
 
     def fused() -> bool:
+        if process.poll() is not None:  # no point waiting two minutes for a demo that has exited
+            pytest.fail(f"the demo exited with code {process.returncode}:\n" + log_path.read_text())
         health = stack.get_json("/api/health")
         return health["sensors_online"] == 3 and int(str(health["persons"])) >= 1
 
