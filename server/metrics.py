@@ -110,7 +110,8 @@ class SkelfuseCollector(Collector):
 
 
 def _drift_metrics(hub: FusionHub) -> Iterator[Metric]:
-    """Per sensor: moved since its calibration (1/0), and the latest correction estimated."""
+    """Per sensor: moved since its calibration (1/0), the latest correction estimated under the
+    calibration, and its change since the pair's baseline (what the flag is decided on)."""
     assert hub.drift is not None
     moved = GaugeMetricFamily(
         "skelfuse_sensor_moved",
@@ -127,9 +128,22 @@ def _drift_metrics(hub: FusionHub) -> Iterator[Metric]:
         "Shift of the person the sensor's views need to agree with the others (latest estimate)",
         labels=["sensor"],
     )
+    change_rotation = GaugeMetricFamily(
+        "skelfuse_sensor_drift_change_degrees",
+        "Rotation of the sensor since its pair's baseline (what the moved flag is decided on)",
+        labels=["sensor"],
+    )
+    change_shift = GaugeMetricFamily(
+        "skelfuse_sensor_drift_change_millimetres",
+        "Shift of the person since the sensor pair's baseline (what the moved flag is decided on)",
+        labels=["sensor"],
+    )
     for sensor_id, state in sorted(hub.drift.sensors.items()):
         moved.add_metric([sensor_id], 1.0 if state.moved else 0.0)
         if state.correction is not None:
             rotation.add_metric([sensor_id], state.correction.rotation_deg)
             shift.add_metric([sensor_id], state.correction.shift_mm)
-    yield from (moved, rotation, shift)
+        if state.relative is not None:
+            change_rotation.add_metric([sensor_id], state.relative.rotation_deg)
+            change_shift.add_metric([sensor_id], state.relative.shift_mm)
+    yield from (moved, rotation, shift, change_rotation, change_shift)

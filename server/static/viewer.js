@@ -1034,12 +1034,19 @@ function isMoved(s) {
   return Boolean(s && s.drift && s.drift.moved === true);
 }
 
+// The flag is decided on the change since the pair's baseline (relative_*), not on the raw
+// correction under the calibration, which also holds the calibration's own constant error.
 function driftText(drift) {
   if (!drift) return '';
-  const deg = Number.isFinite(drift.rotation_deg) ? `${drift.rotation_deg.toFixed(1)}°` : '?°';
-  const mm = Number.isFinite(drift.shift_mm) ? `${Math.round(drift.shift_mm)} mm` : '? mm';
   const against = typeof drift.against === 'string' ? ` vs ${drift.against}` : '';
-  return `off by ${deg} / ${mm}${against}`;
+  const changed = Number.isFinite(drift.relative_rotation_deg) && Number.isFinite(drift.relative_shift_mm);
+  const deg = changed ? drift.relative_rotation_deg : drift.rotation_deg;
+  const mm = changed ? drift.relative_shift_mm : drift.shift_mm;
+  const degText = Number.isFinite(deg) ? `${deg.toFixed(1)}°` : '?°';
+  const mmText = Number.isFinite(mm) ? `${Math.round(mm)} mm` : '? mm';
+  return changed
+    ? `moved ${degText} / ${mmText} since calibration${against}`
+    : `off by ${degText} / ${mmText}${against} (no baseline yet)`;
 }
 
 function renderSensorTable(list) {

@@ -760,9 +760,12 @@ def test_a_moved_sensor_is_flagged_with_a_resolve_button(
     page = viewer.page
     answer_json = demo_stack.get_json("/api/sensors")
     flagged = answer_json["sensors"][0]["id"]
+    # The raw correction (5.1°) holds the calibration's own constant error (its baseline, 3.0°);
+    # the tooltip shows the change the flag is decided on (2.1°).
     answer_json["sensors"][0]["drift"] = {
-        "moved": True, "rotation_deg": 2.1, "shift_mm": 95.0, "against": "x", "samples": 60,
-        "checked_t_s": 1.0, "flagged_t_s": 1.0,
+        "moved": True, "rotation_deg": 5.1, "shift_mm": 160.0, "against": "x", "samples": 60,
+        "checked_t_s": 1.0, "flagged_t_s": 1.0, "baseline_rotation_deg": 3.0,
+        "baseline_shift_mm": 65.0, "relative_rotation_deg": 2.1, "relative_shift_mm": 95.0,
     }  # fmt: skip
 
     def stub(route: Any) -> None:
@@ -774,7 +777,8 @@ def test_a_moved_sensor_is_flagged_with_a_resolve_button(
         assert viewer.hook()["sensorsMoved"] == [flagged]
         row = page.locator("#hud-sensor-rows tr", has_text=flagged)
         assert "moved?" in row.inner_text()
-        assert "2.1°" in (row.locator(".moved-flag").get_attribute("title") or "")
+        title = row.locator(".moved-flag").get_attribute("title") or ""
+        assert "2.1° / 95 mm since calibration" in title and "5.1" not in title, title
         assert row.locator("button.moved-fix").is_visible()
     finally:
         page.unroute("**/api/sensors", stub)

@@ -22,6 +22,7 @@ from skelfuse.fusion.views import FusedPerson, View
 from skelfuse.protocol.skeleton import JOINT_COUNT, JointId, TrackingState
 from skelfuse.protocol.transform import Matrix4, apply, axis_rotation, invert, look_at_pose
 from skelfuse.protocol.wire import Body, Frame, Hello, encode
+from skelfuse.server.metrics import _drift_metrics
 from skelfuse.server.settings import Settings
 
 SETTINGS = FusionSettings(drift_detection=True)
@@ -235,6 +236,14 @@ def test_the_hub_shows_the_flag_in_its_sensor_rows_and_forgets_on_a_new_calibrat
     assert drift["baseline_rotation_deg"] < 1.0 and drift["relative_rotation_deg"] > 2.0
     others = [rows[n]["drift"] for n in ("cam-0", "cam-2")]
     assert all(isinstance(d, dict) and d["moved"] is False for d in others)
+    # /metrics carries both the raw correction and the change the flag is decided on
+    metrics = {family.name: family for family in _drift_metrics(hub)}
+    change = {
+        s.labels["sensor"]: s.value for s in metrics["skelfuse_sensor_drift_change_degrees"].samples
+    }
+    raw = {s.labels["sensor"]: s.value for s in metrics["skelfuse_sensor_drift_degrees"].samples}
+    assert change["cam-1"] == pytest.approx(drift["relative_rotation_deg"], abs=1e-3)
+    assert raw["cam-1"] == pytest.approx(drift["rotation_deg"], abs=1e-3)
     assert hub.drift is not None
     hub.drift.reset()  # what use_calibration does
     assert hub.sensor_summary(15.0)[1]["drift"] is None
