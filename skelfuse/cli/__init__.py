@@ -2,7 +2,8 @@
 
 ``values`` parses command-line values for all of them; the command modules import only it, never
 each other. Each command imports the server, recording and fusion inside its ``run``, so an
-agent-only install (numpy, pyzmq, msgpack) never touches the server's dependencies.
+agent-only install (numpy, pyzmq, msgpack, threadpoolctl) never touches the server's
+dependencies. Every command runs with BLAS pinned to one thread (:mod:`skelfuse.blas`).
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import logging
 import sys
 from collections.abc import Sequence
 
+from skelfuse.blas import pin_blas_threads
 from skelfuse.cli import agent, demo, doctor, keys, recordings, server
 from skelfuse.cli.values import UsageError
 
@@ -40,6 +42,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     use, a file that cannot be read), 130 on Ctrl-C, else the command's own."""
     args = build_parser().parse_args(argv)
     _configure_logging(args.log_level)
+    pin_blas_threads()  # before any command: no busy-waiting BLAS worker takes a core
     try:
         result: int = args.func(args)
     except UsageError as exc:
