@@ -15,8 +15,9 @@ Methods (``FusionSettings`` variants, one run):
 - tracking-state weights: report A's baseline (NotTracked 0, Inferred 0.3, Tracked 0.7);
 - + bone length (online reference lengths, chain propagation), + range of motion, + facing and
   distance, + mirrored-view correction: each adds one term to the previous row;
-- full: + One Euro filter and reference bone lengths on the output (the default settings);
-  full (Kalman): the same with the constant-velocity Kalman filter.
+- full: + the damped-acceleration Kalman filter (``kalman_ca``) and reference bone lengths on
+  the output (the default settings); the same with One Euro (the default before) and with the
+  constant-velocity Kalman filter.
 
 Metrics per method, over every fused frame and every true person (persons matched to the truth
 by the Hungarian algorithm on trunk distance, gated at 1 m):

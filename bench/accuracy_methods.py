@@ -31,9 +31,10 @@ METHODS: dict[str, FusionSettings] = {
     "+ mirrored-view correction": _MIRROR,
     "+ facing": _FACING,
     "+ distance (off by default)": _DISTANCE,
-    "full (defaults): + facing, One Euro filter, bone-length fit": FusionSettings(),
-    "full, Kalman filter instead": FusionSettings(filter="kalman"),
+    "full (defaults): + facing, Kalman CA filter, bone-length fit": FusionSettings(),
+    "full, One Euro filter instead (the default before)": FusionSettings(filter="one_euro"),
+    "full, Kalman CV filter instead": FusionSettings(filter="kalman"),
 }
 BASELINE = "tracking-state weights (report A baseline)"
-FULL = "full (defaults): + facing, One Euro filter, bone-length fit"
+FULL = "full (defaults): + facing, Kalman CA filter, bone-length fit"
 BEST_SINGLE = "best single sensor (oracle, per run)"

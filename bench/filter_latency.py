@@ -17,14 +17,16 @@ def filter_latency() -> dict[str, dict[str, float]]:
     residual of 10 mm white noise on a still joint (all per coordinate)."""
     dt = 1 / FPS
     made: dict[str, Callable[[], JointFilter]] = {
-        "One Euro (default: min_cutoff 1.5 Hz, beta 10)": lambda: OneEuroFilter(1.5, 10.0, 1.0),
+        "One Euro (min_cutoff 1.5 Hz, beta 10; the default before)": lambda: OneEuroFilter(
+            1.5, 10.0, 1.0
+        ),
         "Kalman CV (accel 8 m/s², meas 30 mm)": lambda: ConstantVelocityKalman(8.0, 0.03),
         "Kalman CV + 33 ms prediction": lambda: ConstantVelocityKalman(8.0, 0.03, 1 / 30),
         "Kalman CV + 12 ms lead (accel 5 m/s², proposed)": lambda: ConstantVelocityKalman(
             5.0, 0.03, 0.012
         ),
-        "Kalman CA (jerk 3 + 30/speed, τ 0.1 s, 6 ms lead)": lambda: DampedAccelerationKalman(
-            3.0, 0.03, 0.1, 0.006, jerk_per_speed=30.0
+        "Kalman CA (default: jerk 3 + 30 per m/s, decay 0.1 s, 6 ms lead)": lambda: (
+            DampedAccelerationKalman(3.0, 0.03, 0.1, 0.006, jerk_per_speed=30.0)
         ),
     }
     out: dict[str, dict[str, float]] = {}

@@ -54,13 +54,13 @@ SHIFTS_S = np.arange(-0.060, 0.0601, 0.002)
 
 METHODS: dict[str, FusionSettings] = {
     "none": FusionSettings(filter="none"),
-    "One Euro (today's default)": FusionSettings(),
+    "One Euro (the default before)": FusionSettings(filter="one_euro"),
     "Kalman CV": FusionSettings(filter="kalman"),
     "Kalman CV + 33 ms prediction": FusionSettings(filter="kalman", kalman_predict_s=1 / 30),
     "Kalman CV + 12 ms lead, accel 5 (proposed)": FusionSettings(
         filter="kalman", kalman_accel_std=5.0, kalman_predict_s=0.012
     ),
-    "Kalman CA, damped, speed-adaptive, 6 ms lead": FusionSettings(filter="kalman_ca"),
+    "Kalman CA, damped, speed-adaptive, 6 ms lead (default)": FusionSettings(),
 }
 SCENARIO_NAMES = ("CMU 131_01 start-walk-stop, heading 0°", "walking a circle", "arm raises",
                   "squats")  # fmt: skip

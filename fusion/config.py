@@ -4,7 +4,7 @@ A file holds one ``[fusion]`` table whose keys are :class:`~server.settings.Fusi
 fields (docs/fusion.md §9); what it leaves out keeps its default::
 
     [fusion]
-    filter = "kalman"          # one_euro | kalman | none
+    filter = "kalman"          # kalman_ca (default) | one_euro | kalman | none
     mirror_walk_check_s = 0    # dance: people walk backwards on purpose
     use_distance = true
 

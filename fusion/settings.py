@@ -91,9 +91,11 @@ class FusionSettings:
     slower; brisk walking backwards for longer than ``mirror_walk_check_s`` is misread)."""
 
     # --- temporal filter (fusion/filters.py) --------------------------------------------------
-    filter: Literal["one_euro", "kalman", "none", "kalman_ca"] = "one_euro"
-    """``none``, ``one_euro`` (default), ``kalman`` or ``kalman_ca`` (fields ``kalman_ca_*``
-    below); applied per person after fusion."""
+    filter: Literal["one_euro", "kalman", "none", "kalman_ca"] = "kalman_ca"
+    """``none``, ``one_euro``, ``kalman`` or ``kalman_ca`` (the default; fields ``kalman_ca_*``
+    below); applied per person after fusion. ``kalman_ca`` is the default since it halves One
+    Euro's lag at lower jitter (docs/benchmarks.md "Lag against the truth"); ``one_euro`` was the
+    default before and stays available."""
     one_euro_min_cutoff_hz: float = 1.5
     one_euro_beta: float = 10.0
     one_euro_d_cutoff_hz: float = 1.0

@@ -19,8 +19,11 @@ from skelfuse.cli import main
 GOLDEN = Path(__file__).resolve().parents[1] / "data" / "golden"
 
 DIGESTS = {
-    # defaults: body-based confidence, mirror correction, facing, One Euro, bone-length fit
-    "": "770c0670fdcf9cb457e794488b606c49cf4a656f51c33051b33bd282ae62af70",
+    # defaults: body-based confidence, mirror correction, facing, damped-acceleration Kalman
+    # (kalman_ca, the default filter since 2026-11-22), bone-length fit
+    "": "222927615841e8325fb64fdd16f55c4026f1711d93dac21ce6af1e6188898ebf",
+    # the defaults before that: One Euro (its digest is the old defaults' digest, unchanged)
+    "one_euro.toml": "770c0670fdcf9cb457e794488b606c49cf4a656f51c33051b33bd282ae62af70",
     # Kalman with lead, locked bone estimate, Cauchy re-weighting
     "kalman.toml": "25aaab450a15f84708a2847d0755432d848ff4f3b3475f2c316ad3de65ecb9df",
     # report A's tracking-state weights alone
