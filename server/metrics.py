@@ -2,15 +2,19 @@
 
 Nothing is counted twice: the hub, the sensors and the broadcaster already keep their counters
 for the REST API; this collector only exposes them, so the hot path pays nothing for metrics.
+The BLAS thread gauge asks the loaded libraries themselves (threadpoolctl, about 2 ms a scrape),
+so a process that did not pin them (:mod:`skelfuse.blas`) shows it.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
 from prometheus_client.registry import Collector
+from threadpoolctl import threadpool_info
 
 from skelfuse.fusion.hub import FusionHub
 from skelfuse.server.broadcast import Broadcaster
@@ -107,6 +111,22 @@ class SkelfuseCollector(Collector):
         clients = GaugeMetricFamily("skelfuse_ws_clients", "Connected WebSocket clients")
         clients.add_metric([], len(self.broadcaster.clients))
         yield from (sent, dropped, evicted, clients)
+        yield blas_threads()
+
+
+def blas_threads() -> GaugeMetricFamily:
+    """Threads each loaded BLAS library may use (1 once pinned); ``library`` is its file name,
+    ``api`` the implementation (openblas, mkl, blis ...)."""
+    gauge = GaugeMetricFamily(
+        "skelfuse_blas_threads",
+        "Threads each loaded BLAS library may use (1 when pinned; more can busy-wait a core)",
+        labels=["library", "api"],
+    )
+    for info in threadpool_info():
+        if info.get("user_api") == "blas":
+            library = Path(str(info.get("filepath", ""))).name
+            gauge.add_metric([library, str(info.get("internal_api", ""))], info["num_threads"])
+    return gauge
 
 
 def _drift_metrics(hub: FusionHub) -> Iterator[Metric]:
