@@ -74,8 +74,10 @@ class FeedFrame(Protocol):
 def joints_json(joints: npt.NDArray[np.floating], decimals: int = 4) -> list[list[float] | None]:
     """(J, 3) metres → J rows ``[x, y, z]`` rounded to ``decimals``; ``None`` where not finite."""
     rounded = np.round(np.asarray(joints, dtype=np.float64), decimals).reshape(-1, 3)
-    finite = np.isfinite(rounded).all(axis=1).reshape(-1)
-    return [row.tolist() if finite[i] else None for i, row in enumerate(rounded)]
+    finite: list[bool] = np.asarray(np.isfinite(rounded).all(axis=1)).tolist()
+    # One tolist for the whole array, not one per row: the feed builds 150 rows a frame.
+    rows: list[list[float]] = rounded.tolist()
+    return [row if ok else None for row, ok in zip(rows, finite, strict=True)]
 
 
 def person_json(person: FeedPerson, decimals: int = 4) -> dict[str, object]:
@@ -85,9 +87,10 @@ def person_json(person: FeedPerson, decimals: int = 4) -> dict[str, object]:
     only barely trusted is sent as 0.001, not rounded away to 0.
     """
     joints = joints_json(person.joints, decimals)
+    confidences: list[float] = np.asarray(person.confidence, dtype=np.float64).tolist()
     confidence = [
-        0.0 if joint is None else max(round(float(c), 3), 0.001)
-        for joint, c in zip(joints, person.confidence, strict=True)
+        0.0 if joint is None else max(round(c, 3), 0.001)
+        for joint, c in zip(joints, confidences, strict=True)
     ]
     return {
         "id": person.person_id,
@@ -95,7 +98,7 @@ def person_json(person: FeedPerson, decimals: int = 4) -> dict[str, object]:
         "confidence": confidence,
         "sources": list(person.sources),
         # Per joint, bit k set when sources[k] contributed (≥ 5 % of the joint's weight).
-        "joint_sources": [int(m) for m in person.joint_sources],
+        "joint_sources": np.asarray(person.joint_sources).tolist(),
         "mirrored": list(person.mirrored),
     }
 
@@ -106,7 +109,7 @@ def view_json(view: FeedView, decimals: int = 4) -> dict[str, object]:
         "sensor": view.sensor_id,
         "tracking_id": str(view.tracking_id),  # uint64 does not fit a JavaScript number
         "joints": joints_json(view.joints_world, decimals),
-        "states": [int(s) for s in view.states],
+        "states": np.asarray(view.states).tolist(),
     }
 
 

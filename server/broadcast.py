@@ -4,7 +4,10 @@ Fusion never waits for a client. Each client has a bounded queue (newest frames 
 full the oldest queued frame is dropped and counted); its own task sends with a timeout, and a
 client that cannot take a message within ``send_timeout_s`` (``ws_send_timeout_s``), or whose
 queue stays full that long, is disconnected. Each fused frame is encoded once per (format, raw)
-variant, however many clients want it.
+variant, however many clients want it, and that one text or bytes object is what every such
+client's queue holds. JSON is encoded by orjson (about a tenth of ``json.dumps``'s time), whose
+output for feed messages is the same text as ``json.dumps(..., separators=(",", ":"))`` except
+that non-ASCII is written as UTF-8, not ``\\u`` escapes, and NaN or infinity become ``null``.
 
 The socket is anything with :class:`FeedSocket`'s three methods (the app adapts Starlette's
 WebSocket), so this module is tested with a fake one.
@@ -14,7 +17,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 import logging
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
@@ -22,6 +24,7 @@ from itertools import count
 from typing import Any, Protocol
 
 import msgpack
+import orjson
 from starlette.websockets import WebSocketDisconnect
 
 from skelfuse.fusion.hub import FusedFrame
@@ -57,11 +60,22 @@ class FeedSocket(Protocol):
 
 
 def encode_message(message: dict[str, Any], binary: bool) -> bytes | str:
+    """One feed message as sent: msgpack bytes, or compact JSON text.
+
+    JSON never holds a bare NaN (browsers reject it): the feed builders already send ``null`` for
+    unknown joints, and orjson writes any other NaN or infinity as ``null`` too, as JavaScript's
+    ``JSON.stringify`` does, instead of failing the fusion loop. numpy scalars are written as
+    numbers.
+
+    Raises:
+        TypeError: a value JSON or msgpack cannot represent (orjson: a dict key that is not a
+            string).
+    """
     if binary:
         packed: bytes = msgpack.packb(message, use_bin_type=True)
         return packed
-    # allow_nan=False: a NaN reaching this point is a bug, and browsers reject bare NaN.
-    return json.dumps(message, allow_nan=False, separators=(",", ":"))
+    # Text, not bytes: a WebSocket text message. Decoding is one copy, once per frame.
+    return orjson.dumps(message, option=orjson.OPT_SERIALIZE_NUMPY).decode()
 
 
 @dataclass(slots=True)
