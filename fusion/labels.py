@@ -6,7 +6,9 @@ labelling at once, remembers each (sensor, body)'s decision for the next step's 
 swaps the mirrored views in place. Two cues can swap a whole person whose labels were wrong
 from its birth: :func:`walking_backwards`, which does not depend on labels (docs/fusion.md §5),
 and, with ``mirror_redecide``, the anatomy of all its views (:func:`redecide`), which works
-standing still too.
+standing still too. With ``mirror_unbiased_facing`` the facing the geometry term compares
+each sensor with is the person's facing with every sensor's bias of turning the body towards
+itself taken out (:func:`unbiased_facings`).
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from itertools import pairwise
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.anatomy import facing_direction
+from skelfuse.fusion.anatomy import facing_direction, facing_directions
 from skelfuse.fusion.mirror import PERMUTATION, choose_labellings
 from skelfuse.fusion.settings import FusionSettings
 
@@ -33,7 +35,9 @@ class LabelDoubt:
     """One person's running evidence against its labels (``mirror_redecide``).
 
     against: the running sum of evidence (joints, :func:`redecide`); sensors: the sensors that
-    saw the person at the last step; born_s, last_s: first and last step seen (seconds).
+    saw the person at the last step; born_s, last_s: first and last step seen (seconds);
+    facing: (3,) the last step's :func:`unbiased_facings` (``mirror_unbiased_facing``; NaN:
+    unknown).
     """
 
     against: float = 0.0
@@ -42,6 +46,7 @@ class LabelDoubt:
     last_s: float | None = None
     swaps: int = 0
     """How often the person was swapped whole by this cue (diagnostics, tests)."""
+    facing: FloatArray = field(default_factory=lambda: np.full(3, np.nan))
 
 
 def label_views(
@@ -70,8 +75,8 @@ def label_views(
         reference_facings: (P, 3) facing of each person's last skeleton (NaN: unknown).
         memories: each person's labels from the last step; replaced by this step's.
         settings: the mirror term weights, and whether range of motion is wanted too.
-        doubts: each person's evidence against its labels, updated here (with
-            ``mirror_redecide``; None: no re-decision).
+        doubts: each person's evidence against its labels and unbiased facing, updated here
+            (with ``mirror_redecide`` or ``mirror_unbiased_facing``; None: neither).
         t_s: the instant, seconds (for the running evidence).
 
     Returns:
@@ -85,6 +90,12 @@ def label_views(
     starts = np.cumsum([0, *counts])
     person_of = np.repeat(np.arange(len(counts)), counts)
     previous = np.array([int(memories[p].get(k, -1)) for p, k in zip(person_of, keys, strict=True)])
+    unbiased = s.mirror_unbiased_facing and doubts is not None
+    if unbiased:  # the last step's facing without the sensors' turn, where known
+        assert doubts is not None
+        remembered = np.stack([d.facing for d in doubts])
+        known = np.isfinite(remembered).all(axis=1)
+        reference_facings = np.where(known[:, None], remembered, reference_facings)
     mirrored, both_rom = choose_labellings(
         joints,
         sensor_positions,
@@ -113,6 +124,11 @@ def label_views(
     if mirrored.any():
         joints[mirrored] = joints[mirrored][:, PERMUTATION]
         states[mirrored] = states[mirrored][:, PERMUTATION]
+    if unbiased:
+        assert doubts is not None
+        facings = unbiased_facings(joints, sensor_positions, mirrored, counts, s.view_lean_fraction)
+        for doubt, facing in zip(doubts, facings, strict=True):
+            doubt.facing = facing
     rom = None
     if both_rom is not None and (s.use_range_of_motion or s.mirror_anatomy_weight_m > 0):
         rom = both_rom[np.arange(len(joints)), mirrored.astype(np.intp)]
@@ -213,3 +229,76 @@ def walking_backwards(
     if t_s - backward_since_s < s.mirror_walk_check_s:
         return False, backward_since_s
     return True, None
+
+
+def unbiased_facings(
+    joints: FloatArray,
+    sensor_positions: FloatArray,
+    mirrored: npt.NDArray[np.bool_],
+    counts: Sequence[int],
+    lean: float,
+) -> FloatArray:
+    """(P, 3) each person's horizontal facing from its labelled views, each sensor's yaw bias
+    taken out (``mirror_unbiased_facing``); NaN rows where no view gives one.
+
+    A Kinect turns the body it reports towards itself by ``lean`` × the person's yaw θ to it
+    (clamped to ±90°; the simulator's ``facing_bias``): a view's own facing is at φ = θ − lean ×
+    clamp(θ) from its sensor. A view the sensor mirrored was fitted to the back, at the apparent
+    yaw θ ∓ 180°, and turned by that; swapped back, its facing is reversed again. A fused
+    skeleton inherits these turns: a person seen side-on by two sensors looks turned by
+    40–60° (the crossing scenario's turns), enough to put a side sensor behind them and to
+    keep that view's old labels after the sensor flips. Inverting each view's turn under the
+    labelling chosen, and averaging the unit vectors, gives the facing back.
+
+    Args:
+        joints: (N, 25, 3) every person's views, labels corrected; metres, world.
+        sensor_positions: (N, 3) metres, world (NaN rows: unknown).
+        mirrored: (N,) whether each view was swapped back (the sensor reported it mirrored).
+        counts: views per person.
+        lean: the share of its yaw a sensor turns a body towards itself, in [0, 1).
+
+    Returns:
+        (P, 3) horizontal unit vectors (y = 0), NaN where unknown.
+
+    Raises:
+        ValueError: when ``lean`` is not in [0, 1).
+    """
+    if not 0.0 <= lean < 1.0:
+        raise ValueError(f"lean must be in [0, 1), got {lean}")
+    own = facing_directions(joints)  # (N, 3), the view's facing as labelled
+    to_sensor = sensor_positions - joints[:, 0]
+    sensor_angle = np.arctan2(to_sensor[:, 0], to_sensor[:, 2])
+    phi = _wrap(sensor_angle - np.arctan2(own[:, 0], own[:, 2]))
+    flipped = mirrored.astype(bool)
+    # A mirrored view was turned at its apparent yaw (facing reversed): invert there, turn back.
+    apparent = np.where(flipped, _wrap(phi - np.pi), phi)
+    theta = _unturn(apparent, lean)
+    theta = np.where(flipped, _wrap(theta + np.pi), theta)
+    facing_angle = sensor_angle - theta
+    vectors = np.stack([np.sin(facing_angle), np.zeros_like(facing_angle), np.cos(facing_angle)], 1)
+    usable = np.isfinite(vectors).all(axis=1)
+    person_of = np.repeat(np.arange(len(counts)), counts)
+    out = np.full((len(counts), 3), np.nan)
+    for p in range(len(counts)):
+        rows = usable & (person_of == p)
+        if rows.any():
+            mean = vectors[rows].sum(axis=0)
+            norm = float(np.linalg.norm(mean))
+            if norm > 1e-6:
+                out[p] = mean / norm
+    return out
+
+
+def _wrap(angle: FloatArray) -> FloatArray:
+    """Angles (radians) wrapped to [−π, π)."""
+    wrapped: FloatArray = (angle + np.pi) % (2 * np.pi) - np.pi
+    return wrapped
+
+
+def _unturn(phi: FloatArray, lean: float) -> FloatArray:
+    """The yaw θ whose view is at φ = θ − lean × clamp(θ, ±90°) (monotonic, so one θ per φ)."""
+    knee = (1.0 - lean) * (np.pi / 2)
+    theta: FloatArray = np.where(
+        np.abs(phi) <= knee, phi / (1.0 - lean), phi + lean * (np.pi / 2) * np.sign(phi)
+    )
+    return theta

@@ -154,7 +154,9 @@ class FusionPipeline:
                     track_facing,
                     [m.labels for m in memories],
                     s,
-                    [m.doubt for m in memories] if s.mirror_redecide else None,
+                    [m.doubt for m in memories]
+                    if s.mirror_redecide or s.mirror_unbiased_facing
+                    else None,
                     t_s,
                 )
                 for p in np.flatnonzero(swapped).tolist():  # turned over: the track goes too
@@ -315,6 +317,7 @@ class FusionPipeline:
         self.tracker.swap_sides(person_id)
         if relabel:
             memory.labels = {key: not m for key, m in memory.labels.items()}
+            memory.doubt.facing = -memory.doubt.facing  # swapped sides face the other way
         memory.filter = self._new_filter()
         memory.bones.mirror()
 

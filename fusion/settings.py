@@ -191,6 +191,13 @@ class FusionSettings:
     """``filter = "kalman_ca"``: jerk added per m/s of a coordinate's speed (m/s^2.5 per m/s):
     smooth when still, quick when moving, as One Euro's ``beta``."""
 
+    # --- mirror labels: the person's facing without the sensors' yaw bias (fusion/labels.py) --
+    mirror_unbiased_facing: bool = False
+    """The mirror labels' geometry term compares each sensor with the person's facing from the
+    last step's labelled views, each view's turn towards its sensor (``view_lean_fraction``)
+    taken out (fusion.labels.unbiased_facings), instead of the fused skeleton's facing, which
+    inherits those turns (docs/fusion.md §6)."""
+
 
 @dataclass(frozen=True, slots=True)
 class HubSettings:
