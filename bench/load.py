@@ -29,18 +29,21 @@ Measured over a window that starts after all sensors are online and a warm-up:
 - the stalled client: when it was evicted (``GET /api/clients``), frames sent to / dropped for
   it, and the healthy clients' latency while it was connected vs after.
 
-Separately, in-process: the fusion compute per fused frame (``FusionHub.fuse_step`` and the
-``FusionPipeline.update`` inside it), the per-frame JSON encode, and ``handle_message`` per
-incoming frame, median over 1000 steps.
+Separately, in-process (BLAS pinned to one thread, as in ``skelfuse server``): the fusion
+compute per fused frame (``FusionHub.fuse_step`` and the ``FusionPipeline.update`` inside it), the
+per-frame JSON encode, and ``handle_message`` per incoming frame, median over 1000 steps; and the
+feed message alone (build, encode) for 6 people, median over 5000 runs.
 
 Run: ``python bench/load.py`` (main run: 10 agents × 6 bodies, 120 s), ``--scaling`` (agents in
 1, 2, 4, 8, 16 × bodies in 1, 6, 15 s each), ``--repeat K`` (K runs per configuration, medians
 reported), ``--agents``, ``--bodies``, ``--duration``, ``--clients``, ``--stalled``,
-``--fusion-only`` (the in-process timing only), ``--json FILE`` (raw results).
+``--fusion-only`` (the in-process timing only), ``--encode-only`` (the feed message only),
+``--json FILE`` (raw results).
 
 The parts: ``load_agents`` (the fake agents), ``load_clients`` (the WebSocket clients),
 ``load_server`` (the server subprocess), ``load_run`` (one run and its figures),
-``fusion_timing`` (the in-process timing), ``load_report`` (the tables).
+``fusion_timing`` (the in-process timing), ``load_encode`` (the feed message),
+``load_report`` (the tables).
 """
 
 from __future__ import annotations
@@ -60,8 +63,10 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.fusion_timing import fusion_timing
+from bench.load_encode import encode_timing, print_encode
 from bench.load_report import median_result, print_fusion, print_main, print_scaling
 from bench.load_run import RunConfig, RunResult, run_once
+from skelfuse.blas import pin_blas_threads
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -78,8 +83,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--repeat", type=int, default=1, help="runs per configuration (medians)")
     parser.add_argument("--fusion-only", action="store_true", help="in-process timing only")
     parser.add_argument("--fusion-steps", type=int, default=1000)
+    parser.add_argument("--encode-only", action="store_true", help="the feed message cost only")
     parser.add_argument("--json", type=Path, default=None, help="write raw results here")
     args = parser.parse_args(argv)
+    pin_blas_threads()  # the in-process timings run as the server does
     started = time.monotonic()
     log_dir = Path(tempfile.mkdtemp(prefix="skelfuse-load-logs-"))
     raw: dict[str, Any] = {}
@@ -97,6 +104,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         raw.setdefault("runs", []).extend(asdict(r) for r in runs)
         return median_result(runs)
 
+    encode = encode_timing(bodies=6)
+    raw["encode"] = asdict(encode)
+    if args.encode_only:
+        print_encode(encode)
+        return 0
     if not args.fusion_only:
         if args.scaling:
             configs = [
@@ -113,6 +125,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     timings = [fusion_timing(s, b, args.fusion_steps) for s, b in ((4, 6), (10, 6), (16, 6))]
     raw["fusion"] = [asdict(t) for t in timings]
     print_fusion(timings)
+    print_encode(encode)
     print(
         f"\nMachine: {os.cpu_count()} cores, Python {sys.version.split()[0]}; "
         f"{time.monotonic() - started:.0f} s in all; server logs in {log_dir}"

@@ -80,27 +80,63 @@ def joints_json(joints: npt.NDArray[np.floating], decimals: int = 4) -> list[lis
     return [row if ok else None for row, ok in zip(rows, finite, strict=True)]
 
 
-def person_json(person: FeedPerson, decimals: int = 4) -> dict[str, object]:
-    """A fused person as apps receive it: NaN never leaves the server (null instead).
+def round_like_python(values: npt.NDArray[np.float64], decimals: int) -> npt.NDArray[np.float64]:
+    """``round(v, decimals)`` of every value, as Python's ``round`` gives it, vectorised.
+
+    Python rounds the exact binary value (correctly rounded); ``rint(v · 10^d) / 10^d`` agrees
+    except where ``v · 10^d`` lies within a hair of a half, because the product is itself
+    rounded: 0.0025 is 0.00250000000000000005…, which Python rounds up to 0.003, while
+    ``rint(2.5)`` gives 2. Those few values are rounded by Python itself. Finite values of
+    magnitude up to about 10^6 / 10^d (confidences, not Unix times).
+    """
+    scale = 10.0**decimals
+    scaled = values * scale
+    out: npt.NDArray[np.float64] = np.rint(scaled) / scale
+    near_half = np.abs(scaled - np.floor(scaled) - 0.5) < 1e-6
+    for i in np.flatnonzero(near_half):
+        out.flat[i] = round(float(values.flat[i]), decimals)
+    return out
+
+
+def persons_json(persons: Sequence[FeedPerson], decimals: int = 4) -> list[dict[str, object]]:
+    """Fused persons as apps receive them: NaN never leaves the server (null instead).
 
     Confidence is 0 exactly where the joint is null (docs/api.md): a joint that is present but
-    only barely trusted is sent as 0.001, not rounded away to 0.
+    only barely trusted is sent as 0.001, not rounded away to 0. The rounding runs once over
+    every person of the frame (numpy calls, not one Python call per number), and gives the
+    numbers ``round`` gave person by person.
     """
-    joints = joints_json(person.joints, decimals)
-    confidences: list[float] = np.asarray(person.confidence, dtype=np.float64).tolist()
-    confidence = [
-        0.0 if joint is None else max(round(c, 3), 0.001)
-        for joint, c in zip(joints, confidences, strict=True)
-    ]
-    return {
-        "id": person.person_id,
-        "joints": joints,
-        "confidence": confidence,
-        "sources": list(person.sources),
-        # Per joint, bit k set when sources[k] contributed (≥ 5 % of the joint's weight).
-        "joint_sources": np.asarray(person.joint_sources).tolist(),
-        "mirrored": list(person.mirrored),
-    }
+    if not persons:
+        return []
+    joints = np.stack([np.asarray(p.joints, dtype=np.float64).reshape(-1, 3) for p in persons])
+    rounded = np.round(joints, decimals)  # (P, J, 3)
+    finite = np.asarray(np.isfinite(rounded).all(axis=2))  # (P, J)
+    confidence = np.stack([np.asarray(p.confidence, dtype=np.float64) for p in persons])
+    sent_confidence = np.where(finite, np.maximum(round_like_python(confidence, 3), 0.001), 0.0)
+    all_rows: list[list[list[float]]] = rounded.tolist()
+    all_finite: list[list[bool]] = finite.tolist()
+    all_confidence: list[list[float]] = sent_confidence.tolist()
+    out: list[dict[str, object]] = []
+    for person, rows, present, conf in zip(
+        persons, all_rows, all_finite, all_confidence, strict=True
+    ):
+        out.append(
+            {
+                "id": person.person_id,
+                "joints": [row if ok else None for row, ok in zip(rows, present, strict=True)],
+                "confidence": conf,
+                "sources": list(person.sources),
+                # Per joint, bit k set when sources[k] contributed (≥ 5 % of its weight).
+                "joint_sources": np.asarray(person.joint_sources).tolist(),
+                "mirrored": list(person.mirrored),
+            }
+        )
+    return out
+
+
+def person_json(person: FeedPerson, decimals: int = 4) -> dict[str, object]:
+    """One fused person as apps receive it (:func:`persons_json` of one)."""
+    return persons_json([person], decimals)[0]
 
 
 def view_json(view: FeedView, decimals: int = 4) -> dict[str, object]:
@@ -132,7 +168,7 @@ def frame_json(
     }
     if sent_at_s is not None:
         message["t_sent"] = round(sent_at_s, 6)
-    message["persons"] = [person_json(p) for p in frame.persons]
+    message["persons"] = persons_json(frame.persons)
     if include_raw:
         message["raw"] = [view_json(v) for v in frame.raw]
     return message
