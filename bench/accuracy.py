@@ -33,7 +33,8 @@ by the Hungarian algorithm on trunk distance, gated at 1 m):
 Run: ``python bench/accuracy.py`` (``--runs N`` seeds per scenario, ``--quick`` for a short
 subset, ``--json FILE`` raw results, ``--paper`` report A's own experiment only,
 ``--latency`` the filters' added latency only, ``--birth`` the birth-labelling scenarios only,
-``--no-mirror-redecide`` with ``FusionSettings.mirror_redecide`` off, as before).
+``--no-mirror-redecide`` with ``FusionSettings.mirror_redecide`` off, as before,
+``--mirror-turns`` with ``mirror_unbiased_facing`` on and ``mirror_redecide_views = 2``).
 
 Labels: the wrong-label rate (share of sensor × frame labelling decisions that disagree with the
 simulator's truth: ``FusedPerson.mirrored`` against ``Observation.mirrored``) and the longest
@@ -91,12 +92,18 @@ def main(argv: list[str] | None = None) -> int:
                         help="only fused vs the hindsight oracle (bench/oracle.py)")  # fmt: skip
     parser.add_argument("--view-reliability", action="store_true",
                         help="every method with use_view_reliability on")  # fmt: skip
+    parser.add_argument("--mirror-turns", action="store_true",
+                        help="every method with mirror_unbiased_facing on and "
+                             "mirror_redecide_views = 2")  # fmt: skip
     args = parser.parse_args(argv)
     methods = METHODS
     if args.no_mirror_redecide:
         methods = {label: replace(m, mirror_redecide=False) for label, m in METHODS.items()}
     if args.view_reliability:
         methods = with_reliability(methods)
+    if args.mirror_turns:
+        methods = {label: replace(m, mirror_unbiased_facing=True, mirror_redecide_views=2)
+                   for label, m in methods.items()}  # fmt: skip
     if args.oracle:
         oracle = {
             sc.name: [run_oracle(sc, seed, KinectV2Params()) for seed in range(args.runs)]

@@ -28,6 +28,9 @@ from skelfuse.fusion.settings import FusionSettings
 FloatArray = npt.NDArray[np.float64]
 Labels = dict[tuple[str, int], bool]
 """Per (sensor id, tracking id): whether that body was mirrored at the last step."""
+VIEW_AGAINST = 0.5
+"""A view's evidence against its labels (joints) from which it counts as a view against them
+(``mirror_redecide_views``): more than a glitch of one joint at its range-of-motion's edge."""
 
 
 @dataclass(slots=True)
@@ -94,8 +97,8 @@ def label_views(
     if unbiased:  # the last step's facing without the sensors' turn, where known
         assert doubts is not None
         remembered = np.stack([d.facing for d in doubts])
-        known = np.isfinite(remembered).all(axis=1)
-        reference_facings = np.where(known[:, None], remembered, reference_facings)
+        known = np.isfinite(remembered).all(axis=1, keepdims=True)
+        reference_facings = np.where(known, remembered, reference_facings)
     mirrored, both_rom = choose_labellings(
         joints,
         sensor_positions,
@@ -113,9 +116,15 @@ def label_views(
     swapped = np.zeros(len(counts), dtype=bool)
     if s.mirror_redecide and doubts is not None and both_rom is not None:
         sensors = [frozenset(k[0] for k in keys[lo:hi]) for lo, hi in pairwise(starts)]
-        evidence = evidence_against(both_rom, mirrored, counts)
+        per_view = view_evidence(both_rom, mirrored)
+        evidence = np.bincount(person_of, per_view, len(counts))
         for p, doubt in enumerate(doubts):
             swapped[p] = redecide(doubt, float(evidence[p]), sensors[p], t_s, s)
+            if swapped[p] and s.mirror_redecide_views > 1:
+                alone = views_alone(per_view[starts[p] : starts[p + 1]], doubt, t_s, s)
+                if alone is not None:  # a view or two, not the person: they turn, not the track
+                    mirrored[starts[p] : starts[p + 1]] ^= alone
+                    swapped[p] = False
         mirrored ^= swapped[person_of]
     for p in range(len(counts)):
         lo, hi = starts[p], starts[p + 1]
@@ -153,13 +162,52 @@ def evidence_against(
         mirrored: (N,) the labelling chosen.
         counts: views per person.
     """
+    person_of = np.repeat(np.arange(len(counts)), counts)
+    per_view = view_evidence(both_rom, mirrored)
+    evidence: FloatArray = np.bincount(person_of, per_view, len(counts)).astype(np.float64)
+    return evidence
+
+
+def view_evidence(both_rom: FloatArray, mirrored: npt.NDArray[np.bool_]) -> FloatArray:
+    """(N,) each view's anatomical evidence against its labelling, in joints
+    (:func:`evidence_against` before the sum over a person's views; 0 where unknown)."""
     out_of_range = (1.0 - both_rom).sum(axis=2)  # (N, 2)
     rows = np.arange(len(mirrored))
     chosen = mirrored.astype(np.intp)
-    per_view = np.nan_to_num(out_of_range[rows, chosen] - out_of_range[rows, 1 - chosen])
-    person_of = np.repeat(np.arange(len(counts)), counts)
-    evidence: FloatArray = np.bincount(person_of, per_view, len(counts)).astype(np.float64)
-    return evidence
+    per_view: FloatArray = np.nan_to_num(
+        out_of_range[rows, chosen] - out_of_range[rows, 1 - chosen]
+    )
+    return per_view
+
+
+def views_alone(
+    per_view: FloatArray, doubt: LabelDoubt, t_s: float, s: FusionSettings
+) -> npt.NDArray[np.bool_] | None:
+    """The views to turn over alone when :func:`redecide` would turn a whole person over, or
+    None to turn the person (``mirror_redecide_views``).
+
+    A track mirrored as a whole shows it in every view that sees the legs; when the evidence of
+    this step comes from fewer than ``mirror_redecide_views`` views (those with at least
+    ``VIEW_AGAINST`` joints against), while the person has more, it is those views whose labels
+    are stale, not the track: a sensor near its side flips its labels as the person turns, and
+    its view's feet are the least reliable there. Turning the whole person over would make every
+    other view wrong until it turns again (the crossing scenario's in-place turns). A young
+    person (``mirror_redecide_young_s``; its labels were a guess) and a person with fewer views
+    turn over as a whole.
+
+    Args:
+        per_view: (S,) this step's :func:`view_evidence` of the person's views, in joints.
+        doubt: the person's running evidence (its birth time).
+        t_s: the instant, seconds.
+    """
+    against = per_view >= VIEW_AGAINST
+    young = doubt.born_s is not None and t_s - doubt.born_s < s.mirror_redecide_young_s
+    if young or len(per_view) < s.mirror_redecide_views:
+        return None
+    if int(against.sum()) >= s.mirror_redecide_views:
+        return None
+    result: npt.NDArray[np.bool_] = against
+    return result
 
 
 def redecide(

@@ -197,6 +197,11 @@ class FusionSettings:
     last step's labelled views, each view's turn towards its sensor (``view_lean_fraction``)
     taken out (fusion.labels.unbiased_facings), instead of the fused skeleton's facing, which
     inherits those turns (docs/fusion.md §6)."""
+    mirror_redecide_views: int = 1
+    """``mirror_redecide``: an old person (not younger than ``mirror_redecide_young_s``) with at
+    least this many views is turned over as a whole only when at least this many of them have
+    evidence against their labels (≥ 0.5 joints) at that step; otherwise those views alone are
+    turned over (fusion.labels.views_alone). 1: always the whole person."""
 
 
 @dataclass(frozen=True, slots=True)
