@@ -28,8 +28,10 @@ from skelfuse.server.agent_requests import AgentRequests
 from skelfuse.server.auth import SensorAuthenticator
 from skelfuse.server.broadcast import Broadcaster, Variant, encode_message
 from skelfuse.server.calibration_runs import CalibrationService
+from skelfuse.server.clock import SystemClock
 from skelfuse.server.errors import HANDLED_ERRORS, error_response, invalid_body_response
 from skelfuse.server.ingest import fusion_loop, ingest_loop, liveness_loop, open_router, send_to
+from skelfuse.server.loop_lag import LoopLagCollector, LoopLagMonitor
 from skelfuse.server.metrics import SkelfuseCollector
 from skelfuse.server.security import HttpGuard, origin_ok, token_ok
 from skelfuse.server.settings import Settings
@@ -70,6 +72,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.hub = hub
         app.state.calibration = CalibrationService(hub, store, agents)
         registry.register(SkelfuseCollector(hub, broadcaster))
+        loop_lag = LoopLagMonitor(SystemClock())
+        registry.register(LoopLagCollector(loop_lag))
+        app.state.loop_lag = loop_lag
         app.state.broadcaster = broadcaster
         app.state.zmq_endpoint = socket.getsockopt_string(zmq.LAST_ENDPOINT)
         logger.info("agents connect to %s", app.state.zmq_endpoint)
@@ -79,6 +84,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 liveness_loop(socket, hub, settings.heartbeat_interval_s), name="liveness"
             ),
             asyncio.create_task(fusion_loop(hub, broadcaster), name="fusion"),
+            asyncio.create_task(loop_lag.run(), name="loop-lag"),
         ]
         try:
             yield
@@ -90,6 +96,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             for task in tasks:
                 task.cancel()
             await asyncio.gather(*tasks, return_exceptions=True)
+            await app.state.calibration.close()  # and its solver worker process
             socket.close(linger=0)
             if authenticator is not None:
                 authenticator.stop()

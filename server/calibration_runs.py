@@ -2,9 +2,11 @@
 
 A run moves through ``capturing → solving → done`` (or ``failed``); only one runs at a time.
 Capturing runs on the event loop (sampling the hub's frame buffers, asking agents for depth);
-the math (:mod:`skelfuse.calibration.solvers`) runs in a worker thread so fusion and the API
-stay responsive. A finished run changes nothing until it is committed: its poses then become a
-new stored calibration version, used by fusion from the next frame.
+the math (:mod:`skelfuse.calibration.solvers`) runs in a worker process
+(:mod:`skelfuse.server.solver_pool`): open3d's ICP keeps the GIL for seconds, and in a thread
+it stopped fusion, the API and the agents' heartbeats while it ran. A finished run changes
+nothing until it is committed: its poses then become a new stored calibration version, used by
+fusion from the next frame.
 
 Methods (docs/calibration.md): ``points`` (≥ 3 corresponding points per sensor → Kabsch);
 ``skeleton`` (a person walks; bodies seen at common instants → relative poses, levelled with the
@@ -25,10 +27,9 @@ import logging
 import uuid
 from collections.abc import Sequence
 from dataclasses import replace
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
 from skelfuse.calibration.errors import CalibrationError, IcpUnavailable
 from skelfuse.calibration.rigid import pose_error
@@ -44,12 +45,11 @@ from skelfuse.calibration.solvers import (
 from skelfuse.calibration.store import Calibration, CalibrationStore, SensorCalibration, merge
 from skelfuse.fusion.hub import FusionHub
 from skelfuse.fusion.sensors import bodies_at
-from skelfuse.protocol import depth_cloud
-from skelfuse.protocol.errors import DecodeError
 from skelfuse.protocol.transform import Matrix4
 from skelfuse.protocol.wire import Body
 from skelfuse.server.calibration_run import CalibrationRun, RunSpec, RunState
 from skelfuse.server.clock import Clock, SystemClock
+from skelfuse.server.depth_clouds import AgentCaller, capture_clouds
 from skelfuse.server.errors import (
     AgentRequestFailed,
     Conflict,
@@ -57,6 +57,7 @@ from skelfuse.server.errors import (
     NotFound,
     ServerError,
 )
+from skelfuse.server.solver_pool import ProcessSolvers, Solvers
 
 logger = logging.getLogger(__name__)
 
@@ -64,15 +65,6 @@ METHODS = ("auto", "skeleton", "points", "icp", "sensor")
 SAMPLE_HZ = 30.0
 SAMPLE_DELAY_S = 0.15
 """Sample a little in the past so every sensor's frames around the instant have arrived."""
-DEPTH_TIMEOUT_S = 20.0
-
-
-class AgentCaller(Protocol):
-    """Asks agents for things (``skelfuse.server.agent_requests.AgentRequests``)."""
-
-    async def request(
-        self, sensor_id: str, method: str, params: dict[str, Any], timeout_s: float
-    ) -> Any: ...
 
 
 class CalibrationService:
@@ -85,13 +77,17 @@ class CalibrationService:
         agents: AgentCaller,
         clock: Clock | None = None,
         keep_runs: int = 20,
+        solvers: Solvers | None = None,
     ) -> None:
+        """``solvers``: where the math runs (default a worker process; tests with fakes pass
+        :class:`~skelfuse.server.solver_pool.ThreadSolvers`)."""
         self.hub = hub
         self.store = store
         self.runs: dict[str, CalibrationRun] = {}
         self._agents = agents
         self._clock = clock or SystemClock()
         self._keep_runs = keep_runs
+        self._solvers = solvers or ProcessSolvers()
         self._tasks: set[asyncio.Task[None]] = set()
 
     # --- starting ---------------------------------------------------------------------------
@@ -117,6 +113,7 @@ class CalibrationService:
                 raise InvalidRequest(str(exc)) from exc
             self._finish(run)
         else:
+            self._solvers.warm()  # the worker starts and imports while the capture runs
             task = asyncio.create_task(self._execute(run), name=f"calibration-{run.run_id}")
             self._tasks.add(task)
             task.add_done_callback(self._tasks.discard)
@@ -127,6 +124,13 @@ class CalibrationService:
                 break
             del self.runs[oldest.run_id]
         return run
+
+    async def close(self) -> None:
+        """Cancel the active run and stop the solver worker (with the server)."""
+        for task in list(self._tasks):
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        await self._solvers.aclose()
 
     def run(self, run_id: str) -> CalibrationRun:
         """The run with this id.
@@ -193,7 +197,7 @@ class CalibrationService:
                 samples = await self._capture_skeletons(run, 0.0, share)
                 run.state, run.stage = RunState.SOLVING, "solving skeleton poses"
                 floor_plane = self._reference_floor_plane(spec.reference)
-                solution = await asyncio.to_thread(
+                solution = await self._solvers.run(
                     solve_skeletons, spec.reference, spec.sensors, samples, floor_plane
                 )
                 poses, run.floor = solution.results, solution.floor
@@ -216,10 +220,10 @@ class CalibrationService:
         a sensor has no depth (e.g. a replayed recording) or open3d cannot load here."""
         run.state, run.stage = RunState.CAPTURING, "capturing depth clouds"
         try:
-            clouds = await self._capture_clouds(spec.sensors)
+            clouds = await capture_clouds(self._agents, spec.sensors)
             run.state, run.stage = RunState.SOLVING, "refining with ICP"
             start = poses or {s: self._current(s) for s in spec.sensors}
-            refined = await asyncio.to_thread(
+            refined = await self._solvers.run(
                 refine_with_depth, spec.reference, clouds, start, spec.min_overlap
             )
         except (AgentRequestFailed, IcpUnavailable) as exc:
@@ -240,13 +244,13 @@ class CalibrationService:
         sensors = (sensor_id, *sorted(fixed))
         samples = await self._capture_skeletons(run, 0.0, 0.7, sensors)
         run.state, run.stage = RunState.SOLVING, f"solving {sensor_id} against {sorted(fixed)}"
-        result = await asyncio.to_thread(solve_sensor, sensor_id, fixed, samples)
+        result = await self._solvers.run(solve_sensor, sensor_id, fixed, samples)
         run.progress = 0.7
         run.state, run.stage = RunState.CAPTURING, "capturing depth clouds"
         try:
-            clouds = await self._capture_clouds(sensors)
+            clouds = await capture_clouds(self._agents, sensors)
             run.state, run.stage = RunState.SOLVING, "refining with ICP"
-            result = await asyncio.to_thread(
+            result = await self._solvers.run(
                 refine_sensor_with_depth, sensor_id, clouds, result, fixed, run.spec.min_overlap
             )
         except (AgentRequestFailed, CalibrationError) as exc:
@@ -315,26 +319,6 @@ class CalibrationService:
             if timed.frame.floor is not None:
                 return timed.frame.floor
         return None
-
-    async def _capture_clouds(self, sensors: Sequence[str]) -> dict[str, npt.NDArray[np.float64]]:
-        """Each sensor's depth cloud, (N, 3) metres in its own frame.
-
-        Raises:
-            SensorUnavailable: a sensor went offline.
-            AgentRequestFailed: an agent refused, timed out, or sent an invalid cloud.
-        """
-
-        async def one(sensor_id: str) -> tuple[str, npt.NDArray[np.float64]]:
-            result = await self._agents.request(
-                sensor_id, depth_cloud.METHOD, depth_cloud.encode_request(), DEPTH_TIMEOUT_S
-            )
-            try:
-                return sensor_id, depth_cloud.decode_reply(result)
-            except DecodeError as exc:
-                raise AgentRequestFailed(f"sensor {sensor_id!r}: {exc}") from exc
-
-        pairs = await asyncio.gather(*(one(s) for s in sensors))
-        return dict(pairs)
 
     def _solve_points(self, spec: RunSpec) -> dict[str, SensorResult]:
         if spec.reference == "world":

@@ -7,7 +7,8 @@
     ├── NotFound                no such run, person, recording (404)
     ├── Conflict                not now: another run is active, a sensor is offline (409)
     │   └── SensorUnavailable   the sensor is unknown or offline
-    └── AgentRequestFailed      an agent refused a request, failed, or did not answer (502)
+    ├── AgentRequestFailed      an agent refused a request, failed, or did not answer (502)
+    └── SolverCrashed           the calibration worker process died mid-solve (500)
 
 Errors of the layers below keep their own classes and are mapped here too (most specific class
 wins): ``CalibrationError`` is 400, its ``UnknownVersion`` 404; ``RecordingError`` is 500 (the
@@ -63,6 +64,10 @@ class AgentRequestFailed(ServerError):
     """An agent answered a request with an error, or did not answer in time."""
 
     status = 502
+
+
+class SolverCrashed(ServerError):
+    """The process running a calibration solver died (killed, out of memory, a native crash)."""
 
 
 STATUS_BY_ERROR: Final[dict[type[Exception], int]] = {

@@ -27,6 +27,7 @@ from skelfuse.server.calibration_run import CalibrationRun, RunSpec, RunState
 from skelfuse.server.calibration_runs import CalibrationService
 from skelfuse.server.errors import AgentRequestFailed, Conflict, InvalidRequest, NotFound
 from skelfuse.server.settings import Settings
+from skelfuse.server.solver_pool import ThreadSolvers
 
 POSES = {
     "cam-a": look_at_pose((0.0, 1.0, 3.0), (0.0, 1.0, 0.0)),
@@ -117,7 +118,8 @@ class Rig:
 
     def service(self, agents: FakeAgents | None = None) -> CalibrationService:
         agents = agents or FakeAgents(lambda _: AgentRequestFailed("this source has no depth"))
-        return CalibrationService(self.hub, self.store, agents, self.clock)
+        # In a thread: the run's timing is the fake clock's, and one test patches a solver.
+        return CalibrationService(self.hub, self.store, agents, self.clock, solvers=ThreadSolvers())
 
 
 async def finished(run: CalibrationRun) -> CalibrationRun:

@@ -1,0 +1,141 @@
+"""Where calibration runs do their math: a worker process, so the event loop never waits for it.
+
+ICP (open3d) keeps the GIL for seconds: in a thread of the server it stopped the event loop for
+2.3–5.4 s, long enough for agents to think the server gone ("server silent"). The solvers of
+:mod:`skelfuse.calibration.solvers` are pure functions of picklable inputs (numpy arrays, small
+dataclasses), so :class:`ProcessSolvers` runs them in one ``spawn``-started worker process (not
+``fork``: the server has threads and ZeroMQ sockets, which a forked child would inherit broken),
+created on first use, kept for the next runs, shut down with the server. Errors the solvers raise
+come back as the same exception with the same message; a worker that dies fails the call with
+:class:`~skelfuse.server.errors.SolverCrashed`, and the next call gets a fresh worker.
+
+:class:`ThreadSolvers` runs them in a thread of this process instead: for tests and embedders that
+inject solver fakes (which a worker process could not import), not for a live server.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import functools
+import logging
+import multiprocessing
+import os
+from collections.abc import Callable
+from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from typing import ParamSpec, Protocol, TypeVar
+
+from skelfuse.server.errors import SolverCrashed
+
+logger = logging.getLogger(__name__)
+
+P = ParamSpec("P")
+T = TypeVar("T")
+
+WORKER_NICE = 10
+"""Niceness added to the worker: on a small machine the live feed, not the solve, gets the
+cores first (a calibration takes a moment longer under load; fusion keeps its pace)."""
+
+
+class Solvers(Protocol):
+    """Runs a solver call somewhere that does not hold up the event loop."""
+
+    def warm(self) -> None:
+        """Start whatever the first call needs now (a process, imports), without waiting."""
+        ...
+
+    async def run(self, fn: Callable[P, T], /, *args: P.args, **kwargs: P.kwargs) -> T:
+        """``fn(*args, **kwargs)``'s result, or its exception.
+
+        Raises:
+            SolverCrashed: the worker running it died.
+        """
+        ...
+
+    async def aclose(self) -> None:
+        """Stop the workers (waits for a call still running)."""
+        ...
+
+
+def _init_worker(nice: int) -> None:
+    """Runs first in the worker process."""
+    if nice and hasattr(os, "nice"):
+        os.nice(nice)
+
+
+def _preload() -> None:
+    """Import the solvers and open3d ahead of the first solve (about 2 s), ignoring failures:
+    a missing open3d is reported by the solve that needs it, as without a worker."""
+    import skelfuse.calibration.solvers  # noqa: F401
+    from skelfuse.calibration.errors import IcpUnavailable
+    from skelfuse.calibration.open3d_loader import load_open3d
+
+    with contextlib.suppress(IcpUnavailable):
+        load_open3d()
+
+
+class ProcessSolvers:
+    """One worker process (``start_method``, default ``spawn``), started lazily and reused."""
+
+    def __init__(self, start_method: str = "spawn", nice: int = WORKER_NICE) -> None:
+        self._context = multiprocessing.get_context(start_method)
+        self._nice = nice
+        self._pool: ProcessPoolExecutor | None = None
+
+    def _executor(self) -> ProcessPoolExecutor:
+        if self._pool is None:
+            self._pool = ProcessPoolExecutor(
+                max_workers=1,  # one run at a time, its solves one after another
+                mp_context=self._context,
+                initializer=_init_worker,
+                initargs=(self._nice,),
+            )
+        return self._pool
+
+    def _submit(self, call: Callable[[], T]) -> Future[T]:
+        try:
+            return self._executor().submit(call)
+        except BrokenProcessPool:  # it died between calls (e.g. while warming): a fresh one
+            self._discard()
+            return self._executor().submit(call)
+
+    def _discard(self) -> None:
+        pool, self._pool = self._pool, None
+        if pool is not None:
+            pool.shutdown(wait=False, cancel_futures=True)
+
+    def warm(self) -> None:
+        self._submit(_preload)  # nobody waits for it: the first solve queues behind it
+
+    async def run(self, fn: Callable[P, T], /, *args: P.args, **kwargs: P.kwargs) -> T:
+        future = self._submit(functools.partial(fn, *args, **kwargs))
+        try:
+            return await asyncio.wrap_future(future)
+        except BrokenProcessPool as exc:
+            self._discard()
+            name = getattr(fn, "__name__", repr(fn))
+            logger.error("the calibration worker died running %s: %s", name, exc)
+            raise SolverCrashed(
+                f"the calibration worker process died while running {name} ({exc}); the "
+                "next run starts a new one: run the calibration again"
+            ) from exc
+
+    async def aclose(self) -> None:
+        pool, self._pool = self._pool, None
+        if pool is not None:
+            await asyncio.to_thread(pool.shutdown, wait=True, cancel_futures=True)
+
+
+class ThreadSolvers:
+    """Runs each call in a thread of this process (``asyncio.to_thread``): for tests that inject
+    fakes; open3d in a thread stops the event loop while it runs."""
+
+    def warm(self) -> None:
+        pass
+
+    async def run(self, fn: Callable[P, T], /, *args: P.args, **kwargs: P.kwargs) -> T:
+        return await asyncio.to_thread(fn, *args, **kwargs)
+
+    async def aclose(self) -> None:
+        pass
