@@ -21,6 +21,7 @@ import functools
 import logging
 import multiprocessing
 import os
+import threading
 from collections.abc import Callable
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -82,38 +83,41 @@ class ProcessSolvers:
         self._context = multiprocessing.get_context(start_method)
         self._nice = nice
         self._pool: ProcessPoolExecutor | None = None
+        self._lock = threading.Lock()  # warm() submits from a thread of its own
 
-    def _executor(self) -> ProcessPoolExecutor:
-        if self._pool is None:
-            self._pool = ProcessPoolExecutor(
-                max_workers=1,  # one run at a time, its solves one after another
-                mp_context=self._context,
-                initializer=_init_worker,
-                initargs=(self._nice,),
-            )
-        return self._pool
+    def _new_pool(self) -> ProcessPoolExecutor:
+        return ProcessPoolExecutor(
+            max_workers=1,  # one run at a time, its solves one after another
+            mp_context=self._context,
+            initializer=_init_worker,
+            initargs=(self._nice,),
+        )
 
-    def _submit(self, call: Callable[[], T]) -> Future[T]:
-        try:
-            return self._executor().submit(call)
-        except BrokenProcessPool:  # it died between calls (e.g. while warming): a fresh one
-            self._discard()
-            return self._executor().submit(call)
-
-    def _discard(self) -> None:
-        pool, self._pool = self._pool, None
-        if pool is not None:
-            pool.shutdown(wait=False, cancel_futures=True)
+    def _submit(self, call: Callable[[], T]) -> tuple[ProcessPoolExecutor, Future[T]]:
+        with self._lock:
+            if self._pool is None:
+                self._pool = self._new_pool()
+            try:
+                return self._pool, self._pool.submit(call)
+            except BrokenProcessPool:  # it died between calls (e.g. while warming): a fresh one
+                self._pool.shutdown(wait=False, cancel_futures=True)
+                self._pool = self._new_pool()
+                return self._pool, self._pool.submit(call)
 
     def warm(self) -> None:
-        self._submit(_preload)  # nobody waits for it: the first solve queues behind it
+        # Starting the process costs the calling thread 10–25 ms (fork and exec of a big
+        # process): not the event loop's. Nobody waits for it; the first solve queues behind it.
+        threading.Thread(target=self._submit, args=(_preload,), name="solver-warm").start()
 
     async def run(self, fn: Callable[P, T], /, *args: P.args, **kwargs: P.kwargs) -> T:
-        future = self._submit(functools.partial(fn, *args, **kwargs))
+        pool, future = self._submit(functools.partial(fn, *args, **kwargs))
         try:
-            return await asyncio.wrap_future(future)
+            return await asyncio.wrap_future(future)  # what loop.run_in_executor does
         except BrokenProcessPool as exc:
-            self._discard()
+            with self._lock:
+                if self._pool is pool:  # the next call starts a fresh worker
+                    self._pool = None
+            pool.shutdown(wait=False, cancel_futures=True)
             name = getattr(fn, "__name__", repr(fn))
             logger.error("the calibration worker died running %s: %s", name, exc)
             raise SolverCrashed(
@@ -122,7 +126,8 @@ class ProcessSolvers:
             ) from exc
 
     async def aclose(self) -> None:
-        pool, self._pool = self._pool, None
+        with self._lock:
+            pool, self._pool = self._pool, None
         if pool is not None:
             await asyncio.to_thread(pool.shutdown, wait=True, cancel_futures=True)
 

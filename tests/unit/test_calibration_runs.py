@@ -25,7 +25,13 @@ from skelfuse.protocol.transform import Matrix4, apply, axis_rotation, invert, l
 from skelfuse.protocol.wire import Body, Frame, Hello, encode
 from skelfuse.server.calibration_run import CalibrationRun, RunSpec, RunState
 from skelfuse.server.calibration_runs import CalibrationService
-from skelfuse.server.errors import AgentRequestFailed, Conflict, InvalidRequest, NotFound
+from skelfuse.server.errors import (
+    AgentRequestFailed,
+    Conflict,
+    InvalidRequest,
+    NotFound,
+    SolverCrashed,
+)
 from skelfuse.server.settings import Settings
 from skelfuse.server.solver_pool import ThreadSolvers
 
@@ -360,3 +366,25 @@ async def test_sensor_run_needs_one_sensor_and_another_with_a_pose(tmp_path: Pat
         service.start(RunSpec("sensor", "cam-a", ("cam-a", "cam-b")))
     with pytest.raises(Conflict, match="at least one other connected sensor with a pose"):
         service.start(RunSpec("sensor", "cam-b", ("cam-b",)))  # nobody has a pose yet
+
+
+class CrashingSolvers(ThreadSolvers):
+    """Solves in a thread, except ICP, whose worker process dies."""
+
+    async def run(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Any:
+        if fn.__name__ == "refine_with_depth":
+            raise SolverCrashed("the calibration worker process died while running it")
+        return await super().run(fn, *args, **kwargs)
+
+
+async def test_a_dead_solver_worker_fails_the_run_even_where_icp_is_optional(
+    tmp_path: Path,
+) -> None:
+    rig = Rig(tmp_path)
+    cloud = encode_reply(np.random.default_rng(0).uniform(-2, 2, (600, 3)))
+    service = CalibrationService(
+        rig.hub, rig.store, FakeAgents(lambda _: cloud), rig.clock, solvers=CrashingSolvers()
+    )
+    run = await finished(service.start(RunSpec("auto", "cam-a", rig.sensors, 3.0)))
+    assert run.state == RunState.FAILED and not run.warnings  # not "no ICP refinement"
+    assert run.error == "the calibration worker process died while running it"
