@@ -1,12 +1,13 @@
 """ICP calibration does not stop the server: the real uvicorn server, simulated agents over
 ZeroMQ, an ``icp`` run through REST, and the server's own event-loop lag monitor (``/metrics``).
 
-open3d keeps the GIL for the whole ICP; run in a thread of the server it stopped the event loop
-for 0.4–0.8 s at a time here (2.3–5.4 s on a quieter machine with bigger clouds; agents then
-logged "server silent"). The solvers now run in a worker process. The agents are processes of
-their own, as on a rig (in this process their depth rendering would hold its GIL too). Checked
-while ICP runs, with a bound (200 ms) loose enough for a loaded 2-core CI machine where this
-process waits for a core; bench/calibration_stall.py reports the tight figures.
+open3d keeps the GIL while it computes; run in a thread of the server, ICP stalled the event loop
+again and again (here 0.05–0.8 s at a time, depending on the machine's load; 2.3–5.4 s in issue
+11). The solvers now run in a worker process. The agents are processes of their own, as on a rig
+(in this process their depth rendering would take its GIL too). On a shared 2-core machine the
+idle server itself stalls now and then (the process waits for a core), so the check is the rate
+of stalls over 50 ms while ICP runs against the idle rate just before; bench/calibration_stall.py
+reports the figures.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
+from dataclasses import dataclass
 
 import httpx
 import numpy as np
@@ -30,21 +32,40 @@ from tests.support import wait_until
 
 pytestmark = pytest.mark.timeout(150)
 
-MAX_STALL_S = 0.2
+MAX_STALL_S = 0.05
+MAX_EXTRA_STALLS_PER_S = 0.4
+"""Stalls over :data:`MAX_STALL_S` per second while ICP runs, beyond the idle server's rate just
+before: with ICP in a thread 0.9–1.1 at load 3–4 here (none over 200 ms then, 9 at load 9.7),
+with the worker process 0."""
 SENSORS = 3
 
 
-def stalls_over(url: str, bound_s: float) -> tuple[int, int]:
-    """(event-loop ticks so far, of which later than ``bound_s``), from ``/metrics``."""
+@dataclass(frozen=True)
+class Lag:
+    """The server's event-loop lag figures at one moment (``/metrics``) and when they were read."""
+
+    read_s: float
+    ticks: int
+    stalls: int
+    """Ticks later than :data:`MAX_STALL_S`."""
+    stalled_s: float
+    """The lateness of all ticks, summed."""
+
+
+def loop_lag(url: str) -> Lag:
     text = httpx.get(url + "/metrics/").text
-    buckets = {
-        float(sample.labels["le"]): sample.value
+    read_s = time.monotonic()
+    samples = {
+        (sample.name, sample.labels.get("le")): sample.value
         for family in text_string_to_metric_families(text)
         for sample in family.samples
-        if sample.name == "skelfuse_event_loop_lag_seconds_bucket"
+        if sample.name.startswith("skelfuse_event_loop_lag_seconds")
     }
+    buckets = {float(le): v for (name, le), v in samples.items() if name.endswith("_bucket")}
     total = buckets[float("inf")]
-    return int(total), int(total - buckets[bound_s])
+    stalls = total - buckets[MAX_STALL_S]
+    stalled_s = samples[("skelfuse_event_loop_lag_seconds_sum", None)]
+    return Lag(read_s, int(total), int(stalls), stalled_s)
 
 
 @pytest.fixture
@@ -81,17 +102,21 @@ def test_icp_calibration_keeps_the_event_loop_running(
 
     assert wait_until(lambda: len(hinted_poses()) == SENSORS, timeout_s=60)
     truth = hinted_poses()  # the sim agents' true poses
+    idle = loop_lag(url)
+    time.sleep(3.0)
+    idle_end = loop_lag(url)  # how often this machine stalls the server with nothing to do
+    idle_rate = (idle_end.stalls - idle.stalls) / (idle_end.read_s - idle.read_s)
     response = httpx.post(url + "/api/calibration/runs", json={"method": "icp"})
     assert response.status_code == 202, response.text
     run = response.json()
-    marks: dict[str, tuple[int, int]] = {}
+    solving: Lag | None = None
     deadline = time.monotonic() + 120
     while run["state"] in ("capturing", "solving") and time.monotonic() < deadline:
-        if run["state"] == "solving" and "solving" not in marks:
-            marks["solving"] = stalls_over(url, MAX_STALL_S)
+        if run["state"] == "solving" and solving is None:
+            solving = loop_lag(url)
         time.sleep(0.05)
         run = httpx.get(f"{url}/api/calibration/runs/{run['id']}").json()
-    ticks, stalls = stalls_over(url, MAX_STALL_S)
+    done = loop_lag(url)
     assert run["state"] == "done", run
     # The run's result, as from a thread: ICP ran on every sensor and kept near the truth.
     ids = sorted(truth)
@@ -105,9 +130,10 @@ def test_icp_calibration_keeps_the_event_loop_running(
         )
         assert rotation_deg < 1.0 and translation_mm < 30, (sensor_id, result)
     assert run["floor"]["source"] == "depth"
-    ticks_solving, stalls_solving = marks["solving"]
-    assert ticks - ticks_solving > 100  # ICP took a while, and the monitor ticked all along
-    assert stalls - stalls_solving == 0, (
-        f"{stalls - stalls_solving} event-loop stalls over {MAX_STALL_S * 1000:.0f} ms while "
-        f"ICP ran ({ticks - ticks_solving} ticks)"
+    assert solving is not None and done.ticks - solving.ticks > 100  # the monitor ticked
+    window = done.read_s - solving.read_s
+    rate = (done.stalls - solving.stalls) / window
+    assert rate <= idle_rate + MAX_EXTRA_STALLS_PER_S, (
+        f"{done.stalls - solving.stalls} event-loop stalls over {MAX_STALL_S * 1000:.0f} ms in "
+        f"{window:.1f} s of ICP ({rate:.2f}/s; idle {idle_rate:.2f}/s)"
     )
