@@ -34,7 +34,8 @@ Run: ``python bench/accuracy.py`` (``--runs N`` seeds per scenario, ``--quick`` 
 subset, ``--json FILE`` raw results, ``--paper`` report A's own experiment only,
 ``--latency`` the filters' added latency only, ``--birth`` the birth-labelling scenarios only,
 ``--no-mirror-redecide`` with ``FusionSettings.mirror_redecide`` off, as before,
-``--mirror-turns`` with ``mirror_unbiased_facing`` on and ``mirror_redecide_views = 2``).
+``--no-mirror-turns`` with ``mirror_unbiased_facing`` off and ``mirror_redecide_views = 1``,
+as before they became the defaults).
 
 Labels: the wrong-label rate (share of sensor × frame labelling decisions that disagree with the
 simulator's truth: ``FusedPerson.mirrored`` against ``Observation.mirrored``) and the longest
@@ -92,17 +93,17 @@ def main(argv: list[str] | None = None) -> int:
                         help="only fused vs the hindsight oracle (bench/oracle.py)")  # fmt: skip
     parser.add_argument("--view-reliability", action="store_true",
                         help="every method with use_view_reliability on")  # fmt: skip
-    parser.add_argument("--mirror-turns", action="store_true",
-                        help="every method with mirror_unbiased_facing on and "
-                             "mirror_redecide_views = 2")  # fmt: skip
+    parser.add_argument("--no-mirror-turns", action="store_true",
+                        help="every method with mirror_unbiased_facing off and "
+                             "mirror_redecide_views = 1 (the defaults before)")  # fmt: skip
     args = parser.parse_args(argv)
     methods = METHODS
     if args.no_mirror_redecide:
         methods = {label: replace(m, mirror_redecide=False) for label, m in METHODS.items()}
     if args.view_reliability:
         methods = with_reliability(methods)
-    if args.mirror_turns:
-        methods = {label: replace(m, mirror_unbiased_facing=True, mirror_redecide_views=2)
+    if args.no_mirror_turns:
+        methods = {label: replace(m, mirror_unbiased_facing=False, mirror_redecide_views=1)
                    for label, m in methods.items()}  # fmt: skip
     if args.oracle:
         oracle = {

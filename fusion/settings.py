@@ -192,16 +192,18 @@ class FusionSettings:
     smooth when still, quick when moving, as One Euro's ``beta``."""
 
     # --- mirror labels: the person's facing without the sensors' yaw bias (fusion/labels.py) --
-    mirror_unbiased_facing: bool = False
+    mirror_unbiased_facing: bool = True
     """The mirror labels' geometry term compares each sensor with the person's facing from the
     last step's labelled views, each view's turn towards its sensor (``view_lean_fraction``)
     taken out (fusion.labels.unbiased_facings), instead of the fused skeleton's facing, which
-    inherits those turns (docs/fusion.md §6)."""
-    mirror_redecide_views: int = 1
+    inherits those turns (docs/fusion.md §6). On by default since 2026-11-22 (with
+    ``mirror_redecide_views = 2``: crossing wrong labels 1.19 % → 0.35 %, docs/benchmarks.md)."""
+    mirror_redecide_views: int = 2
     """``mirror_redecide``: an old person (not younger than ``mirror_redecide_young_s``) with at
     least this many views is turned over as a whole only when at least this many of them have
     evidence against their labels (≥ 0.5 joints) at that step; otherwise those views alone are
-    turned over (fusion.labels.views_alone). 1: always the whole person."""
+    turned over (fusion.labels.views_alone). 1: always the whole person (the default before
+    2026-11-22); 2 is the default."""
 
 
 @dataclass(frozen=True, slots=True)
