@@ -4,7 +4,7 @@
 wire, on both sides. ``decode`` is the trust boundary: everything it returns has been checked
 (version, types, shapes, finite values, ranges, sizes), and everything it refuses raises
 :class:`~protocol.errors.DecodeError` with a short ``reason`` used for counting. The checks of
-single values (typed fields, joint arrays, a rigid pose) are in :mod:`protocol.wire_checks`.
+single values are in :mod:`protocol.wire_checks`, a frame's fast bulk path in ``wire_bulk``.
 
 The byte-level format is specified in ``docs/protocol.md``; keep the two in step.
 """
@@ -24,6 +24,7 @@ import numpy.typing as npt
 from skelfuse.protocol.constants import MAX_BODIES, MAX_MESSAGE_BYTES, PROTOCOL_VERSION
 from skelfuse.protocol.errors import DecodeError, VersionMismatch
 from skelfuse.protocol.skeleton import JOINT_COUNT, SKELETON_NAME
+from skelfuse.protocol.wire_bulk import frame_in_bulk
 from skelfuse.protocol.wire_checks import (
     UINT64_MAX,
     field_of,
@@ -263,6 +264,19 @@ def decode(buf: bytes, max_bytes: int = MAX_MESSAGE_BYTES) -> Message:
 
 
 def _decode_frame(raw: dict[str, Any]) -> Frame:
+    bulk = frame_in_bulk(raw)
+    if bulk is None:
+        return decode_frame_precisely(raw)
+    bodies = tuple(map(Body, bulk.tracking_ids, bulk.joints_m, bulk.states))
+    return Frame(bulk.seq, bulk.t_capture_ns, bodies, bulk.floor)
+
+
+def decode_frame_precisely(raw: dict[str, Any]) -> Frame:
+    """A ``frame`` map checked field by field in the order of docs/protocol.md §6.3.
+
+    Raises:
+        DecodeError: the first rule broken (``bad_field``, ``bad_shape``, ``non_finite``...).
+    """
     seq = uint(raw, "seq")
     t_capture_ns = uint(raw, "t_capture_ns")
     bodies_raw = field_of(raw, "bodies", list)

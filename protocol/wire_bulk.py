@@ -1,0 +1,150 @@
+"""A frame's checks in bulk: the fast path of ``decode`` for a valid ``frame`` message.
+
+:func:`frame_in_bulk` checks a whole frame at once: the scalar fields with exact ``type`` tests,
+and the joints and states of all bodies joined into one array each, so a 6-body frame costs a
+dozen numpy calls instead of a dozen per body. It only ever says "valid, here are the values"
+or "not sure" (``None``); it never names an error. On ``None``, ``protocol.wire`` runs the
+precise checks in their documented order (docs/protocol.md §6.3), which accept the frame or
+raise the one :class:`~protocol.errors.DecodeError` that names the first rule it breaks. So the
+rejection reasons and messages are those of the precise path by construction; what this module
+must get right is to accept exactly what the precise path accepts, with the same values
+(tests/unit/test_wire_bulk.py checks both on generated valid and broken frames).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from typing import Any, Final, NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+
+from skelfuse.protocol.constants import MAX_BODIES, MAX_COORDINATE_M
+from skelfuse.protocol.skeleton import JOINT_COUNT
+from skelfuse.protocol.wire_checks import INT64_MAX, UINT64_MAX
+
+_JOINT_BYTES: Final = JOINT_COUNT * 3 * 4
+_LITTLE_ENDIAN: Final = sys.byteorder == "little"
+_NUMBER: Final = (float, int)  # msgpack's numbers; type() is never bool here
+_STATE_VALUES: Final = bytes(range(3))  # NOT_TRACKED, INFERRED, TRACKED
+_UNSEEN: Final = bytes([1]) + bytes(255)  # a translate table: 1 where NOT_TRACKED, else 0
+
+
+class BulkFrame(NamedTuple):
+    """A frame's checked values, ready for ``Frame`` and ``Body`` (B bodies).
+
+    tracking_ids: B ids in 0..2^64-1, all different.
+    joints_m: B arrays (25, 3) float32, metres, NOT_TRACKED joints NaN, every other joint finite
+        and within ``MAX_COORDINATE_M``; each is a writable row of one (B, 25, 3) array.
+    states: B arrays (25,) uint8 in 0..2; rows of one writable (B, 25) array.
+    """
+
+    seq: int
+    t_capture_ns: int
+    tracking_ids: list[int]
+    joints_m: list[npt.NDArray[np.float32]]
+    states: list[npt.NDArray[np.uint8]]
+    floor: tuple[float, float, float, float] | None
+
+
+def frame_in_bulk(raw: dict[str, Any]) -> BulkFrame | None:
+    """The checked values of a ``frame`` message's map, or None if any check might fail.
+
+    ``raw`` is the map msgpack decoded (str keys). None means only "take the precise path":
+    this function raises nothing for bad input.
+    """
+    if not _LITTLE_ENDIAN:  # the arrays below are read in native order
+        return None
+    seq = raw.get("seq")
+    t_capture_ns = raw.get("t_capture_ns")
+    bodies = raw.get("bodies")
+    # ``type(x) is int`` also refuses bool, as the precise checks do.
+    if (
+        type(seq) is not int
+        or type(t_capture_ns) is not int
+        or not 0 <= seq <= INT64_MAX
+        or not 0 <= t_capture_ns <= INT64_MAX
+        or type(bodies) is not list
+        or len(bodies) > MAX_BODIES
+    ):
+        return None
+    floor = _floor(raw.get("floor"))
+    if isinstance(floor, bool):  # False: the floor needs the precise checks
+        return None
+    ids: list[int] = []
+    joint_blobs: list[bytes] = []
+    state_blobs: list[bytes] = []
+    for body in bodies:
+        if type(body) is not dict:
+            return None
+        tracking_id = body.get("id")
+        joints = body.get("joints")
+        states = body.get("states")
+        if (
+            type(tracking_id) is not int
+            or not 0 <= tracking_id <= UINT64_MAX
+            or type(joints) is not bytes
+            or len(joints) != _JOINT_BYTES
+            or type(states) is not bytes
+            or len(states) != JOINT_COUNT
+        ):
+            return None
+        ids.append(tracking_id)
+        joint_blobs.append(joints)
+        state_blobs.append(states)
+    if len(set(ids)) != len(ids):
+        return None
+    if not ids:
+        return BulkFrame(seq, t_capture_ns, ids, [], [], floor)
+    all_states = b"".join(state_blobs)
+    if all_states.translate(None, _STATE_VALUES):  # a byte other than 0, 1, 2 is left
+        return None
+    all_joints = b"".join(joint_blobs)
+    joints = np.frombuffer(bytearray(all_joints), dtype=np.float32)  # a writable copy
+    if b"\x00" in all_states:  # some joints are NOT_TRACKED: their values count only if ±inf
+        if np.logical_or.reduce(np.isinf(joints)):
+            return None
+        unseen = np.frombuffer(all_states.translate(_UNSEEN), dtype=np.bool_).repeat(3)
+        np.putmask(joints, unseen, 0.0)
+        within = _within_range(joints)
+        np.putmask(joints, unseen, np.nan)
+    else:
+        within = _within_range(joints)
+    if not within:
+        return None
+    count = len(ids)
+    states = np.frombuffer(bytearray(all_states), dtype=np.uint8)
+    return BulkFrame(
+        seq,
+        t_capture_ns,
+        ids,
+        list(joints.reshape(count, JOINT_COUNT, 3)),
+        list(states.reshape(count, JOINT_COUNT)),
+        floor,
+    )
+
+
+def _within_range(joints: npt.NDArray[np.float32]) -> bool:
+    """Every value finite and within ±``MAX_COORDINATE_M`` (a NaN makes the maximum NaN)."""
+    return float(np.maximum.reduce(np.abs(joints))) <= MAX_COORDINATE_M
+
+
+def _floor(value: object) -> tuple[float, float, float, float] | bool | None:
+    """A checked floor plane, None for none, False for "take the precise path"."""
+    if value is None:
+        return None
+    if type(value) is not list or len(value) != 4:
+        return False
+    a, b, c, d = value
+    if not (
+        type(a) in _NUMBER and type(b) in _NUMBER and type(c) in _NUMBER and type(d) in _NUMBER
+    ):
+        return False
+    a, b, c, d = float(a), float(b), float(c), float(d)
+    if not (math.isfinite(a) and math.isfinite(b) and math.isfinite(c) and math.isfinite(d)):
+        return False
+    # sum() of the same three squares, as the precise check does: the same verdict to the bit.
+    if abs(math.sqrt(sum((a * a, b * b, c * c))) - 1.0) > 1e-3:
+        return False
+    return (a, b, c, d)
