@@ -32,17 +32,20 @@ Measured over a window that starts after all sensors are online and a warm-up:
 Separately, in-process (BLAS pinned to one thread, as in ``skelfuse server``): the fusion
 compute per fused frame (``FusionHub.fuse_step`` and the ``FusionPipeline.update`` inside it), the
 per-frame JSON encode, and ``handle_message`` per incoming frame, median over 1000 steps; and the
-feed message alone (build, encode) for 6 people, median over 5000 runs.
+feed message alone (build, encode) for 6 people, median over 5000 runs; and ``decode`` of one
+incoming 6-body frame, median over 5000 runs.
 
 Run: ``python bench/load.py`` (main run: 10 agents × 6 bodies, 120 s), ``--scaling`` (agents in
 1, 2, 4, 8, 16 × bodies in 1, 6, 15 s each), ``--repeat K`` (K runs per configuration, medians
 reported), ``--agents``, ``--bodies``, ``--duration``, ``--clients``, ``--stalled``,
 ``--fusion-only`` (the in-process timing only), ``--encode-only`` (the feed message only),
+``--decode-only`` (decoding one incoming frame only),
 ``--json FILE`` (raw results).
 
 The parts: ``load_agents`` (the fake agents), ``load_clients`` (the WebSocket clients),
 ``load_server`` (the server subprocess), ``load_run`` (one run and its figures),
 ``fusion_timing`` (the in-process timing), ``load_encode`` (the feed message),
+``load_decode`` (decoding a frame),
 ``load_report`` (the tables).
 """
 
@@ -63,6 +66,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.fusion_timing import fusion_timing
+from bench.load_decode import decode_timing, print_decode
 from bench.load_encode import encode_timing, print_encode
 from bench.load_report import median_result, print_fusion, print_main, print_scaling
 from bench.load_run import RunConfig, RunResult, run_once
@@ -84,6 +88,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--fusion-only", action="store_true", help="in-process timing only")
     parser.add_argument("--fusion-steps", type=int, default=1000)
     parser.add_argument("--encode-only", action="store_true", help="the feed message cost only")
+    parser.add_argument("--decode-only", action="store_true", help="decoding one frame only")
     parser.add_argument("--json", type=Path, default=None, help="write raw results here")
     args = parser.parse_args(argv)
     pin_blas_threads()  # the in-process timings run as the server does
@@ -104,6 +109,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         raw.setdefault("runs", []).extend(asdict(r) for r in runs)
         return median_result(runs)
 
+    decodes = [decode_timing(bodies=6, not_tracked=nt) for nt in (False, True)]
+    raw["decode"] = [asdict(d) for d in decodes]
+    if args.decode_only:
+        print_decode(decodes)
+        return 0
     encode = encode_timing(bodies=6)
     raw["encode"] = asdict(encode)
     if args.encode_only:
@@ -126,6 +136,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     raw["fusion"] = [asdict(t) for t in timings]
     print_fusion(timings)
     print_encode(encode)
+    print_decode(decodes)
     print(
         f"\nMachine: {os.cpu_count()} cores, Python {sys.version.split()[0]}; "
         f"{time.monotonic() - started:.0f} s in all; server logs in {log_dir}"
