@@ -93,6 +93,7 @@ def run(args: argparse.Namespace) -> int:
         except KeysMissing as exc:
             raise UsageError(str(exc)) from exc
     fusion = fusion_settings(args.fusion_config)
+    check_agent_endpoint(args.zmq)
     settings = Settings(
         fusion=fusion,
         http_host=host,
@@ -113,6 +114,31 @@ def run(args: argparse.Namespace) -> int:
     server = uvicorn.Server(config)
     server.run()
     return 0 if server.started else 1
+
+
+def check_agent_endpoint(endpoint: str) -> None:
+    """Fail before anything starts when the agent endpoint cannot be bound.
+
+    The server binds it while starting up, where a failure reaches the user as uvicorn's
+    startup traceback; most often another skelfuse server holds the port, which one line says.
+
+    Raises:
+        OSError: the endpoint cannot be bound (in use, no such address, bad syntax).
+    """
+    import zmq
+
+    context = zmq.Context()
+    socket = context.socket(zmq.ROUTER)
+    try:
+        socket.bind(endpoint)
+    except zmq.ZMQError as exc:
+        raise OSError(
+            f"cannot bind the agent endpoint {endpoint}: {exc.strerror} "
+            "(is another skelfuse server running? choose another with --zmq)"
+        ) from exc
+    finally:
+        socket.close(linger=0)
+        context.term()
 
 
 def uvicorn_config(

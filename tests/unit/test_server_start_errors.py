@@ -1,0 +1,57 @@
+"""``skelfuse server`` whose agent port is taken: one clear line and exit 1, no traceback."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import zmq
+
+from skelfuse.cli import main
+from tests.support import free_port
+
+
+def test_an_agent_port_in_use_is_one_line_not_a_traceback(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    context = zmq.Context()
+    holder = context.socket(zmq.ROUTER)  # another server already holds the agent port
+    port = holder.bind_to_random_port("tcp://127.0.0.1")
+    endpoint = f"tcp://127.0.0.1:{port}"
+    try:
+        status = main(
+            [
+                "server",
+                "--zmq",
+                endpoint,
+                "--http",
+                f"127.0.0.1:{free_port()}",
+                "--data",
+                str(tmp_path),
+            ]
+        )
+    finally:
+        holder.close(linger=0)
+        context.term()
+    out, err = capfd.readouterr()
+    assert status == 1
+    assert f"cannot bind the agent endpoint {endpoint}" in err
+    assert "another skelfuse server" in err
+    assert "Traceback" not in out + err
+
+
+def test_a_free_agent_endpoint_passes_the_check_and_is_free_again() -> None:
+    from skelfuse.cli.server import check_agent_endpoint
+
+    context = zmq.Context()
+    probe = context.socket(zmq.ROUTER)
+    port = probe.bind_to_random_port("tcp://127.0.0.1")
+    probe.close(linger=0)
+    endpoint = f"tcp://127.0.0.1:{port}"
+    check_agent_endpoint(endpoint)
+    again = context.socket(zmq.ROUTER)  # the check let go of the port
+    try:
+        again.bind(endpoint)
+    finally:
+        again.close(linger=0)
+        context.term()
