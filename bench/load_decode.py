@@ -10,14 +10,12 @@ decode before the bulk path). ``python bench/load.py --decode-only`` prints the 
 
 from __future__ import annotations
 
-import statistics
-import time
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import msgpack
 import numpy as np
 
+from bench.load_encode import median_us
 from skelfuse.agent.sim.performer import ProceduralPerformer
 from skelfuse.protocol.wire import Body, Frame, decode, decode_frame_precisely, encode
 
@@ -53,17 +51,6 @@ def sample_message(bodies: int, not_tracked: bool, seed: int = 1) -> bytes:
     return encode(Frame(1042, 1_763_712_345_123_456_789, tuple(out), (0.0, 1.0, 0.0, 1.1)))
 
 
-def _median_us(fn: Callable[[], object], runs: int) -> float:
-    for _ in range(min(runs, 200)):  # warm-up
-        fn()
-    times = []
-    for _ in range(runs):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times) * 1e6
-
-
 def decode_timing(bodies: int = 6, not_tracked: bool = False, runs: int = 5000) -> DecodeTiming:
     """Median µs per ``frame`` of ``bodies`` people over ``runs`` runs of each stage."""
     buf = sample_message(bodies, not_tracked)
@@ -80,9 +67,9 @@ def decode_timing(bodies: int = 6, not_tracked: bool = False, runs: int = 5000) 
         not_tracked,
         runs,
         len(buf),
-        _median_us(lambda: decode(buf), runs),
-        _median_us(lambda: decode_frame_precisely(unpack()), max(runs // 10, 200)),
-        _median_us(unpack, runs),
+        median_us(lambda: decode(buf), runs),
+        median_us(lambda: decode_frame_precisely(unpack()), max(runs // 10, 200)),
+        median_us(unpack, runs),
     )
 
 

@@ -55,7 +55,8 @@ def sample_frame(bodies: int, seed: int = 1) -> FusedFrame:
     return FusedFrame(1042, 1_763_712_345.123456, 1_763_712_345.15, tuple(persons), ())
 
 
-def _median_us(fn: Callable[[], object], runs: int) -> float:
+def median_us(fn: Callable[[], object], runs: int) -> float:
+    """Median wall time of ``fn()`` in µs over ``runs`` calls, after up to 200 warm-up calls."""
     for _ in range(min(runs, 200)):  # warm-up
         fn()
     times = []
@@ -76,11 +77,11 @@ def encode_timing(bodies: int = 6, runs: int = 5000) -> EncodeTiming:
         bodies,
         runs,
         len(text.encode() if isinstance(text, str) else text),
-        _median_us(lambda: frame_json(frame, False, sent_at_s), runs),
-        _median_us(lambda: encode_message(message, binary=False), runs),
-        _median_us(lambda: encode_message(frame_json(frame, False, sent_at_s), False), runs),
-        _median_us(lambda: json.dumps(message, allow_nan=False, separators=(",", ":")), runs),
-        _median_us(lambda: encode_message(message, binary=True), runs),
+        median_us(lambda: frame_json(frame, False, sent_at_s), runs),
+        median_us(lambda: encode_message(message, binary=False), runs),
+        median_us(lambda: encode_message(frame_json(frame, False, sent_at_s), False), runs),
+        median_us(lambda: json.dumps(message, allow_nan=False, separators=(",", ":")), runs),
+        median_us(lambda: encode_message(message, binary=True), runs),
     )
 
 

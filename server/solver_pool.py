@@ -137,10 +137,10 @@ class ThreadSolvers:
     fakes; open3d in a thread stops the event loop while it runs."""
 
     def warm(self) -> None:
-        pass
+        """Nothing to start: a thread needs no warm-up."""
 
     async def run(self, fn: Callable[P, T], /, *args: P.args, **kwargs: P.kwargs) -> T:
         return await asyncio.to_thread(fn, *args, **kwargs)
 
     async def aclose(self) -> None:
-        pass
+        """Nothing to stop: each call's thread ends with it."""
