@@ -5,10 +5,11 @@ from __future__ import annotations
 import math
 import statistics
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from bench.fusion_stages import stage_timers
 from bench.load_agents import FPS, PERIOD_S, hello, sensor_layout
 from skelfuse.agent.sim.performer import ProceduralPerformer
 from skelfuse.calibration.store import Calibration, SensorCalibration
@@ -30,10 +31,13 @@ class FusionTiming:
     tracker_ms: float
     encode_json_ms: float
     handle_message_ms: float
+    stages_ms: dict[str, float] = field(default_factory=dict)
+    """Median ms per pipeline stage (bench/fusion_stages.py); the medians need not add up."""
 
 
 def fusion_timing(sensors: int, bodies: int, steps: int = 1000, warmup: int = 100) -> FusionTiming:
-    """Median cost of one fused frame (and of ingesting one frame) on the production classes."""
+    """Median cost of one fused frame (and of ingesting one frame) on the production classes,
+    and of each pipeline stage in it (bench/fusion_stages.py)."""
     from skelfuse.fusion.hub import FusionHub
     from skelfuse.fusion.pipeline import FusionPipeline
     from skelfuse.fusion.views import FusedPerson, View
@@ -66,31 +70,35 @@ def fusion_timing(sensors: int, bodies: int, steps: int = 1000, warmup: int = 10
     fuse_cpu: list[float] = []
     encode_times: list[float] = []
     handle: list[float] = []
-    for k in range(warmup + steps):
-        t = t_start + k * PERIOD_S
-        world = performer.joints_at(k * PERIOD_S)
-        for j, s in enumerate(ids):
-            phase = 0.002 + j * 0.004  # sensors out of phase, as real ones are
-            bodies_ = tuple(
-                Body(b + 1, apply(sensor_from_world[s], world[b]).astype(np.float32), states)
-                for b in range(bodies)
-            )
-            payload = encode(Frame(k + 1, int((t + phase) * 1e9), bodies_))
+    with stage_timers(hub.pipeline) as stages:
+        for k in range(warmup + steps):
+            t = t_start + k * PERIOD_S
+            world = performer.joints_at(k * PERIOD_S)
+            for j, s in enumerate(ids):
+                phase = 0.002 + j * 0.004  # sensors out of phase, as real ones are
+                bodies_ = tuple(
+                    Body(b + 1, apply(sensor_from_world[s], world[b]).astype(np.float32), states)
+                    for b in range(bodies)
+                )
+                payload = encode(Frame(k + 1, int((t + phase) * 1e9), bodies_))
+                start = time.perf_counter()
+                hub.handle_message(s.encode(), [payload], t + phase + 0.0005, k * PERIOD_S)
+                handle.append(time.perf_counter() - start)
+            start, start_cpu = time.perf_counter(), time.thread_time()
+            fused = hub.fuse_step(t + PERIOD_S)
+            elapsed, elapsed_cpu = time.perf_counter() - start, time.thread_time() - start_cpu
+            if fused is None:
+                raise RuntimeError(f"fusion produced nothing at step {k}")
             start = time.perf_counter()
-            hub.handle_message(s.encode(), [payload], t + phase + 0.0005, k * PERIOD_S)
-            handle.append(time.perf_counter() - start)
-        start, start_cpu = time.perf_counter(), time.thread_time()
-        fused = hub.fuse_step(t + PERIOD_S)
-        elapsed, elapsed_cpu = time.perf_counter() - start, time.thread_time() - start_cpu
-        if fused is None:
-            raise RuntimeError(f"fusion produced nothing at step {k}")
-        start = time.perf_counter()
-        encode_message(frame_json(fused, False, time.time()), binary=False)
-        encode_elapsed = time.perf_counter() - start
-        if k >= warmup:
-            fuse.append(elapsed)
-            fuse_cpu.append(elapsed_cpu)
-            encode_times.append(encode_elapsed)
+            encode_message(frame_json(fused, False, time.time()), binary=False)
+            encode_elapsed = time.perf_counter() - start
+            if k >= warmup:
+                fuse.append(elapsed)
+                fuse_cpu.append(elapsed_cpu)
+                encode_times.append(encode_elapsed)
+                stages.finish(elapsed)
+            else:
+                stages.discard()
     tracked = tracker_times[warmup:]
     return FusionTiming(
         sensors,
@@ -102,4 +110,5 @@ def fusion_timing(sensors: int, bodies: int, steps: int = 1000, warmup: int = 10
         statistics.median(tracked) * 1e3,
         statistics.median(encode_times) * 1e3,
         statistics.median(handle[warmup * sensors :]) * 1e3,
+        stages.medians_ms(),
     )

@@ -30,10 +30,11 @@ Measured over a window that starts after all sensors are online and a warm-up:
   it, and the healthy clients' latency while it was connected vs after.
 
 Separately, in-process (BLAS pinned to one thread, as in ``skelfuse server``): the fusion
-compute per fused frame (``FusionHub.fuse_step`` and the ``FusionPipeline.update`` inside it), the
-per-frame JSON encode, and ``handle_message`` per incoming frame, median over 1000 steps; and the
-feed message alone (build, encode) for 6 people, median over 5000 runs; and ``decode`` of one
-incoming 6-body frame, median over 5000 runs.
+compute per fused frame (``FusionHub.fuse_step`` and the ``FusionPipeline.update`` inside it, and
+per pipeline stage: ``fusion_stages``), the per-frame JSON encode, and ``handle_message`` per
+incoming frame, median over 1000 steps; and the feed message alone (build, encode) for 6
+people, median over 5000 runs; and ``decode`` of one incoming 6-body frame, median over 5000
+runs.
 
 Run: ``python bench/load.py`` (main run: 10 agents × 6 bodies, 120 s), ``--scaling`` (agents in
 1, 2, 4, 8, 16 × bodies in 1, 6, 15 s each), ``--repeat K`` (K runs per configuration, medians

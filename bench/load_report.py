@@ -148,3 +148,17 @@ def print_fusion(timings: list[FusionTiming]) -> None:
             f"{f.fuse_step_cpu_ms:.2f} | {target} | {f.tracker_ms:.2f} | {f.encode_json_ms:.3f} | "
             f"{f.handle_message_ms:.3f} |"
         )
+    print_stages(timings)
+
+
+def print_stages(timings: list[FusionTiming]) -> None:
+    """Where `fuse_step`'s time goes: median ms per pipeline stage (bench/fusion_stages.py)."""
+    stages = list(timings[0].stages_ms) if timings else []
+    if not stages:
+        return
+    print("\nFusion step per stage (bench/fusion_stages.py), wall median ms over steps\n")
+    print("| sensors × bodies | " + " | ".join(stages) + " | `fuse_step` |")
+    print("|---|" + "---|" * (len(stages) + 1))
+    for f in timings:
+        cells = " | ".join(f"{f.stages_ms.get(stage, float('nan')):.3f}" for stage in stages)
+        print(f"| {f.sensors} × {f.bodies} | {cells} | {f.fuse_step_ms:.3f} |")
