@@ -26,6 +26,7 @@ from skelfuse.protocol.skeleton import skeleton_definition
 from skelfuse.server import routes_calibration, routes_fusion, routes_recordings
 from skelfuse.server.agent_requests import AgentRequests
 from skelfuse.server.auth import SensorAuthenticator
+from skelfuse.server.body_limit import BodyLimit
 from skelfuse.server.broadcast import Broadcaster, Variant, encode_message
 from skelfuse.server.calibration_runs import CalibrationService
 from skelfuse.server.clock import SystemClock
@@ -190,6 +191,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(routes_recordings.router)
     app.include_router(routes_fusion.router)
     app.add_middleware(HttpGuard, settings=settings)
+    app.add_middleware(BodyLimit, limit=settings.max_body_bytes)  # outermost: before the token
     app.mount("/metrics", make_asgi_app(registry))
 
     @app.get("/", include_in_schema=False)

@@ -8,7 +8,8 @@
   browser. A WebSocket handshake whose ``Origin`` is neither the server's own host nor in
   ``Settings.allowed_origins`` is refused; clients that send no Origin (apps, scripts) pass.
 - **Size**: bodies larger than ``Settings.max_body_bytes`` are refused with 413 before they are
-  read (uvicorn bounds WebSocket messages separately with ``ws_max_size``).
+  read, chunked or not (:mod:`skelfuse.server.body_limit`; uvicorn bounds WebSocket messages
+  separately with ``ws_max_size``).
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ def origin_ok(origin: str | None, host: str | None, allowed: tuple[str, ...]) ->
 
 
 class HttpGuard:
-    """ASGI middleware enforcing the token on REST mutations and the body size limit."""
+    """ASGI middleware enforcing the token on REST mutations (sizes: ``body_limit.BodyLimit``)."""
 
     def __init__(self, app: ASGIApp, settings: Settings) -> None:
         self.app = app
@@ -58,16 +59,6 @@ class HttpGuard:
             await self.app(scope, receive, send)
             return
         headers = Headers(scope=scope)
-        length = headers.get("content-length")
-        if length is not None and (
-            not length.isdigit() or int(length) > self.settings.max_body_bytes
-        ):
-            response = JSONResponse(
-                {"detail": f"request body larger than {self.settings.max_body_bytes} bytes"},
-                status_code=413,
-            )
-            await response(scope, receive, send)
-            return
         if scope["method"] in MUTATING_METHODS and not token_ok(
             self.settings.api_token, bearer(headers)
         ):
