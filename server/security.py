@@ -1,9 +1,11 @@
 """HTTP-side protection: API token, browser origins, request size.
 
 - **Token**: when ``Settings.api_token`` is set, every REST request that changes something
-  (POST, PUT, PATCH, DELETE) needs ``Authorization: Bearer <token>``, and the WebSocket feed
-  needs ``?token=<token>`` (browsers cannot set headers on a WebSocket). Reads stay open so
-  dashboards and health checks keep working. Tokens are compared in constant time.
+  (POST, PUT, PATCH, DELETE) and every read of people's data (:data:`PERSONAL_DATA_PATHS`: the
+  fused skeletons, bone lengths, recordings) needs ``Authorization: Bearer <token>``, and the
+  WebSocket feed needs ``?token=<token>`` (browsers cannot set headers on a WebSocket). Status
+  reads (health, sensors, calibration, metrics) stay open for dashboards and health checks.
+  Tokens are compared in constant time.
 - **Origins**: a browser page from another site must not read the feed through a visitor's
   browser. A WebSocket handshake whose ``Origin`` is neither the server's own host nor in
   ``Settings.allowed_origins`` is refused; clients that send no Origin (apps, scripts) pass.
@@ -24,6 +26,17 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 from skelfuse.server.settings import Settings
 
 MUTATING_METHODS = frozenset({"POST", "PUT", "PATCH", "DELETE"})
+PERSONAL_DATA_PATHS = ("/api/persons", "/api/recordings")
+"""Paths (and everything below them) whose reads return people's motion or body measurements:
+the latest fused frame, reference bone lengths, recordings and their downloads or exports."""
+
+
+def needs_token(method: str, path: str) -> bool:
+    """Whether an HTTP request needs the API token (when one is set): changes and personal data."""
+    if method.upper() in MUTATING_METHODS:
+        return True
+    path = path.rstrip("/")
+    return any(path == p or path.startswith(p + "/") for p in PERSONAL_DATA_PATHS)
 
 
 def token_ok(expected: str | None, presented: str | None) -> bool:
@@ -48,7 +61,10 @@ def origin_ok(origin: str | None, host: str | None, allowed: tuple[str, ...]) ->
 
 
 class HttpGuard:
-    """ASGI middleware enforcing the token on REST mutations (sizes: ``body_limit.BodyLimit``)."""
+    """ASGI middleware: the token on changes and personal data (:func:`needs_token`).
+
+    Body sizes are bounded by :class:`skelfuse.server.body_limit.BodyLimit`.
+    """
 
     def __init__(self, app: ASGIApp, settings: Settings) -> None:
         self.app = app
@@ -59,7 +75,7 @@ class HttpGuard:
             await self.app(scope, receive, send)
             return
         headers = Headers(scope=scope)
-        if scope["method"] in MUTATING_METHODS and not token_ok(
+        if needs_token(scope["method"], scope["path"]) and not token_ok(
             self.settings.api_token, bearer(headers)
         ):
             response = JSONResponse(

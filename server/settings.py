@@ -24,8 +24,9 @@ class Settings(HubSettings):
     ws_send_timeout_s: float = 5.0
     """A client that cannot take one message in this long is disconnected."""
     api_token: str | None = None
-    """When set, REST mutations need ``Authorization: Bearer <token>`` and the WebSocket needs
-    ``?token=<token>``; reads (GET) stay open."""
+    """When set, REST mutations and reads of people's data (``security.needs_token``) need
+    ``Authorization: Bearer <token>`` and the WebSocket needs ``?token=<token>``; status reads
+    (health, sensors, calibration, metrics) stay open."""
     allowed_origins: tuple[str, ...] = ()
     """Browser origins (``http://host:port``) allowed on the WebSocket besides the server's own."""
     max_body_bytes: int = 1024 * 1024

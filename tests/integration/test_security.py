@@ -6,6 +6,8 @@ from collections.abc import Callable
 
 import httpx
 import pytest
+from fastapi.routing import APIRoute
+from starlette.routing import Route
 from websockets.asyncio.client import connect
 from websockets.exceptions import InvalidStatus
 
@@ -30,6 +32,46 @@ def test_mutations_need_the_token_reads_do_not(guarded: LiveServer) -> None:
     right = httpx.post(url, json={"method": "auto"}, headers={"Authorization": f"Bearer {TOKEN}"})
     assert right.status_code == 409  # authorised; refused only because no sensor is connected
     assert httpx.get(guarded.http_url + "/api/health").status_code == 200
+
+
+# Reads that return people's motion or body measurements (docs/security.md); every other read
+# here is status a dashboard may show without the token. A new GET route must be added to one of
+# the two lists: the test below fails on a route in neither.
+PERSONAL_READS = {
+    "/api/persons",
+    "/api/persons/{person_id}/bones",
+    "/api/recordings",
+    "/api/recordings/{recording_id}/download",
+}
+OPEN_READS = {
+    "/api/health", "/api/sensors", "/api/skeleton", "/api/clients", "/api/calibration",
+    "/api/calibration/runs", "/api/calibration/runs/{run_id}", "/api/calibration/history",
+    "/api/calibration/export", "/api/fusion/settings", "/", "/openapi.json", "/docs",
+    "/docs/oauth2-redirect", "/redoc",
+}  # fmt: skip
+
+
+def test_every_read_of_people_needs_the_token_status_reads_do_not(guarded: LiveServer) -> None:
+    app = guarded.server.config.app
+    gets = {r.path for r in app.routes if isinstance(r, APIRoute | Route) and "GET" in r.methods}
+    assert gets - PERSONAL_READS - OPEN_READS == set(), "classify the new route(s) above"
+    for template in sorted(gets):
+        url = guarded.http_url + template.format(person_id=1, recording_id="x", run_id="x")
+        anonymous = httpx.get(url)
+        if template in PERSONAL_READS:
+            assert anonymous.status_code == 401, template
+            assert "Bearer" in anonymous.json()["detail"]
+            assert httpx.get(url, headers={"Authorization": "Bearer nope"}).status_code == 401
+        else:
+            assert anonymous.status_code in (200, 404), (template, anonymous.status_code)
+        authorised = httpx.get(url, headers={"Authorization": f"Bearer {TOKEN}"})
+        assert authorised.status_code in (200, 404), (template, authorised.status_code)
+    for path in ("/metrics", "/metrics/"):  # Prometheus scrapers carry no token
+        assert httpx.get(guarded.http_url + path, follow_redirects=True).status_code == 200
+
+
+def test_persons_is_open_without_a_token(live_server: LiveServer) -> None:
+    assert httpx.get(live_server.http_url + "/api/persons").status_code == 200
 
 
 def test_oversized_bodies_are_refused_before_reading(guarded: LiveServer) -> None:
