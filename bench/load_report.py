@@ -40,9 +40,9 @@ def median_result(runs: list[RunResult]) -> RunResult:
     return out
 
 
-def ms(value: float) -> str:
-    """A figure in ms to one decimal, a dash when there was nothing to measure."""
-    return "–" if math.isnan(value) else f"{value:.1f}"
+def ms(value: float, decimals: int = 1) -> str:
+    """A figure in ms to one decimal (or ``decimals``), a dash when there was nothing to measure."""
+    return "–" if math.isnan(value) else f"{value:.{decimals}f}"
 
 
 def print_main(r: RunResult, repeat: int) -> None:
@@ -99,10 +99,44 @@ def print_main(r: RunResult, repeat: int) -> None:
     print("|---|---|---|")
     for name, target, value in rows:
         print(f"| {name} | {target} | {value} |")
+    print_stages_live(r)
     if r.agents_late:
         print(f"\nThe agents process fell behind its schedule {r.agents_late} times.")
     for note in dict.fromkeys(r.notes):
         print(f"\nNote: {note}")
+
+
+def print_stages_live(r: RunResult) -> None:
+    """Where a fused frame's time goes, stage by stage, with where each figure comes from.
+
+    Each row is its own distribution, so the p99s do not add up; the p50s nearly do.
+    """
+    transit = r.lag_p50_ms - r.wait_p50_ms
+    rows = [
+        ("alignment wait: capture of the frame that completed the instant − `t`",
+         "agents' capture times", r.wait_p50_ms, r.wait_p99_ms),
+        ("ingest: decode + handle one agent message", "server `ingest`",
+         r.ingest_p50_ms, r.ingest_p99_ms),
+        ("fusion start − `t` (wait + transit + ingest + wake-up)", "server `lag`",
+         r.lag_p50_ms, r.lag_p99_ms),
+        ("→ transit + ingest + wake-up (p50 of lag − p50 of wait)", "derived",
+         transit, math.nan),
+        ("fusion step", "server `fusion`", r.fusion_p50_ms, r.fusion_p99_ms),
+        ("publish: build + encode once per variant, queue for every client",
+         "server `publish`", r.publish_p50_ms, r.publish_p99_ms),
+        ("`t_sent` → client receive (publish, queue, send, client decode)", "clients",
+         r.send_p50_ms, r.send_p99_ms),
+        ("capture → client, beyond the alignment wait", "clients + agents",
+         r.beyond_p50_ms, r.beyond_p99_ms),
+    ]  # fmt: skip
+    print(
+        "\nPer stage (ms; server rows from `skelfuse_live_stage_seconds` over the window, "
+        "interpolated in its buckets)\n"
+    )
+    print("| stage | measured by | p50 | p99 |")
+    print("|---|---|---|---|")
+    for name, source, p50, p99 in rows:
+        print(f"| {name} | {source} | {ms(p50, 2)} | {ms(p99, 2)} |")
 
 
 def print_scaling(results: list[RunResult], repeat: int) -> None:
@@ -113,9 +147,10 @@ def print_scaling(results: list[RunResult], repeat: int) -> None:
         "| agents | bodies | ingest/s (expected) | lost | seq gaps | fused/s | client gaps | "
         "instants skipped | "
         "raw p50 / p99 | wait p50 | beyond p50 / p99 | server beyond p50 / p99 | "
+        "ingest / fusion / publish / send p50 | "
         "server CPU % | RSS MB | stalled evicted (s) |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in results:
         c = r.config
         ev = "–" if r.stalled_evicted_after_s is None else f"{r.stalled_evicted_after_s:.1f}"
@@ -126,6 +161,8 @@ def print_scaling(results: list[RunResult], repeat: int) -> None:
             f"{ms(r.latency_p50_ms)} / {ms(r.latency_p99_ms)} | {ms(r.wait_p50_ms)} | "
             f"{ms(r.beyond_p50_ms)} / {ms(r.beyond_p99_ms)} | "
             f"{ms(r.server_beyond_p50_ms)} / {ms(r.server_beyond_p99_ms)} | "
+            f"{ms(r.ingest_p50_ms, 2)} / {ms(r.fusion_p50_ms)} / {ms(r.publish_p50_ms, 2)} / "
+            f"{ms(r.send_p50_ms)} | "
             f"{r.server_cpu_pct:.0f} | {r.server_rss_end_mb:.0f} | {ev} |"
         )
     for note in dict.fromkeys(n for r in results for n in r.notes):

@@ -28,6 +28,7 @@ from bench.load_server import (
     start_server,
     wait_for,
 )
+from bench.load_stages import Buckets, scrape_stages, window_quantile
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -76,6 +77,19 @@ class RunResult:
     beyond_p99_ms: float = math.nan
     server_beyond_p50_ms: float = math.nan
     server_beyond_p99_ms: float = math.nan
+    send_p50_ms: float = math.nan
+    """``t_sent`` → client receive (build, encode, queue, send, the client's decode)."""
+    send_p99_ms: float = math.nan
+    ingest_p50_ms: float = math.nan
+    """The server's stage histograms over the window (``server/stage_timing.py``): ingest
+    per agent message, fusion step and publish per fused frame, lag = fusion start − ``t``."""
+    ingest_p99_ms: float = math.nan
+    fusion_p50_ms: float = math.nan
+    fusion_p99_ms: float = math.nan
+    publish_p50_ms: float = math.nan
+    publish_p99_ms: float = math.nan
+    lag_p50_ms: float = math.nan
+    lag_p99_ms: float = math.nan
     p99_while_stalled_ms: float = math.nan
     p99_after_evicted_ms: float = math.nan
     server_cpu_pct: float = 0.0
@@ -116,6 +130,16 @@ def alignment_waits(
         completing = np.fmax(completing, first)
     out: FloatArray = completing - fused_t
     return out
+
+
+def stage_figures(result: RunResult, before: dict[str, Buckets], after: dict[str, Buckets]) -> None:
+    """Set ``result``'s server stage p50 / p99 from two scrapes of the stage histograms."""
+    for stage in ("ingest", "fusion", "publish", "lag"):
+        for q in (50, 99):
+            value = window_quantile(before.get(stage), after.get(stage), q / 100)
+            setattr(result, f"{stage}_p{q}_ms", value)
+    if not after:
+        result.notes.append("the server's /metrics has no skelfuse_live_stage_seconds")
 
 
 async def run_once(config: RunConfig, seed: int, log_dir: Path) -> RunResult:
@@ -172,6 +196,7 @@ async def run_once(config: RunConfig, seed: int, log_dir: Path) -> RunResult:
             )
             return t, cpu, sensors, health
 
+        stages0 = await asyncio.to_thread(scrape_stages, base)
         t0, cpu0, sensors0, health0 = await snapshot()
         result.server_rss_start_mb = proc_rss_mb(server.pid)
         rss_max = result.server_rss_start_mb
@@ -191,6 +216,7 @@ async def run_once(config: RunConfig, seed: int, log_dir: Path) -> RunResult:
                 elif port not in evicted_at:
                     evicted_at[port] = time.time()
         t1, cpu1, sensors1, health1 = await snapshot()
+        stages1 = await asyncio.to_thread(scrape_stages, base)
         result.server_rss_end_mb = proc_rss_mb(server.pid)
         result.server_rss_max_mb = max(rss_max, result.server_rss_end_mb)
         result.window_s = t1 - t0
@@ -253,6 +279,7 @@ async def run_once(config: RunConfig, seed: int, log_dir: Path) -> RunResult:
     server_share: list[float] = []
     beyond: list[float] = []
     server_beyond: list[float] = []
+    send: list[float] = []
     waits_all: list[float] = []
     evicted = min(evicted_at.values()) if evicted_at else None
     stalled_lat: list[float] = []
@@ -275,6 +302,7 @@ async def run_once(config: RunConfig, seed: int, log_dir: Path) -> RunResult:
         waits = alignment_waits(rows[:, 2], captures, offsets)
         latency.extend(lat)
         server_share.extend(rows[:, 3] - rows[:, 2])
+        send.extend(rows[:, 0] - rows[:, 3])
         ok = np.isfinite(waits)
         waits_all.extend(waits[ok])
         beyond.extend((lat - waits)[ok])
@@ -299,6 +327,9 @@ async def run_once(config: RunConfig, seed: int, log_dir: Path) -> RunResult:
     result.server_beyond_p50_ms = _pct(server_beyond, 50)
     result.server_beyond_p99_ms = _pct(server_beyond, 99)
     result.p99_while_stalled_ms = _pct(stalled_lat, 99)
+    result.send_p50_ms = _pct(send, 50)
+    result.send_p99_ms = _pct(send, 99)
+    stage_figures(result, stages0, stages1)
     result.p99_after_evicted_ms = _pct(after_lat, 99)
 
     # --- the stalled client -----------------------------------------------------------------

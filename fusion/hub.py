@@ -179,8 +179,7 @@ class FusionHub:
                 self._tap.on_hello(message.sensor_id, parts[0], now_s)
             return [reply]
         if sensor is None:
-            self.rejected_unregistered["not_registered"] += 1
-            return [ErrorMessage("not_registered", "send hello first (did the server restart?)")]
+            return self._unregistered(routing_id, message, now_s)
         sensor.last_heard_mono = now_mono
         sensor.connected = True
         match message:
@@ -210,12 +209,38 @@ class FusionHub:
                 self._reject(sensor, "unexpected_type")
         return []
 
+    def _unregistered(self, routing_id: bytes, message: Message, now_s: float) -> list[Message]:
+        """A message from a connection that holds no registration.
+
+        A frame from a connection that was registered before (its sensor went offline, e.g.
+        during a network pause) is the backlog the network held back: judged by its capture
+        time with that sensor's clock offset, a stale one is counted ``stale`` against the
+        sensor and dropped without an answer (a backlog of 70 frames must not draw 70 errors
+        and re-registrations); anything else is told to say hello first.
+        """
+        sensor_id = self._by_routing.get(routing_id)
+        known = self.sensors.get(sensor_id) if sensor_id is not None else None
+        if (
+            isinstance(message, Frame)
+            and known is not None
+            and known.routing_id == routing_id
+            and known.frame_time_problem(message, now_s) == "stale"
+        ):
+            known.frames_rejected["stale"] += 1
+            return []
+        self.rejected_unregistered["not_registered"] += 1
+        return [ErrorMessage("not_registered", "send hello first (did the server restart?)")]
+
     def _awaiting(self, sensor_id: str) -> bool:
         return self._requests is not None and self._requests.awaiting(sensor_id)
 
     def _sensor_for(self, routing_id: bytes) -> SensorState | None:
+        """The registered, online sensor of this connection, if any."""
         sensor_id = self._by_routing.get(routing_id)
-        return self.sensors.get(sensor_id) if sensor_id is not None else None
+        sensor = self.sensors.get(sensor_id) if sensor_id is not None else None
+        # An offline sensor keeps its connection's entry (to judge a backlog from it) but must
+        # say hello again before anything from it counts.
+        return sensor if sensor is not None and sensor.connected else None
 
     def _reject(self, sensor: SensorState | None, reason: str) -> None:
         if sensor is None:
@@ -256,6 +281,12 @@ class FusionHub:
             sensor.frames_received = existing.frames_received
             sensor.frames_rejected = existing.frames_rejected
             sensor.sequence_gaps = existing.sequence_gaps
+            if existing.routing_id == routing_id:
+                # The same connection (the same agent process, so the same clock) registering
+                # again after a network pause keeps its clock estimates: starting over would map
+                # its first frames with a one-way offset taken from whichever frame came first,
+                # possibly a delayed one, and fuse old data as new.
+                sensor.keep_clock_of(existing)
         self.sensors[hello.sensor_id] = sensor
         self._by_routing[routing_id] = hello.sensor_id
         logger.info(
@@ -281,8 +312,7 @@ class FusionHub:
             limit = 10 * liveness_s if self._awaiting(sensor.sensor_id) else liveness_s
             if sensor.connected and now_mono - sensor.last_heard_mono > limit:
                 logger.warning("sensor %s went silent; marked offline", sensor.sensor_id)
-                sensor.connected = False
-                self._by_routing.pop(sensor.routing_id, None)
+                sensor.connected = False  # its routing entry stays: see _unregistered
             if sensor.connected:
                 online.append(sensor)
         return online

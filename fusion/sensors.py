@@ -141,6 +141,14 @@ class SensorState:
             return "future"
         return None
 
+    def keep_clock_of(self, previous: SensorState) -> None:
+        """Take over ``previous``'s clock estimates (round trip, one-way minimum, offset): the
+        same agent on the same connection registered again, so its clock has not changed."""
+        self.round_trip = previous.round_trip
+        self._offset = previous._offset
+        self.clock_offset_s = previous.clock_offset_s
+        self.clock_source = previous.clock_source
+
     def add_frame(self, frame: Frame, received_s: float, received_mono: float) -> TimedFrame:
         """Record a frame received at ``received_s`` (server wall clock, Unix seconds)."""
         capture_s = frame.t_capture_ns / 1e9

@@ -36,6 +36,7 @@ from skelfuse.server.loop_lag import LoopLagCollector, LoopLagMonitor
 from skelfuse.server.metrics import SkelfuseCollector
 from skelfuse.server.security import HttpGuard, origin_ok, token_ok
 from skelfuse.server.settings import Settings
+from skelfuse.server.stage_timing import StageTimes, StageTimesCollector
 
 logger = logging.getLogger(__name__)
 STATIC_DIR = Path(__file__).parent / "static"
@@ -76,15 +77,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         loop_lag = LoopLagMonitor(SystemClock())
         registry.register(LoopLagCollector(loop_lag))
         app.state.loop_lag = loop_lag
+        stages = StageTimes()  # where the live path's time goes (bench/load.py reads it)
+        registry.register(StageTimesCollector(stages))
         app.state.broadcaster = broadcaster
         app.state.zmq_endpoint = socket.getsockopt_string(zmq.LAST_ENDPOINT)
         logger.info("agents connect to %s", app.state.zmq_endpoint)
         tasks = [
-            asyncio.create_task(ingest_loop(socket, hub, settings.curve), name="ingest"),
+            asyncio.create_task(ingest_loop(socket, hub, settings.curve, stages), name="ingest"),
             asyncio.create_task(
                 liveness_loop(socket, hub, settings.heartbeat_interval_s), name="liveness"
             ),
-            asyncio.create_task(fusion_loop(hub, broadcaster), name="fusion"),
+            asyncio.create_task(fusion_loop(hub, broadcaster, stages), name="fusion"),
             asyncio.create_task(loop_lag.run(), name="loop-lag"),
         ]
         try:

@@ -21,6 +21,7 @@ from skelfuse.protocol.constants import MAX_MESSAGE_BYTES
 from skelfuse.protocol.wire import Heartbeat, Message, encode
 from skelfuse.server.auth import secure_router
 from skelfuse.server.broadcast import Broadcaster
+from skelfuse.server.stage_timing import StageTimes
 
 logger = logging.getLogger(__name__)
 
@@ -56,17 +57,26 @@ async def send_to(socket: zmq.asyncio.Socket, routing_id: bytes, message: Messag
         await socket.send_multipart([routing_id, encode(message)], flags=zmq.NOBLOCK)
 
 
-async def ingest_loop(socket: zmq.asyncio.Socket, hub: FusionHub, authenticated: bool) -> None:
+async def ingest_loop(
+    socket: zmq.asyncio.Socket,
+    hub: FusionHub,
+    authenticated: bool,
+    stages: StageTimes | None = None,
+) -> None:
+    """Receive and handle every agent message; ``stages`` (optional) times each one."""
+    stages = StageTimes() if stages is None else stages
     while True:
         frames: list[Any] = await socket.recv_multipart(copy=False)
         routing_id = frames[0].bytes
         payload = [frame.bytes for frame in frames[1:]]
         # With CurveZMQ, the ZAP handler names the sensor this connection's key belongs to.
         user_id = frames[1].get("User-Id") if authenticated and len(frames) > 1 else None
+        started = time.perf_counter()
         try:
             replies = hub.handle_message(
                 routing_id, payload, time.time(), time.monotonic(), user_id=user_id
             )
+            stages.ingest.record(time.perf_counter() - started)
         except Exception:  # a bug in handling one message must not stop ingest
             logger.exception("failed to handle a message; dropped")
             hub.rejected_unregistered["internal_error"] += 1
@@ -88,16 +98,25 @@ async def liveness_loop(socket: zmq.asyncio.Socket, hub: FusionHub, interval_s: 
                 await send_to(socket, sensor.routing_id, Heartbeat(time.time_ns()))
 
 
-async def fusion_loop(hub: FusionHub, broadcaster: Broadcaster) -> None:
-    """Fuse as soon as every live sensor has moved on; publish to WebSocket clients."""
+async def fusion_loop(
+    hub: FusionHub, broadcaster: Broadcaster, stages: StageTimes | None = None
+) -> None:
+    """Fuse as soon as every live sensor has moved on; publish to WebSocket clients.
+    ``stages`` (optional) times each fusion step that produced a frame, and its publishing."""
+    stages = StageTimes() if stages is None else stages
     while True:
         with contextlib.suppress(TimeoutError):
             await asyncio.wait_for(hub.frame_arrived.wait(), timeout=0.05)
         hub.frame_arrived.clear()
+        started = time.perf_counter()
         try:
             fused = hub.fuse_step(time.time())
         except Exception:
             logger.exception("fusion step failed; skipped")
             continue
         if fused is not None:
+            published = time.perf_counter()
             broadcaster.publish(fused, time.time(), time.monotonic())
+            stages.fusion.record(published - started)
+            stages.publish.record(time.perf_counter() - published)
+            stages.lag.record(fused.fused_at_s - fused.t_s)
