@@ -32,6 +32,7 @@ from skelfuse.server.calibration_runs import CalibrationService
 from skelfuse.server.clock import SystemClock
 from skelfuse.server.errors import HANDLED_ERRORS, error_response, invalid_body_response
 from skelfuse.server.ingest import fusion_loop, ingest_loop, liveness_loop, open_router, send_to
+from skelfuse.server.log_redaction import redact_uvicorn_logs
 from skelfuse.server.loop_lag import LoopLagCollector, LoopLagMonitor
 from skelfuse.server.metrics import SkelfuseCollector
 from skelfuse.server.security import HttpGuard, origin_ok, token_ok
@@ -45,6 +46,7 @@ STATIC_DIR = Path(__file__).parent / "static"
 def create_app(settings: Settings | None = None) -> FastAPI:
     """Build the server. Sockets open and tasks start in the lifespan (on server start-up)."""
     settings = settings or Settings()
+    redact_uvicorn_logs()  # the feed's ?token= must not reach the access log (issue 12)
     registry = CollectorRegistry()  # per app, so tests can run several servers in one process
 
     @asynccontextmanager

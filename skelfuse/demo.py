@@ -146,6 +146,32 @@ def _terminate(processes: list[subprocess.Popen[bytes]], timeout_s: float = 5.0)
             process.wait()
 
 
+def _show_viewer_address(url: str, token: str, *, chosen: bool, data_dir: Path) -> None:
+    """Tell the user how to open the viewer without writing the token to the log.
+
+    Logs end up in files, journals and CI output (issue 12: no secret in any log line), so the
+    log names where the token is: the user's own ``--token``, or a random one saved in
+    ``<data>/api-token`` (owner-only). An interactive terminal also gets the whole address,
+    written to the terminal itself rather than logged.
+    """
+    if chosen:
+        where = "your --token"
+    else:
+        token_file = data_dir / "api-token"
+        token_file.write_text(token + "\n", encoding="utf-8")
+        token_file.chmod(0o600)
+        where = f"the token in {token_file}"
+    logger.info(
+        "open the viewer at %s/?token=<%s>  (REST docs at %s/docs; changes need "
+        "'Authorization: Bearer <token>') - Ctrl-C to stop",
+        url,
+        where,
+        url,
+    )
+    if sys.stderr.isatty():  # a person is watching: the address, to click
+        print(f"viewer: {url}/?token={token}", file=sys.stderr, flush=True)
+
+
 def run_demo(
     *,
     sensors: int = 3,
@@ -177,6 +203,7 @@ def run_demo(
     agent_host = "127.0.0.1" if host in ("0.0.0.0", "::") else host
     # Secure like a real rig: every simulated agent gets its own CurveZMQ key (docs/security.md).
     layout = sensor_layout(sensors)
+    token_given = token is not None
     token = token or secrets.token_urlsafe(12)
     keys = key_paths(data_dir)
     create_server_keys(data_dir)
@@ -188,9 +215,10 @@ def run_demo(
     server = subprocess.Popen(
         [
             *python, "server", "--http", f"{host}:{port}", "--zmq", zmq_bind,
-            # "--token=…": a random token may begin with "-", which argparse would take for a flag.
-            "--data", str(data_dir), "--curve", f"--token={token}",
+            "--data", str(data_dir), "--curve",
         ],
+        # The token goes in the environment: a command line is readable by every local user.
+        env={**os.environ, "SKELFUSE_TOKEN": token},
         **own_group,
     )  # fmt: skip
     processes: list[subprocess.Popen[bytes]] = [server]
@@ -241,14 +269,7 @@ def run_demo(
                 )
             )
         logger.info("demo running: %d simulated sensors, %d people", sensors, persons)
-        logger.info(
-            "open the viewer at %s/?token=%s  (REST docs at %s/docs; changes need "
-            "'Authorization: Bearer %s') - Ctrl-C to stop",
-            url,
-            token,
-            url,
-            token,
-        )
+        _show_viewer_address(url, token, chosen=token_given, data_dir=data_dir)
         deadline = None if duration_s is None else time.monotonic() + duration_s
         if calibration == "auto" and not calibrate(url, sensors, stop, token):
             if stop.is_set():

@@ -50,6 +50,8 @@ class DemoStack:
     persons: int
     process: subprocess.Popen[bytes]
     log_path: Path
+    data_dir: Path
+    """The demo's data folder: its CurveZMQ keys (tests check no secret reaches the log)."""
 
     @property
     def token(self) -> str:
@@ -82,15 +84,16 @@ def demo_stack(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DemoStack]:
     on free loopback ports; stopped with Ctrl-C (SIGINT) at the end."""
     http_port, zmq_port = free_port(), free_port()
     log_path = tmp_path_factory.mktemp("demo") / "demo.log"
+    data_dir = log_path.parent / "data"
     log = log_path.open("wb")
     process = subprocess.Popen(
         [sys.executable, "-m", "skelfuse", "demo", "--sensors", "3", "--persons", "2",
          "--http", f"127.0.0.1:{http_port}", "--zmq-port", str(zmq_port), "--duration", "300",
-         f"--token={DEMO_TOKEN}"],
+         f"--token={DEMO_TOKEN}", "--data", str(data_dir)],
         stdout=log, stderr=subprocess.STDOUT, cwd=PROJECT_ROOT,
     )  # fmt: skip
     stack = DemoStack(f"http://127.0.0.1:{http_port}", f"ws://127.0.0.1:{http_port}", zmq_port,
-                      3, 2, process, log_path)  # fmt: skip
+                      3, 2, process, log_path, data_dir)  # fmt: skip
 
     def fused() -> bool:
         if process.poll() is not None:  # no point waiting two minutes for a demo that has exited

@@ -57,8 +57,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _configure_logging(level: str) -> None:
+    # Imports only logging and re (no server dependency): every command masks secrets.
+    from skelfuse.server.log_redaction import RedactSecrets
+
     logging.basicConfig(
         level=getattr(logging, level.upper(), logging.INFO),
         format="%(asctime)s %(levelname)-7s %(name)s: %(message)s",
         datefmt="%H:%M:%S",
     )
+    for handler in logging.getLogger().handlers:  # whatever logger a token or key reaches it by
+        handler.addFilter(RedactSecrets())

@@ -11,8 +11,10 @@ import time
 import urllib.request
 from pathlib import Path
 
+import httpx
 import numpy as np
 import pytest
+import zmq.auth
 from websockets.asyncio.client import connect
 
 from skelfuse.agent.sim.performer import ProceduralPerformer
@@ -92,6 +94,34 @@ def test_demo_reports_sensors_and_health(demo_stack: DemoStack) -> None:
     health = demo_stack.get_json("/api/health")
     assert health["status"] == "ok"
     assert health["sensors_online"] == 3
+
+
+async def test_no_token_or_secret_key_in_any_log_line(demo_stack: DemoStack) -> None:
+    """The demo's whole output (server, agents, the demo itself), after the token was used on
+    the WebSocket (``?token=``, which uvicorn logs) and on REST, holds neither the token nor any
+    CurveZMQ secret key. Last of the tests on the shared demo: it stops it, so the shutdown's
+    lines are read too."""
+    async with connect(f"{demo_stack.ws_url}/ws/skeletons?token={demo_stack.token}") as ws:
+        await ws.recv()
+    bearer = {"Authorization": f"Bearer {demo_stack.token}"}
+    async with httpx.AsyncClient(base_url=demo_stack.http_url, headers=bearer) as client:
+        response = await client.get(f"/api/persons?token={demo_stack.token}")
+        assert response.status_code == 200
+    demo_stack.process.send_signal(signal.SIGINT)
+    assert demo_stack.process.wait(timeout=30) == 0
+    log = demo_stack.log_path.read_text(errors="replace")
+    secrets = {"token": demo_stack.token}
+    for path in sorted((demo_stack.data_dir / "keys").rglob("*.key_secret")):
+        _, secret = zmq.auth.load_certificate(path)
+        assert secret is not None
+        secrets[path.name] = secret.decode()
+    assert len(secrets) == 1 + 1 + 3, secrets.keys()  # the token, the server's and 3 agents' keys
+    leaked = [name for name, value in secrets.items() if value in log]
+    assert not leaked, f"{leaked} appear in the demo's log"
+    # The lines that carried the token are there, masked: the grep looked at the right output.
+    assert "/ws/skeletons?token=***" in log, log[-3000:]
+    assert "/api/persons?token=***" in log, log[-3000:]
+    assert "open the viewer at" in log and "your --token" in log
 
 
 def _children(parent: int) -> list[int]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 
 import httpx
@@ -95,6 +96,33 @@ async def test_websocket_needs_token_and_a_trusted_origin(guarded: LiveServer) -
                    "http://dashboard.lan:3000"):  # fmt: skip
         async with connect(feed + f"?token={TOKEN}", origin=origin) as ws:  # type: ignore[arg-type]
             assert '"skeleton"' in str(await ws.recv())
+
+
+async def test_the_token_is_not_in_the_server_logs(
+    guarded: LiveServer, caplog: pytest.LogCaptureFixture
+) -> None:
+    """uvicorn logs every request's path with its query string (access log) and every WebSocket
+    handshake (``uvicorn.error``): the feed's ``?token=`` must be masked in both."""
+    loggers = [logging.getLogger(name) for name in ("uvicorn.access", "uvicorn.error")]
+    levels = [logger.level for logger in loggers]
+    for logger in loggers:  # uvicorn's own loggers do not propagate to caplog's root handler
+        logger.addHandler(caplog.handler)
+        logger.setLevel(logging.INFO)
+    try:
+        async with connect(guarded.ws_url + f"/ws/skeletons?format=json&token={TOKEN}") as ws:
+            await ws.recv()
+        bearer = {"Authorization": f"Bearer {TOKEN}"}
+        async with httpx.AsyncClient(base_url=guarded.http_url, headers=bearer) as client:
+            assert (await client.get(f"/api/persons?token={TOKEN}")).status_code == 200
+            await client.get(f"/api/health?token={TOKEN}&x=1")
+    finally:
+        for logger, level in zip(loggers, levels, strict=True):
+            logger.removeHandler(caplog.handler)
+            logger.setLevel(level)
+    assert TOKEN not in caplog.text
+    assert "/ws/skeletons?format=json&token=***" in caplog.text  # the handshake line is there
+    assert "/api/persons?token=***" in caplog.text  # and the access lines
+    assert "/api/health?token=***&x=1" in caplog.text
 
 
 def test_open_server_stays_open(live_server: LiveServer) -> None:
