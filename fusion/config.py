@@ -102,9 +102,33 @@ def fusion_settings_from_mapping(
     weights = changes.get("state_weights")
     if isinstance(weights, tuple) and any(w > 1 for w in weights):
         problems.append(f"state_weights: each weight must be in [0, 1], got {list(weights)}")
+    problems += _alignment_problems(changes)
     if problems:
         raise FusionConfigError("; ".join(problems))
     return dataclasses.replace(base or FusionSettings(), **changes)  # type: ignore[arg-type]
+
+
+MAX_ALIGNMENT_S = 0.1
+"""The alignment bounds' upper limit (seconds): the hub's ``max_wait_s``; a deadline later than
+that never fires, and beyond it a sensor's motion is no longer a straight line."""
+
+
+def _alignment_problems(changes: Mapping[str, object]) -> list[str]:
+    """The alignment bounds (fusion/alignment.py) out of range: the deadline in (0, 0.1]
+    seconds, the extrapolation in [0, 0.1] (0: a late sensor is always left out)."""
+    problems = []
+    deadline = changes.get("alignment_deadline_s")
+    if isinstance(deadline, float) and not 0.0 < deadline <= MAX_ALIGNMENT_S:
+        problems.append(
+            f"alignment_deadline_s: expected seconds in (0, {MAX_ALIGNMENT_S}], got {deadline!r}"
+        )
+    ahead = changes.get("alignment_max_extrapolation_s")
+    if isinstance(ahead, float) and ahead > MAX_ALIGNMENT_S:
+        problems.append(
+            f"alignment_max_extrapolation_s: expected seconds in [0, {MAX_ALIGNMENT_S}], "
+            f"got {ahead!r}"
+        )
+    return problems
 
 
 def load_fusion_settings(path: str | Path) -> FusionSettings:

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import math
 import time
 from collections import Counter
 from dataclasses import dataclass
@@ -23,7 +22,9 @@ from typing import Protocol
 
 from skelfuse import __version__
 from skelfuse.calibration.store import Calibration
+from skelfuse.fusion.alignment import Alignment, live_timings
 from skelfuse.fusion.drift import DriftMonitor
+from skelfuse.fusion.extrapolation import views_with_late
 from skelfuse.fusion.pipeline import FusionPipeline
 from skelfuse.fusion.sensors import SensorState, new_sensor
 from skelfuse.fusion.settings import HubSettings
@@ -78,6 +79,8 @@ class FusedFrame:
     t_s: the instant fused (capture time on the server's clock, Unix seconds).
     fused_at_s: when fusion ran (server clock).
     raw: every sensor's bodies at ``t_s`` in the world frame (for viewers and debugging).
+    extrapolated: ``(sensor_id, seconds)`` for each sensor late at its deadline and extrapolated
+        that far to ``t_s`` (``alignment = "deadline"``; empty otherwise).
     """
 
     seq: int
@@ -85,6 +88,7 @@ class FusedFrame:
     fused_at_s: float
     persons: tuple[FusedPerson, ...]
     raw: tuple[View, ...]
+    extrapolated: tuple[tuple[str, float], ...] = ()
 
 
 class FusionHub:
@@ -98,7 +102,11 @@ class FusionHub:
         self.latest: FusedFrame | None = None
         self.frame_arrived = asyncio.Event()
         self._seq = 0
-        self._last_fused_t: float = 0.0
+        f = settings.fusion
+        self.alignment = Alignment(
+            f.alignment, settings.output_hz, f.alignment_deadline_s, f.alignment_max_extrapolation_s
+        )
+        """The output grid and when its next instant is fused (its ``due_s``: the deadline)."""
         self.started_s = time.time()
         self._requests: PendingRequests | None = None
         self._tap: MessageTap | None = None
@@ -339,39 +347,32 @@ class FusionHub:
     # --- fusion ---------------------------------------------------------------------------
 
     def fuse_step(self, now_s: float) -> FusedFrame | None:
-        """Fuse the next instant of the output grid once every live sensor has data past it.
+        """Fuse the next instant of the output grid when the alignment policy says it is due
+        (``FusionSettings.alignment``, :mod:`skelfuse.fusion.alignment`; None until then).
 
-        Output instants lie on a fixed grid (``output_hz``, on the server clock), so the output
-        rate is the sensors' rate however many sensors there are, and each sensor contributes
-        a sample interpolated to exactly that instant. A sensor more than ``max_wait_s`` behind
-        is left out rather than holding everyone back; after a stall the grid jumps to the
-        newest ready instant instead of fusing stale ones. None when nothing is ready.
-        """
+        Instants lie on a grid (``output_hz``, server clock), so the output rate is the sensors'
+        rate however many sensors there are; each sensor contributes a sample interpolated (late
+        at a deadline: extrapolated) to exactly that instant."""
         s = self.settings
-        newest = [
-            t
-            for sensor in self.sensors.values()
-            if sensor.connected
-            and (t := sensor.latest_time()) is not None
-            and t >= now_s - s.max_wait_s
-        ]
-        if not newest:
-            return None
-        ready_until = min(newest)
-        period = 1.0 / s.output_hz
-        next_t = self._last_fused_t + period
-        if next_t < ready_until - 2 * period:
-            next_t = math.floor(ready_until / period) * period  # start, or resync after a stall
-        if next_t > ready_until:
-            return None
-        t_target = next_t
-        self._last_fused_t = t_target
-        started = time.perf_counter()
-        persons, views = self.pipeline.step(
-            self.sensors.values(), self._stored_pose, t_target, s.interpolation_gap_s
+        instant = self.alignment.next_instant(
+            live_timings(self.sensors.values(), now_s, s.max_wait_s), now_s
         )
+        if instant is None:
+            return None
+        t_target = instant.t_s
+        started = time.perf_counter()
+        if instant.late or instant.left_out:
+            views = views_with_late(
+                self.sensors.values(), self._stored_pose, t_target, s.interpolation_gap_s,
+                dict(instant.late), instant.left_out,
+            )  # fmt: skip
+            persons = self.pipeline.update(views, t_target)
+        else:
+            persons, views = self.pipeline.step(
+                self.sensors.values(), self._stored_pose, t_target, s.interpolation_gap_s
+            )
         self._seq += 1
-        fused = FusedFrame(self._seq, t_target, now_s, tuple(persons), tuple(views))
+        fused = FusedFrame(self._seq, t_target, now_s, tuple(persons), tuple(views), instant.late)
         self.latest = fused
         if self.drift is not None:
             self.drift.observe(t_target, fused.persons)

@@ -205,6 +205,20 @@ class FusionSettings:
     turned over (fusion.labels.views_alone). 1: always the whole person (the default before
     2026-11-22); 2 is the default."""
 
+    # --- time alignment: when an output instant is fused (fusion/alignment.py; issue 11 item 1) --
+    alignment: Literal["aligned", "phased", "deadline"] = "aligned"
+    """When the hub fuses an output instant (docs/fusion.md §2): ``aligned`` once every live
+    sensor has a frame at or after it, on a grid of phase 0 (the rule before issue 11, and what
+    offline replay always uses); ``phased`` the same rule on a grid whose phase follows the
+    sensors' capture phases (less waiting, same output quality); ``deadline`` as ``phased``, but
+    at the latest ``alignment_deadline_s`` after the instant, late sensors extrapolated."""
+    alignment_deadline_s: float = 0.010
+    """``deadline``: an instant is fused at the latest this long after it (server clock,
+    seconds); it must cover the agents' usual delivery delay (capture to the server)."""
+    alignment_max_extrapolation_s: float = 0.034
+    """``deadline``: a late sensor's newest frame is extrapolated to the instant by at most this
+    much (seconds, about one frame period at 30 fps); a sensor further behind is left out."""
+
 
 @dataclass(frozen=True, slots=True)
 class HubSettings:

@@ -59,7 +59,11 @@ class FeedView(Protocol):
 
 
 class FeedFrame(Protocol):
-    """One fusion step's result (``skelfuse.fusion.hub.FusedFrame``); ``t_s`` in Unix seconds."""
+    """One fusion step's result (``skelfuse.fusion.hub.FusedFrame``); ``t_s`` in Unix seconds.
+
+    extrapolated: ``(sensor_id, seconds)`` per sensor extrapolated to ``t_s`` (late at the
+    ``deadline`` alignment's deadline); empty when every sensor was interpolated.
+    """
 
     @property
     def seq(self) -> int: ...
@@ -69,6 +73,8 @@ class FeedFrame(Protocol):
     def persons(self) -> Sequence[FeedPerson]: ...
     @property
     def raw(self) -> Sequence[FeedView]: ...
+    @property
+    def extrapolated(self) -> Sequence[tuple[str, float]]: ...
 
 
 def joints_json(joints: npt.NDArray[np.floating], decimals: int = 4) -> list[list[float] | None]:
@@ -169,6 +175,8 @@ def frame_json(
     if sent_at_s is not None:
         message["t_sent"] = round(sent_at_s, 6)
     message["persons"] = persons_json(frame.persons)
+    if frame.extrapolated:  # only then: frames fused with every sensor on time stay as before
+        message["extrapolated"] = {sensor: round(s, 4) for sensor, s in frame.extrapolated}
     if include_raw:
         message["raw"] = [view_json(v) for v in frame.raw]
     return message

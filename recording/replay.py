@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TextIO
 
@@ -62,7 +62,9 @@ def replay(
 
     Args:
         path: a ``.sfrec`` recording.
-        settings: fusion settings (default: the server's defaults).
+        settings: fusion settings (default: the server's defaults). The alignment is always
+            ``aligned``: offline every sensor's frames are there, so waiting for all costs
+            nothing, and a deadline (a wall-clock timer live) has no meaning.
         stats: filled in while replaying (records, frames, fused frames, time span).
         strict: refuse a truncated recording instead of replaying its readable part.
 
@@ -72,7 +74,9 @@ def replay(
     stats = stats if stats is not None else ReplayStats()
     with RecordingReader(path, strict=strict) as reader:
         stats.read = reader.status
-        hub = FusionHub(settings or HubSettings(), calibration_of(reader.header))
+        settings = settings or HubSettings()
+        offline = replace(settings, fusion=replace(settings.fusion, alignment="aligned"))
+        hub = FusionHub(offline, calibration_of(reader.header))
         liveness_every_s = hub.settings.heartbeat_interval_s / 2
         next_liveness: float | None = None
         t0: float | None = None

@@ -98,15 +98,30 @@ async def liveness_loop(socket: zmq.asyncio.Socket, hub: FusionHub, interval_s: 
                 await send_to(socket, sensor.routing_id, Heartbeat(time.time_ns()))
 
 
+IDLE_WAKE_S = 0.05
+"""The fusion loop wakes at least this often (seconds), frames or not."""
+
+
+def wake_in_s(hub: FusionHub, now_s: float) -> float:
+    """How long the fusion loop may sleep before the next fusion step (seconds): until a frame
+    arrives, or at most until the pending instant's deadline (``alignment = "deadline"``: a
+    timer, so a late sensor delays the instant only until then), or :data:`IDLE_WAKE_S`."""
+    due = hub.alignment.due_s
+    if due is None:
+        return IDLE_WAKE_S
+    return min(IDLE_WAKE_S, max(0.0, due - now_s))
+
+
 async def fusion_loop(
     hub: FusionHub, broadcaster: Broadcaster, stages: StageTimes | None = None
 ) -> None:
-    """Fuse as soon as every live sensor has moved on; publish to WebSocket clients.
+    """Fuse each instant when the alignment policy says it is due (every live sensor has moved
+    on, or its deadline passed); publish to WebSocket clients.
     ``stages`` (optional) times each fusion step that produced a frame, and its publishing."""
     stages = StageTimes() if stages is None else stages
     while True:
         with contextlib.suppress(TimeoutError):
-            await asyncio.wait_for(hub.frame_arrived.wait(), timeout=0.05)
+            await asyncio.wait_for(hub.frame_arrived.wait(), timeout=wake_in_s(hub, time.time()))
         hub.frame_arrived.clear()
         started = time.perf_counter()
         try:

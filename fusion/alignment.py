@@ -1,0 +1,278 @@
+"""When to fuse the next output instant: the hub's alignment policy (docs/fusion.md §2).
+
+Output instants lie on a grid of ``output_hz`` on the server clock. Each policy decides, given
+when each live sensor's newest frame was captured, whether the next instant can be fused now:
+
+- ``aligned``: the grid has phase 0; an instant is fused once every live sensor has a frame at
+  or after it (each sensor is then interpolated, never extrapolated). The wait is set by the
+  sensor whose capture phase comes last after the grid's: up to one frame period.
+- ``phased``: the same rule, on a grid whose phase follows the sensors' capture phases. The
+  phase is chosen so that the expected wait for the last sensor is smallest, from each sensor's
+  capture phase and delivery delay estimated over the frames seen (re-chosen every
+  :data:`REPHASE_EVERY_S`, and only for a gain of :data:`REPHASE_GAIN_S`, so the grid does not
+  hop on noise). Which instants are fused changes; how each is fused does not.
+- ``deadline``: as ``phased``, but an instant is also fused when ``deadline_s`` has passed since
+  it, whoever has reported: a sensor whose newest frame is before the instant is *late*, and is
+  extrapolated to it when its newest frame is at most ``max_extrapolation_s`` before the
+  instant, otherwise left out of that instant.
+
+Pure logic on times: nothing here reads a clock (the hub passes ``now_s``, server clock, Unix
+seconds), so tests drive it with a clock of their own.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from statistics import median
+from typing import Literal
+
+from skelfuse.fusion.sensors import SensorState
+
+Policy = Literal["aligned", "phased", "deadline"]
+
+REPHASE_EVERY_S = 1.0
+"""How often (server seconds) the grid's phase is re-chosen from the sensors' phases."""
+REPHASE_GAIN_S = 0.001
+"""A new phase is taken only when it cuts the expected wait by more than this (hysteresis)."""
+PHASE_MARGIN_S = 0.0005
+"""The grid is put this much before the sensor phase it is aligned with, so that the estimate's
+noise does not make that sensor's frame miss the instant by a hair (a whole period's wait)."""
+PHASE_SAMPLES = 60
+"""Frames per sensor the phase and delay estimates are taken over (2 s at 30 fps)."""
+
+
+@dataclass(frozen=True, slots=True)
+class SensorTiming:
+    """One live sensor as the policy sees it.
+
+    newest_s: capture time of its newest frame (server clock, Unix seconds).
+    period_s: its nominal frame period (seconds).
+    """
+
+    sensor_id: str
+    newest_s: float
+    period_s: float
+
+
+def live_timings(
+    sensors: Iterable[SensorState], now_s: float, max_wait_s: float
+) -> list[SensorTiming]:
+    """The connected sensors whose newest frame is at most ``max_wait_s`` old at ``now_s``
+    (server clock): those the next instant waits for; one silent for longer holds nobody back."""
+    return [
+        SensorTiming(sensor.sensor_id, t, 1.0 / max(sensor.nominal_fps, 1.0))
+        for sensor in sensors
+        if sensor.connected and (t := sensor.latest_time()) is not None and t >= now_s - max_wait_s
+    ]
+
+
+@dataclass(frozen=True, slots=True)
+class Instant:
+    """An output instant to fuse now.
+
+    t_s: the instant (server clock, Unix seconds).
+    late: ``(sensor_id, seconds)`` for each sensor whose newest frame is that much before
+        ``t_s``, to be extrapolated to it (``deadline`` only; empty when all are on time).
+    left_out: the sensors further behind than the extrapolation bound, not fused this instant.
+    """
+
+    t_s: float
+    late: tuple[tuple[str, float], ...] = ()
+    left_out: tuple[str, ...] = ()
+
+
+@dataclass(slots=True)
+class _SensorPhase:
+    """What has been seen of one sensor: capture times and how long after capture each frame
+    was first seen by the policy (its delivery delay as fusion experiences it)."""
+
+    newest_s: float = -math.inf
+    captures: deque[float] = field(default_factory=lambda: deque(maxlen=PHASE_SAMPLES))
+    delays: deque[float] = field(default_factory=lambda: deque(maxlen=PHASE_SAMPLES))
+
+
+def circular_phase(times_s: Sequence[float], period_s: float) -> float:
+    """The mean phase of ``times_s`` modulo ``period_s`` (seconds in [0, period)), as the angle
+    of the mean of unit vectors, so that phases either side of 0 average to 0, not period/2.
+
+    Raises:
+        ValueError: ``times_s`` is empty.
+    """
+    if not times_s:
+        raise ValueError("no times to take a phase of")
+    origin = times_s[0]  # Unix seconds are large: take phases of differences (precision)
+    omega = 2.0 * math.pi / period_s
+    c = sum(math.cos(omega * (t - origin)) for t in times_s)
+    s = sum(math.sin(omega * (t - origin)) for t in times_s)
+    return (origin + math.atan2(s, c) / omega) % period_s
+
+
+def expected_wait(phase_s: float, sensors: Sequence[tuple[float, float, float]]) -> float:
+    """How long after an instant of a grid of phase ``phase_s`` the last sensor's frame at or
+    after it is seen (seconds): the max over sensors of (their next capture after the instant)
+    + (their delay). ``sensors``: (capture phase, period, delay) each, seconds."""
+    return max((capture - phase_s) % period + delay for capture, period, delay in sensors)
+
+
+def best_phase(sensors: Sequence[tuple[float, float, float]], grid_period_s: float) -> float:
+    """The grid phase in [0, grid period) with the smallest :func:`expected_wait`.
+
+    The wait falls as the grid phase moves later until it passes a sensor's capture phase
+    (that sensor then waits a whole period), so the best phase is at one of the sensors'
+    capture phases (every one of a faster sensor's within the grid period), less
+    :data:`PHASE_MARGIN_S`.
+
+    Raises:
+        ValueError: ``sensors`` is empty.
+    """
+    if not sensors:
+        raise ValueError("no sensors to choose a phase from")
+    candidates = [
+        (capture + k * period - PHASE_MARGIN_S) % grid_period_s
+        for capture, period, _ in sensors
+        for k in range(max(1, round(grid_period_s / period)))
+    ]
+    return min(candidates, key=lambda phase: expected_wait(phase, sensors))
+
+
+class Alignment:
+    """The output grid and the policy deciding when its next instant is fused.
+
+    Args:
+        policy: ``aligned``, ``phased`` or ``deadline`` (module docstring).
+        output_hz: instants per second.
+        deadline_s: ``deadline``: fuse at the latest this long after the instant.
+        max_extrapolation_s: ``deadline``: the furthest a late sensor is extrapolated.
+    """
+
+    def __init__(
+        self,
+        policy: Policy,
+        output_hz: float,
+        deadline_s: float = 0.010,
+        max_extrapolation_s: float = 0.034,
+    ) -> None:
+        self.policy = policy
+        self.period_s = 1.0 / output_hz
+        self.deadline_s = deadline_s
+        self.max_extrapolation_s = max_extrapolation_s
+        self.phase_s = 0.0
+        """The grid's phase (seconds in [0, period)): instants are ``phase_s + n · period_s``."""
+        self._last_t = 0.0
+        self._sensors: dict[str, _SensorPhase] = {}
+        self._next_rephase_s = -math.inf
+        self._due_s: float | None = None
+
+    @property
+    def due_s(self) -> float | None:
+        """When the pending instant is fused whatever arrives (server clock): its deadline.
+        None under ``aligned`` / ``phased``, or while nothing is pending."""
+        return self._due_s
+
+    def next_instant(self, sensors: Sequence[SensorTiming], now_s: float) -> Instant | None:
+        """The instant to fuse at ``now_s``, or None when it must wait (or nothing is live).
+
+        The instant returned is taken: the next call looks for the one after it. After a stall
+        the grid jumps to the newest fusable instant instead of fusing stale ones.
+
+        Args:
+            sensors: the live sensors (a sensor silent for longer than the hub's ``max_wait_s``
+                is not live and holds nobody back).
+            now_s: the server clock, Unix seconds.
+        """
+        if not sensors:
+            self._due_s = None
+            return None
+        ready_until = min(s.newest_s for s in sensors)
+        if self.policy == "aligned":
+            return self._aligned(ready_until)
+        self._observe(sensors, now_s)
+        period = self.period_s
+        fusable = ready_until
+        if self.policy == "deadline":
+            fusable = max(ready_until, now_s - self.deadline_s)
+        next_t = self._grid_point(self._last_t + period)
+        if next_t < fusable - 2 * period:  # start, or resync after a stall
+            next_t = self._grid_floor(fusable)
+        if next_t > ready_until:
+            if self.policy == "deadline" and now_s >= next_t + self.deadline_s:
+                instant = self._take(self._late_instant(next_t, sensors), period)
+                # Nobody within the bound (every sensor stalled): skip the instant rather than
+                # publish a frame without anyone in it.
+                on_time = len(sensors) - len(instant.late) - len(instant.left_out)
+                return instant if on_time or instant.late else None
+            self._due_s = next_t + self.deadline_s if self.policy == "deadline" else None
+            return None
+        return self._take(Instant(next_t), period)
+
+    # --- the rule before issue 11, kept to the bit ----------------------------------------------
+
+    def _aligned(self, ready_until: float) -> Instant | None:
+        period = self.period_s
+        next_t = self._last_t + period
+        if next_t < ready_until - 2 * period:
+            next_t = math.floor(ready_until / period) * period  # start, or resync after a stall
+        if next_t > ready_until:
+            return None
+        self._last_t = next_t
+        return Instant(next_t)
+
+    # --- the phased grid and the deadline ---------------------------------------------------
+
+    def _grid_point(self, t_s: float) -> float:
+        """The grid instant nearest ``t_s`` (after a phase change, the next instant is the one
+        nearest a period after the last: the interval is between half and 1.5 periods once)."""
+        return self.phase_s + round((t_s - self.phase_s) / self.period_s) * self.period_s
+
+    def _grid_floor(self, t_s: float) -> float:
+        """The last grid instant at or before ``t_s``."""
+        return self.phase_s + math.floor((t_s - self.phase_s) / self.period_s) * self.period_s
+
+    def _take(self, instant: Instant, period: float) -> Instant:
+        self._last_t = instant.t_s
+        following = self._grid_point(instant.t_s + period)
+        self._due_s = following + self.deadline_s if self.policy == "deadline" else None
+        return instant
+
+    def _late_instant(self, t_s: float, sensors: Sequence[SensorTiming]) -> Instant:
+        late: list[tuple[str, float]] = []
+        left_out: list[str] = []
+        for sensor in sensors:
+            behind = t_s - sensor.newest_s
+            if behind <= 0.0:
+                continue
+            if behind <= self.max_extrapolation_s:
+                late.append((sensor.sensor_id, behind))
+            else:
+                left_out.append(sensor.sensor_id)
+        return Instant(t_s, tuple(late), tuple(left_out))
+
+    def _observe(self, sensors: Sequence[SensorTiming], now_s: float) -> None:
+        """Note each sensor's new frames (capture time, delay until seen); re-choose the grid's
+        phase every :data:`REPHASE_EVERY_S`."""
+        for sensor in sensors:
+            seen = self._sensors.get(sensor.sensor_id)
+            if seen is None:
+                seen = self._sensors[sensor.sensor_id] = _SensorPhase()
+            if sensor.newest_s > seen.newest_s:
+                seen.newest_s = sensor.newest_s
+                seen.captures.append(sensor.newest_s)
+                seen.delays.append(max(now_s - sensor.newest_s, 0.0))
+        if now_s < self._next_rephase_s:
+            return
+        self._next_rephase_s = now_s + REPHASE_EVERY_S
+        estimates: list[tuple[float, float, float]] = []
+        for sensor in sensors:
+            seen = self._sensors[sensor.sensor_id]
+            if len(seen.captures) < 3:
+                return  # a sensor too new to have a phase: keep the grid until it has one
+            phase = circular_phase(seen.captures, sensor.period_s)
+            estimates.append((phase, sensor.period_s, median(seen.delays)))
+        candidate = best_phase(estimates, self.period_s)
+        if expected_wait(candidate, estimates) < (
+            expected_wait(self.phase_s, estimates) - REPHASE_GAIN_S
+        ):
+            self.phase_s = candidate

@@ -1,0 +1,322 @@
+"""When the hub fuses an output instant (fusion/alignment.py), driven by a clock of the test's
+own: ``aligned`` waits for everyone, ``deadline`` fuses at its deadline with late sensors
+extrapolated a bounded amount (or left out), the phased grid follows the sensors' capture phases;
+the late sensors' extrapolation (fusion/extrapolation.py), its mark in the feed, and the live
+fusion loop waking on the deadline (server/ingest.py)."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from collections import deque
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from skelfuse.fusion.alignment import (
+    PHASE_MARGIN_S,
+    Alignment,
+    SensorTiming,
+    best_phase,
+    circular_phase,
+    expected_wait,
+)
+from skelfuse.fusion.config import FusionConfigError, fusion_settings_from_mapping
+from skelfuse.fusion.extrapolation import extrapolated_bodies
+from skelfuse.fusion.hub import FusedFrame, FusionHub
+from skelfuse.fusion.sensors import TimedFrame
+from skelfuse.protocol.feed import frame_json
+from skelfuse.protocol.skeleton import JOINT_COUNT
+from skelfuse.protocol.transform import look_at_pose
+from skelfuse.protocol.wire import Body, Frame, Hello, encode
+from skelfuse.recording.replay import replay
+from skelfuse.server.broadcast import Broadcaster
+from skelfuse.server.ingest import IDLE_WAKE_S, fusion_loop, wake_in_s
+from skelfuse.server.settings import FusionSettings, Settings
+
+P = 1 / 30
+T0 = 1_800_000_000.0
+
+
+def timing(sensor_id: str, newest_s: float) -> SensorTiming:
+    return SensorTiming(sensor_id, newest_s, P)
+
+
+# --- the policy -------------------------------------------------------------------------------
+
+
+def primed(policy: Alignment, t: float) -> Alignment:
+    """``policy`` having fused the grid instant before ``t`` (the first call starts the grid
+    at the newest fusable instant)."""
+    before = [timing("a", t - P + 0.001), timing("b", t - P + 0.002)]
+    instant = policy.next_instant(before, t - P + 0.003)
+    assert instant is not None and instant.t_s == pytest.approx(t - P)
+    return policy
+
+
+def test_aligned_waits_for_every_sensor_on_the_phase_0_grid() -> None:
+    t = math.floor(T0 / P) * P  # a grid instant
+    policy = primed(Alignment("aligned", 30.0), t)
+    assert policy.next_instant([timing("a", t + 0.010), timing("b", t - 0.005)], t + 1) is None
+    instant = policy.next_instant([timing("a", t + 0.010), timing("b", t + 0.001)], t + 1)
+    assert instant is not None and instant.t_s == t and not instant.late
+    assert policy.due_s is None, "aligned has no deadline"
+
+
+def test_deadline_fires_with_one_sensor_late_and_marks_it() -> None:
+    t = math.floor(T0 / P) * P
+    policy = primed(Alignment("deadline", 30.0, deadline_s=0.010, max_extrapolation_s=0.034), t)
+    on_time, late = timing("a", t + 0.002), timing("b", t - 0.012)
+    assert policy.next_instant([on_time, late], t + 0.004) is None, "before the deadline: wait"
+    assert policy.due_s == pytest.approx(t + 0.010), "the loop's timer: the instant's deadline"
+    assert policy.next_instant([on_time, late], t + 0.0099) is None
+    instant = policy.next_instant([on_time, late], t + 0.010)
+    assert instant is not None and instant.t_s == pytest.approx(t)
+    ((sensor, behind),) = instant.late
+    assert sensor == "b" and behind == pytest.approx(0.012, abs=1e-6) and not instant.left_out
+    assert policy.due_s == pytest.approx(t + P + 0.010), "the next instant's deadline"
+
+
+def test_deadline_fuses_at_once_when_everyone_is_on_time() -> None:
+    t = math.floor(T0 / P) * P
+    policy = primed(Alignment("deadline", 30.0), t)
+    policy.next_instant([timing("a", t + 0.002), timing("b", t - 0.012)], t + 0.004)
+    instant = policy.next_instant([timing("a", t + 0.002), timing("b", t + 0.001)], t + 0.004)
+    assert instant is not None and instant.t_s == pytest.approx(t) and not instant.late
+
+
+def test_a_sensor_beyond_the_extrapolation_bound_is_left_out() -> None:
+    t = math.floor(T0 / P) * P
+    policy = primed(Alignment("deadline", 30.0, deadline_s=0.010, max_extrapolation_s=0.020), t)
+    policy.next_instant([timing("a", t + 0.002), timing("b", t - 0.025)], t + 0.004)
+    instant = policy.next_instant(
+        [timing("a", t + 0.002), timing("b", t - 0.025), timing("c", t - 0.019)], t + 0.011
+    )
+    assert instant is not None
+    assert instant.left_out == ("b",) and [s for s, _ in instant.late] == ["c"]
+
+
+def test_an_instant_nobody_can_give_is_skipped_not_fused_empty() -> None:
+    t = math.floor(T0 / P) * P
+    policy = primed(Alignment("deadline", 30.0, deadline_s=0.010, max_extrapolation_s=0.020), t)
+    assert policy.next_instant([timing("a", t - 0.05)], t + 0.011) is None
+    assert policy.due_s is not None and policy.due_s > t + 0.011, "moved on: the loop can't spin"
+
+
+def test_circular_phase_averages_across_the_wrap() -> None:
+    times = [T0 + n * P + jitter for n, jitter in enumerate([-0.001, 0.001, -0.0005, 0.0005])]
+    phase = circular_phase(times, P)
+    assert min(phase, P - phase) < 1e-4, "phases either side of 0 average to 0, not P/2"
+    with pytest.raises(ValueError, match="no times"):
+        circular_phase([], P)
+
+
+def test_best_phase_puts_the_grid_just_before_the_last_sensor_after_the_widest_gap() -> None:
+    # Captures at 5, 10 and 25 ms into each period, 2 ms delivery: the grid just before 25 ms
+    # waits for 5 + P - 25 + 2 ≈ 15 ms; phase 0 would wait 25 + 2 = 27 ms.
+    sensors = [(0.005, P, 0.002), (0.010, P, 0.002), (0.025, P, 0.002)]
+    phase = best_phase(sensors, P)
+    assert phase == pytest.approx(0.025 - PHASE_MARGIN_S)
+    assert expected_wait(phase, sensors) == pytest.approx(0.010 + P - 0.025 + 0.0025)
+    assert expected_wait(0.0, sensors) == pytest.approx(0.027)
+
+
+def test_the_grid_phase_follows_the_sensors_and_cuts_the_wait() -> None:
+    """Two sensors capture 20 and 22 ms into each phase-0 period and deliver in 2 ms: on the
+    phase-0 grid every instant waits ~24 ms for the second; once the phase is estimated
+    (within REPHASE_EVERY_S), ~4.5 ms."""
+    waits: dict[str, list[float]] = {"aligned": [], "phased": []}
+    for policy_name in waits:
+        policy = Alignment(policy_name, 30.0)  # type: ignore[arg-type]
+        base = math.floor(T0 / P) * P
+        events = sorted(
+            (base + n * P + offset + 0.002, sensor, base + n * P + offset)
+            for n in range(90)
+            for sensor, offset in (("a", 0.020), ("b", 0.022))
+        )
+        newest: dict[str, float] = {}
+        for arrival, sensor, capture in events:
+            newest[sensor] = capture
+            instant = policy.next_instant([timing(s, t) for s, t in newest.items()], arrival)
+            if instant is not None and arrival > base + 2.0:  # after the phase settled
+                waits[policy_name].append(arrival - instant.t_s)
+    assert np.median(waits["aligned"]) == pytest.approx(0.024, abs=1e-3)
+    assert np.median(waits["phased"]) == pytest.approx(0.0045, abs=1e-3)
+    assert len(waits["phased"]) >= 29, "still one instant per period"
+
+
+# --- extrapolation ----------------------------------------------------------------------------
+
+
+def body(tracking_id: int, value: float, state: int = 2) -> Body:
+    joints = np.full((JOINT_COUNT, 3), value, np.float32)
+    return Body(tracking_id, joints, np.full(JOINT_COUNT, state, np.uint8))
+
+
+def timed(t: float, *bodies: Body) -> TimedFrame:
+    return TimedFrame(t, Frame(int(t * 1000), int(t * 1e9), bodies))
+
+
+def test_extrapolation_continues_the_motion_of_the_two_newest_frames() -> None:
+    first, second = body(7, 0.0, state=1), body(7, 1.0)
+    second.joints_m[4] = np.nan
+    frames = deque([timed(1.0, first), timed(1.1, second)])
+    (result,) = extrapolated_bodies(frames, 1.125, max_gap_s=0.2)
+    np.testing.assert_allclose(result.joints_m[0], 1.25, atol=1e-6)
+    assert result.states[0] == 1, "the lower state of the two"
+    assert np.isnan(result.joints_m[4]).all(), "a joint missing from one frame is not invented"
+
+
+def test_extrapolation_holds_when_frames_are_too_far_apart_or_alone() -> None:
+    frames = deque([timed(1.0, body(7, 0.0)), timed(1.3, body(7, 1.0))])
+    (held,) = extrapolated_bodies(frames, 1.32, max_gap_s=0.1)
+    np.testing.assert_allclose(held.joints_m, 1.0)
+    (alone,) = extrapolated_bodies(deque([timed(1.3, body(8, 2.0))]), 1.32, max_gap_s=0.1)
+    np.testing.assert_allclose(alone.joints_m, 2.0)
+    with pytest.raises(ValueError, match="before the newest"):
+        extrapolated_bodies(frames, 1.2, max_gap_s=0.1)
+
+
+# --- through the hub: provenance ---------------------------------------------------------------
+
+
+def walker(t_s: float, origin_s: float = T0) -> np.ndarray:
+    """A person in the middle of the room, a vertical line of joints moving sideways at 1 m/s
+    from x = 0 at ``origin_s`` (world frame; each sensor is sent it in its own frame)."""
+    joints = np.zeros((JOINT_COUNT, 3))
+    joints[:, 1] = np.linspace(0.1, 1.7, JOINT_COUNT)
+    joints[:, 0] = (t_s - origin_s) * 1.0
+    return joints
+
+
+POSES = {
+    "a": look_at_pose((0.0, 1.0, 3.0), (0.0, 0.9, 0.0)),
+    "b": look_at_pose((3.0, 1.0, 0.0), (0.0, 0.9, 0.0)),
+}
+
+
+def hub_with_sensors(settings: Settings) -> FusionHub:
+    hub = FusionHub(settings)
+    for name, pose in POSES.items():
+        hello = Hello(name, "sim", "test", 30.0, 0, pose_hint=pose, pose_hint_source="sim_truth")
+        hub.handle_message(name.encode(), [encode(hello)], T0, 0.0)
+    return hub
+
+
+def send(
+    hub: FusionHub, name: str, seq: int, capture_s: float, received_s: float, origin_s: float = T0
+) -> None:
+    world = walker(capture_s, origin_s)
+    pose = POSES[name]
+    local = (np.linalg.inv(pose) @ np.c_[world, np.ones(JOINT_COUNT)].T).T[:, :3]
+    states = np.full(JOINT_COUNT, 2, np.uint8)
+    frame = Frame(seq, int(capture_s * 1e9), (Body(1, local.astype(np.float32), states),))
+    hub.handle_message(name.encode(), [encode(frame)], received_s, received_s - T0)
+
+
+def drive(hub: FusionHub, periods: int) -> list[FusedFrame]:
+    """Sensor a captures on the phase-0 grid, b 15 ms later, both delivered in 2 ms; the hub's
+    deadline is honoured as the live loop's timer does (fuse_step at ``due_s``)."""
+    base = math.floor(T0 / P) * P + 1.0
+    fused = []
+    for n in range(periods):
+        for name, offset in (("a", 0.0), ("b", 0.015)):
+            capture = base + n * P + offset
+            while (due := hub.alignment.due_s) is not None and due <= capture + 0.002:
+                fused.append(hub.fuse_step(due))
+            send(hub, name, n + 1, capture, capture + 0.002)
+            fused.append(hub.fuse_step(capture + 0.002))
+    return [f for f in fused if f is not None]
+
+
+def test_a_late_sensor_is_extrapolated_to_the_instant_and_marked_in_the_feed() -> None:
+    fusion = FusionSettings(alignment="deadline", filter="none", enforce_bone_lengths=False)
+    fused = drive(hub_with_sensors(Settings(fusion=fusion)), periods=60)
+    late = [f for f in fused if f.extrapolated and f.persons]  # published from the 3rd frame
+    assert len(late) >= 50, "b's frames come 17 ms after a's instants: after a 10 ms deadline"
+    for frame in late:
+        ((sensor, behind),) = frame.extrapolated
+        assert sensor == "b" and 0 < behind <= fusion.alignment_max_extrapolation_s
+        assert frame.fused_at_s - frame.t_s <= fusion.alignment_deadline_s + 1e-9
+        (person,) = frame.persons
+        # b's view carried along the line: held instead, the mean would be ~9 mm behind
+        np.testing.assert_allclose(person.joints[:, 0], frame.t_s - T0, atol=2e-3)
+        message = frame_json(frame, include_raw=False)
+        assert message["extrapolated"] == {"b": round(behind, 4)}
+    on_time = [f for f in fused if not f.extrapolated]
+    assert on_time and "extrapolated" not in frame_json(on_time[0], include_raw=False)
+
+
+def test_aligned_hub_output_has_no_extrapolation_mark() -> None:
+    hub = hub_with_sensors(Settings())
+    fused = drive(hub, periods=30)
+    assert len(fused) >= 29 and all(f.extrapolated == () for f in fused)
+    assert all(f.fused_at_s - f.t_s > 0.015 for f in fused[1:]), "waits for b"
+    assert hub.alignment.due_s is None
+
+
+# --- the live loop: a timer, not the next arrival ----------------------------------------------
+
+
+def test_the_loop_sleeps_until_the_deadline_not_the_idle_poll() -> None:
+    hub = FusionHub(Settings(fusion=FusionSettings(alignment="deadline")))
+    assert wake_in_s(hub, T0) == IDLE_WAKE_S, "nothing pending"
+    hub.alignment.next_instant([timing("a", T0 + 0.002), timing("b", T0 - 0.02)], T0 + 0.003)
+    due = hub.alignment.due_s
+    assert due is not None
+    assert wake_in_s(hub, due - 0.004) == pytest.approx(0.004, abs=1e-6)
+    assert wake_in_s(hub, due + 0.010) == 0.0
+
+
+def test_the_fusion_loop_publishes_at_the_deadline_with_no_further_frame() -> None:
+    """Through the real loop and wall clock: b stops sending; a's frames are past the instant;
+    nothing more arrives, and the instant is still fused, b extrapolated."""
+    deadline_s = 0.02
+    fusion = FusionSettings(alignment="deadline", alignment_deadline_s=deadline_s)
+    hub = hub_with_sensors(Settings(fusion=replace(fusion, filter="none")))
+
+    async def run() -> None:
+        broadcaster = Broadcaster()
+        task = asyncio.create_task(fusion_loop(hub, broadcaster))
+        now = time.time()
+        # a has reported well past the next instants; b's newest is 5 ms old, and b goes quiet
+        for seq, ahead in enumerate((-0.05, 0.1), start=1):
+            send(hub, "a", seq, now + ahead, now + ahead + 0.001, origin_s=now)
+        for seq, ago in enumerate((0.04, 0.005), start=1):
+            send(hub, "b", seq, now - ago, now - ago + 0.001, origin_s=now)
+        hub.frame_arrived.set()
+        for _ in range(100):  # up to 1 s on a busy machine
+            await asyncio.sleep(0.01)
+            if hub.latest is not None and hub.latest.extrapolated:
+                break
+        task.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await task
+
+    asyncio.run(run())
+    assert hub.latest is not None and [s for s, _ in hub.latest.extrapolated] == ["b"]
+
+
+def test_offline_replay_always_waits_for_every_sensor() -> None:
+    take = Path(__file__).resolve().parents[1] / "data" / "golden" / "take.sfrec"
+    deadline = Settings(fusion=FusionSettings(alignment="deadline"))
+    as_set = [frame_json(f, include_raw=False) for f in replay(take, deadline)]
+    aligned = [frame_json(f, include_raw=False) for f in replay(take)]
+    assert len(aligned) == 180 and as_set == aligned
+
+
+def test_the_toml_settings_are_checked() -> None:
+    chosen = fusion_settings_from_mapping(
+        {"alignment": "deadline", "alignment_deadline_s": 0.005, "alignment_max_extrapolation_s": 0}
+    )
+    assert chosen.alignment == "deadline" and chosen.alignment_max_extrapolation_s == 0.0
+    with pytest.raises(FusionConfigError) as caught:
+        fusion_settings_from_mapping(
+            {"alignment": "soon", "alignment_deadline_s": 0.5, "alignment_max_extrapolation_s": 1}
+        )
+    message = str(caught.value)
+    for key in ("alignment:", "alignment_deadline_s:", "alignment_max_extrapolation_s:"):
+        assert key in message
