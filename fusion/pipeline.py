@@ -3,7 +3,7 @@
 :meth:`FusionPipeline.step` reads top to bottom as the data flows (docs/fusion.md):
 
 1. **align in time**: each sensor's body frames interpolated to the instant
-   (:func:`skelfuse.fusion.sensors.bodies_at`);
+   (:func:`skelfuse.fusion.sensors.body_arrays_at`);
 2. **world frame**: each body moved by its sensor's ``T_world_from_sensor`` (:func:`views_at`);
 3. **associate**: views grouped into persons with stable ids (:mod:`skelfuse.fusion.identity`);
 4. **mirror labels**: views whose left and right are swapped are swapped back
@@ -50,7 +50,7 @@ from skelfuse.fusion.labels import LabelDoubt, Labels, label_views, walking_back
 from skelfuse.fusion.mirror_labellings import MAX_VIEWS
 from skelfuse.fusion.priors import priors_of
 from skelfuse.fusion.reliability import reliability_factors
-from skelfuse.fusion.sensors import SensorState, bodies_at
+from skelfuse.fusion.sensors import SensorState, body_arrays_at
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.views import FusedPerson, View
 from skelfuse.fusion.weighted import carriers, cauchy_reweight
@@ -80,18 +80,18 @@ def views_at(
         if pose is None:
             continue
         max_age = 1.5 / max(sensor.nominal_fps, 1.0)
-        for body in bodies_at(sensor.frames, t_s, gap_s, max_age) or ():
-            joints_world = apply(pose, body.joints_m)
-            views.append(
-                View(
-                    sensor.sensor_id,
-                    body.tracking_id,
-                    joints_world,
-                    body.states,
-                    pose[:3, 3],
-                    sensor.sensor_type,
-                )
+        bodies = body_arrays_at(sensor.frames, t_s, gap_s, max_age)
+        if bodies is None or not bodies.tracking_ids:
+            continue
+        # All of the sensor's bodies in one product: the same floats as body by body.
+        joints_world = apply(pose, bodies.joints_m)
+        position, sensor_id, sensor_type = pose[:3, 3], sensor.sensor_id, sensor.sensor_type
+        views.extend(
+            View(sensor_id, tracking_id, joints, states, position, sensor_type)
+            for tracking_id, joints, states in zip(
+                bodies.tracking_ids, joints_world, bodies.states, strict=True
             )
+        )
     return views
 
 

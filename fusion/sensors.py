@@ -22,11 +22,12 @@ from __future__ import annotations
 from bisect import bisect_left
 from collections import Counter, deque
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.protocol.skeleton import TrackingState
+from skelfuse.protocol.skeleton import JOINT_COUNT, TrackingState
 from skelfuse.protocol.transform import Matrix4
 from skelfuse.protocol.wire import Body, Frame, Hello
 
@@ -95,12 +96,38 @@ class SlidingMinimum:
         return self._items[0][1]
 
 
+class BodyArrays(NamedTuple):
+    """A sensor's bodies at one instant, stacked (one array operation serves them all).
+
+    tracking_ids: B ids, in the frame's order; joints_m: (B, 25, 3) float32, metres, the
+    sensor's own frame, NaN where unknown; states: (B, 25) uint8 TrackingState.
+    """
+
+    tracking_ids: list[int]
+    joints_m: npt.NDArray[np.float32]
+    states: npt.NDArray[np.uint8]
+
+
 @dataclass(slots=True)
 class TimedFrame:
     """A frame with its capture time on the server's clock (Unix seconds)."""
 
     t_server_s: float
     frame: Frame
+    _arrays: BodyArrays | None = field(default=None, repr=False, compare=False)
+
+    def arrays(self) -> BodyArrays:
+        """The frame's bodies stacked, built on first use (a frame serves ~2 fused instants)."""
+        if self._arrays is None:
+            bodies = self.frame.bodies
+            if bodies:
+                joints = np.array([b.joints_m for b in bodies])  # np.stack's result, 3× faster
+                states = np.array([b.states for b in bodies])
+            else:
+                joints = np.empty((0, JOINT_COUNT, 3), np.float32)
+                states = np.empty((0, JOINT_COUNT), np.uint8)
+            self._arrays = BodyArrays([b.tracking_id for b in bodies], joints, states)
+        return self._arrays
 
 
 @dataclass(slots=True)
@@ -211,12 +238,26 @@ def bodies_at(
     max_gap_s: float,
     max_age_s: float,
 ) -> tuple[Body, ...] | None:
+    """:func:`body_arrays_at` as one :class:`~protocol.wire.Body` per body."""
+    arrays = body_arrays_at(frames, t_s, max_gap_s, max_age_s)
+    if arrays is None:
+        return None
+    return tuple(map(Body, arrays.tracking_ids, arrays.joints_m, arrays.states))
+
+
+def body_arrays_at(
+    frames: deque[TimedFrame] | list[TimedFrame],
+    t_s: float,
+    max_gap_s: float,
+    max_age_s: float,
+) -> BodyArrays | None:
     """The sensor's bodies at server time ``t_s``, interpolated between the two frames around it.
 
     A body present in both frames (same tracking id) is interpolated linearly joint by joint,
     taking the lower of the two tracking states; a body in only one of them, or frames more than
-    ``max_gap_s`` apart, give the nearer frame's bodies. After the newest frame, that frame is
-    used for ``max_age_s`` (no extrapolation); None when the sensor has nothing usable.
+    ``max_gap_s`` apart, give the nearer frame's bodies, in the nearer frame's order. After the
+    newest frame, that frame is used for ``max_age_s`` (no extrapolation); None when the sensor
+    has nothing usable. All of a frame's bodies are interpolated at once.
     """
     if not frames:
         return None
@@ -224,41 +265,71 @@ def bodies_at(
     index = bisect_left(times, t_s)
     if index == len(frames):
         newest = frames[-1]
-        return newest.frame.bodies if t_s - newest.t_server_s <= max_age_s else None
+        return newest.arrays() if t_s - newest.t_server_s <= max_age_s else None
     after = frames[index]
     if after.t_server_s == t_s or index == 0:
-        return after.frame.bodies if after.t_server_s - t_s <= max_age_s else None
+        return after.arrays() if after.t_server_s - t_s <= max_age_s else None
     before = frames[index - 1]
     gap = after.t_server_s - before.t_server_s
     alpha = (t_s - before.t_server_s) / gap if gap > 0 else 1.0
     if gap > max_gap_s:
         nearest = after if alpha >= 0.5 else before
-        return nearest.frame.bodies if abs(nearest.t_server_s - t_s) <= max_age_s else None
-    earlier = {b.tracking_id: b for b in before.frame.bodies}
-    nearer = after.frame.bodies if alpha >= 0.5 else before.frame.bodies
-    if alpha < 0.5:
-        later = {b.tracking_id: b for b in after.frame.bodies}
-        return tuple(
-            _lerp_body(b, later[b.tracking_id], alpha) if b.tracking_id in later else b
-            for b in nearer
-        )
-    return tuple(
-        _lerp_body(earlier[b.tracking_id], b, alpha) if b.tracking_id in earlier else b
-        for b in nearer
-    )
+        return nearest.arrays() if abs(nearest.t_server_s - t_s) <= max_age_s else None
+    later = alpha >= 0.5
+    nearer_frame, other_frame = (after, before) if later else (before, after)
+    nearer, other = nearer_frame.arrays(), other_frame.arrays()
+    index_of = {tracking_id: i for i, tracking_id in enumerate(other.tracking_ids)}
+    mine = [i for i, tracking_id in enumerate(nearer.tracking_ids) if tracking_id in index_of]
+    if not mine:
+        return nearer
+    theirs = [index_of[nearer.tracking_ids[i]] for i in mine]
+    everyone = len(mine) == len(nearer.tracking_ids)
+    if everyone:  # every body in both frames (the usual case)
+        near_joints, near_states = nearer.joints_m, nearer.states
+    else:
+        near_joints, near_states = nearer.joints_m[mine], nearer.states[mine]
+    if theirs == list(range(len(other.tracking_ids))):  # the same bodies in the same order
+        far_joints, far_states = other.joints_m, other.states
+    else:
+        far_joints, far_states = other.joints_m[theirs], other.states[theirs]
+    if later:
+        joints, states = _lerp(far_joints, far_states, near_joints, near_states, alpha)
+    else:
+        joints, states = _lerp(near_joints, near_states, far_joints, far_states, alpha)
+    if everyone:
+        return BodyArrays(nearer.tracking_ids, joints, states)
+    all_joints, all_states = nearer.joints_m.copy(), nearer.states.copy()
+    all_joints[mine] = joints
+    all_states[mine] = states
+    return BodyArrays(nearer.tracking_ids, all_joints, all_states)
 
 
-def _lerp_body(first: Body, second: Body, alpha: float) -> Body:
-    a = first.joints_m.astype(np.float64)
-    b = second.joints_m.astype(np.float64)
+def _lerp(
+    first_joints: npt.NDArray[np.float32],
+    first_states: npt.NDArray[np.uint8],
+    second_joints: npt.NDArray[np.float32],
+    second_states: npt.NDArray[np.uint8],
+    alpha: float,
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]:
+    """(B, 25, 3) joints and (B, 25) states a fraction ``alpha`` of the way from first to second.
+
+    Element by element (the same floats for one body or many): float64 arithmetic, float32 out;
+    where only one frame has a joint, the nearer frame decides; the lower tracking state wins.
+    """
+    a = first_joints.astype(np.float64)
+    b = second_joints.astype(np.float64)
     joints = (1.0 - alpha) * a + alpha * b
-    both = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
+    states: npt.NDArray[np.uint8] = np.minimum(first_states, second_states)
+    # A position is finite exactly where both frames have it (0 ≤ alpha ≤ 1, float32 inputs:
+    # no overflow), so one check tells whether any joint needs the nearer frame.
+    finite = np.isfinite(joints).all(axis=-1)
+    if finite.all():
+        return joints.astype(np.float32), states
+    both = finite
     # Where only one frame has the joint, the nearer frame decides.
     nearer = b if alpha >= 0.5 else a
     joints[~both] = nearer[~both]
-    states: npt.NDArray[np.uint8] = np.minimum(first.states, second.states)
-    nearer_states = second.states if alpha >= 0.5 else first.states
+    nearer_states = second_states if alpha >= 0.5 else first_states
     states[~both] = nearer_states[~both]
-    states[~np.isfinite(joints).all(axis=1)] = TrackingState.NOT_TRACKED
-    tracking_id = second.tracking_id if alpha >= 0.5 else first.tracking_id
-    return Body(tracking_id, joints.astype(np.float32), states)
+    states[~np.isfinite(joints).all(axis=-1)] = TrackingState.NOT_TRACKED
+    return joints.astype(np.float32), states
