@@ -44,11 +44,11 @@ from skelfuse.fusion.mirror_labellings import (
     COMBOS,
     MAX_VIEWS,
     PAIR_TAKE,
-    PAIRS,
     ROWS,
     SCREEN_FROM_VIEWS,
     SWAPS,
     VIEW_TAKE,
+    layout,
     screen,
 )
 from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION
@@ -65,7 +65,10 @@ SWAP_PRIOR_M: Final = 0.01
 
 _HORIZONTAL: Final = np.array([1.0, 0.0, 1.0])
 _LABELS: Final = np.array([0.0, 1.0])
-_NO_LATERAL: Final = np.full((len(LATERAL_JOINTS), 3), np.nan)
+_LATERAL_SWAP: Final = np.array(
+    [LATERAL_JOINTS.tolist().index(MIRROR_PERMUTATION[j]) for j in LATERAL_JOINTS]
+)
+"""Where each lateral joint's other side is in :data:`LATERAL_JOINTS`."""
 
 
 def labellings(views: npt.ArrayLike) -> FloatArray:
@@ -74,13 +77,24 @@ def labellings(views: npt.ArrayLike) -> FloatArray:
     return np.stack([v, v[:, PERMUTATION]], axis=1)
 
 
-def _mean_lateral_distance(a: FloatArray, b: FloatArray) -> FloatArray:
-    """Mean distance over the lateral joints both have; 0 where they share none.
+def _joint_distances(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Per-joint distances between component-major arrays a, b: (3, ...) → (...).
 
-    a, b: broadcastable (..., 20, 3) arrays of the :data:`LATERAL_JOINTS` only. Returns (...).
+    ``sqrt((dx² + dy²) + dz²)``: the order ``np.linalg.norm`` sums three squares in (the same
+    bits), without its reduction over a short axis.
     """
-    diff = a - b
-    d = np.sqrt((diff * diff).sum(-1))  # == np.linalg.norm(diff, axis=-1)
+    dx = a[0] - b[0]
+    dy = a[1] - b[1]
+    dz = a[2] - b[2]
+    result: FloatArray = np.sqrt(dx * dx + dy * dy + dz * dz)
+    return result
+
+
+def _mean_of_finite(d: FloatArray) -> FloatArray:
+    """Mean over the last axis (the lateral joints) of the finite distances; 0 where none is.
+
+    d: (..., 20) per-joint distances. Returns (...).
+    """
     finite = np.isfinite(d)
     count = finite.sum(-1)
     total = np.where(finite, d, 0.0).sum(-1)
@@ -88,12 +102,45 @@ def _mean_lateral_distance(a: FloatArray, b: FloatArray) -> FloatArray:
     return result
 
 
-def _mean_distance(a: FloatArray, b: FloatArray) -> FloatArray:
-    """Mean distance over the lateral joints both have; 0 where they share none.
+def _lateral_terms(
+    views: FloatArray, first: IntArray, second: IntArray, references: FloatArray | None
+) -> tuple[FloatArray, FloatArray]:
+    """Mean lateral distances of each pair of views and of each view to its reference.
 
-    a, b: broadcastable (..., 25, 3) arrays. Returns (...).
+    The swapped labelling only reorders a view's lateral joints (:data:`_LATERAL_SWAP`, an
+    involution), so of a pair's four label combinations two are computed and the other two are
+    the same per-joint distances reordered: (1, 1) is (0, 0) and (1, 0) is (0, 1), each read
+    through the swap.
+
+    Args:
+        views: (N, 25, 3) metres; first, second: (K,) the views of each pair.
+        references: (N, 25, 3) each view's person's reference skeleton (NaN: none), or None.
+
+    Returns:
+        pair: (K, 2, 2) mean distance under labellings (c_first, c_second);
+        to_ref: (N, 2) mean distance of each labelling to the reference (0 without one).
     """
-    return _mean_lateral_distance(a[..., LATERAL_JOINTS, :], b[..., LATERAL_JOINTS, :])
+    lateral = views[:, LATERAL_JOINTS].transpose(2, 0, 1)  # (3, N, 20), component-major
+    swap = _LATERAL_SWAP
+    size = len(first)
+    distances = np.empty((size * 4 + 2 * len(views), len(LATERAL_JOINTS)))
+    pairs = distances[: size * 4].reshape(size, 2, 2, len(LATERAL_JOINTS))
+    a = lateral[:, first]
+    b = lateral[:, second]
+    same = _joint_distances(a, b)
+    crossed = _joint_distances(a, b[:, :, swap])
+    pairs[:, 0, 0] = same
+    pairs[:, 0, 1] = crossed
+    pairs[:, 1, 0] = crossed[:, swap]
+    pairs[:, 1, 1] = same[:, swap]
+    if references is None:
+        return _mean_of_finite(pairs), np.zeros((len(views), 2))
+    ref = references[:, LATERAL_JOINTS].transpose(2, 0, 1)
+    own = distances[size * 4 :].reshape(len(views), 2, len(LATERAL_JOINTS))
+    own[:, 0] = _joint_distances(lateral, ref)
+    own[:, 1] = _joint_distances(lateral[:, :, swap], ref)
+    means = _mean_of_finite(distances)
+    return means[: size * 4].reshape(size, 2, 2), means[size * 4 :].reshape(len(views), 2)
 
 
 def choose_labelling(
@@ -182,12 +229,56 @@ def choose_labellings(
         factors: (N, 2, 25) range-of-motion factors (:func:`range_of_motion_factors`) of each
             view as reported (0) and swapped (1), when computed (anatomy term or ``need_rom``).
     """
+    mirrored, factors, _ = choose_labellings_and_forward(
+        views,
+        sensor_positions,
+        counts,
+        references,
+        reference_facings,
+        previous,
+        geometry_weight_m=geometry_weight_m,
+        hysteresis_m=hysteresis_m,
+        track_weight=track_weight,
+        anatomy_weight_m=anatomy_weight_m,
+        rom_scale_deg=rom_scale_deg,
+        need_rom=need_rom,
+    )
+    return mirrored, factors
+
+
+def choose_labellings_and_forward(
+    views: FloatArray,
+    sensor_positions: FloatArray,
+    counts: Sequence[int],
+    references: Sequence[FloatArray | None],
+    reference_facings: FloatArray | None,
+    previous: npt.ArrayLike | None,
+    *,
+    geometry_weight_m: float,
+    hysteresis_m: float,
+    track_weight: float,
+    anatomy_weight_m: float,
+    rom_scale_deg: float,
+    need_rom: bool = False,
+) -> tuple[npt.NDArray[np.bool_], FloatArray | None, FloatArray | None]:
+    """:func:`choose_labellings`, and the body's forward axes it computed on the way.
+
+    Returns:
+        mirrored, factors: as :func:`choose_labellings`;
+        forward: (N, 2, 3) :func:`~skelfuse.fusion.anatomy.body_frame` forward axis of each view
+            as reported (0) and swapped (1), when the factors were computed, else None.
+    """
     total = views.shape[0]
     both = np.empty((total, 2, JOINT_COUNT, 3))
     both[:, 0] = views
     both[:, 1] = views[:, PERMUTATION]
-    lateral = both[:, :, LATERAL_JOINTS]  # (N, 2, 20, 3)
-    starts = np.cumsum([0, *counts])
+    has_ref = [ref is not None for ref in references]
+    # Geometry with a known facing (from the track): persons with a reference and a facing.
+    geometric = np.zeros(len(counts), dtype=bool)
+    if reference_facings is not None:
+        geometric = np.array(has_ref) & np.isfinite(reference_facings).all(axis=1)
+    lay = layout(tuple(counts), tuple(zip(has_ref, geometric.tolist(), strict=True)))
+    person_of = lay.person_of
 
     factors = anatomy = forward = None
     if anatomy_weight_m > 0 or need_rom:
@@ -199,29 +290,21 @@ def choose_labellings(
         if anatomy_weight_m > 0:
             anatomy = (1.0 - flat_factors).sum(axis=1).reshape(total, 2)
 
-    # Agreement between views: one row per pair i < j of each person, (K, 2, 2).
-    firsts, seconds = [], []
-    for p, n in enumerate(counts):
-        if n > 1:
-            first, second = PAIRS[n]
-            firsts.append(first + starts[p])
-            seconds.append(second + starts[p])
-    pair = None
-    if firsts:
-        first_all, second_all = np.concatenate(firsts), np.concatenate(seconds)
-        pair = _mean_lateral_distance(
-            lateral[first_all][:, :, None], lateral[second_all][:, None, :]
-        )
+    # Agreement between views (K, 2, 2), one row per pair i < j, and with the track (N, 2).
+    stacked_refs = None
+    if any(has_ref):
+        stacked_refs = np.full((len(counts), JOINT_COUNT, 3), np.nan)
+        stacked_refs[has_ref] = [ref for ref in references if ref is not None]
+        stacked_refs = stacked_refs[person_of]
+    pair, to_ref = _lateral_terms(views, lay.first, lay.second, stacked_refs)
 
     # Where each person stands (mean SpineBase of its views) and the direction to each sensor.
     spine = views[:, 0]
     finite = np.isfinite(spine)
-    person_of = np.repeat(np.arange(len(counts)), counts)
-    slot_of = np.arange(total) - starts[person_of]
     # Sums per person over a zero-padded (P, S_max, 3) block: the same order as np.nanmean.
-    padded = np.zeros((len(counts), max(counts), 2, 3))
-    padded[person_of, slot_of, 0] = np.where(finite, spine, 0.0)
-    padded[person_of, slot_of, 1] = finite
+    padded = np.zeros((len(counts), lay.widest, 2, 3))
+    padded[person_of, lay.slot_of, 0] = np.where(finite, spine, 0.0)
+    padded[person_of, lay.slot_of, 1] = finite
     sums = padded.sum(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         body = sums[:, 0] / sums[:, 1]
@@ -230,124 +313,108 @@ def choose_labellings(
 
     prev = None if previous is None else np.asarray(previous)
     known = None if prev is None else prev >= 0
-    pair_start = np.cumsum([0] + [n * (n - 1) // 2 for n in counts])
 
-    # Agreement with the track, every view at once.
-    has_ref = [ref is not None for ref in references]
-    to_ref = np.zeros((total, 2))
-    if any(has_ref):
-        ref_lateral = np.stack(
-            [_NO_LATERAL if ref is None else ref[LATERAL_JOINTS] for ref in references]
-        )
-        to_ref = _mean_lateral_distance(lateral, ref_lateral[person_of][:, None])
-
-    # Geometry with a known facing (from the track): a per-view term, (N, 2) for labels 0, 1.
+    # The geometry term per view, (N, 2) for labels 0, 1: facing · direction to the sensor, in
+    # the order matmul's own loop sums three products (the same bits as a (2, 3) @ (3, S)).
     per_label = np.zeros((total, 2))
-    row_geometry = [False] * len(counts)
-    for p, ref in enumerate(references):
-        if ref is None or reference_facings is None:
-            continue
-        facing_ref = reference_facings[p]
-        if np.isfinite(facing_ref).all():
-            lo, hi = starts[p], starts[p + 1]
-            # Every labelling sees the same facing, so one row of the (C, S) product is enough
-            # (computed as the product of a broadcast facing: matmul's own rounding).
-            cos = (np.broadcast_to(facing_ref, (2, 3)) @ to_sensor[lo:hi].T)[0]
-            cos = np.where(np.isnan(cos), 0.0, cos)  # np.nan_to_num (cos is finite or NaN)
-            per_label[lo:hi, 0] = np.maximum(-cos, 0.0)
-            per_label[lo:hi, 1] = np.maximum(cos, 0.0)
-            row_geometry[p] = True
+    if geometric.any():
+        assert reference_facings is not None
+        facing = reference_facings[person_of]
+        cos = (
+            facing[:, 0] * to_sensor[:, 0]
+            + facing[:, 1] * to_sensor[:, 1]
+            + facing[:, 2] * to_sensor[:, 2]
+        )
+        cos = np.where(np.isnan(cos), 0.0, cos)  # np.nan_to_num (cos is finite or NaN)
+        rows = geometric[person_of]
+        per_label[rows, 0] = np.maximum(-cos[rows], 0.0)
+        per_label[rows, 1] = np.maximum(cos[rows], 0.0)
+
+    # The per-view tables, (N, 3, 2): track, geometry (known facing), anatomy.
+    tables = np.zeros((total, 3, 2))
+    tables[:, 0] = to_ref
+    tables[:, 1] = per_label
+    if anatomy is not None:
+        tables[:, 2] = anatomy
 
     mirrored = np.zeros(total, dtype=bool)
     # Persons with the same number of views and the same kinds of terms are scored together:
     # (G, C) costs, every term summed in the order a single person's would be.
-    groups: dict[tuple[int, bool, bool], list[int]] = {}
-    for p, n in enumerate(counts):
-        groups.setdefault((n, has_ref[p], row_geometry[p]), []).append(p)
-    for (n, with_ref, known_facing), members in groups.items():
+    for group in lay.groups:
+        n, with_ref, known_facing = group.n, group.with_ref, group.known_facing
         combos = COMBOS[n]
-        take = VIEW_TAKE[n]
-        people = np.array(members)
-        views_of = (starts[people][:, None] + np.arange(n)[None, :]).ravel()  # (G·n,)
-        size = len(members)
-
+        views_of = group.views_of.ravel()  # (G·n,)
+        size = len(group.people)
         k = n * (n - 1) // 2
-        block = np.zeros((size, 0))
-        if k:
-            rows_of = (pair_start[people][:, None] + np.arange(k)[None, :]).ravel()
-            assert pair is not None
-            block = pair[rows_of].reshape(size, 4 * k)
+        block = pair[group.pair_rows].reshape(size, 4 * k)
         mine = mine_known = None
         if prev is not None and known is not None:
             mine, mine_known = prev[views_of].reshape(size, n), known[views_of].reshape(size, n)
-        tables: list[tuple[float, FloatArray]] = []
-        if with_ref:
-            tables.append((track_weight, to_ref[views_of].reshape(size, 2 * n)))
+        # (G, 3, 2n): each view's (label 0, label 1) per table, view-major.
+        unary = tables[views_of].reshape(size, n, 3, 2).transpose(0, 2, 1, 3).reshape(size, 3, -1)
         geometry_sum = None
-        if known_facing:
-            tables.append((geometry_weight_m, per_label[views_of].reshape(size, 2 * n)))
-        else:
+        if not known_facing:
             geometry_sum = np.stack(
                 [
                     _candidate_geometry(
                         combos,
-                        both[starts[p] : starts[p + 1]],
-                        None if forward is None else forward[starts[p] : starts[p + 1]],
-                        to_sensor[starts[p] : starts[p + 1]],
+                        both[lo : lo + n],
+                        None if forward is None else forward[lo : lo + n],
+                        to_sensor[lo : lo + n],
                         rom_scale_deg,
                     ).sum(axis=1)
-                    for p in members
+                    for lo in group.views_of[:, 0].tolist()
                 ]
             )
-        if anatomy is not None:
-            tables.append((anatomy_weight_m, anatomy[views_of].reshape(size, 2 * n)))
+        weights = [
+            track_weight if with_ref else 0.0,
+            geometry_weight_m if known_facing else 0.0,
+            anatomy_weight_m if anatomy is not None else 0.0,
+        ]
 
         # For many views, one matrix product first estimates every labelling's cost: a person
         # whose best estimate beats all others by more than rounding could ever explain has
         # its labelling (see screen); the others are scored exactly.
-        exact = np.arange(size)
+        exact = None
         if n >= SCREEN_FROM_VIEWS and geometry_sum is None:
-            unary = SWAP_PRIOR_M * np.tile(_LABELS, (size, n))
-            for weight, table in tables:
-                unary = unary + weight * table
+            estimate = SWAP_PRIOR_M * np.tile(_LABELS, (size, n))
+            for t, weight in enumerate(weights):
+                if weight:
+                    estimate = estimate + weight * unary[:, t]
             if mine is not None and mine_known is not None:
                 changed = (_LABELS[None, None, :] != mine[:, :, None]) & mine_known[:, :, None]
-                unary = unary + hysteresis_m * changed.reshape(size, 2 * n)
-            clear = screen(n, block, unary)
-            for g in np.flatnonzero(clear >= 0):
-                mirrored[views_of[g * n : (g + 1) * n]] = combos[clear[g]].astype(bool)
-            exact = np.flatnonzero(clear < 0)
-            if not len(exact):
+                estimate = estimate + hysteresis_m * changed.reshape(size, 2 * n)
+            clear = screen(n, block, estimate)
+            settled = clear >= 0
+            mirrored[group.views_of[settled]] = combos[clear[settled]].astype(bool)
+            if settled.all():
                 continue
+            exact = np.flatnonzero(~settled)
+            block, unary = block[exact], unary[exact]
+            if mine is not None and mine_known is not None:
+                mine, mine_known = mine[exact], mine_known[exact]
 
         # Exact costs of every labelling, (G, C), term by term as for one person alone.
-        if k:
-            # Agreement between views: Σ over pairs i < j of D[i, j, c_i, c_j], pair by pair.
-            cost = block[exact][:, PAIR_TAKE[n]].sum(axis=1)
-        else:
-            cost = np.zeros((len(exact), len(combos)))
-        term = 0
+        # Agreement between views: Σ over pairs i < j of D[i, j, c_i, c_j], pair by pair.
+        cost = block[:, PAIR_TAKE[n]].sum(axis=1)
+        # Each table: Σ over views of T[view, c_view], view by view (the last axis).
+        sums = unary[:, :, VIEW_TAKE[n]].sum(axis=3)  # (G, 3, C)
         if with_ref:
-            weight, table = tables[term]
-            term += 1
-            cost += weight * table[exact][:, take].sum(axis=2)
+            cost += track_weight * sums[:, 0]
         if geometry_sum is not None:
-            cost += geometry_weight_m * geometry_sum[exact]
+            cost += geometry_weight_m * geometry_sum
         else:
-            weight, table = tables[term]
-            term += 1
-            cost += weight * table[exact][:, take].sum(axis=2)
+            cost += geometry_weight_m * sums[:, 1]
         if anatomy is not None:
-            weight, table = tables[term]
-            cost += weight * table[exact][:, take].sum(axis=2)
+            cost += anatomy_weight_m * sums[:, 2]
         cost += SWAP_PRIOR_M * SWAPS[n]
         if mine is not None and mine_known is not None:
-            changed_all = (combos[None] != mine[exact][:, None, :]) & mine_known[exact][:, None, :]
+            changed_all = (combos[None] != mine[:, None, :]) & mine_known[:, None, :]
             cost += hysteresis_m * changed_all.sum(axis=2)
         best = combos[np.argmin(cost, axis=1)]  # (G, n), the first minimum as np.argmin
-        for row, g in enumerate(exact):
-            mirrored[views_of[g * n : (g + 1) * n]] = best[row].astype(bool)
-    return mirrored, factors
+        rows_of = group.views_of if exact is None else group.views_of[exact]
+        mirrored[rows_of] = best.astype(bool)
+    return mirrored, factors, forward
 
 
 def _candidate_geometry(

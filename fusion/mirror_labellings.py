@@ -8,6 +8,7 @@ C = 2^n. :mod:`skelfuse.fusion.mirror` scores them all; from :data:`SCREEN_FROM_
 from __future__ import annotations
 
 import functools
+from dataclasses import dataclass
 from typing import Final
 
 import numpy as np
@@ -63,6 +64,94 @@ SCREEN_MARGIN_M: Final = 1e-9
 """Labellings whose estimate is within this of the best are scored exactly. The estimate differs
 from the exact cost by rounding only (≈ 1e-14 m), far below it, so the exact minimum is always
 among them and the choice is the one the full enumeration makes."""
+
+
+@dataclass(frozen=True, slots=True)
+class Group:
+    """Persons scored together: the same view count ``n`` and the same kinds of terms.
+
+    people: (G,) person indices; views_of: (G, n) their views' rows; pair_rows: (G·k,) their
+    view pairs' rows (k = n(n − 1)/2 per person, :data:`PAIRS` order).
+    """
+
+    n: int
+    with_ref: bool
+    known_facing: bool
+    people: IntArray
+    views_of: IntArray
+    pair_rows: IntArray
+
+
+@dataclass(frozen=True, slots=True)
+class Layout:
+    """Index arrays for one frame's persons, built once per shape (:func:`layout`).
+
+    starts: (P + 1,) first view of each person, then N; person_of, slot_of: (N,) each view's
+    person and its place among the person's views; widest: the most views of one person;
+    first, second: (K,) the views of each pair i < j, person by person; groups: the persons
+    scored together, in the order their first member comes.
+    """
+
+    starts: IntArray
+    person_of: IntArray
+    slot_of: IntArray
+    widest: int
+    first: IntArray
+    second: IntArray
+    groups: tuple[Group, ...]
+
+
+def _frozen(array: npt.ArrayLike) -> IntArray:
+    """An index array that stays as built: layouts are shared between calls."""
+    result: IntArray = np.array(array, dtype=np.intp)
+    result.flags.writeable = False
+    return result
+
+
+@functools.lru_cache(maxsize=256)
+def layout(counts: tuple[int, ...], kinds: tuple[tuple[bool, bool], ...]) -> Layout:
+    """The :class:`Layout` of persons with ``counts`` views each (1 … :data:`MAX_VIEWS`).
+
+    ``kinds``: per person, (has a reference skeleton, has a known facing). Frames repeat the
+    same shapes, so the layouts are cached: building them is Python work per person and pair.
+    """
+    starts = np.cumsum([0, *counts])
+    person_of = np.repeat(np.arange(len(counts)), counts)
+    slot_of = np.arange(int(starts[-1])) - starts[person_of]
+    firsts: list[IntArray] = [np.zeros(0, dtype=np.intp)]
+    seconds: list[IntArray] = [np.zeros(0, dtype=np.intp)]
+    pair_start = [0]
+    for p, n in enumerate(counts):
+        firsts.append(PAIRS[n][0] + starts[p])
+        seconds.append(PAIRS[n][1] + starts[p])
+        pair_start.append(pair_start[-1] + n * (n - 1) // 2)
+    members: dict[tuple[int, bool, bool], list[int]] = {}
+    for p, (n, (with_ref, known_facing)) in enumerate(zip(counts, kinds, strict=True)):
+        members.setdefault((n, with_ref, known_facing), []).append(p)
+    groups = []
+    for (n, with_ref, known_facing), people in members.items():
+        chosen = np.array(people, dtype=np.intp)
+        k = n * (n - 1) // 2
+        pairs_of = np.array(pair_start)[chosen][:, None] + np.arange(k)[None, :]
+        groups.append(
+            Group(
+                n,
+                with_ref,
+                known_facing,
+                _frozen(chosen),
+                _frozen(starts[chosen][:, None] + np.arange(n)[None, :]),
+                _frozen(pairs_of.ravel()),
+            )
+        )
+    return Layout(
+        _frozen(starts),
+        _frozen(person_of),
+        _frozen(slot_of),
+        max(counts),
+        _frozen(np.concatenate(firsts)),
+        _frozen(np.concatenate(seconds)),
+        tuple(groups),
+    )
 
 
 def per_view_sum(table: FloatArray, views_of: IntArray, take: IntArray) -> FloatArray:
