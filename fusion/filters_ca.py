@@ -64,6 +64,25 @@ class DampedAccelerationKalman(KalmanState):
     def _update(
         self, z: FloatArray, last_x: FloatArray, last_p: FloatArray, h: FloatArray, step: BoolArray
     ) -> tuple[FloatArray, FloatArray]:
+        if (h == h.flat[0]).all():
+            # One step length for every coordinate (the usual case): one F and one Q, which
+            # the products below broadcast, the same values as a stack of equal ones.
+            f, q = self._transition(h.reshape(-1)[:1])
+        else:
+            f, q = self._transition(h)
+        x_p = np.einsum("...ij,...j->...i", f, last_x)
+        jerk = self.jerk_std + self.jerk_per_speed * np.abs(last_x[..., 1])
+        p_p = f @ last_p @ np.swapaxes(f, -1, -2) + (jerk**2)[..., None, None] * q
+        # Update with the position measurement (H = [1, 0, 0]).
+        s = p_p[..., 0, 0] + self.r
+        gain = p_p[..., :, 0] / s[..., None]
+        innovation = z - np.where(step, x_p[..., 0], 0.0)
+        new_x: FloatArray = x_p + gain * innovation[..., None]
+        new_p: FloatArray = p_p - gain[..., :, None] * p_p[..., 0, None, :]
+        return new_x, new_p
+
+    def _transition(self, h: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """F and the unscaled Q over ``h`` seconds: (..., 3, 3) each for ``h`` (...)."""
         f = np.zeros((*h.shape, 3, 3))
         f[..., 0, 0] = f[..., 1, 1] = 1.0
         f[..., 0, 1] = f[..., 1, 2] = h
@@ -78,16 +97,7 @@ class DampedAccelerationKalman(KalmanState):
         q[..., 1, 1] = h**3 / 3
         q[..., 1, 2] = q[..., 2, 1] = h**2 / 2
         q[..., 2, 2] = h
-        x_p = np.einsum("...ij,...j->...i", f, last_x)
-        jerk = self.jerk_std + self.jerk_per_speed * np.abs(last_x[..., 1])
-        p_p = f @ last_p @ np.swapaxes(f, -1, -2) + (jerk**2)[..., None, None] * q
-        # Update with the position measurement (H = [1, 0, 0]).
-        s = p_p[..., 0, 0] + self.r
-        gain = p_p[..., :, 0] / s[..., None]
-        innovation = z - np.where(step, x_p[..., 0], 0.0)
-        new_x: FloatArray = x_p + gain * innovation[..., None]
-        new_p: FloatArray = p_p - gain[..., :, None] * p_p[..., 0, None, :]
-        return new_x, new_p
+        return f, q
 
     def _output(self, x: FloatArray) -> FloatArray:
         lead = self.predict_s

@@ -57,12 +57,20 @@ class KalmanState(ABC):
         dt = t_s - last_t
         fresh = present & (~np.isfinite(last_x[..., 0]) | (dt > self.reset_gap_s))
         step = present & ~fresh & (dt > 0)
+        if step.all():
+            # The usual case, every coordinate steps: the masks below would pick the update
+            # everywhere. The same values with a dozen fewer array operations.
+            new_x, new_p = self._update(z, last_x, last_p, dt, step)
+            return self._output(new_x), new_x, new_p, np.full(z.shape, t_s)
         new_x, new_p = self._update(
             np.where(step, z, 0.0), last_x, last_p, np.where(step, dt, 0.0), step
         )
-        init_x, init_p = self._init(np.where(fresh, z, 0.0))
-        x = np.where(_per(step, new_x), new_x, np.where(_per(fresh, init_x), init_x, last_x))
-        p = np.where(_per(step, new_p), new_p, np.where(_per(fresh, init_p), init_p, last_p))
+        if fresh.any():
+            init_x, init_p = self._init(np.where(fresh, z, 0.0))
+            last_x = np.where(_per(fresh, init_x), init_x, last_x)
+            last_p = np.where(_per(fresh, init_p), init_p, last_p)
+        x = np.where(_per(step, new_x), new_x, last_x)
+        p = np.where(_per(step, new_p), new_p, last_p)
         t = np.where(present, t_s, last_t)
         return np.where(present, self._output(x), np.nan), x, p, t
 
