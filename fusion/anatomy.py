@@ -264,6 +264,12 @@ def facing_direction(joints: npt.ArrayLike) -> FloatArray:
 def facing_directions(skeletons: npt.ArrayLike) -> FloatArray:
     """:func:`facing_direction` of each of P skeletons (P, 25, 3) at once: (P, 3)."""
     _, _, forward = body_frame(skeletons)
+    return facings_of_forward(forward)
+
+
+def facings_of_forward(forward: FloatArray) -> FloatArray:
+    """Horizontal unit facings (P, 3) from :func:`body_frame` forward axes (P, 3); NaN rows
+    where unknown (the body's forward axis close to vertical, or missing)."""
     horizontal = forward * HORIZONTAL
     # np.vecdot is the dot product np.linalg.norm uses on one vector (the same bits).
     norm = np.sqrt(np.vecdot(horizontal, horizontal))

@@ -21,8 +21,8 @@ from itertools import pairwise
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.anatomy import facing_direction, facing_directions
-from skelfuse.fusion.mirror import PERMUTATION, choose_labellings
+from skelfuse.fusion.anatomy import facing_direction, facing_directions, facings_of_forward
+from skelfuse.fusion.mirror import PERMUTATION, choose_labellings_and_forward
 from skelfuse.fusion.settings import FusionSettings
 
 FloatArray = npt.NDArray[np.float64]
@@ -99,7 +99,7 @@ def label_views(
         remembered = np.stack([d.facing for d in doubts])
         known = np.isfinite(remembered).all(axis=1, keepdims=True)
         reference_facings = np.where(known, remembered, reference_facings)
-    mirrored, both_rom = choose_labellings(
+    mirrored, both_rom, forward = choose_labellings_and_forward(
         joints,
         sensor_positions,
         counts,
@@ -126,16 +126,23 @@ def label_views(
                     mirrored[starts[p] : starts[p + 1]] ^= alone
                     swapped[p] = False
         mirrored ^= swapped[person_of]
-    for p in range(len(counts)):
-        lo, hi = starts[p], starts[p + 1]
+    flags = mirrored.tolist()
+    for p, (lo, hi) in enumerate(pairwise(starts.tolist())):
         memories[p].clear()
-        memories[p].update((k, bool(m)) for k, m in zip(keys[lo:hi], mirrored[lo:hi], strict=True))
+        memories[p].update(zip(keys[lo:hi], flags[lo:hi], strict=True))
     if mirrored.any():
         joints[mirrored] = joints[mirrored][:, PERMUTATION]
         states[mirrored] = states[mirrored][:, PERMUTATION]
     if unbiased:
         assert doubts is not None
-        facings = unbiased_facings(joints, sensor_positions, mirrored, counts, s.view_lean_fraction)
+        # Each view's facing as labelled: the forward axis of its chosen labelling, already
+        # computed for the range of motion (the same bits as from the swapped joints).
+        own = None
+        if forward is not None:
+            own = facings_of_forward(forward[np.arange(len(joints)), mirrored.astype(np.intp)])
+        facings = unbiased_facings(
+            joints, sensor_positions, mirrored, counts, s.view_lean_fraction, own
+        )
         for doubt, facing in zip(doubts, facings, strict=True):
             doubt.facing = facing
     rom = None
@@ -285,6 +292,7 @@ def unbiased_facings(
     mirrored: npt.NDArray[np.bool_],
     counts: Sequence[int],
     lean: float,
+    own: FloatArray | None = None,
 ) -> FloatArray:
     """(P, 3) each person's horizontal facing from its labelled views, each sensor's yaw bias
     taken out (``mirror_unbiased_facing``); NaN rows where no view gives one.
@@ -304,6 +312,8 @@ def unbiased_facings(
         mirrored: (N,) whether each view was swapped back (the sensor reported it mirrored).
         counts: views per person.
         lean: the share of its yaw a sensor turns a body towards itself, in [0, 1).
+        own: (N, 3) each view's :func:`~skelfuse.fusion.anatomy.facing_directions` as
+            labelled, when the caller has them (None: computed here).
 
     Returns:
         (P, 3) horizontal unit vectors (y = 0), NaN where unknown.
@@ -313,7 +323,8 @@ def unbiased_facings(
     """
     if not 0.0 <= lean < 1.0:
         raise ValueError(f"lean must be in [0, 1), got {lean}")
-    own = facing_directions(joints)  # (N, 3), the view's facing as labelled
+    if own is None:
+        own = facing_directions(joints)  # (N, 3), the view's facing as labelled
     to_sensor = sensor_positions - joints[:, 0]
     sensor_angle = np.arctan2(to_sensor[:, 0], to_sensor[:, 2])
     phi = _wrap(sensor_angle - np.arctan2(own[:, 0], own[:, 2]))
@@ -323,17 +334,21 @@ def unbiased_facings(
     theta = _unturn(apparent, lean)
     theta = np.where(flipped, _wrap(theta + np.pi), theta)
     facing_angle = sensor_angle - theta
-    vectors = np.stack([np.sin(facing_angle), np.zeros_like(facing_angle), np.cos(facing_angle)], 1)
+    vectors = np.zeros((len(facing_angle), 3))
+    vectors[:, 0] = np.sin(facing_angle)
+    vectors[:, 2] = np.cos(facing_angle)
     usable = np.isfinite(vectors).all(axis=1)
+    # Per person, the sum of its usable views' vectors, row by row as vectors[rows].sum(axis=0)
+    # (a zero-padded (P, S_max, 3) block: adding the zeros changes no bit).
     person_of = np.repeat(np.arange(len(counts)), counts)
-    out = np.full((len(counts), 3), np.nan)
-    for p in range(len(counts)):
-        rows = usable & (person_of == p)
-        if rows.any():
-            mean = vectors[rows].sum(axis=0)
-            norm = float(np.linalg.norm(mean))
-            if norm > 1e-6:
-                out[p] = mean / norm
+    slot_of = np.arange(len(person_of)) - np.repeat(np.cumsum([0, *counts[:-1]]), counts)
+    padded = np.zeros((len(counts), max(counts, default=0), 3))
+    padded[person_of, slot_of] = np.where(usable[:, None], vectors, 0.0)
+    mean = padded.sum(axis=1)
+    # np.vecdot is the dot product np.linalg.norm uses on one vector (the same bits).
+    norm = np.sqrt(np.vecdot(mean, mean))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out: FloatArray = np.where((norm > 1e-6)[:, None], mean / norm[:, None], np.nan)
     return out
 
 
