@@ -26,7 +26,12 @@ from typing import Any
 import zmq
 import zmq.auth
 
-from skelfuse.protocol.constants import AGENT_SEND_HWM, HEARTBEAT_INTERVAL_S, HEARTBEAT_LIVENESS
+from skelfuse.protocol.constants import (
+    AGENT_SEND_HWM,
+    HEARTBEAT_INTERVAL_S,
+    HEARTBEAT_LIVENESS,
+    MAX_RESPONSE_BYTES,
+)
 from skelfuse.protocol.errors import DecodeError
 from skelfuse.protocol.wire import (
     Bye,
@@ -222,6 +227,20 @@ class AgentLink:
                 logger.error("request %s failed: %s", request.method, exc)
                 response = Response(
                     request.request_id, ok=False, error=f"{type(exc).__name__}: {exc}"
+                )
+            size = len(encode(response))
+            if size > MAX_RESPONSE_BYTES:  # the server would refuse it: say why instead
+                logger.error(
+                    "the answer to %s is %d bytes, over the %d-byte limit; sent an error instead",
+                    request.method,
+                    size,
+                    MAX_RESPONSE_BYTES,
+                )
+                response = Response(
+                    request.request_id,
+                    ok=False,
+                    error=f"the answer is {size} bytes, over the protocol's limit of "
+                    f"{MAX_RESPONSE_BYTES} bytes for answers",
                 )
             if not self._send(response):
                 logger.warning("could not send the answer to %s; dropped", request.method)

@@ -18,14 +18,15 @@ import logging
 import time
 from collections import Counter
 from dataclasses import dataclass
-from typing import Protocol
 
 from skelfuse import __version__
 from skelfuse.calibration.store import Calibration
 from skelfuse.fusion.alignment import Alignment, live_timings
 from skelfuse.fusion.drift import DriftMonitor
 from skelfuse.fusion.extrapolation import views_with_late
+from skelfuse.fusion.hub_seams import MessageTap, PendingRequests
 from skelfuse.fusion.pipeline import FusionPipeline
+from skelfuse.fusion.sensor_rows import sensor_rows
 from skelfuse.fusion.sensors import SensorState, new_sensor
 from skelfuse.fusion.settings import HubSettings
 from skelfuse.fusion.stats import RollingStats
@@ -46,27 +47,6 @@ from skelfuse.protocol.wire import (
 )
 
 logger = logging.getLogger(__name__)
-
-
-class MessageTap(Protocol):
-    """Sees every accepted hello and frame as received (the recorder, while a recording runs)."""
-
-    def on_hello(self, sensor_id: str, payload: bytes, t_s: float) -> None: ...
-
-    def on_frame(self, sensor_id: str, payload: bytes, t_s: float) -> None: ...
-
-
-class PendingRequests(Protocol):
-    """The server's requests to agents that wait for an answer
-    (``skelfuse.server.agent_requests.AgentRequests``)."""
-
-    def awaiting(self, sensor_id: str) -> bool:
-        """True while a request to this sensor waits for its answer."""
-        ...
-
-    def resolve(self, sensor_id: str, response: Response) -> bool:
-        """Hand over a response; False when no request of its id waits for this sensor."""
-        ...
 
 
 OFFLINE_AFTER_INTERVALS = 2.8
@@ -169,6 +149,17 @@ class FusionHub:
         except DecodeError as exc:
             self._reject(sensor, exc.reason)
             logger.debug("rejected message from %s: %s", sensor and sensor.sensor_id, exc)
+            if (
+                waiting
+                and sensor is not None
+                and self._requests is not None
+                and len(parts[0]) > MAX_MESSAGE_BYTES
+            ):
+                # Only an answer may be this large: say why it will not come, rather than let
+                # the request time out as if the agent had said nothing.
+                self._requests.refuse(
+                    sensor.sensor_id, f"its answer of {len(parts[0])} bytes was refused ({exc})"
+                )
             return []
         if isinstance(message, Hello):
             if user_id is not None and message.sensor_id != user_id:
@@ -383,34 +374,5 @@ class FusionHub:
     # --- views for the API ------------------------------------------------------------------
 
     def sensor_summary(self, now_mono: float) -> list[dict[str, object]]:
-        rows: list[dict[str, object]] = []
-        for sensor in sorted(self.sensors.values(), key=lambda x: x.sensor_id):
-            pose, state = self.pose_of(sensor.sensor_id)
-            age = None if sensor.last_frame_mono is None else now_mono - sensor.last_frame_mono
-            rows.append(
-                {
-                    "id": sensor.sensor_id,
-                    "type": sensor.sensor_type,
-                    "agent_version": sensor.agent_version,
-                    "connected": sensor.connected,
-                    "fps": round(sensor.fps(now_mono), 2) if sensor.connected else 0.0,
-                    "last_frame_age_s": None if age is None else round(age, 4),
-                    "bodies": sensor.bodies_last if sensor.connected else 0,
-                    "frames_received": sensor.frames_received,
-                    "frames_rejected": dict(sensor.frames_rejected),
-                    "sequence_gaps": sensor.sequence_gaps,
-                    "clock_offset_s": sensor.clock_offset_s,
-                    "clock_source": sensor.clock_source,
-                    "round_trip_ms": None
-                    if sensor.round_trip.rtt_s is None
-                    else round(sensor.round_trip.rtt_s * 1000, 3),
-                    "calibration": {
-                        "state": state,
-                        "T_world_from_sensor": None if pose is None else pose.tolist(),
-                    },
-                    "drift": None
-                    if self.drift is None or (drift := self.drift.status(sensor.sensor_id)) is None
-                    else drift.to_json(),
-                }
-            )
-        return rows
+        """One row per known sensor, for ``GET /api/sensors`` (:func:`sensor_rows`)."""
+        return sensor_rows(self.sensors.values(), self.pose_of, self.drift, now_mono)

@@ -16,11 +16,16 @@ from collections.abc import Awaitable, Callable
 from typing import Any
 
 from skelfuse.fusion.hub import FusionHub
+from skelfuse.protocol.constants import MAX_RESPONSE_BYTES
 from skelfuse.protocol.wire import Message, Request, Response
 from skelfuse.server.errors import AgentRequestFailed, SensorUnavailable
 
 SendFunction = Callable[[bytes, Message], Awaitable[None]]
 """Sends one message to the agent with this routing id (never blocks on a slow agent)."""
+
+
+class _AnswerRefused(Exception):
+    """The agent's answer arrived but the server refused it (too large, malformed)."""
 
 
 class AgentRequests:
@@ -49,6 +54,13 @@ class AgentRequests:
             pending[1].set_result(response)
         return True
 
+    def refuse(self, sensor_id: str, reason: str) -> None:
+        """Fail every request waiting on ``sensor_id``: a message only an answer could be (over
+        the 64 KiB limit of everything else) came from it and was refused for ``reason``."""
+        for waiting_on, future in self._pending.values():
+            if waiting_on == sensor_id and not future.done():
+                future.set_exception(_AnswerRefused(reason))
+
     async def request(
         self, sensor_id: str, method: str, params: dict[str, Any], timeout_s: float
     ) -> Any:
@@ -56,8 +68,8 @@ class AgentRequests:
 
         Raises:
             SensorUnavailable: the sensor is unknown or offline.
-            AgentRequestFailed: the agent refused, failed, or did not answer within
-                ``timeout_s``.
+            AgentRequestFailed: the agent refused, failed, did not answer within
+                ``timeout_s``, or its answer was refused (over 4 MiB, malformed).
         """
         sensor = self._hub.sensors.get(sensor_id)
         if sensor is None or not sensor.connected:
@@ -71,6 +83,11 @@ class AgentRequests:
         except TimeoutError as exc:
             raise AgentRequestFailed(
                 f"sensor {sensor_id!r} did not answer {method!r} within {timeout_s:.0f} s"
+            ) from exc
+        except _AnswerRefused as exc:
+            raise AgentRequestFailed(
+                f"sensor {sensor_id!r} answered {method!r}, but {exc} (docs/protocol.md §4: "
+                f"answers up to {MAX_RESPONSE_BYTES} bytes)"
             ) from exc
         finally:
             self._pending.pop(request_id, None)

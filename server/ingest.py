@@ -17,7 +17,7 @@ import zmq
 import zmq.asyncio
 
 from skelfuse.fusion.hub import FusionHub
-from skelfuse.protocol.constants import MAX_MESSAGE_BYTES
+from skelfuse.protocol.constants import MAX_RESPONSE_BYTES
 from skelfuse.protocol.wire import Heartbeat, Message, encode
 from skelfuse.server.auth import secure_router
 from skelfuse.server.broadcast import Broadcaster
@@ -25,9 +25,11 @@ from skelfuse.server.stage_timing import StageTimes
 
 logger = logging.getLogger(__name__)
 
-# Messages past our own limit are still received (and counted as too_large) up to this size;
-# only beyond it does libzmq drop the connection, which the agent then re-opens.
-SOCKET_MAX_MESSAGE_BYTES = 16 * MAX_MESSAGE_BYTES
+# Messages past the protocol's limits are still received, refused and counted (too_large) up to
+# this size: it must stay above the largest answer the protocol allows (MAX_RESPONSE_BYTES), with
+# room for a too-large one to be refused by the hub rather than cut by libzmq. Only beyond it
+# does libzmq drop the connection, which the agent then re-opens.
+SOCKET_MAX_MESSAGE_BYTES = 2 * MAX_RESPONSE_BYTES
 
 
 def open_router(
