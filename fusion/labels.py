@@ -337,7 +337,7 @@ def unbiased_facings(
     vectors = np.zeros((len(facing_angle), 3))
     vectors[:, 0] = np.sin(facing_angle)
     vectors[:, 2] = np.cos(facing_angle)
-    usable = np.isfinite(vectors).all(axis=1)
+    usable = np.isfinite(facing_angle)  # sin and cos are finite where the angle is
     # Per person, the sum of its usable views' vectors, row by row as vectors[rows].sum(axis=0)
     # (a zero-padded (P, S_max, 3) block: adding the zeros changes no bit).
     person_of = np.repeat(np.arange(len(counts)), counts)
@@ -346,9 +346,9 @@ def unbiased_facings(
     padded[person_of, slot_of] = np.where(usable[:, None], vectors, 0.0)
     mean = padded.sum(axis=1)
     # np.vecdot is the dot product np.linalg.norm uses on one vector (the same bits).
-    norm = np.sqrt(np.vecdot(mean, mean))
+    norm: FloatArray = np.sqrt(np.vecdot(mean, mean))[:, None]
     with np.errstate(invalid="ignore", divide="ignore"):
-        out: FloatArray = np.where((norm > 1e-6)[:, None], mean / norm[:, None], np.nan)
+        out: FloatArray = np.where(norm > 1e-6, mean / norm, np.nan)
     return out
 
 
