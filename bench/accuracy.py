@@ -35,7 +35,8 @@ subset, ``--json FILE`` raw results, ``--paper`` report A's own experiment only,
 ``--latency`` the filters' added latency only, ``--birth`` the birth-labelling scenarios only,
 ``--no-mirror-redecide`` with ``FusionSettings.mirror_redecide`` off, as before,
 ``--no-mirror-turns`` with ``mirror_unbiased_facing`` off and ``mirror_redecide_views = 1``,
-as before they became the defaults).
+as before they became the defaults; ``--alignment`` the alignment policies side by side only:
+MPJPE against ``aligned`` and the alignment wait, ``--jitter-ms`` adding delivery jitter).
 
 Labels: the wrong-label rate (share of sensor × frame labelling decisions that disagree with the
 simulator's truth: ``FusedPerson.mirrored`` against ``Observation.mirrored``) and the longest
@@ -58,6 +59,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench.accuracy_alignment import print_alignment, run_alignment
 from bench.accuracy_methods import METHODS
 from bench.accuracy_paper import paper_experiment
 from bench.accuracy_report import (
@@ -96,6 +98,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-mirror-turns", action="store_true",
                         help="every method with mirror_unbiased_facing off and "
                              "mirror_redecide_views = 1 (the defaults before)")  # fmt: skip
+    parser.add_argument("--alignment", action="store_true",
+                        help="only the alignment policies side by side "
+                             "(bench/accuracy_alignment.py)")  # fmt: skip
+    parser.add_argument("--jitter-ms", type=float, default=0.0,
+                        help="--alignment: mean exponential delivery jitter, ms")  # fmt: skip
     args = parser.parse_args(argv)
     methods = METHODS
     if args.no_mirror_redecide:
@@ -112,6 +119,8 @@ def main(argv: list[str] | None = None) -> int:
         }
         print_oracle(oracle)
         return 0
+    if args.alignment:
+        return alignment_only(args.quick, args.runs, args.jitter_ms, args.json)
 
     if not args.paper and not args.birth:
         print_filter_latency(filter_latency())
@@ -143,6 +152,23 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         args.json.write_text(json.dumps({"summary": summary, "runs": results, "paper": paper},
                                         indent=1))  # fmt: skip
+    return 0
+
+
+def alignment_only(quick: bool, runs: int, jitter_ms: float, json_path: Path | None) -> int:
+    """``--alignment``: every scenario under every alignment policy; prints the table."""
+    results: dict[str, list[dict[str, dict[str, float]]]] = {}
+    groups: dict[str, list[str]] = {}
+    for scenario in scenarios(quick):
+        groups.setdefault(scenario.group, []).append(scenario.name)
+        t = time.perf_counter()
+        results[scenario.name] = [
+            run_alignment(scenario, seed, KinectV2Params(), jitter_ms) for seed in range(runs)
+        ]
+        print(f"  {scenario.name}: {time.perf_counter() - t:.0f} s", file=sys.stderr)
+    summary = print_alignment(results, groups, jitter_ms)
+    if json_path:
+        json_path.write_text(json.dumps({"summary": summary, "runs": results}, indent=1))
     return 0
 
 

@@ -263,7 +263,6 @@ class Alignment:
                 seen.delays.append(max(now_s - sensor.newest_s, 0.0))
         if now_s < self._next_rephase_s:
             return
-        self._next_rephase_s = now_s + REPHASE_EVERY_S
         estimates: list[tuple[float, float, float]] = []
         for sensor in sensors:
             seen = self._sensors[sensor.sensor_id]
@@ -271,6 +270,7 @@ class Alignment:
                 return  # a sensor too new to have a phase: keep the grid until it has one
             phase = circular_phase(seen.captures, sensor.period_s)
             estimates.append((phase, sensor.period_s, median(seen.delays)))
+        self._next_rephase_s = now_s + REPHASE_EVERY_S
         candidate = best_phase(estimates, self.period_s)
         if expected_wait(candidate, estimates) < (
             expected_wait(self.phase_s, estimates) - REPHASE_GAIN_S
