@@ -54,21 +54,31 @@ HORIZONTAL: Final = np.array([1.0, 0.0, 1.0])
 
 
 def unit(v: FloatArray) -> FloatArray:
-    norm = np.sqrt((v * v).sum(-1, keepdims=True))  # == np.linalg.norm(v, axis=-1)
+    """Unit vectors along the last axis (…, 3); NaN where a vector is zero or unknown."""
     with np.errstate(invalid="ignore", divide="ignore"):
-        result: FloatArray = v / norm
+        return _unit(v)
+
+
+def _unit(v: FloatArray) -> FloatArray:
+    """:func:`unit` for callers already inside ``np.errstate(invalid=, divide="ignore")``."""
+    norm = np.sqrt((v * v).sum(-1, keepdims=True))  # == np.linalg.norm(v, axis=-1)
+    result: FloatArray = v / norm
     return result
 
 
+_NEXT: Final = np.array([1, 2, 0])
+_AFTER: Final = np.array([2, 0, 1])
+
+
 def _cross(a: FloatArray, b: FloatArray) -> FloatArray:
-    """``np.cross`` for 3-vectors (the same operations, so the same bits), without its overhead."""
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    out: FloatArray = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    out[..., 0] = a1 * b2 - a2 * b1
-    out[..., 1] = a2 * b0 - a0 * b2
-    out[..., 2] = a0 * b1 - a1 * b0
+    """``np.cross`` for 3-vectors (the same operations, so the same bits), without its overhead:
+    component k is a[k+1]·b[k+2] − a[k+2]·b[k+1], all three at once."""
+    out: FloatArray = a[..., _NEXT] * b[..., _AFTER] - a[..., _AFTER] * b[..., _NEXT]
     return out
+
+
+_ACROSS_LEFT: Final = np.array([J.HIP_LEFT, J.SHOULDER_LEFT])
+_ACROSS_RIGHT: Final = np.array([J.HIP_RIGHT, J.SHOULDER_RIGHT])
 
 
 def body_frame(views: npt.ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -82,32 +92,22 @@ def body_frame(views: npt.ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray
         mean of the hip and shoulder left-minus-right vectors made orthogonal to ``up``
         (SpineBase → SpineShoulder); ``forward = left × up``.
     """
-    joints = np.asarray(views, dtype=np.float64)
-    up = unit(joints[:, J.SPINE_SHOULDER] - joints[:, J.SPINE_BASE])
-    hips = joints[:, J.HIP_LEFT] - joints[:, J.HIP_RIGHT]
-    shoulders = joints[:, J.SHOULDER_LEFT] - joints[:, J.SHOULDER_RIGHT]
-    hips_ok = np.isfinite(hips)
-    shoulders_ok = np.isfinite(shoulders)
-    lateral = np.where(hips_ok, hips, 0.0) + np.where(shoulders_ok, shoulders, 0.0)
-    lateral[~(hips_ok.all(-1) | shoulders_ok.all(-1))] = np.nan
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return _body_frame(np.asarray(views, dtype=np.float64))
+
+
+def _body_frame(joints: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """:func:`body_frame` of (S, 25, 3) float64 joints, inside ``np.errstate``."""
+    up = _unit(joints[:, J.SPINE_SHOULDER] - joints[:, J.SPINE_BASE])
+    across = joints[:, _ACROSS_LEFT] - joints[:, _ACROSS_RIGHT]  # (S, 2, 3): hips, shoulders
+    ok = np.isfinite(across)
+    kept = np.where(ok, across, 0.0)
+    lateral = kept[:, 0] + kept[:, 1]
+    lateral[~ok.all(-1).any(-1)] = np.nan
     lateral = lateral - (lateral * up).sum(-1, keepdims=True) * up
-    left = unit(lateral)
+    left = _unit(lateral)
     forward = _cross(left, up)
     return left, up, forward
-
-
-def _signed_angle(a: FloatArray, b: FloatArray, axis: FloatArray) -> FloatArray:
-    """Angle from ``a`` to ``b`` (degrees), positive counter-clockwise about ``axis``."""
-    cross = (_cross(a, b) * axis).sum(-1)
-    dot = (a * b).sum(-1)
-    angle: FloatArray = np.degrees(np.arctan2(cross, dot))
-    return angle
-
-
-def _unsigned_angle(a: FloatArray, b: FloatArray) -> FloatArray:
-    cos = (unit(a) * unit(b)).sum(-1)
-    angle: FloatArray = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
-    return angle
 
 
 ROM_LIMITS_DEG: Final[dict[str, tuple[float, float]]] = {
@@ -126,9 +126,6 @@ ROM_LIMITS_DEG: Final[dict[str, tuple[float, float]]] = {
 _SIDE_SIGN: Final = np.array([1.0, -1.0])
 
 
-_HIP: Final = np.array([J.HIP_LEFT, J.HIP_RIGHT])
-
-
 _KNEE: Final = np.array([J.KNEE_LEFT, J.KNEE_RIGHT])
 
 
@@ -136,9 +133,6 @@ _ANKLE: Final = np.array([J.ANKLE_LEFT, J.ANKLE_RIGHT])
 
 
 _FOOT: Final = np.array([J.FOOT_LEFT, J.FOOT_RIGHT])
-
-
-_SHOULDER: Final = np.array([J.SHOULDER_LEFT, J.SHOULDER_RIGHT])
 
 
 _ELBOW: Final = np.array([J.ELBOW_LEFT, J.ELBOW_RIGHT])
@@ -183,35 +177,62 @@ _SINGLE_JOINTS: Final = np.array(
 )  # fmt: skip
 
 
+# The segments the angles need, as distal − proximal joint: thigh, shank, foot, upper arm,
+# forearm (left, right each), then the neck.
+_SEGMENT_DISTAL: Final = np.array(
+    [J.KNEE_LEFT, J.KNEE_RIGHT, J.ANKLE_LEFT, J.ANKLE_RIGHT, J.FOOT_LEFT, J.FOOT_RIGHT,
+     J.ELBOW_LEFT, J.ELBOW_RIGHT, J.WRIST_LEFT, J.WRIST_RIGHT, J.HEAD]
+)  # fmt: skip
+_SEGMENT_PROXIMAL: Final = np.array(
+    [J.HIP_LEFT, J.HIP_RIGHT, J.KNEE_LEFT, J.KNEE_RIGHT, J.ANKLE_LEFT, J.ANKLE_RIGHT,
+     J.SHOULDER_LEFT, J.SHOULDER_RIGHT, J.ELBOW_LEFT, J.ELBOW_RIGHT, J.NECK]
+)  # fmt: skip
+_LIMBS: Final = np.array([0, 1, 6, 7])
+"""Thighs and upper arms among the segments: each swings forward or back from the trunk."""
+_TO_UNIT: Final = np.array([0, 1, 6, 7, 8, 9, 10])
+"""Segments made unit vectors: thighs (abduction), upper arms, forearms, neck (then ``up``)."""
+
+
 def _angle_table(
     joints: FloatArray, left: FloatArray, up: FloatArray, forward: FloatArray
 ) -> FloatArray:
-    """(S, 13) angles in degrees: each of :data:`_SIDED_ANGLES` left then right, then the neck."""
+    """(S, 13) angles in degrees: each of :data:`_SIDED_ANGLES` left then right, then the neck.
+
+    Angles of the same kind are computed together (left and right, knees with ankles, hips
+    with shoulders, elbows with the neck): each is the same operations as alone.
+    """
     n = joints.shape[0]
     left_, up_, forward_ = left[:, None], up[:, None], forward[:, None]
-    thigh = joints[:, _KNEE] - joints[:, _HIP]  # (S, 2, 3)
-    shank = joints[:, _ANKLE] - joints[:, _KNEE]
-    foot_v = joints[:, _FOOT] - joints[:, _ANKLE]
-    upper = joints[:, _ELBOW] - joints[:, _SHOULDER]
-    fore = joints[:, _WRIST] - joints[:, _ELBOW]
-    down = -up_
+    segment = joints[:, _SEGMENT_DISTAL] - joints[:, _SEGMENT_PROXIMAL]  # (S, 11, 3)
     out = np.empty((n, 13))
-    # Flexion swings the shank backwards: positive about the person's left axis.
-    out[:, 0:2] = _signed_angle(thigh, shank, left_)
-    # Hip: thigh against the trunk's down axis; flexion forward, abduction outward.
-    out[:, 2:4] = np.degrees(np.arctan2((thigh * forward_).sum(-1), (thigh * down).sum(-1)))
+    # Knee flexion swings the shank backwards: positive about the person's left axis; the foot
+    # points forward from the shank: positive about the person's right axis. (S, 4) signed
+    # angles from (thigh, shank) to (shank, foot).
+    first, second = segment[:, 0:4], segment[:, 2:6]
+    axis = np.repeat(left_, 4, axis=1)
+    np.negative(axis[:, 2:], out=axis[:, 2:])  # the right axis (np.negative: NaNs' bits too)
+    cross = (_cross(first, second) * axis).sum(-1)
+    bend = np.degrees(np.arctan2(cross, (first * second).sum(-1)))
+    out[:, 0:2] = bend[:, 0:2]
+    out[:, 6:8] = bend[:, 2:4]
+    # Hip: thigh against the trunk's down axis, flexion forward. Shoulder extension: the arm
+    # behind the trunk while below shoulder height.
+    limbs = segment[:, _LIMBS]
+    ahead = (limbs * forward_).sum(-1)
+    np.negative(ahead[:, 2:], out=ahead[:, 2:])  # the arms: how far behind
+    below = (limbs * -up_).sum(-1)
+    swing = np.degrees(np.arctan2(ahead, below))
+    out[:, 2:4] = swing[:, 0:2]
+    out[:, 10:12] = np.where(below[:, 2:4] > 0, swing[:, 2:4], 0.0)
+    units = _unit(np.concatenate([segment[:, _TO_UNIT], up_], axis=1))  # (S, 8, 3)
     # Abduction: how far the thigh leaves the sagittal plane (outwards positive).
-    outwards = _SIDE_SIGN * (unit(thigh) * left_).sum(-1)
+    outwards = _SIDE_SIGN * (units[:, 0:2] * left_).sum(-1)
     out[:, 4:6] = np.degrees(np.arcsin(np.clip(outwards, -1.0, 1.0)))
-    # Foot points forward from the shank: positive about the person's right axis.
-    out[:, 6:8] = _signed_angle(shank, foot_v, -left_)
-    out[:, 8:10] = _unsigned_angle(upper, fore)
-    # Shoulder extension: the arm behind the trunk while below shoulder height.
-    behind = -(upper * forward_).sum(-1)
-    below = (upper * down).sum(-1)
-    out[:, 10:12] = np.where(below > 0, np.degrees(np.arctan2(behind, below)), 0.0)
-    neck = joints[:, J.HEAD] - joints[:, J.NECK]
-    out[:, 12] = _unsigned_angle(up, neck)
+    # Elbows (upper arm to forearm) and the neck (up to the neck), unsigned.
+    cos = (units[:, [2, 3, 7]] * units[:, [4, 5, 6]]).sum(-1)
+    unsigned = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    out[:, 8:10] = unsigned[:, 0:2]
+    out[:, 12] = unsigned[:, 2]
     return out
 
 
@@ -225,7 +246,8 @@ def joint_angles(views: npt.ArrayLike) -> dict[str, tuple[FloatArray, int]]:
         ``name_side`` → ((S,) angles in degrees, NaN where unknown; distal joint index).
     """
     joints = np.asarray(views, dtype=np.float64)
-    table = _angle_table(joints, *body_frame(joints))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        table = _angle_table(joints, *_body_frame(joints))
     out: dict[str, tuple[FloatArray, int]] = {}
     for side_index, side in enumerate(("left", "right")):
         for k, (name, distal) in enumerate(_SIDED_ANGLES):
@@ -239,8 +261,9 @@ def rom_factors_and_forward(
 ) -> tuple[FloatArray, FloatArray]:
     """:func:`range_of_motion_factors` and the views' ``forward`` axes (:func:`body_frame`)."""
     joints = np.asarray(views, dtype=np.float64)
-    left, up, forward = body_frame(joints)
-    angles = _angle_table(joints, left, up, forward)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        left, up, forward = _body_frame(joints)
+        angles = _angle_table(joints, left, up, forward)
     excess = np.maximum(_ANGLE_LOW - angles, 0.0) + np.maximum(angles - _ANGLE_HIGH, 0.0)
     factors = np.where(np.isfinite(excess), np.exp(-excess / scale_deg), 1.0)
     out = np.ones(joints.shape[:2])
