@@ -175,53 +175,55 @@ class PersonTracker:
         gate = self.settings.association_gate_m
         clusters: dict[int, list[View]] = {}
         remaining: list[View] = []
-        predicted = {pid: t.predicted(t_s) for pid, t in self.tracks.items()}
+        # Midline joints of every view and every track's prediction, stacked once: the distances
+        # below are computed for many pairs at a time (trunk_distances, the same floats).
+        trunks = _trunks(views)
+        tracks = list(self.tracks.values())
+        row_of = {t.person_id: k for k, t in enumerate(tracks)}
+        predicted = _predicted_trunks(tracks, t_s)
 
         # 1. Sticky membership (every view's distance to its track in one pass).
         owner: dict[ViewKey, Track] = {}
-        for t in reversed(self.tracks.values()):  # the first track holding a key wins
+        for t in reversed(tracks):  # the first track holding a key wins
             for member in t.members:
                 owner[member] = t
         sticky = [owner.get((view.sensor_id, view.tracking_id)) for view in views]
-        with_track = [(i, t) for i, t in enumerate(sticky) if t is not None]
+        with_track = [i for i, t in enumerate(sticky) if t is not None]
         distances = np.full(len(views), np.inf)
         if with_track:
-            distances[[i for i, _ in with_track]] = trunk_distances(
-                np.stack([views[i].joints_world[TRUNK_JOINTS] for i, _ in with_track]),
-                np.stack([predicted[t.person_id][TRUNK_JOINTS] for _, t in with_track]),
-            )
-        for view, track, distance in zip(views, sticky, distances, strict=True):
+            rows = [row_of[t.person_id] for t in sticky if t is not None]
+            distances[with_track] = trunk_distances(trunks[with_track], predicted[rows])
+        seen: dict[int, set[str]] = {}  # the sensors each cluster has a view from
+        for view, track, distance in zip(views, sticky, distances.tolist(), strict=True):
             if track is None or distance > 2 * gate:
                 remaining.append(view)
                 continue
-            cluster = clusters.setdefault(track.person_id, [])
-            if any(v.sensor_id == view.sensor_id for v in cluster):
+            sensors = seen.setdefault(track.person_id, set())
+            if view.sensor_id in sensors:
                 remaining.append(view)
             else:
-                cluster.append(view)
+                clusters.setdefault(track.person_id, []).append(view)
+                sensors.add(view.sensor_id)
 
         # 2. Hungarian assignment to existing tracks, sensor by sensor.
+        index_of = {id(view): i for i, view in enumerate(views)} if remaining else {}
         leftovers: list[View] = []
         for sensor_id in sorted({v.sensor_id for v in remaining}):
             mine = [v for v in remaining if v.sensor_id == sensor_id]
-            free = [
-                t
-                for t in self.tracks.values()
-                if not any(v.sensor_id == sensor_id for v in clusters.get(t.person_id, []))
-            ]
+            free = [k for k, t in enumerate(tracks) if sensor_id not in seen.get(t.person_id, ())]
             if not free:
                 leftovers.extend(mine)
                 continue
-            cost = np.array(
-                [[trunk_distance(v.joints_world, predicted[t.person_id]) for t in free]
-                 for v in mine]
-            )  # fmt: skip
+            mine_trunks = trunks[[index_of[id(v)] for v in mine]]
+            cost = trunk_distances(mine_trunks[:, None], predicted[free][None, :])
             cost_finite = np.where(np.isfinite(cost), cost, 1e6)
             rows, cols = linear_sum_assignment(cost_finite)
             taken = set()
             for r, c in zip(rows, cols, strict=True):
                 if cost[r, c] <= gate:
-                    clusters.setdefault(free[c].person_id, []).append(mine[r])
+                    person_id = tracks[free[c]].person_id
+                    clusters.setdefault(person_id, []).append(mine[r])
+                    seen.setdefault(person_id, set()).add(sensor_id)
                     taken.add(r)
             leftovers.extend(v for i, v in enumerate(mine) if i not in taken)
 
@@ -229,12 +231,12 @@ class PersonTracker:
         new_clusters: list[list[View]] = []
         for view in leftovers:
             best, best_distance = None, gate
+            own = trunks[index_of[id(view)]][None]
             for cluster in new_clusters:
                 if any(v.sensor_id == view.sensor_id for v in cluster):
                     continue
-                distance = float(
-                    np.mean([trunk_distance(view.joints_world, v.joints_world) for v in cluster])
-                )
+                others = trunks[[index_of[id(v)] for v in cluster]]
+                distance = float(np.mean(trunk_distances(own, others)))
                 if distance <= best_distance:
                     best, best_distance = cluster, distance
             if best is None:
@@ -250,22 +252,44 @@ class PersonTracker:
         """4. Merge persons that are one person seen by disjoint sets of sensors (older id wins)."""
         half_gate = self.settings.association_gate_m / 2
         ids = sorted(clusters)
+        sensors = {pid: {v.sensor_id for v in clusters[pid]} for pid in ids}
         for i, older in enumerate(ids):
             if older not in clusters:
                 continue
             for younger in ids[i + 1 :]:
                 if younger not in clusters:
                     continue
-                a, b = clusters[older], clusters[younger]
-                if {v.sensor_id for v in a} & {v.sensor_id for v in b}:
+                if sensors[older] & sensors[younger]:
                     continue
-                distance = np.mean(
-                    [trunk_distance(x.joints_world, y.joints_world) for x in a for y in b]
-                )
+                a, b = clusters[older], clusters[younger]
+                # Every pair (x in a, y in b), x outer, in one call: the mean sees the same list.
+                pairs = trunk_distances(_trunks(a)[:, None], _trunks(b)[None, :])
+                distance = np.mean(pairs.ravel())
                 if distance <= half_gate:
                     a.extend(b)
+                    sensors[older] |= sensors[younger]
                     del clusters[younger]
                     young, old = self.tracks[younger], self.tracks[older]
                     if young.published and not old.published:
                         old.published = True
                     del self.tracks[younger]
+
+
+def _trunks(views: list[View]) -> FloatArray:
+    """(N, 5, 3) float64 the views' midline joints (:data:`TRUNK_JOINTS`), metres."""
+    if not views:
+        return np.empty((0, len(TRUNK_JOINTS), 3))
+    joints = np.array([v.joints_world for v in views], dtype=np.float64)
+    trunks: FloatArray = joints[:, TRUNK_JOINTS]
+    return trunks
+
+
+def _predicted_trunks(tracks: list[Track], t_s: float) -> FloatArray:
+    """(T, 5, 3) each track's :meth:`Track.predicted` midline joints at ``t_s``, the same floats."""
+    if not tracks:
+        return np.empty((0, len(TRUNK_JOINTS), 3))
+    dts = [min(max(t_s - t.last_seen_s, 0.0), 0.5) for t in tracks]
+    joints = np.array([t.joints for t in tracks], dtype=np.float64)[:, TRUNK_JOINTS]
+    moves = np.array([t.velocity for t in tracks], dtype=np.float64) * np.array(dts)[:, None]
+    moved: FloatArray = joints + moves[:, None, :]
+    return moved

@@ -1,0 +1,86 @@
+"""Association on stacked arrays: the distances and predictions of the pair-by-pair rule, bitwise.
+
+:class:`~skelfuse.fusion.identity.PersonTracker` computes its cost matrices, birth and merge
+distances for many pairs at once (:func:`~skelfuse.fusion.identity.trunk_distances` broadcast
+over views × tracks). The fused output is pinned byte for byte (test_golden_replay.py): every
+distance must be the float :func:`~skelfuse.fusion.identity.trunk_distance` gives for the pair.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+
+from skelfuse.fusion.identity import (
+    TRUNK_JOINTS,
+    PersonTracker,
+    Track,
+    _predicted_trunks,
+    trunk_distance,
+    trunk_distances,
+)
+from skelfuse.fusion.settings import FusionSettings
+from skelfuse.fusion.views import View
+from skelfuse.protocol.skeleton import JOINT_COUNT
+
+
+def skeletons(rng: np.random.Generator, count: int) -> npt.NDArray[np.float64]:
+    joints = rng.normal(0.0, 1.0, (count, JOINT_COUNT, 3))
+    joints[rng.random((count, JOINT_COUNT)) < 0.3] = np.nan  # some trunks with < 2 in common
+    return joints
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_every_pair_at_once_gives_the_distance_of_each_pair(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    views, tracks = skeletons(rng, 7), skeletons(rng, 5)
+    cost = trunk_distances(views[:, None, TRUNK_JOINTS], tracks[None, :, TRUNK_JOINTS])
+    want = np.array([[trunk_distance(v, t) for t in tracks] for v in views])
+    assert cost.shape == (7, 5)
+    assert cost.tobytes() == want.tobytes()
+    assert np.isinf(want).any() and np.isfinite(want).any()  # both cases were exercised
+
+
+def test_predictions_stacked_are_each_tracks_prediction() -> None:
+    rng = np.random.default_rng(1)
+    tracks = [
+        Track(k + 1, joints, last_seen_s=10.0 - 0.2 * k, born_s=0.0, velocity=rng.normal(0, 1, 3))
+        for k, joints in enumerate(skeletons(rng, 4))
+    ]
+    got = _predicted_trunks(tracks, 10.3)
+    want = np.stack([t.predicted(10.3)[TRUNK_JOINTS] for t in tracks])
+    assert got.tobytes() == want.tobytes()
+    assert _predicted_trunks([], 1.0).shape == (0, len(TRUNK_JOINTS), 3)
+
+
+def view(sensor_id: str, tracking_id: int, joints: npt.NDArray[np.float64]) -> View:
+    return View(sensor_id, tracking_id, joints, np.full(JOINT_COUNT, 2, np.uint8))
+
+
+def test_births_and_assignment_still_group_views_into_persons() -> None:
+    rng = np.random.default_rng(4)
+    people = [rng.normal(0.0, 0.2, (JOINT_COUNT, 3)) + [x, 1.0, 0.0] for x in (-2.0, 0.0, 2.0)]
+    tracker = PersonTracker(FusionSettings())
+    # Sensor a sees everyone, b two of them: births group them across sensors.
+    first = [view("a", k, p + 0.01) for k, p in enumerate(people)]
+    first += [view("b", 10 + k, p - 0.01) for k, p in enumerate(people[:2])]
+    clusters = tracker.associate(first, 1.0)
+    assert sorted(sorted((v.sensor_id, v.tracking_id) for v in c) for c in clusters.values()) == [
+        [("a", 0), ("b", 10)],
+        [("a", 1), ("b", 11)],
+        [("a", 2)],
+    ]
+    tracker.confirm(clusters, 1.0)
+    # New tracking ids everywhere: the Hungarian step finds each body's person again.
+    again = [view("a", 5 + k, p) for k, p in enumerate(people)]
+    again.append(view("b", 20, people[2]))
+    clusters_again = tracker.associate(again, 1.033)
+    person_of = {v.tracking_id: pid for pid, c in clusters.items() for v in c}
+    assert {
+        pid: [(v.sensor_id, v.tracking_id) for v in c] for pid, c in clusters_again.items()
+    } == {
+        person_of[0]: [("a", 5)],
+        person_of[1]: [("a", 6)],
+        person_of[2]: [("a", 7), ("b", 20)],
+    }
