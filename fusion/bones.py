@@ -41,24 +41,70 @@ def enforce_bone_lengths(joints: npt.ArrayLike, reference: npt.ArrayLike) -> Flo
     """
     original = np.asarray(joints, dtype=np.float64)
     ref = np.asarray(reference, dtype=np.float64)
-    offsets = original[..., _BONE_CHILD, :] - original[..., _BONE_PARENT, :]  # (..., 24, 3)
+    offsets = np.take(original, _BONE_CHILD, axis=-2) - np.take(original, _BONE_PARENT, axis=-2)
     # np.vecdot is the dot product np.linalg.norm uses on one vector (the same bits).
-    norms = np.sqrt(np.vecdot(offsets, offsets))
+    norms = np.sqrt(np.vecdot(offsets, offsets))  # (..., 24)
     scale = np.isfinite(ref) & np.isfinite(norms) & (norms > 1e-9)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        factors = ref / norms
-    offset_of = np.empty(original.shape)
-    offset_of[..., _BONE_CHILD, :] = np.where(
-        scale[..., None], offsets * factors[..., None], offsets
+    factors = np.divide(ref, norms, out=np.ones_like(norms), where=scale)
+    # SpineBase, then each bone's offset from its parent to its child, in BONES order.
+    sources = np.concatenate(
+        [
+            original[..., _ROOT : _ROOT + 1, :],
+            np.where(scale[..., None], offsets * factors[..., None], offsets),
+        ],
+        axis=-2,
     )
+    # Every joint at once: its root-to-joint path's running sum, SpineBase then each bone's
+    # offset in turn, which is the sum the walk below makes, in the same order (the same bits).
+    # It holds wherever every parent is known: so wherever the result is all finite.
+    summed = np.cumsum(np.take(sources, _PATH_SOURCES, axis=-2), axis=-2)
+    result: FloatArray = np.take(
+        summed.reshape(*summed.shape[:-3], _PATHS.size, 3), _PATH_INDEX, axis=-2
+    )
+    if np.isfinite(result).all():
+        return result
     out = original.copy()
     # Outward one depth level at a time; a joint whose parent is missing keeps its measurement.
     for children, parents in CHAIN_LEVELS:
         hung = np.isfinite(out[..., parents, :]).all(axis=-1, keepdims=True)
         out[..., children, :] = np.where(
-            hung, out[..., parents, :] + offset_of[..., children, :], out[..., children, :]
+            hung,
+            out[..., parents, :] + sources[..., _SOURCE_OF[children], :],
+            out[..., children, :],
         )
     return out
+
+
+def _chain_paths() -> tuple[int, npt.NDArray[np.intp], npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+    """SpineBase, every root-to-leaf path of joints (padded with the leaf), and per joint the
+    path holding it and its depth on that path."""
+    parent_of = {int(child): int(parent) for parent, child in BONES}
+    root = next(iter({*parent_of.values()} - {*parent_of}))
+    leaves = sorted({*parent_of} - {*parent_of.values()})
+    paths = []
+    for leaf in leaves:
+        path = [leaf]
+        while path[-1] != root:
+            path.append(parent_of[path[-1]])
+        paths.append(path[::-1])
+    width = max(len(path) for path in paths)
+    padded = np.array([path + [path[-1]] * (width - len(path)) for path in paths], dtype=np.intp)
+    path_of = np.zeros(len(parent_of) + 1, dtype=np.intp)
+    depth_of = np.zeros(len(parent_of) + 1, dtype=np.intp)
+    for k, path in enumerate(paths):
+        for depth, joint in enumerate(path):
+            path_of[joint], depth_of[joint] = k, depth
+    return root, padded, path_of, depth_of
+
+
+_ROOT, _PATHS, _PATH_OF, _DEPTH_OF = _chain_paths()
+_SOURCE_OF: Final = np.zeros(len(_PATH_OF), dtype=np.intp)
+_SOURCE_OF[_BONE_CHILD] = 1 + np.arange(BONE_COUNT)
+"""Per joint, its row in ``enforce_bone_lengths``' sources: 0 SpineBase, 1 + the bone ending
+there."""
+_PATH_SOURCES: Final = _SOURCE_OF[_PATHS]
+_PATH_INDEX: Final = _PATH_OF * _PATHS.shape[1] + _DEPTH_OF
+"""Per joint, where its running sum lies in the flattened (paths × depth) sums."""
 
 
 def _bone_groups() -> tuple[npt.NDArray[np.intp], ...]:
@@ -79,6 +125,16 @@ def _bone_groups() -> tuple[npt.NDArray[np.intp], ...]:
 
 
 BONE_GROUPS: Final = _bone_groups()
+_GROUPED: Final = np.concatenate(BONE_GROUPS)
+_GROUPED_PARENT: Final = _BONE_PARENT[_GROUPED]
+_GROUPED_CHILD: Final = _BONE_CHILD[_GROUPED]
+_GROUP_BOUNDS: Final = np.cumsum([0] + [len(g) for g in BONE_GROUPS]).tolist()
+_GROUP_ENDS: Final = tuple(
+    (np.stack([_BONE_PARENT[g], _BONE_CHILD[g]]), lo, hi)
+    for g, lo, hi in zip(BONE_GROUPS, _GROUP_BOUNDS[:-1], _GROUP_BOUNDS[1:], strict=True)
+)
+"""Per group: its bones' (parents, children) as a (2, n) index array, and its slice of
+:data:`_GROUPED` (the bones in group order)."""
 
 
 def project_bone_lengths(
@@ -110,24 +166,29 @@ def project_bone_lengths(
     out = np.where(missing[..., None], 0.0, original)  # NaN-free while iterating
     move = np.ones(out.shape[:-1]) if mobility is None else np.asarray(mobility, np.float64)
     move = np.maximum(move, 1e-6)
-    # Per group, fixed over the passes: its bones' ends, targets and the ends' shares (0 for a
-    # bone with an unknown target or a missing end: it moves nothing).
-    plan = []
-    for group in BONE_GROUPS:
-        parents, children = _BONE_PARENT[group], _BONE_CHILD[group]
-        target = ref[..., group]
-        usable = np.isfinite(target) & ~missing[..., parents] & ~missing[..., children]
-        m_parent, m_child = move[..., parents], move[..., children]
-        share = np.where(usable, m_parent / (m_parent + m_child), 0.0)[..., None]
-        rest = np.where(usable, 1.0, 0.0)[..., None] - share
-        plan.append((parents, children, np.where(usable, target, 0.0), share, rest))
+    # Fixed over the passes, for all bones at once in group order: each bone's target and its
+    # ends' shares (0 for a bone with an unknown target or a missing end: it moves nothing).
+    target = ref[..., _GROUPED]
+    usable = np.isfinite(target) & ~missing[..., _GROUPED_PARENT] & ~missing[..., _GROUPED_CHILD]
+    m_parent, m_child = move[..., _GROUPED_PARENT], move[..., _GROUPED_CHILD]
+    share = np.where(usable, m_parent / (m_parent + m_child), 0.0)[..., None]
+    rest = np.where(usable, 1.0, 0.0)[..., None] - share
+    # Joints first while iterating, so that a group's ends are whole rows (the cheapest
+    # gather and scatter); per group, both ends in one array (2, n, ..., 3). The parent moves
+    # by share·delta, the child by −rest·delta (adding the negated product is the subtraction,
+    # to the bit).
+    coefficients = np.moveaxis(np.stack([share, -rest]), -2, 1)  # (2, 24, ..., 1)
+    target = np.moveaxis(np.where(usable, target, 0.0), -1, 0)  # (24, ...)
+    plan = [(ends, target[lo:hi], coefficients[:, lo:hi]) for ends, lo, hi in _GROUP_ENDS]
+    rows = np.moveaxis(out, -2, 0).copy()  # (25, ..., 3)
     for _ in range(iterations):
-        for parents, children, target, share, rest in plan:
-            offsets = out[..., children, :] - out[..., parents, :]
+        for ends, group_target, coefficient in plan:
+            both = rows.take(ends, axis=0)  # (2, n, ..., 3): parents, children
+            offsets = both[1] - both[0]
             norms = np.maximum(np.sqrt(np.vecdot(offsets, offsets)), 1e-12)
-            delta = offsets * ((norms - target) / norms)[..., None]
-            out[..., parents, :] += share * delta
-            out[..., children, :] -= rest * delta
+            delta = offsets * ((norms - group_target) / norms)[..., None]
+            rows[ends] = both + coefficient * delta
+    out = np.moveaxis(rows, 0, -2)
     out[missing] = np.nan
     return enforce_bone_lengths(out, ref)
 
