@@ -116,12 +116,15 @@ def post(url: str, body: dict[str, Any]) -> Any:
         return json.load(response)
 
 
-def calibrate_once(url: str, capture_s: float, logs: list[Path]) -> StallResult:
-    """One ``auto`` run through REST, with the loop lag and agent silences while it ran."""
+def calibrate_once(
+    url: str, capture_s: float, logs: list[Path], method: str = "auto"
+) -> StallResult:
+    """One calibration run (``method``, default ``auto``) through REST, with the loop lag and
+    agent silences while it ran (``bench/load.py --calibrate`` runs it under load too)."""
     silent_before = silent_lines(logs)
     before = scrape(url)
     started = time.monotonic()
-    run = post(url + "/api/calibration/runs", {"method": "auto", "duration_s": capture_s})
+    run = post(url + "/api/calibration/runs", {"method": method, "duration_s": capture_s})
     while run["state"] in ("capturing", "solving"):
         time.sleep(0.5)
         run = http_json(f"{url}/api/calibration/runs/{run['id']}")

@@ -25,6 +25,10 @@ Measured over a window that starts after all sensors are online and a warm-up:
   computes that wait exactly for each fused frame (capture time of the last frame the instant
   needed, minus ``t``) and also reports the latency beyond it: client receive time − capture time
   of the frame that completed the instant;
+- per stage of the live path (``load_stages``): the exact alignment wait above; the server's own
+  histograms ``skelfuse_live_stage_seconds`` over the window (ingest per agent message, fusion
+  step and publish per fused frame, fusion start − ``t``); ``t_sent`` → client receive; p50 / p99
+  of each;
 - server CPU (% of one core) and RSS from ``/proc/<pid>`` (Linux);
 - the stalled client: when it was evicted (``GET /api/clients``), frames sent to / dropped for
   it, and the healthy clients' latency while it was connected vs after.
@@ -41,12 +45,16 @@ Run: ``python bench/load.py`` (main run: 10 agents × 6 bodies, 120 s), ``--scal
 reported), ``--agents``, ``--bodies``, ``--duration``, ``--clients``, ``--stalled``,
 ``--fusion-only`` (the in-process timing only), ``--encode-only`` (the feed message only),
 ``--decode-only`` (decoding one incoming frame only),
+``--calibrate auto`` (a full calibration through REST a fifth into the main run's window: the
+event loop's longest / p99 stall while it runs, against the window before it, and the agents'
+"server silent" lines; ``--calibrate-capture`` s of skeleton capture),
 ``--json FILE`` (raw results).
 
 The parts: ``load_agents`` (the fake agents), ``load_clients`` (the WebSocket clients),
 ``load_server`` (the server subprocess), ``load_run`` (one run and its figures),
 ``fusion_timing`` (the in-process timing), ``load_encode`` (the feed message),
-``load_decode`` (decoding a frame),
+``load_decode`` (decoding a frame), ``load_stages`` (the server's stage histograms),
+``load_calibrate`` (the calibration under load),
 ``load_report`` (the tables).
 """
 
@@ -91,6 +99,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--encode-only", action="store_true", help="the feed message cost only")
     parser.add_argument("--decode-only", action="store_true", help="decoding one frame only")
     parser.add_argument("--json", type=Path, default=None, help="write raw results here")
+    parser.add_argument(
+        "--calibrate", choices=("auto", "skeleton", "icp"), default=None,
+        help="run this calibration through REST a fifth into the window: loop lag, 'server silent'",
+    )  # fmt: skip
+    parser.add_argument("--calibrate-capture", type=float, default=15.0, help="skeleton capture, s")
     args = parser.parse_args(argv)
     pin_blas_threads()  # the in-process timings run as the server does
     started = time.monotonic()
@@ -131,7 +144,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             print_scaling(results, args.repeat)
         else:
             config = RunConfig(args.agents, args.bodies, args.duration, args.warmup,
-                               args.clients, args.stalled)  # fmt: skip
+                               args.clients, args.stalled, args.calibrate,
+                               args.calibrate_capture)  # fmt: skip
             print_main(run_config(config), args.repeat)
     timings = [fusion_timing(s, b, args.fusion_steps) for s, b in ((4, 6), (10, 6), (16, 6))]
     raw["fusion"] = [asdict(t) for t in timings]

@@ -8,10 +8,12 @@ moved into each sensor's frame.
 from __future__ import annotations
 
 import heapq
+import logging
 import math
 import multiprocessing as mp
 import random
 import time
+from dataclasses import replace
 from functools import partial
 from multiprocessing.synchronize import Event as MpEvent
 from typing import Any
@@ -19,8 +21,11 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.agent.link import AgentLink
+from skelfuse.agent.link import AgentLink, RequestHandler
+from skelfuse.agent.sim.depth_camera import KINECT_V2_DEPTH
 from skelfuse.agent.sim.performer import ProceduralPerformer
+from skelfuse.agent.sim.room import capture_point_cloud, default_room
+from skelfuse.protocol.depth_cloud import DEFAULT_MAX_POINTS, decode_request, encode_reply
 from skelfuse.protocol.skeleton import JOINT_COUNT, TrackingState
 from skelfuse.protocol.transform import Matrix4, apply, invert, look_at_pose
 from skelfuse.protocol.wire import Body, Frame, Hello
@@ -75,6 +80,33 @@ def hello(sensor_id: str) -> Hello:
     return Hello(sensor_id, "sim", "bench-load", FPS, time.time_ns())
 
 
+def depth_handler(
+    T_world_from_sensor: Matrix4, persons_world: FloatArray, seed: int
+) -> RequestHandler:
+    """A ``depth_cloud`` answer for one fake agent: the default room (its walls moved out past
+    the sensors' circle) and ``persons_world`` seen from its pose by a simulated Kinect v2,
+    rendered now (a few hundred ms), sent as is later.
+
+    Raises (from the handler): DecodeError, a malformed request (the link answers a refusal).
+    """
+    points = capture_point_cloud(
+        replace(default_room(), wall_half_m=SENSOR_RADIUS_M + 1, floor_half_m=SENSOR_RADIUS_M + 2),
+        persons_world, T_world_from_sensor, np.random.default_rng(seed),
+        max_points=DEFAULT_MAX_POINTS,
+    )  # fmt: skip
+    d = KINECT_V2_DEPTH
+    intrinsics = {"width": d.width, "height": d.height, "fx": d.fx, "fy": d.fy, "cx": d.cx,
+                  "cy": d.cy}  # fmt: skip
+
+    def handle(params: dict[str, Any]) -> dict[str, object]:
+        request = decode_request(params)
+        return encode_reply(
+            points[: request.max_points], t_capture_ns=time.time_ns(), intrinsics=intrinsics
+        )
+
+    return handle
+
+
 def agents_process(
     endpoint: str,
     poses: dict[str, list[float]],
@@ -83,16 +115,35 @@ def agents_process(
     max_runtime_s: float,
     stop: MpEvent,
     results: mp.Queue[Any],
+    log_path: str | None = None,
+    depth: bool = False,
 ) -> None:
-    """Run every fake agent in one thread, each on its own 30 fps schedule, until ``stop``."""
+    """Run every fake agent in one thread, each on its own 30 fps schedule, until ``stop``.
+
+    ``log_path``: the agents' warnings go there (e.g. "server silent"); ``depth``: each agent
+    answers ``depth_cloud`` requests (rendered before the agents start).
+    """
     import zmq
 
+    if log_path is not None:
+        logging.basicConfig(
+            filename=log_path, level=logging.WARNING, format="%(asctime)s %(name)s %(message)s"
+        )
     ids = sorted(poses)
     sensor_from_world = [invert(np.asarray(poses[s]).reshape(4, 4)) for s in ids]
     motion = WorldMotion(bodies)
     states = np.full(JOINT_COUNT, TrackingState.TRACKED, dtype=np.uint8)
     context: zmq.Context[Any] = zmq.Context()
-    links = [AgentLink(endpoint, partial(hello, s), context=context) for s in ids]
+    handlers: list[dict[str, RequestHandler]] = [{} for _ in ids]
+    if depth:
+        people = motion.at(time.time())
+        for i, s in enumerate(ids):
+            pose = np.asarray(poses[s], dtype=np.float64).reshape(4, 4)
+            handlers[i] = {"depth_cloud": depth_handler(pose, people, seed * 100 + i)}
+    links = [
+        AgentLink(endpoint, partial(hello, s), context=context, handlers=handlers[i])
+        for i, s in enumerate(ids)
+    ]
     rng = random.Random(seed)
     start = time.time() + 0.05
     due: list[tuple[float, int]] = [(start + rng.random() * PERIOD_S, i) for i in range(len(ids))]

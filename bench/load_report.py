@@ -20,7 +20,8 @@ def median_result(runs: list[RunResult]) -> RunResult:
     """Field-wise median of several runs (counts: the worst run, so a loss is never hidden)."""
     out = RunResult(runs[0].config)
     worst = {"lost_frames", "sequence_gaps", "frames_rejected", "client_gaps_total",
-             "client_gaps_max", "agent_drops_registered"}  # fmt: skip
+             "client_gaps_max", "agent_drops_registered", "calibration_over_20ms",
+             "calibration_server_silent", "baseline_over_20ms"}  # fmt: skip
     for name, value in asdict(runs[0]).items():
         if name in ("config", "notes"):
             continue
@@ -33,6 +34,8 @@ def median_result(runs: list[RunResult]) -> RunResult:
                 median = statistics.median(numbers)
                 setattr(out, name, type(value)(median) if isinstance(value, int) else median)
     out.notes = [n for r in runs for n in r.notes]
+    out.calibration_state = ", ".join(r.calibration_state for r in runs if r.calibration_state)
+    out.calibration_icp = min(r.calibration_icp for r in runs)
     out.rejected_reasons = {}
     for r in runs:
         for reason, n in r.rejected_reasons.items():
@@ -100,6 +103,8 @@ def print_main(r: RunResult, repeat: int) -> None:
     for name, target, value in rows:
         print(f"| {name} | {target} | {value} |")
     print_stages_live(r)
+    if c.calibrate is not None:
+        print_calibration(r)
     if r.agents_late:
         print(f"\nThe agents process fell behind its schedule {r.agents_late} times.")
     for note in dict.fromkeys(r.notes):
@@ -137,6 +142,24 @@ def print_stages_live(r: RunResult) -> None:
     print("|---|---|---|---|")
     for name, source, p50, p99 in rows:
         print(f"| {name} | {source} | {ms(p50, 2)} | {ms(p99, 2)} |")
+
+
+def print_calibration(r: RunResult) -> None:
+    """The event loop while a calibration ran under this load, against the window before it."""
+    c = r.config
+    print(
+        f"\nA `{c.calibrate}` calibration ({c.calibrate_capture_s:.0f} s capture) in the window: "
+        f"{r.calibration_state}, {r.calibration_s:.1f} s\n"
+    )
+    print("| event loop | target | during the calibration | before it (load alone) |")
+    print("|---|---|---|---|")
+    print(f"| longest stall (ms) | ≤ 20 | {ms(r.calibration_lag_max_ms)} | "
+          f"{ms(r.baseline_lag_max_ms)} |")  # fmt: skip
+    print(f"| p99 stall (ms, bucket bound) | — | {ms(r.calibration_lag_p99_ms)} | "
+          f"{ms(r.baseline_lag_p99_ms)} |")  # fmt: skip
+    print(f"| ticks late by over 20 ms | 0 | {r.calibration_over_20ms} | "
+          f"{r.baseline_over_20ms} |")  # fmt: skip
+    print(f'| agents\' "server silent" lines | 0 | {r.calibration_server_silent} | — |')
 
 
 def print_scaling(results: list[RunResult], repeat: int) -> None:

@@ -18,6 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 from bench.load_agents import FPS, agents_process, sensor_layout
+from bench.load_calibrate import calibrate_under_load
 from bench.load_clients import ClientLog, healthy_client, open_stalled_client
 from bench.load_server import (
     free_port,
@@ -43,6 +44,9 @@ class RunConfig:
     warmup_s: float = 3.0
     clients: int = 20
     stalled: int = 1
+    calibrate: str | None = None
+    """A calibration method (``auto``) run through REST part-way into the window, or None."""
+    calibrate_capture_s: float = 15.0
 
 
 @dataclass
@@ -90,6 +94,19 @@ class RunResult:
     publish_p99_ms: float = math.nan
     lag_p50_ms: float = math.nan
     lag_p99_ms: float = math.nan
+    calibration_state: str = ""
+    """With ``calibrate``: how the run ended, its length (s), the event loop's longest and p99
+    stall (ms), ticks over 20 ms, the agents' "server silent" lines while it ran, and the loop's
+    longest and p99 stall in the window before it (the load alone)."""
+    calibration_s: float = math.nan
+    calibration_lag_max_ms: float = math.nan
+    calibration_lag_p99_ms: float = math.nan
+    calibration_over_20ms: int = 0
+    calibration_server_silent: int = 0
+    calibration_icp: int = 0
+    baseline_lag_max_ms: float = math.nan
+    baseline_lag_p99_ms: float = math.nan
+    baseline_over_20ms: int = 0
     p99_while_stalled_ms: float = math.nan
     p99_after_evicted_ms: float = math.nan
     server_cpu_pct: float = 0.0
@@ -160,6 +177,8 @@ async def run_once(config: RunConfig, seed: int, log_dir: Path) -> RunResult:
     agents: mp.process.BaseProcess | None = None
     tasks: list[asyncio.Task[None]] = []
     stalled: list[tuple[socket.socket, int, float]] = []
+    agents_log = log_dir / f"agents-{config.agents}x{config.bodies}-{seed}.log"
+    calibration: asyncio.Task[Any] | None = None
     try:
         await asyncio.to_thread(
             wait_for, lambda: http_json(base + "/api/health"), 20, "the server to start"
@@ -175,7 +194,8 @@ async def run_once(config: RunConfig, seed: int, log_dir: Path) -> RunResult:
             args=(
                 f"tcp://127.0.0.1:{zmq_port}",
                 {s: [float(x) for x in p.reshape(16)] for s, p in poses.items()},
-                config.bodies, seed, config.warmup_s + config.duration_s + 60.0, stop, queue,
+                config.bodies, seed, config.warmup_s + config.duration_s + 180.0, stop, queue,
+                str(agents_log), config.calibrate is not None,
             ),
             daemon=True,
         )  # fmt: skip
@@ -185,7 +205,8 @@ async def run_once(config: RunConfig, seed: int, log_dir: Path) -> RunResult:
             health = http_json(base + "/api/health")
             return bool(health["sensors_online"] == config.agents and health["fused_frames"] > 30)
 
-        await asyncio.to_thread(wait_for, all_online, 30, "every sensor online and fusing")
+        online_s = 30 if config.calibrate is None else 30 + 2 * config.agents  # depth renders
+        await asyncio.to_thread(wait_for, all_online, online_s, "every sensor online and fusing")
         await asyncio.sleep(config.warmup_s)
 
         async def snapshot() -> tuple[float, float, dict[str, Any], dict[str, Any]]:
@@ -203,6 +224,11 @@ async def run_once(config: RunConfig, seed: int, log_dir: Path) -> RunResult:
         stalled_seen: dict[int, dict[str, Any]] = {}
         evicted_at: dict[int, float] = {}
         end = t0 + config.duration_s
+        if config.calibrate is not None:  # starts a fifth into the window, after a baseline
+            calibration = asyncio.create_task(calibrate_under_load(
+                base, config.calibrate, config.calibrate_capture_s, config.duration_s / 5,
+                [agents_log],
+            ))  # fmt: skip
         while (now := time.time()) < end:
             await asyncio.sleep(min(1.0, end - now))
             rss_max = max(rss_max, proc_rss_mb(server.pid))
@@ -223,6 +249,21 @@ async def run_once(config: RunConfig, seed: int, log_dir: Path) -> RunResult:
         result.server_cpu_pct = 100 * (cpu1 - cpu0) / result.window_s
         result.persons_last = int(health1["persons"])
         result.evicted_total = int((await get(base + "/api/clients"))["evicted"])
+        if calibration is not None:
+            baseline, calibrated = await asyncio.wait_for(calibration, 300)
+            result.calibration_state = calibrated.state + ("" if calibrated.icp_applied else
+                                                           " (no ICP)")  # fmt: skip
+            result.calibration_s = calibrated.seconds
+            result.calibration_lag_max_ms = calibrated.max_ms
+            result.calibration_lag_p99_ms = calibrated.p99_ms
+            result.calibration_over_20ms = calibrated.over_20ms
+            result.calibration_server_silent = calibrated.server_silent
+            result.calibration_icp = int(calibrated.icp_applied)
+            result.baseline_lag_max_ms = baseline.max_ms
+            result.baseline_lag_p99_ms = baseline.p99_ms
+            result.baseline_over_20ms = baseline.over_20ms
+            if calibrated.seconds > config.duration_s * 0.8:
+                result.notes.append("the calibration ran past the window's end")
 
         stop.set()
         agent_out: dict[str, Any] = await asyncio.to_thread(queue.get, True, 30)
@@ -231,6 +272,8 @@ async def run_once(config: RunConfig, seed: int, log_dir: Path) -> RunResult:
         sensors_end = await get(base + "/api/sensors")
     finally:
         stop.set()
+        if calibration is not None and not calibration.done():
+            calibration.cancel()
         for task in tasks:
             task.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
