@@ -60,7 +60,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 ", ".join(sorted(calibration.sensors)) or "no sensors",
             )
         hub = FusionHub(settings, calibration)
-        broadcaster = Broadcaster(settings.ws_queue_size, settings.ws_send_timeout_s)
+        broadcaster = Broadcaster(settings.ws_send_timeout_s)
         context = zmq.asyncio.Context()
         authenticator = None
         if settings.curve:

@@ -1,13 +1,19 @@
-"""WebSocket fan-out: every client gets its own small queue and sender task.
+"""WebSocket fan-out: a live feed that conflates. Every client gets a one-frame mailbox and a
+sender task.
 
-Fusion never waits for a client. Each client has a bounded queue (newest frames win: when it is
-full the oldest queued frame is dropped and counted); its own task sends with a timeout, and a
-client that cannot take a message within ``send_timeout_s`` (``ws_send_timeout_s``), or whose
-queue stays full that long, is disconnected. Each fused frame is encoded once per (format, raw)
-variant, however many clients want it, and that one text or bytes object is what every such
-client's queue holds. JSON is encoded by orjson (about a tenth of ``json.dumps``'s time), whose
-output for feed messages is the same text as ``json.dumps(..., separators=(",", ":"))`` except
-that non-ASCII is written as UTF-8, not ``\\u`` escapes, and NaN or infinity become ``null``.
+Fusion never waits for a client. Publishing puts the frame in every client's mailbox, replacing
+one the client has not taken yet (counted as ``conflated``); each client's sender takes the
+newest frame only once its previous send has drained (``server/feed_protocol.py`` keeps the
+socket's buffers to about one frame), so a slow client gets the newest frame at its own pace,
+never a queue of old ones, and a client that keeps up gets every frame. A client for which a
+frame has waited ``send_timeout_s`` (``ws_send_timeout_s``, 5 s), or whose one send takes that
+long, is closed with code 1008 and counted as evicted.
+
+Each fused frame is encoded once per (format, raw) variant, however many clients want it, and
+that one text or bytes object is what every such client's mailbox holds. JSON is encoded by
+orjson (about a tenth of ``json.dumps``'s time), whose output for feed messages is the same
+text as ``json.dumps(..., separators=(",", ":"))`` except that non-ASCII is written as UTF-8,
+not ``\\u`` escapes, and NaN or infinity become ``null``.
 
 The socket is anything with :class:`FeedSocket`'s three methods (the app adapts Starlette's
 WebSocket), so this module is tested with a fake one.
@@ -25,7 +31,6 @@ from typing import Any, Protocol
 
 import msgpack
 import orjson
-from starlette.websockets import WebSocketDisconnect
 
 from skelfuse.fusion.hub import FusedFrame
 from skelfuse.protocol.feed import frame_json
@@ -82,42 +87,52 @@ def encode_message(message: dict[str, Any], binary: bool) -> bytes | str:
 class Client:
     client_id: int
     variant: Variant
-    queue: asyncio.Queue[bytes | str]
-    sent: int = 0
-    dropped: int = 0
     connected_at_s: float = 0.0
     remote: str = ""
     stall_limit_s: float = 5.0
-    full_since: float | None = None
-    """When the queue was first found full with no send completed since (None: keeping up)."""
+    pending: bytes | str | None = None
+    """The mailbox: the newest frame the sender has not taken yet (None: nothing waiting)."""
+    waiting_since: float | None = None
+    """Monotonic seconds when a frame last found the mailbox empty and has waited since (None:
+    the client has taken everything offered)."""
+    sent: int = 0
+    conflated: int = 0
+    """Frames replaced in the mailbox by a newer one before the client could take them."""
+    ready: asyncio.Event = field(default_factory=asyncio.Event)
     stalled: asyncio.Event = field(default_factory=asyncio.Event)
-    """Set when the client has taken nothing for ``stall_limit_s``: it is to be disconnected."""
+    """Set when a frame has waited for the client over ``stall_limit_s``: it is to be closed."""
 
     def offer(self, payload: bytes | str, now_mono: float) -> None:
-        """Queue without ever blocking: drop the oldest frame when the client is behind.
+        """Put the newest frame in the mailbox without ever blocking; it replaces an untaken one.
 
-        A client whose queue stays full for ``stall_limit_s`` (``now_mono``: monotonic seconds)
-        is marked stalled. This does not wait for a send to time out, which takes as long as the
-        kernel's socket buffer (megabytes, tens of seconds of frames) keeps accepting data
-        nobody reads.
+        A frame that has waited in the mailbox for more than ``stall_limit_s`` (``now_mono``:
+        monotonic seconds) marks the client stalled. This does not wait for a send to time out:
+        the sender may be blocked on a socket that will never drain.
         """
-        if self.queue.full():
-            if self.full_since is None:
-                self.full_since = now_mono
-            elif now_mono - self.full_since > self.stall_limit_s:
+        if self.pending is None:
+            self.waiting_since = now_mono
+        else:
+            self.conflated += 1
+            if (
+                self.waiting_since is not None
+                and now_mono - self.waiting_since > self.stall_limit_s
+            ):
                 self.stalled.set()
-            try:
-                self.queue.get_nowait()
-                self.dropped += 1
-            except asyncio.QueueEmpty:
-                pass
-        self.queue.put_nowait(payload)
+        self.pending = payload
+        self.ready.set()
+
+    def take(self) -> bytes | str | None:
+        """Empty the mailbox (the sender's side): the newest frame, or None if none waits."""
+        payload, self.pending = self.pending, None
+        self.waiting_since = None
+        self.ready.clear()
+        return payload
 
 
 @dataclass(slots=True)
 class Broadcaster:
-    queue_size: int = 2
     send_timeout_s: float = 5.0
+    """A client that has not taken a frame for this long is closed with 1008 and counted."""
     clients: dict[int, Client] = field(default_factory=dict)
     evicted: int = 0
     published: int = 0
@@ -128,7 +143,6 @@ class Broadcaster:
         client = Client(
             next(self._ids),
             variant,
-            asyncio.Queue(self.queue_size),
             connected_at_s=now_s,
             remote=remote,
             stall_limit_s=self.send_timeout_s,
@@ -159,16 +173,11 @@ class Broadcaster:
     async def serve(self, client: Client, socket: FeedSocket, greeting: bytes | str) -> None:
         """Send ``greeting``, then the client's frames until it disconnects, fails or stalls.
 
-        A client that stalls (its queue full for ``send_timeout_s``, or one send taking that
-        long) is counted in :attr:`evicted` and closed with code 1008 "client too slow". The
-        client is removed however this ends.
+        A client that stalls (a frame waiting in its mailbox for ``send_timeout_s``, or one send,
+        the greeting's too, taking that long) is counted in :attr:`evicted` and closed with code
+        1008 "client too slow". The client is removed however this ends.
         """
-        try:
-            await asyncio.wait_for(socket.send(greeting), self.send_timeout_s)
-        except (WebSocketDisconnect, RuntimeError, TimeoutError):
-            self.remove(client)
-            return
-        sender = asyncio.create_task(pump(client, socket.send, self.send_timeout_s))
+        sender = asyncio.create_task(pump(client, socket.send, self.send_timeout_s, greeting))
         receiver = asyncio.create_task(socket.closed())
         stalled = asyncio.create_task(client.stalled.wait())
         try:
@@ -197,8 +206,9 @@ class Broadcaster:
                 "format": "msgpack" if c.variant.binary else "json",
                 "raw": c.variant.raw,
                 "sent": c.sent,
-                "dropped": c.dropped,
-                "queued": c.queue.qsize(),
+                "conflated": c.conflated,
+                "dropped": c.conflated,  # the name before conflation, kept for existing readers
+                "waiting": c.pending is not None,
             }
             for c in self.clients.values()
         ]
@@ -208,13 +218,25 @@ async def pump(
     client: Client,
     send: Callable[[bytes | str], Awaitable[None]],
     timeout_s: float,
+    greeting: bytes | str | None = None,
 ) -> None:
-    """Send queued frames to one client until it fails or one send takes ``timeout_s``."""
+    """Send ``greeting`` (if any), then the newest frame each time the previous send is done,
+    until a send fails or takes ``timeout_s``.
+
+    ``send`` should return once its message has drained from the server's buffers (as
+    ``server/feed_protocol.py`` makes uvicorn's do): the frame taken next is then the newest at
+    that moment, and the frames published meanwhile were conflated in the mailbox.
+    """
+    if greeting is not None:
+        async with asyncio.timeout(timeout_s):
+            await send(greeting)
     while True:
-        payload = await client.queue.get()
+        await client.ready.wait()
+        payload = client.take()
+        if payload is None:
+            continue
         # asyncio.timeout, not wait_for: on 3.11 wait_for swallows a cancellation that arrives
         # as the send completes, and the pump would then outlive its client.
         async with asyncio.timeout(timeout_s):
             await send(payload)
         client.sent += 1
-        client.full_since = None

@@ -96,21 +96,22 @@ class SkelfuseCollector(Collector):
         sent = CounterMetricFamily(
             "skelfuse_ws_client_sent", "Frames sent to each WebSocket client", labels=["client"]
         )
-        dropped = CounterMetricFamily(
-            "skelfuse_ws_client_dropped", "Frames dropped for a slow WebSocket client",
+        conflated = CounterMetricFamily(
+            "skelfuse_ws_client_conflated",
+            "Frames a WebSocket client did not take before a newer one replaced them",
             labels=["client"],
-        )  # fmt: skip
+        )
         for client in self.broadcaster.clients.values():
             label = str(client.client_id)
             sent.add_metric([label], client.sent)
-            dropped.add_metric([label], client.dropped)
+            conflated.add_metric([label], client.conflated)
         evicted = CounterMetricFamily(
             "skelfuse_ws_clients_evicted", "WebSocket clients disconnected for stalling"
         )
         evicted.add_metric([], self.broadcaster.evicted)
         clients = GaugeMetricFamily("skelfuse_ws_clients", "Connected WebSocket clients")
         clients.add_metric([], len(self.broadcaster.clients))
-        yield from (sent, dropped, evicted, clients)
+        yield from (sent, conflated, evicted, clients)
         yield blas_threads()
 
 

@@ -19,10 +19,9 @@ class Settings(HubSettings):
     http_port: int = DEFAULT_HTTP_PORT
     zmq_endpoint: str = f"tcp://*:{DEFAULT_ZMQ_PORT}"
     data_dir: Path = Path("skelfuse-data")
-    ws_queue_size: int = 2
-    """Frames queued per WebSocket client; the oldest is dropped when a client falls behind."""
     ws_send_timeout_s: float = 5.0
-    """A client that cannot take one message in this long is disconnected."""
+    """A WebSocket client that has not taken a frame for this long (the newest waiting in its
+    one-frame mailbox), or whose one send takes this long, is closed with 1008 and counted."""
     api_token: str | None = None
     """When set, REST mutations and reads of people's data (``security.needs_token``) need
     ``Authorization: Bearer <token>`` and the WebSocket needs ``?token=<token>``; status reads

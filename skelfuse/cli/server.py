@@ -152,14 +152,19 @@ def uvicorn_config(
     """
     import uvicorn
 
+    from skelfuse.server.feed_protocol import FeedWebSocketProtocol
+
     return uvicorn.Config(
         app,
         host=host,
         port=port,
         log_level=log_level,
+        # Send buffers of about one frame, so the feed conflates instead of queueing in the
+        # kernel (issue 12, defect 2); a client that stops reading is then evicted by the
+        # broadcaster (1008, 5 s) before the keepalive below would cut it (1011, about 10 s).
+        ws=FeedWebSocketProtocol,
         ws_max_size=64 * 1024,
-        # A client that stops reading stops answering pings long before the kernel's socket
-        # buffers (megabytes) fill: this is what disconnects it within about 10 s.
+        # The keepalive is for peers that vanished without closing.
         ws_ping_interval=5.0,
         ws_ping_timeout=5.0,
         ws_per_message_deflate=ws_compression,

@@ -1,6 +1,7 @@
-"""WebSocket fan-out (server/broadcast.py) with a fake socket and the time passed in: bounded
-per-client queues that drop the oldest frame, stalled clients disconnected, one encoding per
-(format, raw) variant. No test waits on the wall clock."""
+"""WebSocket fan-out (server/broadcast.py) with a fake socket and the time passed in: a
+one-frame mailbox per client where the newest frame wins, a sender that takes the newest only
+once its send is done, stalled clients disconnected, one encoding per (format, raw) variant.
+No test waits on the wall clock."""
 
 from __future__ import annotations
 
@@ -54,35 +55,72 @@ class FakeSocket:
         self.closes.append((code, reason))
 
 
-def test_a_full_queue_drops_its_oldest_frame() -> None:
-    client = Broadcaster(queue_size=2).add(JSON, "a", 0.0)
+def test_the_mailbox_keeps_only_the_newest_frame_and_counts_the_rest() -> None:
+    client = Broadcaster().add(JSON, "a", 0.0)
     for payload in ("f1", "f2", "f3", "f4"):
         client.offer(payload, 0.0)
-    assert [client.queue.get_nowait() for _ in range(2)] == ["f3", "f4"]
-    assert client.dropped == 2 and not client.stalled.is_set()
+    assert client.take() == "f4" and client.take() is None
+    assert client.conflated == 3 and not client.stalled.is_set()
 
 
-def test_a_queue_full_for_longer_than_the_limit_marks_the_client_stalled() -> None:
-    client = Broadcaster(queue_size=1, send_timeout_s=5.0).add(JSON, "a", 0.0)
-    client.offer("f0", 10.0)
-    client.offer("f1", 10.0)  # full from t = 10
-    client.offer("f2", 15.0)  # 5 s: at the limit, not past it
-    assert not client.stalled.is_set() and client.full_since == 10.0
-    client.offer("f3", 15.1)
+def test_a_frame_waiting_longer_than_the_limit_marks_the_client_stalled() -> None:
+    client = Broadcaster(send_timeout_s=5.0).add(JSON, "a", 0.0)
+    client.offer("f0", 10.0)  # waiting from t = 10
+    client.offer("f1", 15.0)  # 5 s: at the limit, not past it
+    assert not client.stalled.is_set() and client.waiting_since == 10.0
+    client.offer("f2", 15.1)
     assert client.stalled.is_set()
 
 
-async def test_a_completed_send_restarts_the_stall_clock() -> None:
-    client = Broadcaster(queue_size=1).add(JSON, "a", 0.0)
-    client.offer("f0", 1.0)
-    client.offer("f1", 1.0)
-    assert client.full_since == 1.0
-    socket = FakeSocket()
+def test_a_client_that_takes_a_frame_restarts_the_stall_clock() -> None:
+    client = Broadcaster(send_timeout_s=5.0).add(JSON, "a", 0.0)
+    for step in range(240):  # 8 s of a 30 Hz feed; a slow reader takes 5 frames/s
+        client.offer(f"f{step}", 10.0 + step / 30)
+        if step % 6 == 5:
+            assert client.take() == f"f{step}"  # always the newest
+    assert not client.stalled.is_set() and client.conflated == 200
+
+
+class DrainingSocket:
+    """A socket whose sends end only when the test lets one drain (as the feed protocol's do)."""
+
+    def __init__(self) -> None:
+        self.sent: list[bytes | str] = []
+        self.drained = asyncio.Semaphore(0)
+        self.writing = asyncio.Event()
+
+    async def send(self, payload: bytes | str) -> None:
+        self.sent.append(payload)
+        self.writing.set()
+        await self.drained.acquire()
+
+
+async def test_the_sender_takes_the_newest_frame_once_the_previous_send_has_drained() -> None:
+    client = Broadcaster().add(JSON, "a", 0.0)
+    socket = DrainingSocket()
     task = asyncio.create_task(pump(client, socket.send, 5.0))
-    await socket.delivered.wait()
+    client.offer("f1", 0.0)
+    await socket.writing.wait()
+    for payload in ("f2", "f3", "f4"):  # published while f1 is still draining
+        client.offer(payload, 0.0)
+    socket.writing.clear()
+    socket.drained.release()
+    await socket.writing.wait()
     task.cancel()
     await asyncio.gather(task, return_exceptions=True)
-    assert socket.sent == ["f1"] and client.sent == 1 and client.full_since is None
+    assert socket.sent == ["f1", "f4"] and client.conflated == 2 and client.sent == 1
+
+
+async def test_a_client_that_keeps_up_gets_every_frame() -> None:
+    client = Broadcaster().add(JSON, "a", 0.0)
+    socket = FakeSocket()
+    task = asyncio.create_task(pump(client, socket.send, 5.0))
+    for step in range(30):
+        client.offer(f"f{step}", step / 30)
+        await asyncio.sleep(0)  # the sender runs between two fusion steps
+    task.cancel()
+    await asyncio.gather(task, return_exceptions=True)
+    assert socket.sent == [f"f{step}" for step in range(30)] and client.conflated == 0
 
 
 async def test_pump_gives_up_on_a_send_that_takes_too_long() -> None:
@@ -93,17 +131,17 @@ async def test_pump_gives_up_on_a_send_that_takes_too_long() -> None:
 
 
 def test_publish_encodes_once_per_variant_with_the_given_send_time() -> None:
-    broadcaster = Broadcaster(queue_size=4)
+    broadcaster = Broadcaster()
     clients = [broadcaster.add(v, str(i), 0.0) for i, v in enumerate([JSON, JSON, JSON_RAW])]
     binary = broadcaster.add(MSGPACK, "m", 0.0)
     broadcaster.publish(fused_frame(), 1000.5, 3.0)
-    first, second, raw = (c.queue.get_nowait() for c in clients)
+    first, second, raw = (c.take() for c in clients)
     assert first is second, "one encoding shared by the clients of a variant"
     message = json.loads(first)  # type: ignore[arg-type]
     assert message["t_sent"] == 1000.5 and message["seq"] == 7 and "raw" not in message
     assert message["persons"][0]["joints"][3] is None
     assert json.loads(raw)["raw"][0]["tracking_id"] == str(2**63 + 5)  # type: ignore[arg-type]
-    assert msgpack.unpackb(binary.queue.get_nowait()) == message
+    assert msgpack.unpackb(binary.take()) == message  # type: ignore[arg-type]
     assert broadcaster.published == 1
 
 
@@ -115,7 +153,7 @@ def test_encode_message_never_sends_nan_in_json() -> None:
 
 
 async def test_serve_greets_then_streams_until_the_client_leaves() -> None:
-    broadcaster = Broadcaster(queue_size=2)
+    broadcaster = Broadcaster()
     client = broadcaster.add(JSON, "a", 0.0)
     socket = FakeSocket()
     serving = asyncio.create_task(broadcaster.serve(client, socket, "hello"))
@@ -131,7 +169,7 @@ async def test_serve_greets_then_streams_until_the_client_leaves() -> None:
 
 
 async def test_serve_disconnects_a_stalled_client_and_counts_it() -> None:
-    broadcaster = Broadcaster(queue_size=1, send_timeout_s=5.0)
+    broadcaster = Broadcaster(send_timeout_s=5.0)
     client: Client = broadcaster.add(MSGPACK, "slow", 0.0)
     socket = FakeSocket(block_after=1)  # takes the greeting, then reads nothing
     serving = asyncio.create_task(broadcaster.serve(client, socket, b"hello"))
@@ -144,7 +182,7 @@ async def test_serve_disconnects_a_stalled_client_and_counts_it() -> None:
     await serving
     assert socket.closes == [(1008, "client too slow")]
     assert broadcaster.evicted == 1 and broadcaster.clients == {}
-    assert client.dropped >= 9
+    assert client.conflated >= 9
 
 
 async def test_serve_forgets_a_client_that_is_gone_before_the_greeting() -> None:

@@ -1,0 +1,68 @@
+"""When to hold a WebSocket client's next frame until it has read the last one (pacing).
+
+The kernel cannot tell the server whether a client has *read* a frame: on loopback a frame
+counts as delivered once it sits in the client's receive buffer, and Linux grows that buffer
+(to hundreds of KiB, tens of frames) while a slow reader falls behind. A pong can tell: a client
+answers a ping once it has read everything before it. So every ``ping_every`` frames a ping
+follows the frame; a client whose pong is later than ``late_pong_s`` (or whose socket is full)
+is *paced*: from then on each frame is followed by a ping, and the next frame waits for the pong,
+so the client reads one frame at a time and each is the newest when it asked. A paced client
+whose pong comes back within ``quick_pong_s`` keeps up again and is no longer paced (a viewer
+that paused for a moment is not held to the pace of its worst second).
+
+A client that keeps up costs one ping every ``ping_every`` frames. One that is slow from the
+start reads the few frames sent in its first ``late_pong_s`` (the first ping follows the first
+message); one that falls behind later, at most about ``ping_every`` frames plus
+``late_pong_s`` worth, once, before it is paced.
+
+Times are seconds on any monotonic clock, passed in.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(slots=True)
+class Pacer:
+    """One client's pacing state (see the module's docstring)."""
+
+    ping_every: int = 10
+    late_pong_s: float = 0.1
+    quick_pong_s: float = 0.02
+    paced: bool = False
+    ping_sent_at: float | None = None
+    """When the unanswered ping was sent (None: no ping waits for its pong)."""
+    frames_since_ping: int = 0
+    pings: int = 0
+
+    def after_frame(self, now: float) -> tuple[bool, bool]:
+        """A frame has left the server: (send a ping after it, wait for the pong before the next).
+
+        ``now``: the clock's time.
+        """
+        self.frames_since_ping += 1
+        if self.ping_sent_at is not None and now - self.ping_sent_at > self.late_pong_s:
+            self.paced = True
+        # The first ping follows the first message: a client slow from the start is found after
+        # a few frames, not ``ping_every``.
+        ping = self.ping_sent_at is None and (
+            self.paced or self.pings == 0 or self.frames_since_ping >= self.ping_every
+        )
+        if ping:
+            self.ping_sent_at = now
+            self.frames_since_ping = 0
+            self.pings += 1
+        return ping, self.paced and self.ping_sent_at is not None
+
+    def on_pong(self, now: float) -> None:
+        """The client answered the ping (it has read everything sent before it)."""
+        if self.ping_sent_at is None:
+            return
+        if self.paced and now - self.ping_sent_at < self.quick_pong_s:
+            self.paced = False
+        self.ping_sent_at = None
+
+    def on_full(self) -> None:
+        """The client's socket refused bytes: it reads more slowly than the feed."""
+        self.paced = True
