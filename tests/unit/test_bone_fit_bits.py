@@ -41,7 +41,7 @@ def plain_enforce(original: FloatArray, ref: FloatArray) -> FloatArray:
 def plain_project(
     original: FloatArray, ref: FloatArray, mobility: FloatArray | None, iterations: int
 ) -> FloatArray:
-    missing = ~np.isfinite(original).all(axis=-1)
+    missing = np.asarray(~np.isfinite(original).all(axis=-1))
     out = np.where(missing[..., None], 0.0, original)
     move = np.maximum(np.ones(out.shape[:-1]) if mobility is None else mobility, 1e-6)
     plan = []
