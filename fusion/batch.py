@@ -42,14 +42,16 @@ class ViewBatch:
         views = [view for cluster in clusters for view in cluster]
         person_of = np.repeat(np.arange(len(clusters)), counts)
         starts = np.cumsum([0, *counts])
+        # np.array on the lists: np.stack's values, a few times faster on these small arrays.
         return cls(
             views,
             counts,
-            np.stack([v.joints_world for v in views]).astype(np.float64),
-            np.stack([v.states for v in views]),
-            np.stack(
-                [_NO_POSITION if v.sensor_position is None else v.sensor_position for v in views]
-            ).astype(np.float64),
+            np.array([v.joints_world for v in views], dtype=np.float64),
+            np.array([v.states for v in views]),
+            np.array(
+                [_NO_POSITION if v.sensor_position is None else v.sensor_position for v in views],
+                dtype=np.float64,
+            ),
             person_of,
             np.arange(len(views)) - starts[person_of],
             starts,
@@ -60,8 +62,16 @@ class ViewBatch:
         return max(self.counts)
 
     def pad(self, values: FloatArray, fill: float) -> FloatArray:
-        """(N, ...) per-view values as (P, widest, ...), ``fill`` after each person's views."""
-        padded = np.full((len(self.counts), self.widest, *values.shape[1:]), fill, np.float64)
+        """(N, ...) per-view values as (P, widest, ...), ``fill`` after each person's views.
+
+        When every person has the same number of views there is nothing to fill: the result is
+        ``values`` reshaped (sharing its memory, float64); callers read it, never write to it.
+        """
+        widest = self.widest
+        if widest * len(self.counts) == len(self.views):  # every person as wide as the widest
+            same: FloatArray = np.ascontiguousarray(values, dtype=np.float64)
+            return same.reshape(len(self.counts), widest, *values.shape[1:])
+        padded = np.full((len(self.counts), widest, *values.shape[1:]), fill, np.float64)
         padded[self.person_of, self.slot_of] = values
         return padded
 

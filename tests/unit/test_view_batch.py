@@ -1,0 +1,68 @@
+"""The stacked views of one instant (fusion.batch): padding, and fusion as one person alone."""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+
+from skelfuse.fusion.batch import ViewBatch
+from skelfuse.fusion.views import View
+from skelfuse.fusion.weighted import weighted_mean
+from skelfuse.protocol.skeleton import JOINT_COUNT
+
+
+def views(rng: np.random.Generator, count: int) -> list[View]:
+    out = []
+    for k in range(count):
+        joints = rng.normal(0.0, 1.0, (JOINT_COUNT, 3))
+        joints[rng.random(JOINT_COUNT) < 0.2] = np.nan
+        states = rng.integers(0, 3, JOINT_COUNT).astype(np.uint8)
+        out.append(View(f"s{k}", k, joints, states, rng.normal(0.0, 3.0, 3)))
+    return out
+
+
+def padded_by_hand(
+    batch: ViewBatch, values: npt.NDArray[np.float64], fill: float
+) -> npt.NDArray[np.float64]:
+    out = np.full((len(batch.counts), batch.widest, *values.shape[1:]), fill)
+    for i, (p, s) in enumerate(zip(batch.person_of, batch.slot_of, strict=True)):
+        out[p, s] = values[i]
+    return out
+
+
+@pytest.mark.parametrize("counts", [[3, 3, 3], [2, 3, 1], [1], [4, 4]])
+def test_padding_puts_each_view_in_its_persons_row(counts: list[int]) -> None:
+    rng = np.random.default_rng(len(counts))
+    batch = ViewBatch.of([views(rng, n) for n in counts])
+    assert batch.joints.dtype == np.float64 and batch.states.dtype == np.uint8
+    for values, fill in ((batch.joints, np.nan), (rng.random((sum(counts), JOINT_COUNT)), 0.0)):
+        got = batch.pad(values, fill)
+        want = padded_by_hand(batch, values, fill)
+        assert got.dtype == np.float64 and got.shape == want.shape
+        assert got.tobytes() == want.tobytes()
+
+
+def test_the_batch_holds_the_views_as_they_are() -> None:
+    rng = np.random.default_rng(7)
+    clusters = [views(rng, 2), views(rng, 3)]
+    batch = ViewBatch.of(clusters)
+    flat = [v for c in clusters for v in c]
+    assert batch.joints.tobytes() == np.stack([v.joints_world for v in flat]).tobytes()
+    assert batch.states.tobytes() == np.stack([v.states for v in flat]).tobytes()
+    assert batch.sensors.tobytes() == np.stack([v.sensor_position for v in flat]).tobytes()
+    assert batch.person_of.tolist() == [0, 0, 1, 1, 1]
+    assert batch.slot_of.tolist() == [0, 1, 0, 1, 2]
+
+
+@pytest.mark.parametrize("counts", [[3, 3], [1, 4, 2]])
+def test_fusing_the_batch_is_fusing_each_person_alone(counts: list[int]) -> None:
+    rng = np.random.default_rng(11)
+    clusters = [views(rng, n) for n in counts]
+    batch = ViewBatch.of(clusters)
+    weights = rng.random((sum(counts), JOINT_COUNT))
+    fused = batch.fuse(weights)
+    for p in range(len(clusters)):
+        lo, hi = batch.starts[p], batch.starts[p + 1]
+        alone = weighted_mean(batch.joints[None, lo:hi], weights[None, lo:hi])[0]
+        assert fused[p].tobytes() == alone.tobytes()
