@@ -7,13 +7,13 @@ answers a ping once it has read everything before it. So every ``ping_every`` fr
 follows the frame; a client whose pong is later than ``late_pong_s`` (or whose socket is full)
 is *paced*: from then on each frame is followed by a ping, and the next frame waits for the pong,
 so the client reads one frame at a time and each is the newest when it asked. A paced client
-whose pong comes back within ``quick_pong_s`` keeps up again and is no longer paced (a viewer
-that paused for a moment is not held to the pace of its worst second).
+whose pongs come back within ``quick_pong_s`` twice in a row keeps up again and is released (a
+viewer that paused for a moment is not held to the pace of its worst second). New clients start
+paced.
 
 A client that keeps up costs one ping every ``ping_every`` frames. One that is slow from the
-start reads the few frames sent in its first ``late_pong_s`` (the first ping follows the first
-message); one that falls behind later, at most about ``ping_every`` frames plus
-``late_pong_s`` worth, once, before it is paced.
+start never finds a queue; one that falls behind later reads at most about ``ping_every``
+frames plus ``late_pong_s`` worth queued before it, once, and then the newest frame each time.
 
 Times are seconds on any monotonic clock, passed in.
 """
@@ -28,13 +28,20 @@ class Pacer:
     """One client's pacing state (see the module's docstring)."""
 
     ping_every: int = 10
-    late_pong_s: float = 0.1
-    quick_pong_s: float = 0.02
-    paced: bool = False
+    late_pong_s: float = 0.25
+    """A quarter of a second: a viewer that stalls for less (a garbage collection, a busy
+    moment) keeps getting every frame, only later; pacing would turn that lag into lost frames."""
+    quick_pong_s: float = 0.05
+    quick_pongs_to_release: int = 2
+    """Quick pongs in a row that release a paced client: a slow reader's first read may be
+    quick (it reads the greeting and the next message at once), its later ones are not."""
+    paced: bool = True
+    """A new client starts paced: one that is slow from the start never gets a queue, and one
+    that keeps up is released after its first ``quick_pongs_to_release`` frames."""
+    quick_pongs: int = 0
     ping_sent_at: float | None = None
     """When the unanswered ping was sent (None: no ping waits for its pong)."""
     frames_since_ping: int = 0
-    pings: int = 0
 
     def after_frame(self, now: float) -> tuple[bool, bool]:
         """A frame has left the server: (send a ping after it, wait for the pong before the next).
@@ -44,25 +51,28 @@ class Pacer:
         self.frames_since_ping += 1
         if self.ping_sent_at is not None and now - self.ping_sent_at > self.late_pong_s:
             self.paced = True
-        # The first ping follows the first message: a client slow from the start is found after
-        # a few frames, not ``ping_every``.
+            self.quick_pongs = 0
         ping = self.ping_sent_at is None and (
-            self.paced or self.pings == 0 or self.frames_since_ping >= self.ping_every
+            self.paced or self.frames_since_ping >= self.ping_every
         )
         if ping:
             self.ping_sent_at = now
             self.frames_since_ping = 0
-            self.pings += 1
         return ping, self.paced and self.ping_sent_at is not None
 
     def on_pong(self, now: float) -> None:
         """The client answered the ping (it has read everything sent before it)."""
         if self.ping_sent_at is None:
             return
-        if self.paced and now - self.ping_sent_at < self.quick_pong_s:
-            self.paced = False
+        if now - self.ping_sent_at < self.quick_pong_s:
+            self.quick_pongs += 1
+            if self.quick_pongs >= self.quick_pongs_to_release:
+                self.paced = False
+        else:
+            self.quick_pongs = 0
         self.ping_sent_at = None
 
     def on_full(self) -> None:
         """The client's socket refused bytes: it reads more slowly than the feed."""
         self.paced = True
+        self.quick_pongs = 0
