@@ -124,7 +124,7 @@ async def get_run(run_id: str, request: Request) -> dict[str, Any]:
 @router.post("/runs/{run_id}/commit")
 async def commit_run(run_id: str, request: Request) -> dict[str, Any]:
     """Make the run's result the active calibration (a new version); fusion uses it at once."""
-    return calibration_json(_service(request).commit(run_id))
+    return calibration_json(await _service(request).commit(run_id))
 
 
 @router.get("")
@@ -157,7 +157,7 @@ async def history(request: Request) -> dict[str, Any]:
                     for k, v in sorted(c.sensors.items())
                 },
             }
-            for c in service.store.history()
+            for c in await service.history()
         ],
     }
 
@@ -165,7 +165,7 @@ async def history(request: Request) -> dict[str, Any]:
 @router.post("/rollback")
 async def rollback(body: RollbackRequest, request: Request) -> dict[str, Any]:
     """Make an earlier version active again (saved as a new version)."""
-    return calibration_json(_service(request).rollback(body.version))
+    return calibration_json(await _service(request).rollback(body.version))
 
 
 @router.get("/export")
@@ -186,4 +186,4 @@ async def import_calibration(
     request: Request, body: Annotated[dict[str, Any], Body(description="an exported file")]
 ) -> dict[str, Any]:
     """Validate an exported calibration and make it active (a new version)."""
-    return calibration_json(_service(request).import_json(body))
+    return calibration_json(await _service(request).import_json(body))
