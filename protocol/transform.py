@@ -70,6 +70,8 @@ def is_rigid(transform: npt.ArrayLike, atol: float = 1e-6) -> bool:
     if matrix.shape != (4, 4) or not np.isfinite(matrix).all():
         return False
     rotation = matrix[:3, :3]
+    if np.abs(rotation).max() > 1.0 + atol:  # no rotation has such an entry; and R @ R.T of
+        return False  # 1e200s would overflow (a warning) before the answer is known
     return bool(
         np.allclose(rotation @ rotation.T, np.eye(3), atol=atol)
         and np.linalg.det(rotation) > 0

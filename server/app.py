@@ -23,14 +23,19 @@ from skelfuse.calibration.store import CalibrationStore
 from skelfuse.fusion.hub import FusionHub
 from skelfuse.protocol.feed import person_json
 from skelfuse.protocol.skeleton import skeleton_definition
-from skelfuse.server import routes_calibration, routes_fusion, routes_recordings
+from skelfuse.server import openapi, routes_calibration, routes_fusion, routes_recordings
 from skelfuse.server.agent_requests import AgentRequests
 from skelfuse.server.auth import SensorAuthenticator
 from skelfuse.server.body_limit import BodyLimit
 from skelfuse.server.broadcast import Broadcaster, Variant, encode_message
 from skelfuse.server.calibration_runs import CalibrationService
 from skelfuse.server.clock import SystemClock
-from skelfuse.server.errors import HANDLED_ERRORS, error_response, invalid_body_response
+from skelfuse.server.errors import (
+    HANDLED_ERRORS,
+    error_response,
+    invalid_body_response,
+    method_not_allowed_response,
+)
 from skelfuse.server.ingest import fusion_loop, ingest_loop, liveness_loop, open_router, send_to
 from skelfuse.server.log_redaction import redact_uvicorn_logs
 from skelfuse.server.loop_lag import LoopLagCollector, LoopLagMonitor
@@ -122,6 +127,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     for error in HANDLED_ERRORS:
         app.exception_handler(error)(error_response)
     app.exception_handler(RequestValidationError)(invalid_body_response)
+    app.exception_handler(405)(method_not_allowed_response)
 
     def hub_of(request_app: Any) -> FusionHub:
         hub: FusionHub = request_app.state.hub
@@ -198,6 +204,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(HttpGuard, settings=settings)
     app.add_middleware(BodyLimit, limit=settings.max_body_bytes)  # outermost: before the token
     app.mount("/metrics", make_asgi_app(registry))
+    openapi.install(app, settings.api_token is not None, settings.max_body_bytes)
 
     @app.get("/", include_in_schema=False)
     async def index() -> FileResponse:

@@ -55,6 +55,7 @@ from skelfuse.server.errors import (
     Conflict,
     InvalidRequest,
     NotFound,
+    SensorUnavailable,
     ServerError,
 )
 from skelfuse.server.solver_pool import ProcessSolvers, Solvers
@@ -89,7 +90,6 @@ class CalibrationService:
         self._keep_runs = keep_runs
         self._solvers = solvers or ProcessSolvers()
         self._tasks: set[asyncio.Task[None]] = set()
-        self._store_lock = asyncio.Lock()  # one store write at a time (each awaits a thread)
 
     # --- starting ---------------------------------------------------------------------------
 
@@ -99,7 +99,8 @@ class CalibrationService:
         Raises:
             Conflict: another run is active, a sensor is offline or has no starting pose, or
                 too few sensors are connected for the method.
-            InvalidRequest: unknown sensors or method, or unusable points.
+            SensorUnavailable: a sensor (or the reference) is unknown: never connected.
+            InvalidRequest: an unknown method, or unusable points.
         """
         busy = next((r for r in self.runs.values() if r.active), None)
         if busy is not None:
@@ -151,9 +152,10 @@ class CalibrationService:
         unknown = [s for s in spec.sensors if s not in known]
         if spec.reference != "world" and spec.reference not in known:
             unknown.append(spec.reference)
-        if unknown:
-            raise InvalidRequest(
-                f"unknown sensor(s) {sorted(set(unknown))}; known: {sorted(known) or 'none'}"
+        if unknown:  # not connected yet, as far as the server can tell: 409, retry later
+            raise SensorUnavailable(
+                f"unknown sensor(s) {sorted(set(unknown))}: no agent with that id has connected; "
+                f"known: {sorted(known) or 'none'}"
             )
         if spec.method == "points":
             if not spec.points:
@@ -329,22 +331,14 @@ class CalibrationService:
 
     # --- commit and history -------------------------------------------------------------------
 
-    async def commit(self, run_id: str) -> Calibration:
+    def commit(self, run_id: str) -> Calibration:
         """Store the run's poses as a new calibration version and fuse with it from now on.
-
-        The files are written and fsync'ed in a thread (tens of ms on a busy disk, 42 ms median
-        on the 2-core test machine: over the event loop's 20 ms budget); the hub switches to the
-        new version on the loop.
 
         Raises:
             NotFound: no such run.
             Conflict: the run is not done, or was committed already.
         """
-        async with self._store_lock:  # a second commit of the same run waits, then is refused
-            return await self._commit(self.run(run_id))
-
-    async def _commit(self, run: CalibrationRun) -> Calibration:
-        run_id = run.run_id
+        run = self.run(run_id)
         if run.state != RunState.DONE:
             hint = (
                 f"it is still {run.state} ({run.progress:.0%}); wait until its state is done"
@@ -360,38 +354,29 @@ class CalibrationService:
             )
             for sensor_id, r in run.results.items()
         }
-        note = f"run {run_id} ({run.spec.method})"
-
-        def save() -> Calibration:
-            return self.store.save(merge(self.store.load(), updates), note=note)
-
-        calibration = await asyncio.to_thread(save)
+        calibration = self.store.save(
+            merge(self.store.load(), updates), note=f"run {run_id} ({run.spec.method})"
+        )
         self.hub.use_calibration(calibration)
         run.committed_version = calibration.version
         return calibration
 
-    async def history(self) -> list[Calibration]:
-        """Every stored version, oldest first (read in a thread: one file per version)."""
-        return await asyncio.to_thread(self.store.history)
-
-    async def rollback(self, version: int) -> Calibration:
+    def rollback(self, version: int) -> Calibration:
         """Make stored ``version`` active again (saved as a new version).
 
         Raises:
             UnknownVersion: no such version.
         """
-        async with self._store_lock:
-            calibration = await asyncio.to_thread(self.store.rollback, version)
-            self.hub.use_calibration(calibration)
+        calibration = self.store.rollback(version)
+        self.hub.use_calibration(calibration)
         return calibration
 
-    async def import_json(self, data: Any) -> Calibration:
+    def import_json(self, data: Any) -> Calibration:
         """Validate an exported calibration and make it active (a new version).
 
         Raises:
             CalibrationFileError: not a valid calibration export.
         """
-        async with self._store_lock:
-            calibration = await asyncio.to_thread(self.store.import_json, data)
-            self.hub.use_calibration(calibration)
+        calibration = self.store.import_json(data)
+        self.hub.use_calibration(calibration)
         return calibration

@@ -15,6 +15,11 @@ wins): ``CalibrationError`` is 400, its ``UnknownVersion`` 404; ``RecordingError
 data folder failed us, not the request). Routes raise; :func:`error_response`, registered once in
 :func:`skelfuse.server.app.create_app`, answers ``{"detail": <the error's message>}``, the
 message written for the user. Malformed bodies stay FastAPI's 422 (:func:`invalid_body_response`).
+
+The OpenAPI document is generated from the same mapping: a route lists the errors it raises with
+``responses=error_responses(NotFound, Conflict)``, which gives each its status, its class's
+description and the :class:`ErrorBody` schema (``server/openapi.py`` adds what every operation of
+a kind can answer: 401, 413, 400 for a body that is not JSON, 422).
 """
 
 from __future__ import annotations
@@ -26,6 +31,9 @@ from fastapi import Request
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from pydantic import BaseModel
+from starlette.exceptions import HTTPException
+from starlette.routing import Match
 
 from skelfuse.calibration.errors import CalibrationError
 from skelfuse.calibration.store import UnknownVersion
@@ -77,18 +85,49 @@ STATUS_BY_ERROR: Final[dict[type[Exception], int]] = {
 }
 """Statuses of the lower layers' errors (the server's own carry theirs in ``status``)."""
 
+HTTP_METHODS: Final = ("GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS")
+"""The methods a 405's ``Allow`` header may list."""
+
 HANDLED_ERRORS: Final[tuple[type[Exception], ...]] = (ServerError, *STATUS_BY_ERROR)
 """The exception classes :func:`error_response` is registered for."""
 
 
-def error_status(exc: Exception) -> int:
-    """The HTTP status of a domain error: the most specific mapped class in its MRO wins."""
-    if isinstance(exc, ServerError):
-        return exc.status
-    for cls in type(exc).__mro__:
+class ErrorBody(BaseModel):
+    """Every error's body: what went wrong and, where it can, what to do instead."""
+
+    detail: str
+
+
+def status_of(error: type[Exception]) -> int:
+    """The HTTP status of an error class: the most specific mapped class in its MRO wins."""
+    if issubclass(error, ServerError):
+        return error.status
+    for cls in error.__mro__:
         if cls in STATUS_BY_ERROR:
             return STATUS_BY_ERROR[cls]
     return 500
+
+
+def error_status(exc: Exception) -> int:
+    """The HTTP status of a domain error (:func:`status_of` its class)."""
+    return status_of(type(exc))
+
+
+def error_responses(*errors: type[Exception]) -> dict[int | str, dict[str, Any]]:
+    """A route's ``responses=`` for the errors it raises: status → description and body schema.
+
+    The description is the first line of each class's docstring; errors sharing a status are
+    described together.
+    """
+    responses: dict[int | str, dict[str, Any]] = {}
+    for error in errors:
+        status = status_of(error)
+        description = (error.__doc__ or error.__name__).strip().splitlines()[0]
+        if status in responses:
+            responses[status]["description"] += f" Or: {description}"
+        else:
+            responses[status] = {"model": ErrorBody, "description": description}
+    return responses
 
 
 async def error_response(request: Request, exc: Exception) -> JSONResponse:
@@ -106,6 +145,23 @@ async def invalid_body_response(request: Request, exc: RequestValidationError) -
     del request
     detail = _finite_json(jsonable_encoder(exc.errors()))
     return JSONResponse(status_code=422, content={"detail": detail})
+
+
+async def method_not_allowed_response(request: Request, exc: Exception) -> JSONResponse:
+    """405 whose ``Allow`` lists every method of the path, not just those of the first route.
+
+    Starlette answers from the first route whose path matches, so a path served by two routes
+    (``PUT`` and ``DELETE /api/bones/default``) would claim to allow only one of them.
+    """
+    routes = request.app.router.routes  # FastAPI nests included routers: ask each to match
+    allowed = [
+        method
+        for method in HTTP_METHODS
+        if any(r.matches({**request.scope, "method": method})[0] is Match.FULL for r in routes)
+    ]
+    headers = {"Allow": ", ".join(allowed)} if allowed else None
+    detail = exc.detail if isinstance(exc, HTTPException) else "Method Not Allowed"
+    return JSONResponse({"detail": detail}, status_code=405, headers=headers)
 
 
 def _finite_json(value: Any) -> Any:

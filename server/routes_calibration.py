@@ -7,18 +7,33 @@ fusion through an explicit commit, which writes a new version.
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from fastapi import APIRouter, Body, Request
+from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    StrictFloat,
+    StrictInt,
+    StrictStr,
+    field_validator,
+)
 
 from skelfuse.calibration.solvers import PointPairs
-from skelfuse.calibration.store import Calibration
+from skelfuse.calibration.store import Calibration, CalibrationFileError, UnknownVersion
 from skelfuse.server.calibration_run import RunSpec
 from skelfuse.server.calibration_runs import CalibrationService
-from skelfuse.server.errors import Conflict, InvalidRequest, NotFound
+from skelfuse.server.errors import (
+    Conflict,
+    InvalidRequest,
+    NotFound,
+    SensorUnavailable,
+    error_responses,
+)
 
 router = APIRouter(prefix="/api/calibration", tags=["calibration"])
 
@@ -40,10 +55,27 @@ class SensorPoints(BaseModel):
     pairs: list[PointPair] = Field(max_length=1000)
 
 
+_NEEDS = {
+    "sensor": ("sensor", {"type": "string"}),
+    "points": ("points", {"type": "array", "minItems": 1}),
+}
+_METHOD_NEEDS: list[Any] = [
+    {
+        "if": {"properties": {"method": {"const": method}}, "required": ["method"]},
+        "then": {"required": [field], "properties": {field: schema}},
+    }
+    for method, (field, schema) in _NEEDS.items()
+]
+"""Method ``sensor`` needs ``sensor``, method ``points`` needs ``points``: published in the
+schema (issue 12: requests the schema allowed were refused); the route still answers 400."""
+
+
 class RunRequest(BaseModel):
     """Start a calibration run."""
 
-    model_config = ConfigDict(allow_inf_nan=False, extra="forbid")
+    model_config = ConfigDict(
+        allow_inf_nan=False, extra="forbid", json_schema_extra={"allOf": _METHOD_NEEDS}
+    )
     method: Literal["auto", "skeleton", "points", "icp", "sensor"] = "auto"
     reference: str | None = Field(
         None,
@@ -63,6 +95,55 @@ class RunRequest(BaseModel):
     min_overlap: float = Field(0.3, gt=0.0, le=1.0, description="icp: warn below this overlap")
 
 
+Row = Annotated[list[StrictFloat], Field(min_length=4, max_length=4)]
+
+
+class ImportedSensor(BaseModel):
+    """One sensor of an exported calibration file."""
+
+    model_config = ConfigDict(allow_inf_nan=False)
+    T_world_from_sensor: Annotated[list[Row], Field(min_length=4, max_length=4)] = Field(
+        description="a rigid transform, row-major, metres, last row 0 0 0 1 (else 400)"
+    )
+    method: StrictStr = "unknown"
+    residual_mm: StrictFloat | None = None
+    details: dict[str, Any] = Field(default_factory=dict)
+
+    @field_validator("details")
+    @classmethod
+    def _finite(cls, details: dict[str, Any]) -> dict[str, Any]:
+        """No NaN or infinity (Python's JSON reader takes them; no JSON answer could carry them).
+
+        Raises:
+            ValueError: a non-finite number somewhere in ``details`` (a 422).
+        """
+        if not _all_finite(details):
+            raise ValueError("details must not hold NaN or infinite numbers")
+        return details
+
+
+def _all_finite(value: Any) -> bool:
+    if isinstance(value, float):
+        return math.isfinite(value)
+    if isinstance(value, dict):
+        return all(_all_finite(v) for v in value.values())
+    if isinstance(value, list):
+        return all(_all_finite(v) for v in value)
+    return True
+
+
+class CalibrationFile(BaseModel):
+    """A file from ``GET /api/calibration/export`` (format 1), typed so that what the schema
+    allows is what the import takes (issue 12); only rigidity is checked beyond it (400)."""
+
+    model_config = ConfigDict(allow_inf_nan=False)
+    format: Literal[1]  # calibration.store.FORMAT_VERSION
+    version: StrictInt = 0
+    created_unix_s: StrictFloat = 0.0
+    note: StrictStr = ""
+    sensors: dict[str, ImportedSensor] = Field(default_factory=dict)
+
+
 class RollbackRequest(BaseModel):
     model_config = ConfigDict(extra="forbid")
     version: int = Field(ge=1)
@@ -79,7 +160,9 @@ def calibration_json(calibration: Calibration | None) -> dict[str, Any]:
     return calibration.to_json()
 
 
-@router.post("/runs", status_code=202)
+@router.post(
+    "/runs", status_code=202, responses=error_responses(InvalidRequest, Conflict, SensorUnavailable)
+)
 async def start_run(body: RunRequest, request: Request) -> dict[str, Any]:
     """Start a run (``auto`` by default). Poll ``GET /api/calibration/runs/{id}``."""
     service = _service(request)
@@ -116,15 +199,15 @@ async def list_runs(request: Request) -> dict[str, Any]:
     return {"runs": [r.to_json() for r in runs]}
 
 
-@router.get("/runs/{run_id}")
+@router.get("/runs/{run_id}", responses=error_responses(NotFound))
 async def get_run(run_id: str, request: Request) -> dict[str, Any]:
     return _service(request).run(run_id).to_json()
 
 
-@router.post("/runs/{run_id}/commit")
+@router.post("/runs/{run_id}/commit", responses=error_responses(NotFound, Conflict))
 async def commit_run(run_id: str, request: Request) -> dict[str, Any]:
     """Make the run's result the active calibration (a new version); fusion uses it at once."""
-    return calibration_json(await _service(request).commit(run_id))
+    return calibration_json(_service(request).commit(run_id))
 
 
 @router.get("")
@@ -157,18 +240,18 @@ async def history(request: Request) -> dict[str, Any]:
                     for k, v in sorted(c.sensors.items())
                 },
             }
-            for c in await service.history()
+            for c in service.store.history()
         ],
     }
 
 
-@router.post("/rollback")
+@router.post("/rollback", responses=error_responses(UnknownVersion))
 async def rollback(body: RollbackRequest, request: Request) -> dict[str, Any]:
     """Make an earlier version active again (saved as a new version)."""
-    return calibration_json(await _service(request).rollback(body.version))
+    return calibration_json(_service(request).rollback(body.version))
 
 
-@router.get("/export")
+@router.get("/export", responses=error_responses(NotFound))
 async def export(request: Request) -> JSONResponse:
     calibration = _service(request).hub.calibration
     if calibration is None:
@@ -181,9 +264,7 @@ async def export(request: Request) -> JSONResponse:
     )
 
 
-@router.post("/import")
-async def import_calibration(
-    request: Request, body: Annotated[dict[str, Any], Body(description="an exported file")]
-) -> dict[str, Any]:
+@router.post("/import", responses=error_responses(CalibrationFileError))
+async def import_calibration(request: Request, body: CalibrationFile) -> dict[str, Any]:
     """Validate an exported calibration and make it active (a new version)."""
-    return calibration_json(await _service(request).import_json(body))
+    return calibration_json(_service(request).import_json(body.model_dump()))

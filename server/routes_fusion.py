@@ -21,16 +21,17 @@ Include with ``app.include_router(router)``; the routes read ``request.app.state
 from __future__ import annotations
 
 import math
+from typing import Annotated
 
 import numpy as np
 import numpy.typing as npt
 from fastapi import APIRouter, Request
-from pydantic import BaseModel
+from pydantic import BaseModel, ConfigDict, StrictFloat, WithJsonSchema
 
 from skelfuse.fusion.config import fusion_settings_as_dict
 from skelfuse.fusion.pipeline import FusionPipeline
 from skelfuse.protocol.skeleton import BONE_NAMES
-from skelfuse.server.errors import InvalidRequest, NotFound
+from skelfuse.server.errors import InvalidRequest, NotFound, error_responses
 
 router = APIRouter(tags=["fusion"])
 
@@ -38,10 +39,25 @@ MIN_BONE_M = 0.02
 MAX_BONE_M = 1.0
 
 
+_LENGTH_SCHEMA = {"type": "number", "minimum": MIN_BONE_M, "maximum": MAX_BONE_M}
+_LENGTHS_SCHEMA = {
+    "type": "object",
+    "description": f"all 24 bones of GET /api/skeleton by name, each {MIN_BONE_M}–{MAX_BONE_M} m",
+    "properties": dict.fromkeys(BONE_NAMES, _LENGTH_SCHEMA),
+    "required": list(BONE_NAMES),
+    "additionalProperties": False,
+}
+"""What :func:`_validated` accepts, published as the schema (issue 12: the document said any
+name → number map, so schema-valid bodies were refused)."""
+
+
 class BoneLengths(BaseModel):
     """Reference bone lengths by name (metres): all 24 of ``GET /api/skeleton``'s bones."""
 
-    lengths: dict[str, float]
+    model_config = ConfigDict(extra="forbid")
+    # Strict: "0.3" is not a length (the schema says number); the checks that name every bad
+    # bone stay in _validated, a 400 the client can act on.
+    lengths: Annotated[dict[str, StrictFloat], WithJsonSchema(_LENGTHS_SCHEMA)]
 
 
 def _pipeline(request: Request) -> FusionPipeline:
@@ -96,13 +112,13 @@ def _person(request: Request, person_id: int) -> dict[str, object]:
     }
 
 
-@router.get("/api/persons/{person_id}/bones")
+@router.get("/api/persons/{person_id}/bones", responses=error_responses(NotFound))
 async def get_bones(request: Request, person_id: int) -> dict[str, object]:
     """A person's reference bone lengths, where they come from, and the online estimate."""
     return _person(request, person_id)
 
 
-@router.put("/api/persons/{person_id}/bones")
+@router.put("/api/persons/{person_id}/bones", responses=error_responses(InvalidRequest, NotFound))
 async def put_bones(request: Request, person_id: int, body: BoneLengths) -> dict[str, object]:
     """Set a person's reference bone lengths (all 24, metres)."""
     lengths = _validated(body)
@@ -111,7 +127,7 @@ async def put_bones(request: Request, person_id: int, body: BoneLengths) -> dict
     return _person(request, person_id)
 
 
-@router.delete("/api/persons/{person_id}/bones")
+@router.delete("/api/persons/{person_id}/bones", responses=error_responses(NotFound))
 async def delete_bones(request: Request, person_id: int) -> dict[str, object]:
     """Forget the set lengths: fusion goes back to the online estimate."""
     if not _pipeline(request).set_bone_lengths(person_id, None):
@@ -119,7 +135,7 @@ async def delete_bones(request: Request, person_id: int) -> dict[str, object]:
     return _person(request, person_id)
 
 
-@router.put("/api/bones/default")
+@router.put("/api/bones/default", responses=error_responses(InvalidRequest))
 async def put_default_bones(request: Request, body: BoneLengths) -> dict[str, object]:
     """Lengths every new person starts with (as ``set``); existing persons are unchanged."""
     lengths = _validated(body)

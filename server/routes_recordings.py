@@ -31,7 +31,7 @@ from skelfuse.protocol.recording_file import (
 )
 from skelfuse.protocol.wire import Hello, encode
 from skelfuse.recording.recorder import Recorder
-from skelfuse.server.errors import Conflict, NotFound
+from skelfuse.server.errors import Conflict, NotFound, error_responses
 
 router = APIRouter(prefix="/api/recordings", tags=["recordings"])
 _ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$")
@@ -114,7 +114,7 @@ def _active(request: Request) -> tuple[str, Recorder] | None:
     return active
 
 
-@router.post("", status_code=201)
+@router.post("", status_code=201, responses=error_responses(Conflict, RecordingError))
 async def start_recording(request: Request, body: StartBody | None = None) -> dict[str, Any]:
     """Start recording every agent's stream; 409 if a recording is already running."""
     if _active(request) is not None:
@@ -144,7 +144,7 @@ async def start_recording(request: Request, body: StartBody | None = None) -> di
     return _entry(recording_id, path, recorder)
 
 
-@router.post("/{recording_id}/stop")
+@router.post("/{recording_id}/stop", responses=error_responses(NotFound))
 async def stop_recording(request: Request, recording_id: str) -> dict[str, Any]:
     """Stop the running recording (404 if that id is not the one running)."""
     active = _active(request)
@@ -184,7 +184,19 @@ async def list_recordings(request: Request) -> dict[str, Any]:
     return {"recordings": await asyncio.to_thread(entries)}
 
 
-@router.get("/{recording_id}/download")
+@router.get(
+    "/{recording_id}/download",
+    response_class=FileResponse,
+    responses={
+        200: {
+            "description": "the recording file (docs/recording.md)",
+            "content": {
+                "application/octet-stream": {"schema": {"type": "string", "format": "binary"}}
+            },
+        },
+        **error_responses(NotFound),
+    },
+)
 async def download_recording(request: Request, recording_id: str) -> FileResponse:
     if not _ID.match(recording_id):
         raise NotFound("no such recording")

@@ -206,7 +206,7 @@ def test_calibration_survives_a_server_restart(
                     {"sensor": "nope", "pairs": [{"sensor": [0, 0, 1], "reference": [0, 0, 1]}] * 3}
                 ],
             },
-            400,
+            409,
             "unknown sensor",
         ),
         ({"method": "points", "reference": "world"}, 409, ""),
@@ -214,9 +214,9 @@ def test_calibration_survives_a_server_restart(
         ({"method": "icp"}, 409, "icp refines existing poses"),
         ({"method": "magic"}, 422, ""),
         ({"method": "skeleton", "duration_s": 1}, 422, ""),
-        ({"method": "skeleton", "sensors": ["cam-a", "ghost"]}, 400, "unknown sensor"),
+        ({"method": "skeleton", "sensors": ["cam-a", "ghost"]}, 409, "unknown sensor"),
         ({"method": "sensor"}, 400, "method sensor needs 'sensor'"),
-        ({"method": "sensor", "sensor": "ghost"}, 400, "unknown sensor"),
+        ({"method": "sensor", "sensor": "ghost"}, 409, "unknown sensor"),
         ({"method": "sensor", "sensor": "cam-a"}, 409, "other connected sensor with a pose"),
     ],
 )

@@ -497,6 +497,15 @@ def test_positive_pitch_looks_down() -> None:
     assert forward[0] == pytest.approx(math.cos(math.radians(20)))
 
 
+def test_huge_entries_are_not_rigid_without_overflowing() -> None:
+    """An imported file may hold any numbers (issue 12's fuzzing): 1e200s would overflow R @ R.T
+    (a RuntimeWarning, an error under pytest) before the answer, which is simply no."""
+    huge = np.eye(4)
+    huge[0, 1] = 1e200
+    assert not is_rigid(huge)
+    assert not is_rigid(np.diag([2.0, 1.0, 1.0, 1.0]))
+
+
 @pytest.mark.parametrize(
     ("yaw", "pitch"), [(0, 0), (90, 0), (-135, 10), (33.3, -45), (180, 89), (720, 5)]
 )
