@@ -26,6 +26,7 @@ from skelfuse.fusion.drift import DriftMonitor
 from skelfuse.fusion.extrapolation import views_with_late
 from skelfuse.fusion.hub_seams import MessageTap, PendingRequests
 from skelfuse.fusion.pipeline import FusionPipeline
+from skelfuse.fusion.rejection_budget import RejectionBudget
 from skelfuse.fusion.sensor_rows import sensor_rows
 from skelfuse.fusion.sensors import SensorState, new_sensor
 from skelfuse.fusion.settings import HubSettings
@@ -89,6 +90,7 @@ class FusionHub:
         """The output grid and when its next instant is fused (its ``due_s``: the deadline)."""
         self.started_s = time.time()
         self._requests: PendingRequests | None = None
+        self._budget = RejectionBudget()
         self._tap: MessageTap | None = None
         self.fusion_timing = RollingStats()
         """Seconds of compute per fusion step."""
@@ -140,14 +142,17 @@ class FusionHub:
         connection may register only that sensor id.
         """
         sensor = self._sensor_for(routing_id)
+        if self._budget.exhausted(routing_id, now_mono):
+            self._reject(sensor, "rate_limited")  # dropped unread: see _refuse
+            return []
         if len(parts) != 1:
-            self._reject(sensor, "malformed")
+            self._refuse(sensor, "malformed", routing_id, now_mono)
             return []
         waiting = sensor is not None and self._awaiting(sensor.sensor_id)
         try:
             message = decode(parts[0], MAX_RESPONSE_BYTES if waiting else MAX_MESSAGE_BYTES)
         except DecodeError as exc:
-            self._reject(sensor, exc.reason)
+            self._refuse(sensor, exc.reason, routing_id, now_mono)
             logger.debug("rejected message from %s: %s", sensor and sensor.sensor_id, exc)
             if (
                 waiting
@@ -163,7 +168,7 @@ class FusionHub:
             return []
         if isinstance(message, Hello):
             if user_id is not None and message.sensor_id != user_id:
-                self.rejected_unregistered["key_mismatch"] += 1
+                self._refuse(None, "key_mismatch", routing_id, now_mono)
                 return [
                     ErrorMessage(
                         "key_mismatch",
@@ -178,7 +183,7 @@ class FusionHub:
                 self._tap.on_hello(message.sensor_id, parts[0], now_s)
             return [reply]
         if sensor is None:
-            return self._unregistered(routing_id, message, now_s)
+            return self._unregistered(routing_id, message, now_s, now_mono)
         sensor.last_heard_mono = now_mono
         sensor.connected = True
         match message:
@@ -203,12 +208,14 @@ class FusionHub:
                 self._by_routing.pop(routing_id, None)
             case Response():
                 if self._requests is None or not self._requests.resolve(sensor.sensor_id, message):
-                    self._reject(sensor, "unexpected_response")
+                    self._refuse(sensor, "unexpected_response", routing_id, now_mono)
             case _:
-                self._reject(sensor, "unexpected_type")
+                self._refuse(sensor, "unexpected_type", routing_id, now_mono)
         return []
 
-    def _unregistered(self, routing_id: bytes, message: Message, now_s: float) -> list[Message]:
+    def _unregistered(
+        self, routing_id: bytes, message: Message, now_s: float, now_mono: float
+    ) -> list[Message]:
         """A message from a connection that holds no registration.
 
         A frame from a connection that was registered before (its sensor went offline, e.g.
@@ -227,7 +234,7 @@ class FusionHub:
         ):
             known.frames_rejected["stale"] += 1
             return []
-        self.rejected_unregistered["not_registered"] += 1
+        self._refuse(None, "not_registered", routing_id, now_mono)
         return [ErrorMessage("not_registered", "send hello first (did the server restart?)")]
 
     def _awaiting(self, sensor_id: str) -> bool:
@@ -246,6 +253,21 @@ class FusionHub:
             self.rejected_unregistered[reason] += 1
         else:
             sensor.frames_rejected[reason] += 1
+
+    def _refuse(
+        self, sensor: SensorState | None, reason: str, routing_id: bytes, now_mono: float
+    ) -> None:
+        """Count a protocol breach against the connection's budget (fusion/rejection_budget.py):
+        past it, a flood costs a dict look-up per message, not a decode. A well-formed agent's
+        timing (``stale``, ``future``, ``replayed_seq``) is judged with ``_reject`` instead."""
+        self._reject(sensor, reason)
+        if self._budget.note(routing_id, now_mono):
+            peer = f"sensor {sensor.sensor_id}" if sensor else f"connection {routing_id.hex()}"
+            logger.warning(
+                "%s: %d messages refused in %.0f s (last: %s); the rest of that time its messages "
+                "are dropped unread (rate_limited)", peer, self._budget.limit,
+                self._budget.window_s, reason,
+            )  # fmt: skip
 
     def _register(
         self,

@@ -225,12 +225,12 @@ async def test_points_run_is_solved_at_once_and_committed_once(tmp_path: Path) -
     assert run.state == RunState.DONE and run.created_unix_s == START_S
     assert run.results["cam-b"].residual_mm == pytest.approx(0.0, abs=1e-3)
     with pytest.raises(NotFound):
-        service.commit("nope")
-    calibration = service.commit(run.run_id)
+        await service.commit("nope")
+    calibration = await service.commit(run.run_id)
     assert rig.hub.calibration is calibration and calibration.version == 1
     np.testing.assert_allclose(rig.hub.pose_of("cam-b")[0], POSES["cam-b"], atol=1e-9)
     with pytest.raises(Conflict, match="already committed as version 1"):
-        service.commit(run.run_id)
+        await service.commit(run.run_id)
 
 
 @pytest.mark.parametrize(
@@ -258,7 +258,7 @@ async def test_one_run_at_a_time_and_offline_sensors_refused(tmp_path: Path) -> 
     with pytest.raises(Conflict, match=f"run {run.run_id} is still capturing"):
         service.start(RunSpec("skeleton", "cam-a", rig.sensors))
     with pytest.raises(Conflict, match="is still capturing"):
-        service.commit(run.run_id)
+        await service.commit(run.run_id)
     await finished(run)
     rig.clock.hooks.clear()  # the agents stop streaming
     rig.clock.mono += 10.0
@@ -331,7 +331,7 @@ async def test_sensor_run_solves_a_moved_sensor_back_and_keeps_the_others(tmp_pa
     assert result.method == "sensor" and result.metrics["against"] == "cam-a"
     assert result.metrics["moved_deg"] == pytest.approx(3.0, abs=0.3)
     assert any(w.startswith("no ICP refinement") for w in run.warnings)
-    calibration = service.commit(run.run_id)
+    calibration = await service.commit(run.run_id)
     assert np.array_equal(calibration.sensors["cam-a"].T_world_from_sensor, POSES["cam-a"])
 
 
