@@ -262,31 +262,42 @@ def body_weights(
         (N, 25) float64 weights ≥ 0.
     """
     s = settings
-    if priors is None:
+    # Each distinct prior's values once, gathered per view (the same floats as view by view).
+    distinct, of_view = _distinct(priors) if priors is not None else ([], None)
+    if of_view is None:
         weights = state_weights(states, s.state_weights)
     else:  # each view's own table, gathered (the same floats as the shared table for v2)
-        tables = np.array([p.table(s) for p in priors], dtype=np.float64)
+        tables = np.array([p.table(s) for p in distinct], dtype=np.float64)[of_view]
         weights = tables[np.arange(len(tables))[:, None], np.asarray(states, dtype=np.intp)]
     local = np.ones(joints.shape[:2])
     if s.use_bone_length and references is not None:
         bones = bone_length_factors(joints, references, s.bone_length_scale_m)
-        if priors is not None:  # a fixed-length body model's offset is not noise
-            fixed = np.array([p.fixed_bone_lengths for p in priors])
+        if of_view is not None:  # a fixed-length body model's offset is not noise
+            fixed = np.array([p.fixed_bone_lengths for p in distinct])[of_view]
             bones = np.where(fixed[:, None], 1.0, bones)
         local *= bones
     if s.use_range_of_motion:
         rom_local = rom if rom is not None else range_of_motion_factors(joints, s.rom_scale_deg)
-        if priors is not None:  # exp(−e/s)^(1/k) = exp(−e/(k·s)): scale k per view
-            k = np.array([p.rom_scale for p in priors], dtype=np.float64)
+        if of_view is not None:  # exp(−e/s)^(1/k) = exp(−e/(k·s)): scale k per view
+            k = np.array([p.rom_scale for p in distinct], dtype=np.float64)[of_view]
             if (k != 1.0).any():
                 rom_local = np.where(k[:, None] == 1.0, rom_local, rom_local ** (1.0 / k[:, None]))
         local *= rom_local
     out: FloatArray = weights * propagate(local)
-    if priors is not None:
-        noise = np.array([p.noise_scale for p in priors], dtype=np.float64)
+    if of_view is not None:
+        noise = np.array([p.noise_scale for p in distinct], dtype=np.float64)[of_view]
         if (noise != 1.0).any():  # inverse-variance weighting against a Kinect v2 view
             out = out / (noise**2)[:, None]
     return out
+
+
+def _distinct(
+    priors: Sequence[SensorPrior],
+) -> tuple[list[SensorPrior], npt.NDArray[np.intp]]:
+    """The distinct priors (first-seen order) and each view's index among them, (N,)."""
+    index: dict[SensorPrior, int] = {}
+    of_view = np.array([index.setdefault(p, len(index)) for p in priors], dtype=np.intp)
+    return list(index), of_view
 
 
 def view_factors(
@@ -312,12 +323,17 @@ def view_factors(
     if s.use_facing and priors is None:
         factors *= facing_factors(cosines, s.facing_power, s.facing_floor, s.facing_back_factor)
     elif s.use_facing and priors is not None:
-        models = [p.facing(s) for p in priors]
+        distinct, of_view = _distinct(priors)
+        models = [p.facing(s) for p in distinct]
         # One call per distinct facing model (a few sensor types): the same arithmetic, hence
-        # the same bits, as the shared model for every Kinect v2 view.
-        for model in set(models):
-            rows = np.array([m == model for m in models])
-            factors[rows] *= facing_factors(np.asarray(cosines)[rows], *model)
+        # the same bits, as the shared model for every Kinect v2 view (an element's factor
+        # depends on its own cosine alone).
+        if len(set(models)) == 1:
+            factors *= facing_factors(cosines, *models[0])
+        else:
+            for model in set(models):
+                rows = np.isin(of_view, [i for i, m in enumerate(models) if m == model])
+                factors[rows] *= facing_factors(np.asarray(cosines)[rows], *model)
     if s.use_distance:
         factors *= distance_factors(
             body_positions, sensor_positions, s.distance_best_m, s.distance_scale_m

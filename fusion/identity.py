@@ -23,6 +23,7 @@ bodies are theirs); what fusion remembers per person (filter, bone lengths, mirr
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Final
 
@@ -146,8 +147,12 @@ class PersonTracker:
         """Keep a person's fused skeleton (25, 3) and its trunk velocity for prediction."""
         track = self.tracks[person_id]
         dt = t_s - track.last_seen_s
-        moving = np.isfinite(fused[0]).all() and np.isfinite(track.joints[0]).all()
-        if track.fused_once and 0 < dt < 0.5 and moving:
+        if (
+            track.fused_once
+            and 0 < dt < 0.5
+            and all(map(math.isfinite, fused[0].tolist()))
+            and all(map(math.isfinite, track.joints[0].tolist()))
+        ):
             velocity = (fused[0] - track.joints[0]) / dt
             velocity[1] = 0.0
             track.velocity = 0.6 * track.velocity + 0.4 * velocity

@@ -261,8 +261,10 @@ def body_arrays_at(
     """
     if not frames:
         return None
-    times = [f.t_server_s for f in frames]
-    index = bisect_left(times, t_s)
+    # bisect_left over the frames' times, from the newest: the instant is near the end.
+    index = len(frames)
+    while index > 0 and frames[index - 1].t_server_s >= t_s:
+        index -= 1
     if index == len(frames):
         newest = frames[-1]
         return newest.arrays() if t_s - newest.t_server_s <= max_age_s else None
