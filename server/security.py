@@ -75,12 +75,15 @@ class HttpGuard:
             await self.app(scope, receive, send)
             return
         headers = Headers(scope=scope)
-        if needs_token(scope["method"], scope["path"]) and not token_ok(
+        path, root = scope["path"], scope.get("root_path", "")
+        if root and path.startswith(root):  # mounted under a prefix: the rule is on app paths
+            path = path[len(root) :]
+        if needs_token(scope["method"], path) and not token_ok(
             self.settings.api_token, bearer(headers)
         ):
             response = JSONResponse(
                 {"detail": "this server needs a token: send 'Authorization: Bearer <token>' "
-                 "(the token is printed when the server starts)"},
+                 "(the server's --token or SKELFUSE_TOKEN)"},
                 status_code=401,
                 headers={"WWW-Authenticate": "Bearer"},
             )  # fmt: skip

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from pathlib import Path
 
 import httpx
 import pytest
@@ -12,6 +13,8 @@ from starlette.routing import Route
 from websockets.asyncio.client import connect
 from websockets.exceptions import InvalidStatus
 
+from skelfuse.server.app import create_app
+from skelfuse.server.settings import Settings
 from tests.integration.conftest import LiveServer
 
 pytestmark = pytest.mark.timeout(60)
@@ -69,6 +72,16 @@ def test_every_read_of_people_needs_the_token_status_reads_do_not(guarded: LiveS
         assert authorised.status_code in (200, 404), (template, authorised.status_code)
     for path in ("/metrics", "/metrics/"):  # Prometheus scrapers carry no token
         assert httpx.get(guarded.http_url + path, follow_redirects=True).status_code == 200
+
+
+async def test_the_rule_holds_under_a_path_prefix(tmp_path: Path) -> None:
+    """Behind a proxy that mounts the server under a prefix (ASGI ``root_path``), the paths the
+    rule names are still the app's own."""
+    app = create_app(Settings(api_token=TOKEN, data_dir=tmp_path))
+    transport = httpx.ASGITransport(app=app, root_path="/skelfuse")
+    async with httpx.AsyncClient(transport=transport, base_url="http://lab") as client:
+        assert (await client.get("/skelfuse/api/persons")).status_code == 401
+        assert (await client.get("/skelfuse/api/recordings/x/download")).status_code == 401
 
 
 def test_persons_is_open_without_a_token(live_server: LiveServer) -> None:
