@@ -66,14 +66,32 @@ def _unit(v: FloatArray) -> FloatArray:
     return result
 
 
+# The body frame and the angles work on component-major arrays, (3, S, …): x, y and z are
+# each one contiguous block, so a dot product or a cross product is a few whole-array
+# operations (the same ones, in the same order, as on (…, 3) arrays: the same bits).
+
+
+def _dot(a: FloatArray, b: FloatArray) -> FloatArray:
+    """(…) dot products of component-major (3, …) arrays: (a₀b₀ + a₁b₁) + a₂b₂, the order a sum
+    over a last axis of three takes."""
+    result: FloatArray = a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+    return result
+
+
+def _unit_major(v: FloatArray) -> FloatArray:
+    """:func:`unit` of a component-major (3, …) array (inside ``np.errstate``)."""
+    result: FloatArray = v / np.sqrt(_dot(v, v))
+    return result
+
+
 _NEXT: Final = np.array([1, 2, 0])
 _AFTER: Final = np.array([2, 0, 1])
 
 
 def _cross(a: FloatArray, b: FloatArray) -> FloatArray:
-    """``np.cross`` for 3-vectors (the same operations, so the same bits), without its overhead:
+    """``np.cross`` of component-major (3, …) arrays (the same operations, so the same bits):
     component k is a[k+1]·b[k+2] − a[k+2]·b[k+1], all three at once."""
-    out: FloatArray = a[..., _NEXT] * b[..., _AFTER] - a[..., _AFTER] * b[..., _NEXT]
+    out: FloatArray = a[_NEXT] * b[_AFTER] - a[_AFTER] * b[_NEXT]
     return out
 
 
@@ -92,20 +110,24 @@ def body_frame(views: npt.ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray
         mean of the hip and shoulder left-minus-right vectors made orthogonal to ``up``
         (SpineBase → SpineShoulder); ``forward = left × up``.
     """
+    joints = np.asarray(views, dtype=np.float64)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return _body_frame(np.asarray(views, dtype=np.float64))
+        left, up, forward = _body_frame(np.ascontiguousarray(joints.transpose(2, 0, 1)))
+    return left.T.copy(), up.T.copy(), forward.T.copy()
 
 
 def _body_frame(joints: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """:func:`body_frame` of (S, 25, 3) float64 joints, inside ``np.errstate``."""
-    up = _unit(joints[:, J.SPINE_SHOULDER] - joints[:, J.SPINE_BASE])
-    across = joints[:, _ACROSS_LEFT] - joints[:, _ACROSS_RIGHT]  # (S, 2, 3): hips, shoulders
-    ok = np.isfinite(across)
+    """:func:`body_frame` of component-major (3, S, 25) joints, inside ``np.errstate``: left,
+    up, forward as (3, S)."""
+    up = _unit_major(joints[:, :, J.SPINE_SHOULDER] - joints[:, :, J.SPINE_BASE])
+    across = joints[:, :, _ACROSS_LEFT] - joints[:, :, _ACROSS_RIGHT]  # (3, S, 2): hips, shoulders
+    ok: npt.NDArray[np.bool_] = np.isfinite(across)
     kept = np.where(ok, across, 0.0)
-    lateral = kept[:, 0] + kept[:, 1]
-    lateral[~ok.all(-1).any(-1)] = np.nan
-    lateral = lateral - (lateral * up).sum(-1, keepdims=True) * up
-    left = _unit(lateral)
+    lateral = kept[:, :, 0] + kept[:, :, 1]
+    whole = ok[0] & ok[1] & ok[2]  # (S, 2): the hips, the shoulders known
+    lateral[:, ~(whole[:, 0] | whole[:, 1])] = np.nan
+    lateral = lateral - _dot(lateral, up) * up
+    left = _unit_major(lateral)
     forward = _cross(left, up)
     return left, up, forward
 
@@ -191,6 +213,9 @@ _LIMBS: Final = np.array([0, 1, 6, 7])
 """Thighs and upper arms among the segments: each swings forward or back from the trunk."""
 _TO_UNIT: Final = np.array([0, 1, 6, 7, 8, 9, 10])
 """Segments made unit vectors: thighs (abduction), upper arms, forearms, neck (then ``up``)."""
+_TABLE_ORDER: Final = np.array([0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 11, 12, 10])
+"""Columns of [knee, hip, abduction, ankle, elbow, neck, shoulder] in :func:`_angle_table`'s
+order (the shoulders before the neck)."""
 
 
 def _angle_table(
@@ -198,41 +223,37 @@ def _angle_table(
 ) -> FloatArray:
     """(S, 13) angles in degrees: each of :data:`_SIDED_ANGLES` left then right, then the neck.
 
+    joints: component-major (3, S, 25); left, up, forward: (3, S) (:func:`_body_frame`).
     Angles of the same kind are computed together (left and right, knees with ankles, hips
     with shoulders, elbows with the neck): each is the same operations as alone.
     """
-    n = joints.shape[0]
-    left_, up_, forward_ = left[:, None], up[:, None], forward[:, None]
-    segment = joints[:, _SEGMENT_DISTAL] - joints[:, _SEGMENT_PROXIMAL]  # (S, 11, 3)
-    out = np.empty((n, 13))
+    left_, up_, forward_ = left[:, :, None], up[:, :, None], forward[:, :, None]
+    segment = joints[:, :, _SEGMENT_DISTAL] - joints[:, :, _SEGMENT_PROXIMAL]  # (3, S, 11)
     # Knee flexion swings the shank backwards: positive about the person's left axis; the foot
     # points forward from the shank: positive about the person's right axis. (S, 4) signed
     # angles from (thigh, shank) to (shank, foot).
-    first, second = segment[:, 0:4], segment[:, 2:6]
-    axis = np.repeat(left_, 4, axis=1)
-    np.negative(axis[:, 2:], out=axis[:, 2:])  # the right axis (np.negative: NaNs' bits too)
-    cross = (_cross(first, second) * axis).sum(-1)
-    bend = np.degrees(np.arctan2(cross, (first * second).sum(-1)))
-    out[:, 0:2] = bend[:, 0:2]
-    out[:, 6:8] = bend[:, 2:4]
+    first, second = segment[:, :, 0:4], segment[:, :, 2:6]
+    axis = np.repeat(left_, 4, axis=2)
+    np.negative(axis[:, :, 2:], out=axis[:, :, 2:])  # the right axis (np.negative: NaN bits too)
+    bend = np.degrees(np.arctan2(_dot(_cross(first, second), axis), _dot(first, second)))
     # Hip: thigh against the trunk's down axis, flexion forward. Shoulder extension: the arm
     # behind the trunk while below shoulder height.
-    limbs = segment[:, _LIMBS]
-    ahead = (limbs * forward_).sum(-1)
+    limbs = segment[:, :, _LIMBS]
+    ahead = _dot(limbs, forward_)
     np.negative(ahead[:, 2:], out=ahead[:, 2:])  # the arms: how far behind
-    below = (limbs * -up_).sum(-1)
+    below = _dot(limbs, -up_)
     swing = np.degrees(np.arctan2(ahead, below))
-    out[:, 2:4] = swing[:, 0:2]
-    out[:, 10:12] = np.where(below[:, 2:4] > 0, swing[:, 2:4], 0.0)
-    units = _unit(np.concatenate([segment[:, _TO_UNIT], up_], axis=1))  # (S, 8, 3)
+    units = _unit_major(np.concatenate([segment[:, :, _TO_UNIT], up_], axis=2))  # (3, S, 8)
     # Abduction: how far the thigh leaves the sagittal plane (outwards positive).
-    outwards = _SIDE_SIGN * (units[:, 0:2] * left_).sum(-1)
-    out[:, 4:6] = np.degrees(np.arcsin(np.clip(outwards, -1.0, 1.0)))
+    outwards = _SIDE_SIGN * _dot(units[:, :, 0:2], left_)
+    abduction = np.degrees(np.arcsin(np.clip(outwards, -1.0, 1.0)))
     # Elbows (upper arm to forearm) and the neck (up to the neck), unsigned.
-    cos = (units[:, [2, 3, 7]] * units[:, [4, 5, 6]]).sum(-1)
+    cos = _dot(units[:, :, [2, 3, 7]], units[:, :, [4, 5, 6]])
     unsigned = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
-    out[:, 8:10] = unsigned[:, 0:2]
-    out[:, 12] = unsigned[:, 2]
+    shoulder = np.where(below[:, 2:4] > 0, swing[:, 2:4], 0.0)
+    out: FloatArray = np.concatenate(
+        [bend[:, 0:2], swing[:, 0:2], abduction, bend[:, 2:4], unsigned, shoulder], axis=1
+    )[:, _TABLE_ORDER]
     return out
 
 
@@ -245,7 +266,7 @@ def joint_angles(views: npt.ArrayLike) -> dict[str, tuple[FloatArray, int]]:
     Returns:
         ``name_side`` → ((S,) angles in degrees, NaN where unknown; distal joint index).
     """
-    joints = np.asarray(views, dtype=np.float64)
+    joints = np.ascontiguousarray(np.asarray(views, dtype=np.float64).transpose(2, 0, 1))
     with np.errstate(invalid="ignore", divide="ignore"):
         table = _angle_table(joints, *_body_frame(joints))
     out: dict[str, tuple[FloatArray, int]] = {}
@@ -261,9 +282,10 @@ def rom_factors_and_forward(
 ) -> tuple[FloatArray, FloatArray]:
     """:func:`range_of_motion_factors` and the views' ``forward`` axes (:func:`body_frame`)."""
     joints = np.asarray(views, dtype=np.float64)
+    major = np.ascontiguousarray(joints.transpose(2, 0, 1))  # fancy indexing is faster on it
     with np.errstate(invalid="ignore", divide="ignore"):
-        left, up, forward = _body_frame(joints)
-        angles = _angle_table(joints, left, up, forward)
+        left, up, forward = _body_frame(major)
+        angles = _angle_table(major, left, up, forward)
     excess = np.maximum(_ANGLE_LOW - angles, 0.0) + np.maximum(angles - _ANGLE_HIGH, 0.0)
     factors = np.where(np.isfinite(excess), np.exp(-excess / scale_deg), 1.0)
     out = np.ones(joints.shape[:2])
@@ -271,7 +293,7 @@ def rom_factors_and_forward(
     # The knee gets hip flexion × hip abduction (1 · a · b as a running product: the same bits).
     out[:, J.KNEE_LEFT] = factors[:, _KNEE_COLUMNS[0]] * factors[:, _KNEE_COLUMNS[2]]
     out[:, J.KNEE_RIGHT] = factors[:, _KNEE_COLUMNS[1]] * factors[:, _KNEE_COLUMNS[3]]
-    return out, forward
+    return out, forward.T.copy()
 
 
 def facing_direction(joints: npt.ArrayLike) -> FloatArray:
