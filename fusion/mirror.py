@@ -96,6 +96,9 @@ def _mean_of_finite(d: FloatArray) -> FloatArray:
     d: (..., 20) per-joint distances. Returns (...).
     """
     finite = np.isfinite(d)
+    if finite.all():  # every joint seen in both: the same sums and divisions, fewer passes
+        every: FloatArray = d.sum(-1) / np.intp(d.shape[-1])
+        return every
     count = finite.sum(-1)
     total = np.where(finite, d, 0.0).sum(-1)
     result: FloatArray = np.where(count > 0, total / np.maximum(count, 1), 0.0)
@@ -120,7 +123,8 @@ def _lateral_terms(
         pair: (K, 2, 2) mean distance under labellings (c_first, c_second);
         to_ref: (N, 2) mean distance of each labelling to the reference (0 without one).
     """
-    lateral = views[:, LATERAL_JOINTS].transpose(2, 0, 1)  # (3, N, 20), component-major
+    # (3, N, 20), component-major and contiguous: the gathers below are faster on it.
+    lateral = np.ascontiguousarray(views[:, LATERAL_JOINTS].transpose(2, 0, 1))
     swap = _LATERAL_SWAP
     size = len(first)
     distances = np.empty((size * 4 + 2 * len(views), len(LATERAL_JOINTS)))
@@ -135,7 +139,7 @@ def _lateral_terms(
     pairs[:, 1, 1] = same[:, swap]
     if references is None:
         return _mean_of_finite(pairs), np.zeros((len(views), 2))
-    ref = references[:, LATERAL_JOINTS].transpose(2, 0, 1)
+    ref = np.ascontiguousarray(references[:, LATERAL_JOINTS].transpose(2, 0, 1))
     own = distances[size * 4 :].reshape(len(views), 2, len(LATERAL_JOINTS))
     own[:, 0] = _joint_distances(lateral, ref)
     own[:, 1] = _joint_distances(lateral[:, :, swap], ref)
