@@ -26,6 +26,7 @@ from skelfuse.fusion.drift import DriftMonitor
 from skelfuse.fusion.extrapolation import views_with_late
 from skelfuse.fusion.hub_seams import MessageTap, PendingRequests
 from skelfuse.fusion.pipeline import FusionPipeline
+from skelfuse.fusion.registration import PeerProbe, registration_refusal
 from skelfuse.fusion.rejection_budget import RejectionBudget
 from skelfuse.fusion.sensor_rows import sensor_rows
 from skelfuse.fusion.sensors import SensorState, new_sensor
@@ -91,6 +92,7 @@ class FusionHub:
         self.started_s = time.time()
         self._requests: PendingRequests | None = None
         self._budget = RejectionBudget()
+        self._probe: PeerProbe | None = None
         self._tap: MessageTap | None = None
         self.fusion_timing = RollingStats()
         """Seconds of compute per fusion step."""
@@ -125,6 +127,11 @@ class FusionHub:
         """Route agents' ``response`` messages to ``requests`` (the server's request machinery);
         without it every response is rejected as unexpected."""
         self._requests = requests
+
+    def attach_probe(self, probe: PeerProbe) -> None:
+        """Ask ``probe`` whether a sensor's connection is still open before refusing a second
+        one its id (fusion/registration.py); without it, recently heard counts as open."""
+        self._probe = probe
 
     # --- sessions and messages ----------------------------------------------------------------
 
@@ -279,23 +286,14 @@ class FusionHub:
     ) -> Message:
         existing = self.sensors.get(hello.sensor_id)
         liveness_s = self.settings.heartbeat_interval_s * 3
-        # An authenticated agent holds the sensor's own key: a second connection with it is the
-        # same agent restarted (after a crash, with no bye), so it takes over at once.
-        if (
-            not authenticated
-            and existing is not None
-            and existing.connected
-            and existing.routing_id != routing_id
-            and now_mono - existing.last_heard_mono < liveness_s
-        ):
+        refusal = registration_refusal(
+            hello.sensor_id, existing, routing_id, now_mono, liveness_s, authenticated, self._probe
+        )
+        if refusal is not None:
             self.rejected_unregistered["sensor_id_in_use"] += 1
-            return ErrorMessage(
-                "sensor_id_in_use",
-                f"sensor id {hello.sensor_id!r} is in use by another live agent; "
-                "give each agent its own --id",
-            )
-        old_routing = self._by_routing.pop(existing.routing_id, None) if existing else None
-        del old_routing
+            return refusal
+        if existing is not None:
+            self._by_routing.pop(existing.routing_id, None)
         sensor = new_sensor(hello, routing_id, now_mono)
         if existing is not None:
             # Keep the counters across reconnects: they describe the sensor, not the session.

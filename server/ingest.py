@@ -10,6 +10,7 @@ import asyncio
 import contextlib
 import logging
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +46,9 @@ def open_router(
     socket.sndhwm = 1_000
     socket.setsockopt(zmq.MAXMSGSIZE, SOCKET_MAX_MESSAGE_BYTES)
     socket.setsockopt(zmq.ROUTER_HANDOVER, 1)  # a reconnecting agent may reuse its identity
+    # Sending to a connection that is gone fails at once (EHOSTUNREACH) instead of vanishing:
+    # that is how connection_probe tells a crashed agent from a live one.
+    socket.setsockopt(zmq.ROUTER_MANDATORY, 1)
     try:
         socket.bind(endpoint)
     except zmq.ZMQError as exc:
@@ -57,6 +61,24 @@ async def send_to(socket: zmq.asyncio.Socket, routing_id: bytes, message: Messag
     with contextlib.suppress(zmq.Again, zmq.ZMQError):
         # ROUTER drops what it cannot route; never let one agent block the loop.
         await socket.send_multipart([routing_id, encode(message)], flags=zmq.NOBLOCK)
+
+
+def connection_probe(socket: zmq.asyncio.Socket) -> Callable[[bytes], bool]:
+    """Whether the connection with a routing id is still open, for the hub's registration rule
+    (``skelfuse.fusion.registration``). It sends that connection a heartbeat (agents answer
+    any heartbeat with an echo); with ``ROUTER_MANDATORY`` a closed one refuses it at once."""
+    raw: zmq.Socket[bytes] = zmq.Socket.shadow(socket.underlying)
+
+    def probe(routing_id: bytes) -> bool:
+        try:
+            raw.send_multipart([routing_id, encode(Heartbeat(time.time_ns()))], zmq.NOBLOCK)
+        except zmq.Again:
+            return True  # open, its queue full
+        except zmq.ZMQError as exc:
+            return exc.errno != zmq.EHOSTUNREACH
+        return True
+
+    return probe
 
 
 INGEST_SLICE_S = 0.005
@@ -78,6 +100,7 @@ async def ingest_loop(
     12,000 would otherwise hold every other task until its last one.
     """
     stages = StageTimes() if stages is None else stages
+    hub.attach_probe(connection_probe(socket))
     queued: zmq.Socket[bytes] = zmq.Socket.shadow(socket.underlying)
     while True:
         await socket.poll()  # until a message is there

@@ -130,3 +130,58 @@ def test_a_restarted_agent_is_fused_again_within_2_s(
 
     assert wait_until(fused_from_the_new_agent, timeout_s=10)
     assert time.monotonic() - restarted < 2.0
+
+
+def test_a_second_agent_with_a_live_sensors_key_is_refused_every_time(
+    secured: LiveServer, tmp_path: Path
+) -> None:
+    """Two real agents hold cam-a's key (a copied key file, an agent started twice): the second
+    is refused while the first is live, never welcomed, so none of its frames is fused."""
+    import time
+
+    from skelfuse.agent.link import AgentLink
+    from skelfuse.protocol.transform import look_at_pose as pose
+
+    paths = key_paths(tmp_path / "data")
+    keys = CurveKeys(paths.agent_secret("cam-a"), paths.server_public)
+    links: dict[str, AgentLink] = {}
+    stops: list[tuple[threading.Event, threading.Thread]] = []
+
+    def start(name: str, position: tuple[float, float, float]) -> None:
+        source = SimSource(ProceduralPerformer(1), pose(position, (0, 1, 0)), seed=len(links))
+        stop = threading.Event()
+
+        def run() -> None:
+            links[name] = run_agent("cam-a", source, secured.zmq_url, stop=stop, curve=keys)
+
+        thread = threading.Thread(target=run, daemon=True)
+        thread.start()
+        stops.append((stop, thread))
+
+    def row() -> dict[str, object]:
+        rows = httpx.get(secured.http_url + "/api/sensors").json()
+        sensor: dict[str, object] = next(r for r in rows["sensors"] if r["id"] == "cam-a")
+        sensor["refused"] = rows["rejected_unregistered"].get("sensor_id_in_use", 0)
+        return sensor
+
+    try:
+        start("first", (0.0, 1.0, 3.0))
+        assert wait_until(lambda: row()["connected"] and row()["frames_received"] > 30, 15)
+        first_pose = row()["calibration"]["T_world_from_sensor"]  # type: ignore[index]
+        start("second", (2.6, 1.0, -1.5))  # its pose hint would show if it ever took over
+        watched_until = time.monotonic() + 4.0
+        while time.monotonic() < watched_until:
+            now = row()
+            assert now["connected"]
+            assert now["calibration"]["T_world_from_sensor"] == first_pose  # type: ignore[index]
+            time.sleep(0.1)
+        assert row()["refused"] >= 2  # type: ignore[operator]
+    finally:
+        for stop, thread in stops:
+            stop.set()
+            thread.join(timeout=10)
+    second = links["second"]
+    assert second.stats.registrations == 0, "the second agent was welcomed"
+    assert second.stats.frames_sent == 0
+    assert second.stats.server_errors.get("sensor_id_in_use", 0) >= 2
+    assert links["first"].stats.registrations == 1
