@@ -6,13 +6,13 @@ Shapes: 25 joints, 24 bones in :data:`skelfuse.protocol.skeleton.BONES` order; m
 
 from __future__ import annotations
 
-from collections import deque
 from typing import Final, Literal
 
 import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.anatomy import CHAIN_LEVELS
+from skelfuse.fusion.bone_window import SampleWindow, nanmedian_axis
 from skelfuse.protocol.skeleton import BONE_MIRROR_PERMUTATION, BONES, TrackingState
 
 FloatArray = npt.NDArray[np.float64]
@@ -20,6 +20,7 @@ BONE_COUNT: Final = len(BONES)
 _BONE_PARENT: Final = np.array([parent for parent, _ in BONES])
 _BONE_CHILD: Final = np.array([child for _, child in BONES])
 _BONE_MIRROR: Final = np.array(BONE_MIRROR_PERMUTATION)
+_TRACKED: Final = int(TrackingState.TRACKED)
 BoneFit = Literal["projection", "chain"]
 GOOD_VIEW_COS: Final = 0.5
 """A view feeds the online bone-length estimate only if the person faces it within 60°."""
@@ -193,20 +194,6 @@ def project_bone_lengths(
     return enforce_bone_lengths(out, ref)
 
 
-def nanmedian_axis(data: FloatArray, axis: int) -> FloatArray:
-    """``np.nanmedian`` along ``axis`` (the same values: mean of the two middle ones), faster.
-
-    All-NaN slices give NaN without a warning.
-    """
-    ordered = np.sort(data, axis=axis)  # NaN last
-    count = np.isfinite(data).sum(axis=axis, keepdims=True)
-    low = np.take_along_axis(ordered, np.maximum((count - 1) // 2, 0), axis=axis)
-    high = np.take_along_axis(ordered, count // 2, axis=axis)
-    median = np.where(count > 0, (low + high) / 2.0, np.nan)
-    result: FloatArray = np.squeeze(median, axis=axis)
-    return result
-
-
 BoneSource = Literal["set", "estimated", "none"]
 
 
@@ -236,8 +223,8 @@ class BoneModel:
         self.symmetric = symmetric
         self.lock_samples = lock_samples
         self._locked = np.zeros(BONE_COUNT, dtype=bool)
-        self._samples: deque[FloatArray] = deque(maxlen=window)
-        self._fallback: deque[FloatArray] = deque(maxlen=window)
+        self._samples = SampleWindow(window)
+        self._fallback = SampleWindow(window)
         self._estimate = np.full(BONE_COUNT, np.nan)
         self._since_update = 0
 
@@ -265,47 +252,35 @@ class BoneModel:
         """
         good = bool(np.isfinite(lengths).any())
         spare = fallback is not None and bool(np.isfinite(fallback).any())
-        if not (good or spare):
+        self._add(lengths if good else None, fallback if spare else None)
+
+    def _add(self, lengths: FloatArray | None, fallback: FloatArray | None) -> None:
+        """:meth:`observe` once it is known which of the two hold any length (None: none)."""
+        if lengths is None and fallback is None:
             return
-        if good:
+        if lengths is not None:
             self._samples.append(lengths)
-        if spare:
-            assert fallback is not None
+        if fallback is not None:
             self._fallback.append(fallback)
         self._since_update += 1
         settling = len(self._samples) < 2 * self.min_samples
         if settling or self._since_update >= self._REFRESH_EVERY:
             self._since_update = 0
-            estimate, counts = self._median(self._samples)
+            estimate, counts = self._samples.median(self.min_samples, self.symmetric)
             missing = ~np.isfinite(estimate)
             if missing.any():
-                estimate[missing] = self._median(self._fallback)[0][missing]
+                backup = self._fallback.median(self.min_samples, self.symmetric)[0]
+                estimate[missing] = backup[missing]
             self._estimate = np.where(self._locked, self._estimate, estimate)
             if self.lock_samples is not None:
                 self._locked |= counts >= self.lock_samples
 
     def mirror(self) -> None:
         """Swap left and right in the online samples (the track they came from was mirrored)."""
-        for samples in (self._samples, self._fallback):
-            swapped = [sample[_BONE_MIRROR] for sample in samples]
-            samples.clear()
-            samples.extend(swapped)
+        self._samples.mirror()
+        self._fallback.mirror()
         self._estimate = self._estimate[_BONE_MIRROR]
         self._locked = self._locked[_BONE_MIRROR]
-
-    def _median(self, samples: deque[FloatArray]) -> tuple[FloatArray, FloatArray]:
-        """Per-bone median of ``samples`` (NaN where fewer than ``min_samples``) and the
-        observations behind it, per bone (with ``symmetric``: the mean of a left/right pair's)."""
-        if not samples:
-            return np.full(BONE_COUNT, np.nan), np.zeros(BONE_COUNT)
-        data = np.stack(samples)
-        sides = 1
-        if self.symmetric:
-            data = np.concatenate([data, data[:, _BONE_MIRROR]], axis=0)
-            sides = 2
-        counts = np.isfinite(data).sum(axis=0) / sides
-        median = np.where(counts >= self.min_samples, nanmedian_axis(data, axis=0), np.nan)
-        return median, counts  # all-NaN bones stay NaN
 
 
 def observe_bone_lengths(
@@ -330,7 +305,7 @@ def observe_bone_lengths(
     if not estimating.any():
         return
     good_view = np.isfinite(cosines) & (cosines >= GOOD_VIEW_COS)
-    tracked = states == TrackingState.TRACKED
+    tracked = states == _TRACKED
     both_tracked = tracked[:, _BONE_PARENT] & tracked[:, _BONE_CHILD]
     lengths = np.linalg.norm(joints[:, _BONE_CHILD] - joints[:, _BONE_PARENT], axis=-1)
     usable = both_tracked & np.isfinite(lengths)
@@ -342,8 +317,10 @@ def observe_bone_lengths(
     if not observed.any():
         return
     per_bone = nanmedian_axis(padded, axis=1)  # (persons, bones, 2)
-    for p in np.flatnonzero(observed):
-        models[p].observe(per_bone[p, :, 0], per_bone[p, :, 1])
+    seen = np.asarray(np.isfinite(per_bone).any(axis=1)).tolist()  # (persons, 2) any good, any
+    for p in np.flatnonzero(observed).tolist():
+        good, spare = seen[p]
+        models[p]._add(per_bone[p, :, 0] if good else None, per_bone[p, :, 1] if spare else None)
 
 
 def fit_bone_lengths(

@@ -1,0 +1,82 @@
+"""The last ``window`` bone-length observations of one person, and their per-bone median.
+
+What :class:`skelfuse.fusion.bones.BoneModel` estimates from. Stored bones first in a ring,
+(24, window), NaN where nothing was observed: appending overwrites the oldest observation, as
+a ``deque(maxlen=window)`` drops it, and the median sorts contiguous rows. A median does not
+depend on the order of its observations, so it is, to the bit, the median of the same
+observations in arrival order.
+
+Shapes: 24 bones in :data:`skelfuse.protocol.skeleton.BONES` order; metres.
+"""
+
+from __future__ import annotations
+
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+
+from skelfuse.protocol.skeleton import BONE_MIRROR_PERMUTATION, BONES
+
+FloatArray = npt.NDArray[np.float64]
+BONE_COUNT: Final = len(BONES)
+BONE_MIRROR: Final = np.array(BONE_MIRROR_PERMUTATION)
+_PAIRS: Final = np.array(sorted({min(b, int(m)) for b, m in enumerate(BONE_MIRROR)}))
+"""One bone of each left/right pair (midline bones are their own pair)."""
+_PAIR_OF: Final = np.searchsorted(_PAIRS, np.minimum(np.arange(BONE_COUNT), BONE_MIRROR))
+"""Per bone, its pair's row among :data:`_PAIRS`."""
+
+
+def nanmedian_axis(data: FloatArray, axis: int) -> FloatArray:
+    """``np.nanmedian`` along ``axis`` (the same values: mean of the two middle ones), faster.
+
+    All-NaN slices give NaN without a warning.
+    """
+    ordered = np.sort(data, axis=axis)  # NaN last
+    count = np.isfinite(data).sum(axis=axis, keepdims=True)
+    low = np.take_along_axis(ordered, np.maximum((count - 1) // 2, 0), axis=axis)
+    high = np.take_along_axis(ordered, count // 2, axis=axis)
+    median = np.where(count > 0, (low + high) / 2.0, np.nan)
+    result: FloatArray = np.squeeze(median, axis=axis)
+    return result
+
+
+class SampleWindow:
+    """The last ``window`` (24,) observations (module docstring)."""
+
+    def __init__(self, window: int) -> None:
+        self._data = np.full((BONE_COUNT, max(window, 0)), np.nan)
+        self._size = 0
+        self._next = 0
+
+    def __len__(self) -> int:
+        return self._size
+
+    def append(self, lengths: FloatArray) -> None:
+        """Add one observation, (24,) metres (NaN: bone not observed), dropping the oldest."""
+        window = self._data.shape[1]
+        if window == 0:
+            return
+        self._data[:, self._next] = lengths
+        self._next = (self._next + 1) % window
+        self._size = min(self._size + 1, window)
+
+    def mirror(self) -> None:
+        """Swap left and right bones in every observation."""
+        self._data = self._data[BONE_MIRROR]
+
+    def median(self, min_samples: int, symmetric: bool) -> tuple[FloatArray, FloatArray]:
+        """Per-bone median (NaN where fewer than ``min_samples`` observations) and the number
+        of observations behind it, (24,) each. With ``symmetric`` a left bone and its right
+        counterpart pool their observations (the count is the mean of the two sides')."""
+        if not self._size:
+            return np.full(BONE_COUNT, np.nan), np.zeros(BONE_COUNT)
+        data = self._data[:, : self._size]
+        if not symmetric:
+            counts = np.isfinite(data).sum(axis=1) / 1
+            return np.where(counts >= min_samples, nanmedian_axis(data, 1), np.nan), counts
+        # Both bones of a pair pool the same observations: one median per pair serves both.
+        pooled = np.concatenate([data[_PAIRS], data[BONE_MIRROR[_PAIRS]]], axis=1)
+        counts = np.isfinite(pooled).sum(axis=1) / 2
+        median = np.where(counts >= min_samples, nanmedian_axis(pooled, 1), np.nan)
+        return median[_PAIR_OF], counts[_PAIR_OF]
