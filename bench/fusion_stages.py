@@ -14,7 +14,7 @@ Stages (docs/fusion.md numbering):
   when labels are off) to the start of the bone observation: the confidence terms, the fusions,
   joint confidence and carriers (and with labels off, the batch build before them);
 - ``bones observe``: ``observe_bone_lengths``;
-- ``walking check``: ``FusionPipeline._check_walking_direction``, all persons;
+- ``walking check``: ``FusionPipeline._check_walking_directions``, all persons;
 - ``filter``: step 7, ``filter_all``;
 - ``bone fit``: step 8, ``fit_bone_lengths``;
 - ``other``: the rest of ``fuse_step`` (grid bookkeeping, batch build, track moves, building
@@ -49,6 +49,9 @@ _MODULE_STAGES = {
     "filter_all": "filter",
     "fit_bone_lengths": "bone fit",
 }
+
+_WALKING_CHECKS = ("_check_walking_directions", "_check_walking_direction")
+"""The pipeline's walking check, all persons at once (or, before that, one by one)."""
 
 
 class StageClock:
@@ -119,13 +122,14 @@ def stage_timers(pipeline: Any) -> Iterator[StageClock]:
         for name, function in saved.items():
             setattr(module, name, clock.wrap(_MODULE_STAGES[name], function))
         pipeline.tracker.associate = clock.wrap("associate", pipeline.tracker.associate)
-        pipeline._check_walking_direction = clock.wrap(
-            "walking check", pipeline._check_walking_direction
-        )
+        for name in _WALKING_CHECKS:
+            if hasattr(pipeline, name):
+                setattr(pipeline, name, clock.wrap("walking check", getattr(pipeline, name)))
         yield clock
     finally:
         for name, function in saved.items():
             setattr(module, name, function)
         for attribute in ("associate",):
             pipeline.tracker.__dict__.pop(attribute, None)
-        pipeline.__dict__.pop("_check_walking_direction", None)
+        for name in _WALKING_CHECKS:
+            pipeline.__dict__.pop(name, None)

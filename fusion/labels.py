@@ -252,6 +252,7 @@ def walking_backwards(
     t_s: float,
     backward_since_s: float | None,
     settings: FusionSettings,
+    facing: FloatArray | None = None,
 ) -> tuple[bool, float | None]:
     """Whether a person has walked backwards long enough to be taken as mirrored as a whole.
 
@@ -263,6 +264,8 @@ def walking_backwards(
     Args:
         joints: (25, 3) the person's fused skeleton, metres, world; velocity: (3,) m/s.
         backward_since_s: when the current stretch of walking backwards began, or None.
+        facing: the skeleton's ``facing_direction`` (3,) if the caller has it (one batched
+            call for every person is cheaper); None: worked out here when needed.
 
     Returns:
         (swap now, when the stretch began or None): after a swap the stretch starts over.
@@ -273,7 +276,8 @@ def walking_backwards(
     speed = float(np.linalg.norm(velocity))
     backwards = False
     if speed >= s.mirror_walk_min_speed_mps:
-        facing = facing_direction(joints)
+        if facing is None:
+            facing = facing_direction(joints)
         backwards = bool(np.isfinite(facing).all()) and (
             float(np.dot(facing, velocity)) < -0.5 * speed
         )

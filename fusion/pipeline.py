@@ -230,7 +230,7 @@ class FusionPipeline:
             )
             for p, person_id in enumerate(ids):
                 self.tracker.move(person_id, fused[p], t_s)
-                self._check_walking_direction(person_id, t_s)
+            self._check_walking_directions(ids, t_s)  # each only looks at its own person
 
             # 7. Filter, 8. bone-length fit.
             alive = [p for p in range(len(ids)) if np.isfinite(fused[p]).any()]
@@ -295,20 +295,27 @@ class FusionPipeline:
             jerk_per_speed=s.kalman_ca_jerk_per_speed,
         )
 
-    def _check_walking_direction(self, person_id: int, t_s: float) -> None:
-        """Swap a whole person that walks backwards for too long (labels.walking_backwards).
+    def _check_walking_directions(self, ids: list[int], t_s: float) -> None:
+        """Swap each whole person that walks backwards for too long (labels.walking_backwards).
 
         The swap takes effect from the next step: the person's skeleton and every view's
         remembered label are swapped, the filter restarts (it would otherwise sweep the limbs
-        across), the online bone samples swap sides.
+        across), the online bone samples swap sides. The persons' facings come from one
+        batched call (each skeleton's own, the same bits as one by one).
         """
-        track, memory = self.tracker.tracks[person_id], self.memories[person_id]
-        swap, memory.backward_since_s = walking_backwards(
-            track.joints, track.velocity, t_s, memory.backward_since_s, self.settings
-        )
-        if swap:
-            self._swap_person(person_id, relabel=True)
-            memory.walk_swaps += 1
+        s = self.settings
+        tracks = [self.tracker.tracks[person_id] for person_id in ids]
+        facings: list[FloatArray | None] = [None] * len(ids)
+        if tracks and s.mirror_walk_check_s > 0 and s.use_mirror_correction:
+            facings = list(facing_directions(np.stack([track.joints for track in tracks])))
+        for person_id, track, facing in zip(ids, tracks, facings, strict=True):
+            memory = self.memories[person_id]
+            swap, memory.backward_since_s = walking_backwards(
+                track.joints, track.velocity, t_s, memory.backward_since_s, s, facing
+            )
+            if swap:
+                self._swap_person(person_id, relabel=True)
+                memory.walk_swaps += 1
 
     def _swap_person(self, person_id: int, relabel: bool) -> None:
         """Swap a whole person's sides: its track, its filter (which would otherwise sweep the
