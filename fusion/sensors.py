@@ -19,6 +19,7 @@ outage) or :data:`FUTURE_S` in the future (a clock jump, a replayed recording) a
 
 from __future__ import annotations
 
+import math
 from bisect import bisect_left
 from collections import Counter, deque
 from dataclasses import dataclass, field
@@ -322,12 +323,11 @@ def _lerp(
     b = second_joints.astype(np.float64)
     joints = (1.0 - alpha) * a + alpha * b
     states: npt.NDArray[np.uint8] = np.minimum(first_states, second_states)
-    # A position is finite exactly where both frames have it (0 ≤ alpha ≤ 1, float32 inputs:
-    # no overflow), so one check tells whether any joint needs the nearer frame.
-    finite = np.isfinite(joints).all(axis=-1)
-    if finite.all():
+    # The sum is finite only if every interpolated position is, hence every position of both
+    # frames (NaN and inf propagate): one cheap check for the usual case, nothing to patch.
+    if math.isfinite(joints.sum()):
         return joints.astype(np.float32), states
-    both = finite
+    both = np.isfinite(a).all(axis=-1) & np.isfinite(b).all(axis=-1)
     # Where only one frame has the joint, the nearer frame decides.
     nearer = b if alpha >= 0.5 else a
     joints[~both] = nearer[~both]
