@@ -110,7 +110,9 @@ class ProcessSolvers:
         threading.Thread(target=self._submit, args=(_preload,), name="solver-warm").start()
 
     async def run(self, fn: Callable[P, T], /, *args: P.args, **kwargs: P.kwargs) -> T:
-        pool, future = self._submit(functools.partial(fn, *args, **kwargs))
+        # Submitting from a thread: the first submit starts the process, 10-25 ms (more under
+        # load) of the submitting thread, which must not be the event loop's.
+        pool, future = await asyncio.to_thread(self._submit, functools.partial(fn, *args, **kwargs))
         try:
             return await asyncio.wrap_future(future)  # what loop.run_in_executor does
         except BrokenProcessPool as exc:
