@@ -1,0 +1,272 @@
+"""Many WebSocket viewers on one server: fused frames received, frames lost, age at receipt.
+
+    python bench/many_clients.py [--clients 500] [--processes 2] [--duration 30] [--runs 1]
+
+Starts ``python -m skelfuse server`` on loopback (bench/load_server.py) with the load
+benchmark's fake agents (bench/load_agents.py: ``--agents`` ZeroMQ agents at 30 fps seeing
+``--bodies`` people, in a child process), then ``--clients`` WebSocket clients spread over
+``--processes`` child processes, each an asyncio loop of ``websockets`` clients reading the JSON
+feed as fast as it comes. Over the measured window (after ``--warmup``) it reports:
+
+- fused frames per second received per client (median and lowest over clients);
+- frames lost per client: gaps in ``seq`` between consecutive frames a client received (the
+  feed conflates, so a client that does not keep up loses frames; one that keeps up loses none);
+- age at receipt, p50 / p99 over every frame of every client: receive time minus ``t_sent``
+  (the server's publish time: what fan-out and the network add) and minus ``t`` (the fused
+  instant: what alignment, fusion and fan-out add);
+- the server's CPU (% of one core) and RSS (start, max, end), the clients' CPU, the server's
+  ``conflated`` and ``evicted`` counts, and the load average before and after.
+
+Clients only look at the start of each message (``seq``, ``t`` and ``t_sent`` come first in a
+frame message, docs/api.md): parsing whole frames 15,000 times a second would measure the
+clients' JSON parser, not the server.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import multiprocessing as mp
+import os
+import re
+import statistics
+import sys
+import time
+from array import array
+from multiprocessing.synchronize import Event as MpEvent
+from pathlib import Path
+from typing import Any
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench.load_agents import agents_process, sensor_layout
+from bench.load_server import (
+    free_port,
+    http_json,
+    proc_cpu_s,
+    proc_rss_mb,
+    start_server,
+    wait_for,
+)
+
+HEAD = re.compile(r'"seq":(\d+),"t":([0-9.eE+-]+),"t_sent":([0-9.eE+-]+)')
+
+
+async def _client(url: str, measuring: asyncio.Event, stopping: asyncio.Event) -> dict[str, Any]:
+    """One viewer: counts frames, seq gaps and ages while ``measuring`` and not ``stopping``."""
+    from websockets.asyncio.client import connect
+
+    ages_sent, ages_t = array("d"), array("d")
+    out: dict[str, Any] = {"frames": 0, "lost": 0, "error": None, "closed": None}
+    last_seq = -1
+    try:
+        async with connect(url, compression=None, max_size=2**22) as ws:
+            await ws.recv()  # the skeleton definition
+            while not stopping.is_set():
+                message = await ws.recv()
+                received = time.time()
+                head = HEAD.search(message[:200] if isinstance(message, str) else "")
+                if head is None or not measuring.is_set():
+                    continue
+                seq = int(head.group(1))
+                if last_seq >= 0 and seq > last_seq + 1:
+                    out["lost"] += seq - last_seq - 1
+                last_seq = seq
+                out["frames"] += 1
+                ages_t.append(received - float(head.group(2)))
+                ages_sent.append(received - float(head.group(3)))
+    except Exception as exc:  # a closed or failed connection ends this client; it is reported
+        out["error"] = f"{type(exc).__name__}: {exc}"
+    out["ages_sent"], out["ages_t"] = ages_sent.tobytes(), ages_t.tobytes()
+    return out
+
+
+def clients_process(
+    url: str, count: int, start: MpEvent, stop: MpEvent, results: mp.Queue[Any]
+) -> None:
+    """Run ``count`` clients in one asyncio loop; measure between ``start`` and ``stop``."""
+
+    async def main() -> list[dict[str, Any]]:
+        measuring, stopping = asyncio.Event(), asyncio.Event()
+        tasks = []
+        for _ in range(count):  # connect gradually: 500 handshakes at once time out
+            tasks.append(asyncio.create_task(_client(url, measuring, stopping)))
+            await asyncio.sleep(0.005)
+        await asyncio.to_thread(start.wait)
+        measuring.set()
+        await asyncio.to_thread(stop.wait)
+        measuring.clear()
+        stopping.set()
+        done, pending = await asyncio.wait(tasks, timeout=10)
+        for task in pending:
+            task.cancel()
+        return [task.result() for task in done if not task.cancelled()]
+
+    started = time.process_time()
+    logs = asyncio.run(main())
+    results.put({"clients": logs, "cpu_s": time.process_time() - started})
+
+
+def _pct(values: list[float], q: float) -> float:
+    if not values:
+        return float("nan")
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(q / 100 * len(ordered)))]
+
+
+def _wait_connected(base: str, clients: int, agents: int, timeout_s: float = 180.0) -> None:
+    """Poll until every client is connected and every sensor online (progress on stderr).
+
+    Raises:
+        RuntimeError: not so after ``timeout_s``.
+    """
+    deadline = time.monotonic() + timeout_s
+    health: dict[str, Any] = {}
+    while time.monotonic() < deadline:
+        try:
+            health = http_json(base + "/api/health", timeout_s=15.0)
+        except OSError as exc:  # a busy server: try again
+            print(f"health: {exc}", file=sys.stderr)
+            continue
+        if health["ws_clients"] >= clients and health["sensors_online"] == agents:
+            return
+        online = health["sensors_online"]
+        print(f"{health['ws_clients']} clients, {online} sensors", file=sys.stderr)
+        time.sleep(2.0)
+    raise RuntimeError(f"clients or sensors missing after {timeout_s:.0f} s: {health}")
+
+
+def run_once(args: argparse.Namespace, seed: int, log_dir: Path) -> dict[str, Any]:
+    """One server, its agents and its clients; the window's figures.
+
+    Raises:
+        RuntimeError: the server did not start or never fused.
+    """
+    http_port, zmq_port = free_port(), free_port()
+    base = f"http://127.0.0.1:{http_port}"
+    poses = sensor_layout(args.agents)
+    server, log_file = start_server(poses, http_port, zmq_port, log_dir / f"server-{seed}.log")
+    ctx = mp.get_context("spawn")
+    stop_agents, start, stop = ctx.Event(), ctx.Event(), ctx.Event()
+    agent_results: mp.Queue[Any] = ctx.Queue()
+    client_results: mp.Queue[Any] = ctx.Queue()
+    children: list[mp.process.BaseProcess] = []
+    try:
+        wait_for(lambda: http_json(base + "/api/health"), 20, "the server to start")
+        agents = ctx.Process(
+            target=agents_process,
+            args=(
+                f"tcp://127.0.0.1:{zmq_port}",
+                {s: [float(x) for x in p.reshape(16)] for s, p in poses.items()},
+                args.bodies, seed, args.warmup + args.duration + 600.0, stop_agents,
+                agent_results,
+            ),
+            daemon=True,
+        )  # fmt: skip
+        agents.start()
+        children.append(agents)
+        url = f"ws://127.0.0.1:{http_port}/ws/skeletons"
+        shares = [args.clients // args.processes] * args.processes
+        shares[0] += args.clients - sum(shares)
+        for share in shares:
+            child = ctx.Process(
+                target=clients_process,
+                args=(url, share, start, stop, client_results),
+                daemon=True,
+            )
+            child.start()
+            children.append(child)
+        _wait_connected(base, args.clients, args.agents)
+        time.sleep(args.warmup)
+        load_before = os.getloadavg()
+        fused0 = http_json(base + "/api/health")["fused_frames"]
+        rss_start = proc_rss_mb(server.pid)
+        rss_max = rss_start
+        t0, cpu0 = time.time(), proc_cpu_s(server.pid)
+        start.set()
+        while time.time() < t0 + args.duration:
+            time.sleep(1.0)
+            rss_max = max(rss_max, proc_rss_mb(server.pid))
+        stop.set()
+        t1, cpu1 = time.time(), proc_cpu_s(server.pid)
+        fused1 = http_json(base + "/api/health")["fused_frames"]
+        rss_end = proc_rss_mb(server.pid)
+        clients_now = http_json(base + "/api/clients")
+        load_after = os.getloadavg()
+        logs: list[dict[str, Any]] = []
+        clients_cpu = 0.0
+        for _ in shares:
+            part = client_results.get(True, 60)
+            logs.extend(part["clients"])
+            clients_cpu += part["cpu_s"]
+    finally:
+        stop_agents.set()
+        start.set()
+        stop.set()
+        for process in children:
+            process.join(5)
+            if process.is_alive():
+                process.kill()
+        server.send_signal(2)
+        try:
+            server.wait(15)
+        except Exception:
+            server.kill()
+        log_file.close()
+    window = t1 - t0
+    ages_sent: list[float] = []
+    ages_t: list[float] = []
+    for log in logs:
+        ages_sent.extend(array("d", log["ages_sent"]))
+        ages_t.extend(array("d", log["ages_t"]))
+    fps = [log["frames"] / window for log in logs]
+    lost = [int(log["lost"]) for log in logs]
+    errors = [log["error"] for log in logs if log["error"]]
+    return {
+        "clients": len(logs),
+        "window_s": round(window, 2),
+        "fused_fps_server": round((fused1 - fused0) / window, 2),
+        "fps_received_median": round(statistics.median(fps), 2) if fps else None,
+        "fps_received_min": round(min(fps), 2) if fps else None,
+        "lost_total": sum(lost),
+        "clients_with_loss": sum(1 for n in lost if n),
+        "lost_max_per_client": max(lost, default=0),
+        "age_sent_p50_ms": round(1000 * _pct(ages_sent, 50), 1),
+        "age_sent_p99_ms": round(1000 * _pct(ages_sent, 99), 1),
+        "age_t_p50_ms": round(1000 * _pct(ages_t, 50), 1),
+        "age_t_p99_ms": round(1000 * _pct(ages_t, 99), 1),
+        "server_cpu_pct": round(100 * (cpu1 - cpu0) / window, 1),
+        "clients_cpu_pct": round(100 * clients_cpu / window, 1),
+        "server_rss_mb": [round(rss_start, 1), round(rss_max, 1), round(rss_end, 1)],
+        "conflated_total": sum(int(c["conflated"]) for c in clients_now["clients"]),
+        "evicted": int(clients_now["evicted"]),
+        "client_errors": errors[:5],
+        "client_error_count": len(errors),
+        "loadavg_before": [round(x, 2) for x in load_before],
+        "loadavg_after": [round(x, 2) for x in load_after],
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the benchmark ``--runs`` times; print each run's figures as one JSON line."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--clients", type=int, default=500)
+    parser.add_argument("--processes", type=int, default=2, help="client processes (1-2)")
+    parser.add_argument("--agents", type=int, default=4)
+    parser.add_argument("--bodies", type=int, default=6)
+    parser.add_argument("--duration", type=float, default=30.0, help="measured seconds")
+    parser.add_argument("--warmup", type=float, default=5.0)
+    parser.add_argument("--runs", type=int, default=1)
+    parser.add_argument("--logs", default="artifacts/many_clients", help="server logs go here")
+    args = parser.parse_args(argv)
+    log_dir = Path(args.logs)
+    log_dir.mkdir(parents=True, exist_ok=True)
+    for seed in range(1, args.runs + 1):
+        print(json.dumps(run_once(args, seed, log_dir)), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
