@@ -26,6 +26,7 @@ from typing import Any
 import zmq
 import zmq.auth
 
+from skelfuse.agent.handshake import HandshakeWatch
 from skelfuse.protocol.constants import (
     AGENT_SEND_HWM,
     HEARTBEAT_INTERVAL_S,
@@ -114,6 +115,8 @@ class AgentLink:
         self._last_sent = -float("inf")
         self._last_hello = -float("inf")
         self._socket = self._open()
+        self.handshake = HandshakeWatch(self._socket, endpoint, curve is not None, clock)
+        """Failed handshakes (a key missing or refused), said in the log and counted."""
 
     def _open(self) -> zmq.Socket[Any]:
         socket = self._context.socket(zmq.DEALER)
@@ -155,6 +158,7 @@ class AgentLink:
             deadline_ms = 0
             self._handle(self._socket.recv())
         self._finish_requests()
+        self.handshake.poll(self.registered)
         now = self._clock()
         if self.registered and now - self._last_heard > self._interval * self._liveness:
             logger.warning("server silent for %.1f s; registering again", now - self._last_heard)
@@ -249,6 +253,7 @@ class AgentLink:
     def close(self) -> None:
         """Say goodbye (best effort) and release the socket."""
         self._workers.shutdown(wait=False, cancel_futures=True)
+        self.handshake.close()
         said_bye = self.registered and self._send(Bye())
         # A short linger lets the bye leave; nothing else can be queued (frames are dropped).
         self._socket.close(linger=200 if said_bye else 0)

@@ -16,6 +16,7 @@ from typing import Any
 
 import zmq
 import zmq.asyncio
+from zmq.utils.monitor import parse_monitor_message
 
 from skelfuse.fusion.hub import FusionHub
 from skelfuse.protocol.constants import MAX_RESPONSE_BYTES
@@ -102,17 +103,69 @@ async def ingest_loop(
     stages = StageTimes() if stages is None else stages
     hub.attach_probe(connection_probe(socket))
     queued: zmq.Socket[bytes] = zmq.Socket.shadow(socket.underlying)
-    while True:
-        await socket.poll()  # until a message is there
-        slice_end = time.perf_counter() + INGEST_SLICE_S
-        while time.perf_counter() < slice_end:
-            try:
-                # Bytes are cheaper than Frame objects; only a Frame knows its User-Id.
-                frames: list[Any] = queued.recv_multipart(zmq.NOBLOCK, copy=not authenticated)
-            except zmq.Again:
-                break
-            await _handle(socket, hub, frames, authenticated, stages)
-        await asyncio.sleep(0)
+    handshakes = asyncio.create_task(handshake_monitor_loop(socket, hub), name="handshakes")
+    try:
+        while True:
+            await socket.poll()  # until a message is there
+            slice_end = time.perf_counter() + INGEST_SLICE_S
+            while time.perf_counter() < slice_end:
+                try:
+                    # Bytes are cheaper than Frame objects; only a Frame knows its User-Id.
+                    frames: list[Any] = queued.recv_multipart(zmq.NOBLOCK, copy=not authenticated)
+                except zmq.Again:
+                    break
+                await _handle(socket, hub, frames, authenticated, stages)
+            await asyncio.sleep(0)
+    finally:
+        # Awaited, not just cancelled: its monitor socket must be closed before the context
+        # is terminated, or the termination waits forever.
+        handshakes.cancel()
+        await asyncio.gather(handshakes, return_exceptions=True)
+
+
+HANDSHAKE_WARNING_EVERY_S = 60.0
+_HANDSHAKE_ADVICE = {
+    "handshake_no_key": "an agent without a CurveZMQ key was refused: this server runs with "
+    "--curve, so each agent needs --key <sensor id>.key_secret and --server-key server.key "
+    "(made by 'skelfuse keys create'; docs/security.md)",
+    "handshake_key_refused": "an agent with a CurveZMQ key that is not allowlisted was refused "
+    "(keys/agents/<sensor id>.key; restart the server after adding one)",
+    "handshake_protocol": "a ZeroMQ handshake failed (a peer that is not a skelfuse agent, or "
+    "an agent with keys against a server without --curve)",
+}
+
+
+def handshake_failure(event: int, value: int) -> str:
+    """The ``rejected_unregistered`` reason of a failed handshake (a monitor event)."""
+    if event == zmq.EVENT_HANDSHAKE_FAILED_AUTH:
+        return "handshake_key_refused"
+    if value == zmq.PROTOCOL_ERROR_ZMTP_MECHANISM_MISMATCH:
+        return "handshake_no_key"
+    return "handshake_protocol"
+
+
+async def handshake_monitor_loop(socket: zmq.asyncio.Socket, hub: FusionHub) -> None:
+    """Count the connections the ZeroMQ handshake turned away (with CurveZMQ: an agent with no
+    key, or a key not allowlisted) in ``hub.rejected_unregistered``, and say why in the log
+    (per cause at most every :data:`HANDSHAKE_WARNING_EVERY_S`). They never reach the ingest
+    loop, so nothing else would see them; the handshake itself is libzmq's, unchanged."""
+    monitor = socket.get_monitor_socket(
+        zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL | zmq.EVENT_HANDSHAKE_FAILED_AUTH
+    )
+    warned: dict[str, float] = {}
+    try:
+        while True:
+            event = parse_monitor_message(await monitor.recv_multipart())
+            reason = handshake_failure(int(event["event"]), int(event["value"]))
+            hub.rejected_unregistered[reason] += 1
+            now = time.monotonic()
+            if now - warned.get(reason, -HANDSHAKE_WARNING_EVERY_S) >= HANDSHAKE_WARNING_EVERY_S:
+                warned[reason] = now
+                logger.warning("%s (counted as %s)", _HANDSHAKE_ADVICE[reason], reason)
+    finally:
+        with contextlib.suppress(zmq.ZMQError):
+            socket.disable_monitor()
+        monitor.close(linger=0)
 
 
 async def _handle(

@@ -185,3 +185,63 @@ def test_a_second_agent_with_a_live_sensors_key_is_refused_every_time(
     assert second.stats.frames_sent == 0
     assert second.stats.server_errors.get("sensor_id_in_use", 0) >= 2
     assert links["first"].stats.registrations == 1
+
+
+def test_an_agent_without_a_key_is_told_why_and_the_server_counts_it(
+    secured: LiveServer, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Issue 12 #8: the handshake still refuses them, but neither side is silent any more."""
+    import logging
+    import time
+
+    from skelfuse.agent.link import AgentLink
+    from skelfuse.protocol.wire import Hello
+
+    caplog.set_level(logging.WARNING)
+    stranger_dir = tmp_path / "stranger"
+    stranger_dir.mkdir()
+    _, stranger_secret = zmq.auth.create_certificates(str(stranger_dir), "stranger")
+    server_public = key_paths(tmp_path / "data").server_public
+
+    def hello() -> Hello:
+        return Hello("cam-a", "sim", "test", 30.0, time.time_ns())
+
+    keyless = AgentLink(secured.zmq_url, hello)
+    stranger = AgentLink(
+        secured.zmq_url, hello, curve=CurveKeys(Path(stranger_secret), server_public)
+    )
+
+    def refused() -> dict[str, int]:
+        rows = httpx.get(secured.http_url + "/api/sensors").json()
+        counts: dict[str, int] = rows["rejected_unregistered"]
+        return counts
+
+    try:
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and not (
+            keyless.handshake.failures and stranger.handshake.failures
+        ):
+            keyless.poll(0.05)
+            stranger.poll(0.05)
+        assert keyless.handshake.failures.get("no_key", 0) >= 1
+        assert stranger.handshake.failures.get("key_refused", 0) >= 1
+        assert not keyless.registered and not stranger.registered
+        agent_lines = [
+            r.getMessage() for r in caplog.records if r.name.startswith("skelfuse.agent")
+        ]
+        assert any("requires CurveZMQ" in line and "--key" in line for line in agent_lines)
+        assert any("refused this agent's CurveZMQ key" in line for line in agent_lines)
+        assert wait_until(
+            lambda: (
+                refused().get("handshake_no_key", 0) >= 1
+                and refused().get("handshake_key_refused", 0) >= 1
+            ),
+            timeout_s=5,
+        ), refused()
+        server_lines = [
+            r.getMessage() for r in caplog.records if r.name.startswith("skelfuse.server")
+        ]
+        assert any("without a CurveZMQ key" in line for line in server_lines)
+    finally:
+        keyless.close()
+        stranger.close()
