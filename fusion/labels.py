@@ -23,6 +23,7 @@ import numpy.typing as npt
 
 from skelfuse.fusion.anatomy import facing_direction, facing_directions, facings_of_forward
 from skelfuse.fusion.mirror import PERMUTATION, choose_labellings_and_forward
+from skelfuse.fusion.mirror_labellings import slots
 from skelfuse.fusion.settings import FusionSettings
 
 FloatArray = npt.NDArray[np.float64]
@@ -90,9 +91,12 @@ def label_views(
             :func:`redecide` (the caller swaps their track, filter and bone samples).
     """
     s = settings
-    starts = np.cumsum([0, *counts])
-    person_of = np.repeat(np.arange(len(counts)), counts)
-    previous = np.array([int(memories[p].get(k, -1)) for p, k in zip(person_of, keys, strict=True)])
+    places = slots(tuple(counts))
+    person_of = places.person_of
+    starts = places.starts.tolist()
+    previous = np.array(
+        [int(memories[p].get(k, -1)) for p, k in zip(person_of.tolist(), keys, strict=True)]
+    )
     unbiased = s.mirror_unbiased_facing and doubts is not None
     if unbiased:  # the last step's facing without the sensors' turn, where known
         assert doubts is not None
@@ -117,17 +121,20 @@ def label_views(
     if s.mirror_redecide and doubts is not None and both_rom is not None:
         sensors = [frozenset(k[0] for k in keys[lo:hi]) for lo, hi in pairwise(starts)]
         per_view = view_evidence(both_rom, mirrored)
-        evidence = np.bincount(person_of, per_view, len(counts))
+        evidence = np.bincount(person_of, per_view, len(counts)).tolist()
         for p, doubt in enumerate(doubts):
-            swapped[p] = redecide(doubt, float(evidence[p]), sensors[p], t_s, s)
-            if swapped[p] and s.mirror_redecide_views > 1:
+            if not redecide(doubt, evidence[p], sensors[p], t_s, s):
+                continue
+            swapped[p] = True
+            if s.mirror_redecide_views > 1:
                 alone = views_alone(per_view[starts[p] : starts[p + 1]], doubt, t_s, s)
                 if alone is not None:  # a view or two, not the person: they turn, not the track
                     mirrored[starts[p] : starts[p + 1]] ^= alone
                     swapped[p] = False
-        mirrored ^= swapped[person_of]
+        if swapped.any():
+            mirrored ^= swapped[person_of]
     flags = mirrored.tolist()
-    for p, (lo, hi) in enumerate(pairwise(starts.tolist())):
+    for p, (lo, hi) in enumerate(pairwise(starts)):
         memories[p].clear()
         memories[p].update(zip(keys[lo:hi], flags[lo:hi], strict=True))
     if mirrored.any():
@@ -139,7 +146,7 @@ def label_views(
         # computed for the range of motion (the same bits as from the swapped joints).
         own = None
         if forward is not None:
-            own = facings_of_forward(forward[np.arange(len(joints)), mirrored.astype(np.intp)])
+            own = facings_of_forward(forward[np.arange(len(joints)), mirrored.view(np.uint8)])
         facings = unbiased_facings(
             joints, sensor_positions, mirrored, counts, s.view_lean_fraction, own
         )
@@ -181,9 +188,9 @@ def view_evidence(both_rom: FloatArray, mirrored: npt.NDArray[np.bool_]) -> Floa
     out_of_range = (1.0 - both_rom).sum(axis=2)  # (N, 2)
     rows = np.arange(len(mirrored))
     chosen = mirrored.astype(np.intp)
-    per_view: FloatArray = np.nan_to_num(
-        out_of_range[rows, chosen] - out_of_range[rows, 1 - chosen]
-    )
+    per_view: FloatArray = out_of_range[rows, chosen] - out_of_range[rows, 1 - chosen]
+    if not np.isfinite(per_view).all():  # (the factors are finite: kept for safety)
+        per_view = np.nan_to_num(per_view)
     return per_view
 
 
@@ -344,10 +351,9 @@ def unbiased_facings(
     usable = np.isfinite(facing_angle)  # sin and cos are finite where the angle is
     # Per person, the sum of its usable views' vectors, row by row as vectors[rows].sum(axis=0)
     # (a zero-padded (P, S_max, 3) block: adding the zeros changes no bit).
-    person_of = np.repeat(np.arange(len(counts)), counts)
-    slot_of = np.arange(len(person_of)) - np.repeat(np.cumsum([0, *counts[:-1]]), counts)
-    padded = np.zeros((len(counts), max(counts, default=0), 3))
-    padded[person_of, slot_of] = np.where(usable[:, None], vectors, 0.0)
+    places = slots(tuple(counts))
+    padded = np.zeros((len(counts), places.widest, 3))
+    padded[places.person_of, places.slot_of] = np.where(usable[:, None], vectors, 0.0)
     mean = padded.sum(axis=1)
     # np.vecdot is the dot product np.linalg.norm uses on one vector (the same bits).
     norm: FloatArray = np.sqrt(np.vecdot(mean, mean))[:, None]

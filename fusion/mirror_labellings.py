@@ -108,6 +108,27 @@ def _frozen(array: npt.ArrayLike) -> IntArray:
     return result
 
 
+@dataclass(frozen=True, slots=True)
+class Slots:
+    """Where each person's views are: starts (P + 1,) first view of each person, then N;
+    person_of, slot_of (N,) each view's person and place among its views; widest: the most
+    views of one person."""
+
+    starts: IntArray
+    person_of: IntArray
+    slot_of: IntArray
+    widest: int
+
+
+@functools.lru_cache(maxsize=256)
+def slots(counts: tuple[int, ...]) -> Slots:
+    """The :class:`Slots` of persons with ``counts`` views each (cached: frames repeat)."""
+    starts = np.cumsum([0, *counts])
+    person_of = np.repeat(np.arange(len(counts)), counts)
+    slot_of = np.arange(int(starts[-1])) - starts[person_of]
+    return Slots(_frozen(starts), _frozen(person_of), _frozen(slot_of), max(counts, default=0))
+
+
 @functools.lru_cache(maxsize=256)
 def layout(counts: tuple[int, ...], kinds: tuple[tuple[bool, bool], ...]) -> Layout:
     """The :class:`Layout` of persons with ``counts`` views each (1 … :data:`MAX_VIEWS`).
@@ -115,9 +136,8 @@ def layout(counts: tuple[int, ...], kinds: tuple[tuple[bool, bool], ...]) -> Lay
     ``kinds``: per person, (has a reference skeleton, has a known facing). Frames repeat the
     same shapes, so the layouts are cached: building them is Python work per person and pair.
     """
-    starts = np.cumsum([0, *counts])
-    person_of = np.repeat(np.arange(len(counts)), counts)
-    slot_of = np.arange(int(starts[-1])) - starts[person_of]
+    places = slots(counts)
+    starts = places.starts
     firsts: list[IntArray] = [np.zeros(0, dtype=np.intp)]
     seconds: list[IntArray] = [np.zeros(0, dtype=np.intp)]
     pair_start = [0]
@@ -144,10 +164,10 @@ def layout(counts: tuple[int, ...], kinds: tuple[tuple[bool, bool], ...]) -> Lay
             )
         )
     return Layout(
-        _frozen(starts),
-        _frozen(person_of),
-        _frozen(slot_of),
-        max(counts),
+        starts,
+        places.person_of,
+        places.slot_of,
+        places.widest,
         _frozen(np.concatenate(firsts)),
         _frozen(np.concatenate(seconds)),
         tuple(groups),
