@@ -74,6 +74,7 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.anatomy import CHAIN_LEVELS, HORIZONTAL, rom_factors_and_forward, unit
+from skelfuse.fusion.points import finite_points
 from skelfuse.fusion.priors import SensorPrior
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.protocol.skeleton import BONES, JointId
@@ -226,7 +227,7 @@ def joint_confidence(joints: FloatArray, weights: FloatArray) -> FloatArray:
     Returns:
         (P, J) float64 in [0, 1].
     """
-    usable = np.isfinite(joints).all(axis=3) & (weights > 0)
+    usable = finite_points(joints) & (weights > 0)
     w = np.where(usable, weights, 0.0)
     confidence: FloatArray = 1.0 - np.prod(1.0 - np.clip(w, 0.0, 1.0), axis=1)
     confidence[w.sum(axis=1) <= 0] = 0.0

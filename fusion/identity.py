@@ -32,6 +32,7 @@ import numpy.typing as npt
 from scipy.optimize import linear_sum_assignment
 
 from skelfuse.fusion.mirror import PERMUTATION
+from skelfuse.fusion.points import finite_points
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.views import View
 from skelfuse.protocol.skeleton import JointId
@@ -67,7 +68,7 @@ def trunk_distance(a: npt.ArrayLike, b: npt.ArrayLike) -> float:
 
 def trunk_distances(a: FloatArray, b: FloatArray) -> FloatArray:
     """:func:`trunk_distance` of many pairs: a, b (M, 5, 3) midline joints, metres → (M,)."""
-    both = np.isfinite(a).all(-1) & np.isfinite(b).all(-1)
+    both = finite_points(a) & finite_points(b)
     diff = a - b
     d = np.sqrt((diff * diff).sum(-1))
     count = both.sum(-1)

@@ -28,6 +28,7 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
+from skelfuse.fusion.points import finite_points
 from skelfuse.protocol.skeleton import JOINT_COUNT, TrackingState
 from skelfuse.protocol.transform import Matrix4
 from skelfuse.protocol.wire import Body, Frame, Hello
@@ -327,11 +328,11 @@ def _lerp(
     # frames (NaN and inf propagate): one cheap check for the usual case, nothing to patch.
     if math.isfinite(joints.sum()):
         return joints.astype(np.float32), states
-    both = np.isfinite(a).all(axis=-1) & np.isfinite(b).all(axis=-1)
+    both = finite_points(a) & finite_points(b)
     # Where only one frame has the joint, the nearer frame decides.
     nearer = b if alpha >= 0.5 else a
     joints[~both] = nearer[~both]
     nearer_states = second_states if alpha >= 0.5 else first_states
     states[~both] = nearer_states[~both]
-    states[~np.isfinite(joints).all(axis=-1)] = TrackingState.NOT_TRACKED
+    states[~finite_points(joints)] = TrackingState.NOT_TRACKED
     return joints.astype(np.float32), states

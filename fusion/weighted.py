@@ -17,6 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.confidence import joint_confidence
+from skelfuse.fusion.points import finite_points
 
 FloatArray = npt.NDArray[np.float64]
 MIN_SHARE: Final = 0.05
@@ -34,7 +35,7 @@ def weighted_mean(joints: FloatArray, weights: FloatArray) -> FloatArray:
     Returns:
         (P, J, 3) float64; NaN where no view has a position with a positive weight.
     """
-    usable = np.isfinite(joints).all(axis=3) & (weights > 0)
+    usable = finite_points(joints) & (weights > 0)
     w = np.where(usable, weights, 0.0)
     total = w.sum(axis=1)
     safe_views = np.where(usable[..., None], joints, 0.0)
@@ -96,7 +97,7 @@ def carriers(joints: FloatArray, weights: FloatArray) -> npt.NDArray[np.bool_]:
     Returns:
         (P, S, J) bool.
     """
-    final = np.where(np.isfinite(joints).all(-1), weights, 0.0)
+    final = np.where(finite_points(joints), weights, 0.0)
     total = final.sum(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         share = np.where(total[:, None] > 0, final / total[:, None], 0.0)
