@@ -77,8 +77,8 @@ def labellings(views: npt.ArrayLike) -> FloatArray:
     return np.stack([v, v[:, PERMUTATION]], axis=1)
 
 
-def _joint_distances(a: FloatArray, b: FloatArray) -> FloatArray:
-    """Per-joint distances between component-major arrays a, b: (3, ...) → (...).
+def _joint_distances(a: FloatArray, b: FloatArray, out: FloatArray) -> None:
+    """Per-joint distances between component-major arrays a, b: (3, ...) → ``out`` (...).
 
     ``sqrt((dx² + dy²) + dz²)``: the order ``np.linalg.norm`` sums three squares in (the same
     bits), without its reduction over a short axis.
@@ -86,8 +86,7 @@ def _joint_distances(a: FloatArray, b: FloatArray) -> FloatArray:
     dx = a[0] - b[0]
     dy = a[1] - b[1]
     dz = a[2] - b[2]
-    result: FloatArray = np.sqrt(dx * dx + dy * dy + dz * dz)
-    return result
+    np.sqrt(dx * dx + dy * dy + dz * dz, out=out)
 
 
 def _mean_of_finite(d: FloatArray) -> FloatArray:
@@ -123,26 +122,20 @@ def _lateral_terms(
         pair: (K, 2, 2) mean distance under labellings (c_first, c_second);
         to_ref: (N, 2) mean distance of each labelling to the reference (0 without one).
     """
-    # (3, N, 20), component-major and contiguous: the gathers below are faster on it.
-    lateral = np.ascontiguousarray(views[:, LATERAL_JOINTS].transpose(2, 0, 1))
-    swap = _LATERAL_SWAP
+    # (3, N, 2, 20): component-major, each view's lateral joints as reported and swapped.
+    lateral = np.empty((3, len(views), 2, len(LATERAL_JOINTS)))
+    lateral[:, :, 0] = views[:, LATERAL_JOINTS].transpose(2, 0, 1)
+    lateral[:, :, 1] = lateral[:, :, 0][:, :, _LATERAL_SWAP]
     size = len(first)
     distances = np.empty((size * 4 + 2 * len(views), len(LATERAL_JOINTS)))
     pairs = distances[: size * 4].reshape(size, 2, 2, len(LATERAL_JOINTS))
-    a = lateral[:, first]
-    b = lateral[:, second]
-    same = _joint_distances(a, b)
-    crossed = _joint_distances(a, b[:, :, swap])
-    pairs[:, 0, 0] = same
-    pairs[:, 0, 1] = crossed
-    pairs[:, 1, 0] = crossed[:, swap]
-    pairs[:, 1, 1] = same[:, swap]
+    # The first view as reported against the second as reported and swapped: (0, 0), (0, 1).
+    _joint_distances(lateral[:, first, :1], lateral[:, second], pairs[:, 0])
+    pairs[:, 1] = pairs[:, 0, ::-1][:, :, _LATERAL_SWAP]  # (1, 0), (1, 1) read through the swap
     if references is None:
         return _mean_of_finite(pairs), np.zeros((len(views), 2))
-    ref = np.ascontiguousarray(references[:, LATERAL_JOINTS].transpose(2, 0, 1))
-    own = distances[size * 4 :].reshape(len(views), 2, len(LATERAL_JOINTS))
-    own[:, 0] = _joint_distances(lateral, ref)
-    own[:, 1] = _joint_distances(lateral[:, :, swap], ref)
+    ref = references[:, LATERAL_JOINTS].transpose(2, 0, 1)[:, :, None]  # (3, N, 1, 20)
+    _joint_distances(lateral, ref, distances[size * 4 :].reshape(len(views), 2, -1))
     means = _mean_of_finite(distances)
     return means[: size * 4].reshape(size, 2, 2), means[size * 4 :].reshape(len(views), 2)
 
