@@ -25,6 +25,8 @@ import numpy.typing as npt
 from skelfuse.fusion.kalman_state import BoolArray, KalmanState
 
 FloatArray = npt.NDArray[np.float64]
+_KEPT_TRANSITIONS = 16
+"""F and Q kept per step length (seconds, to the bit), for this many step lengths."""
 
 
 class DampedAccelerationKalman(KalmanState):
@@ -54,6 +56,7 @@ class DampedAccelerationKalman(KalmanState):
         self.jerk_per_speed = jerk_per_speed
         self.accel_tau_s = accel_tau_s
         self.predict_s = predict_s
+        self._transitions: dict[bytes, tuple[FloatArray, FloatArray]] = {}
 
     def _init(self, z: FloatArray) -> tuple[FloatArray, FloatArray]:
         x = np.stack([z, np.zeros_like(z), np.zeros_like(z)], axis=-1)
@@ -66,8 +69,16 @@ class DampedAccelerationKalman(KalmanState):
     ) -> tuple[FloatArray, FloatArray]:
         if (h == h.flat[0]).all():
             # One step length for every coordinate (the usual case): one F and one Q, which
-            # the products below broadcast, the same values as a stack of equal ones.
-            f, q = self._transition(h.reshape(-1)[:1])
+            # the products below broadcast, the same values as a stack of equal ones; the
+            # frame period takes only a few distinct float values, so they are kept.
+            one = h.reshape(-1)[:1]
+            key = one.tobytes()
+            transition = self._transitions.get(key)
+            if transition is None:
+                if len(self._transitions) >= _KEPT_TRANSITIONS:
+                    self._transitions.clear()
+                transition = self._transitions[key] = self._transition(one)
+            f, q = transition
         else:
             f, q = self._transition(h)
         x_p = np.einsum("...ij,...j->...i", f, last_x)
