@@ -340,10 +340,13 @@ def unbiased_facings(
     sensor_angle = np.arctan2(to_sensor[:, 0], to_sensor[:, 2])
     phi = _wrap(sensor_angle - np.arctan2(own[:, 0], own[:, 2]))
     flipped = mirrored.astype(bool)
-    # A mirrored view was turned at its apparent yaw (facing reversed): invert there, turn back.
-    apparent = np.where(flipped, _wrap(phi - np.pi), phi)
-    theta = _unturn(apparent, lean)
-    theta = np.where(flipped, _wrap(theta + np.pi), theta)
+    if flipped.any():
+        # A mirrored view was turned at its apparent yaw (facing reversed): invert there, turn
+        # back.
+        theta = _unturn(np.where(flipped, _wrap(phi - np.pi), phi), lean)
+        theta = np.where(flipped, _wrap(theta + np.pi), theta)
+    else:
+        theta = _unturn(phi, lean)
     facing_angle = sensor_angle - theta
     vectors = np.zeros((len(facing_angle), 3))
     vectors[:, 0] = np.sin(facing_angle)
