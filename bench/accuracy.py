@@ -36,7 +36,8 @@ subset, ``--json FILE`` raw results, ``--paper`` report A's own experiment only,
 ``--no-mirror-redecide`` with ``FusionSettings.mirror_redecide`` off, as before,
 ``--no-mirror-turns`` with ``mirror_unbiased_facing`` off and ``mirror_redecide_views = 1``,
 as before they became the defaults; ``--alignment`` the alignment policies side by side only:
-MPJPE against ``aligned`` and the alignment wait, ``--jitter-ms`` adding delivery jitter).
+MPJPE against ``aligned`` and the alignment wait (aligned, phased, deadline 5/10/20 ms),
+``--jitter-ms`` adding delivery jitter).
 
 Labels: the wrong-label rate (share of sensor × frame labelling decisions that disagree with the
 simulator's truth: ``FusedPerson.mirrored`` against ``Observation.mirrored``) and the longest

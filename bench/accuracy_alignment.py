@@ -34,7 +34,7 @@ POLICIES: dict[str, FusionSettings] = {
     "phased": replace(DEFAULT, alignment="phased"),
     "deadline 5 ms": replace(DEFAULT, alignment="deadline", alignment_deadline_s=0.005),
     "deadline 10 ms": replace(DEFAULT, alignment="deadline", alignment_deadline_s=0.010),
-    "deadline 15 ms": replace(DEFAULT, alignment="deadline", alignment_deadline_s=0.015),
+    "deadline 20 ms": replace(DEFAULT, alignment="deadline", alignment_deadline_s=0.020),
 }
 """The policies compared (the extrapolation bound is the default's, 34 ms, for every one)."""
 Figures = dict[str, float]

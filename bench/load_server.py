@@ -1,4 +1,9 @@
-"""The server under test: a subprocess on loopback, polled over HTTP, measured in /proc."""
+"""The server under test: a subprocess on loopback, polled over HTTP, measured in /proc.
+
+``SKELFUSE_LOAD_FUSION_CONFIG``: a TOML file handed to the server as ``--fusion-config``, to
+measure settings other than the defaults (e.g. ``[fusion] alignment = "deadline"``, issue 11
+item 1) with the same command.
+"""
 
 from __future__ import annotations
 
@@ -57,10 +62,12 @@ def start_server(
         {s: SensorCalibration(pose, "bench") for s, pose in poses.items()}, note="bench/load.py"
     )
     log_file = log_path.open("wb")
+    fusion_config = os.environ.get("SKELFUSE_LOAD_FUSION_CONFIG")
     server = subprocess.Popen(
         [sys.executable, "-m", "skelfuse", "--log-level", "WARNING", "server",
          "--http", f"127.0.0.1:{http_port}", "--zmq", f"tcp://127.0.0.1:{zmq_port}",
-         "--data", str(data_dir)],
+         "--data", str(data_dir),
+         *(["--fusion-config", fusion_config] if fusion_config else [])],
         stdout=log_file, stderr=subprocess.STDOUT, cwd=ROOT,
     )  # fmt: skip
     return server, log_file
