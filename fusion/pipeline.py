@@ -228,8 +228,7 @@ class FusionPipeline:
                 batch.slot_of,
                 batch.widest,
             )
-            for p, person_id in enumerate(ids):
-                self.tracker.move(person_id, fused[p], t_s)
+            self.tracker.move_all(ids, fused, t_s)
             self._check_walking_directions(ids, t_s)  # each only looks at its own person
 
             # 7. Filter, 8. bone-length fit.
@@ -248,15 +247,17 @@ class FusionPipeline:
                         s.bone_fit_iterations,
                     )
                     skeletons.update(zip(fitted, fit, strict=True))
-            for p in alive:
-                outputs[ids[p]] = _person(
-                    ids[p],
-                    skeletons[p],
-                    confidence[p],
-                    batch.views[batch.starts[p] : batch.starts[p + 1]],
-                    carried[p],
-                    mirrored[batch.starts[p] : batch.starts[p + 1]],
-                )
+            flags = mirrored.tolist()
+            spans = [(batch.starts[p], batch.starts[p + 1]) for p in alive]
+            persons = _persons(
+                [ids[p] for p in alive],
+                [skeletons[p] for p in alive],
+                confidence[alive],
+                [batch.views[lo:hi] for lo, hi in spans],
+                carried[alive],
+                [flags[lo:hi] for lo, hi in spans],
+            )
+            outputs.update(zip([ids[p] for p in alive], persons, strict=True))
 
         published = self.tracker.confirm(clusters, t_s)
         for person_id in list(self.memories):
@@ -373,26 +374,43 @@ class FusionPipeline:
         return True
 
 
-def _person(
-    person_id: int,
-    joints: FloatArray,
+def _persons(
+    person_ids: list[int],
+    joints: list[FloatArray],
     confidence: FloatArray,
-    views: list[View],
+    views: list[list[View]],
     carried: npt.NDArray[np.bool_],
-    mirrored: npt.NDArray[np.bool_],
-) -> FusedPerson:
-    """One fused person as apps receive it, with which sensors carried each joint."""
-    sources = tuple(sorted({v.sensor_id for v in views}))
-    slots = np.array([sources.index(v.sensor_id) for v in views], dtype=np.int64)
-    joint_sources = np.bitwise_or.reduce(
-        carried[: len(views)].astype(np.int64) << slots[:, None], axis=0
-    )
-    return FusedPerson(
-        person_id=person_id,
-        joints=joints,
-        confidence=confidence,
-        sources=sources,
-        views=tuple(views),
-        joint_sources=joint_sources,
-        mirrored=tuple(sorted(v.sensor_id for v, m in zip(views, mirrored, strict=True) if m)),
-    )
+    mirrored: list[list[bool]],
+) -> list[FusedPerson]:
+    """The fused persons as apps receive them, with which sensors carried each joint.
+
+    Args:
+        person_ids, joints, views, mirrored: per person: its id, (25, 3) skeleton, views and
+            whether each view was mirrored. confidence: (A, 25). carried: (A, widest, 25)
+            whether each view (padded to the widest person) carried each joint.
+    """
+    sources = [tuple(sorted({v.sensor_id for v in own})) for own in views]
+    widest = carried.shape[1]
+    slots = np.array(
+        [
+            [found.index(v.sensor_id) for v in own] + [0] * (widest - len(own))
+            for own, found in zip(views, sources, strict=True)
+        ],
+        dtype=np.int64,
+    ).reshape(carried.shape[:2])
+    # Each view's bit where it carried the joint, all persons at once (padding carries none).
+    joint_sources = np.bitwise_or.reduce(carried.astype(np.int64) << slots[..., None], axis=1)
+    return [
+        FusedPerson(
+            person_id=person_id,
+            joints=skeleton,
+            confidence=confidence[a],
+            sources=sources[a],
+            views=tuple(views[a]),
+            joint_sources=joint_sources[a],
+            mirrored=tuple(
+                sorted(v.sensor_id for v, m in zip(views[a], mirrored[a], strict=True) if m)
+            ),
+        )
+        for a, (person_id, skeleton) in enumerate(zip(person_ids, joints, strict=True))
+    ]
