@@ -47,7 +47,8 @@ reported), ``--agents``, ``--bodies``, ``--duration``, ``--clients``, ``--stalle
 ``--decode-only`` (decoding one incoming frame only),
 ``--calibrate auto`` (a full calibration through REST a fifth into the main run's window: the
 event loop's longest / p99 stall while it runs, against the window before it, and the agents'
-"server silent" lines; ``--calibrate-capture`` s of skeleton capture),
+"server silent" lines; ``--calibrate-capture`` s of skeleton capture; skeleton calibration
+needs one person in view, so ``auto`` with ``--bodies 1``, or ``icp`` with more bodies),
 ``--json FILE`` (raw results).
 
 The parts: ``load_agents`` (the fake agents), ``load_clients`` (the WebSocket clients),

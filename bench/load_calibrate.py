@@ -16,6 +16,7 @@ pace), so ``auto`` runs every stage: skeleton capture and solve, depth clouds, I
 from __future__ import annotations
 
 import asyncio
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,9 +25,10 @@ from bench.calibration_stall import LagSnapshot, StallResult, calibrate_once, sc
 
 @dataclass(frozen=True)
 class LagWindow:
-    """Loop-lag figures between two scrapes: ticks, longest and p99 stall (ms; the p99 is its
-    bucket's upper bound), ticks over 20 ms and over 100 ms."""
+    """Loop-lag figures between two scrapes: how far apart (s), ticks, longest and p99 stall (ms;
+    the p99 is its bucket's upper bound), ticks over 20 ms and over 100 ms."""
 
+    seconds: float
     ticks: int
     max_ms: float
     p99_ms: float
@@ -34,10 +36,10 @@ class LagWindow:
     over_100ms: int
 
 
-def lag_window(before: LagSnapshot, after: LagSnapshot) -> LagWindow:
-    """:func:`bench.calibration_stall.window` in ms."""
+def lag_window(before: LagSnapshot, after: LagSnapshot, seconds: float) -> LagWindow:
+    """:func:`bench.calibration_stall.window` in ms, for scrapes ``seconds`` apart."""
     ticks, max_s, p99_s, over_20, over_100 = window(before, after)
-    return LagWindow(ticks, max_s * 1e3, p99_s * 1e3, over_20, over_100)
+    return LagWindow(seconds, ticks, max_s * 1e3, p99_s * 1e3, over_20, over_100)
 
 
 async def calibrate_under_load(
@@ -49,7 +51,9 @@ async def calibrate_under_load(
     and the run's own figures.
     """
     before = await asyncio.to_thread(scrape, base_url)
+    started = time.monotonic()
     await asyncio.sleep(start_after_s)
-    baseline = lag_window(before, await asyncio.to_thread(scrape, base_url))
+    after = await asyncio.to_thread(scrape, base_url)
+    baseline = lag_window(before, after, time.monotonic() - started)
     run = await asyncio.to_thread(calibrate_once, base_url, capture_s, agent_logs, method)
     return baseline, run

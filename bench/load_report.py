@@ -151,7 +151,8 @@ def print_calibration(r: RunResult) -> None:
         f"\nA `{c.calibrate}` calibration ({c.calibrate_capture_s:.0f} s capture) in the window: "
         f"{r.calibration_state}, {r.calibration_s:.1f} s\n"
     )
-    print("| event loop | target | during the calibration | before it (load alone) |")
+    print(f"| event loop | target | during the calibration ({r.calibration_s:.0f} s) | "
+          f"before it, the load alone ({r.baseline_s:.0f} s) |")  # fmt: skip
     print("|---|---|---|---|")
     print(f"| longest stall (ms) | ≤ 20 | {ms(r.calibration_lag_max_ms)} | "
           f"{ms(r.baseline_lag_max_ms)} |")  # fmt: skip
@@ -159,6 +160,8 @@ def print_calibration(r: RunResult) -> None:
           f"{ms(r.baseline_lag_p99_ms)} |")  # fmt: skip
     print(f"| ticks late by over 20 ms | 0 | {r.calibration_over_20ms} | "
           f"{r.baseline_over_20ms} |")  # fmt: skip
+    print(f"| … per second | 0 | {r.calibration_over_20ms / max(r.calibration_s, 1e-9):.2f} | "
+          f"{r.baseline_over_20ms / max(r.baseline_s, 1e-9):.2f} |")  # fmt: skip
     print(f'| agents\' "server silent" lines | 0 | {r.calibration_server_silent} | — |')
 
 
