@@ -265,6 +265,8 @@ def body_weights(
     s = settings
     # Each distinct prior's values once, gathered per view (the same floats as view by view).
     distinct, of_view = _distinct(priors) if priors is not None else ([], None)
+    if all(_as_settings(p, s) for p in distinct):  # Kinect v2 alike: the shared table's floats
+        of_view = None
     if of_view is None:
         weights = state_weights(states, s.state_weights)
     else:  # each view's own table, gathered (the same floats as the shared table for v2)
@@ -290,6 +292,17 @@ def body_weights(
         if (noise != 1.0).any():  # inverse-variance weighting against a Kinect v2 view
             out = out / (noise**2)[:, None]
     return out
+
+
+def _as_settings(prior: SensorPrior, settings: FusionSettings) -> bool:
+    """Whether ``prior`` changes nothing in :func:`body_weights` (the settings' table, no
+    fixed-length body model, range-of-motion scale and noise 1)."""
+    return (
+        tuple(prior.table(settings)) == tuple(settings.state_weights)
+        and not prior.fixed_bone_lengths
+        and prior.rom_scale == 1.0
+        and prior.noise_scale == 1.0
+    )
 
 
 def _distinct(

@@ -146,23 +146,42 @@ class PersonTracker:
 
     def move(self, person_id: int, fused: FloatArray, t_s: float) -> None:
         """Keep a person's fused skeleton (25, 3) and its trunk velocity for prediction."""
-        track = self.tracks[person_id]
-        dt = t_s - track.last_seen_s
-        if (
-            track.fused_once
-            and 0 < dt < 0.5
-            and all(map(math.isfinite, fused[0].tolist()))
-            and all(map(math.isfinite, track.joints[0].tolist()))
-        ):
-            velocity = (fused[0] - track.joints[0]) / dt
-            velocity[1] = 0.0
-            track.velocity = 0.6 * track.velocity + 0.4 * velocity
-            speed = float(np.linalg.norm(track.velocity))
-            if speed > MAX_SPEED_MPS:
-                track.velocity *= MAX_SPEED_MPS / speed
-        track.joints = np.where(np.isfinite(fused), fused, track.joints)
-        track.last_seen_s = t_s
-        track.fused_once = True
+        self.move_all([person_id], fused[None], t_s)
+
+    def move_all(self, person_ids: list[int], fused: FloatArray, t_s: float) -> None:
+        """:meth:`move` for many persons at once: ``fused`` (P, 25, 3), row p is ``person_ids[p]``.
+
+        Element by element the arithmetic of one person alone (the speed clip uses each
+        person's own ``np.linalg.norm``), so the same floats.
+        """
+        tracks = [self.tracks[person_id] for person_id in person_ids]
+        if not tracks:
+            return
+        joints = np.array([t.joints for t in tracks], dtype=np.float64)
+        moving = [
+            p
+            for p, track in enumerate(tracks)
+            if track.fused_once
+            and 0 < t_s - track.last_seen_s < 0.5
+            and all(map(math.isfinite, fused[p, 0].tolist()))
+            and all(map(math.isfinite, joints[p, 0].tolist()))
+        ]
+        if moving:
+            dts = np.array([t_s - tracks[p].last_seen_s for p in moving])
+            velocity = (fused[moving, 0] - joints[moving, 0]) / dts[:, None]
+            velocity[:, 1] = 0.0
+            old = np.array([tracks[p].velocity for p in moving], dtype=np.float64)
+            smoothed = 0.6 * old + 0.4 * velocity
+            for p, row in zip(moving, smoothed, strict=True):
+                speed = float(np.linalg.norm(row))
+                if speed > MAX_SPEED_MPS:
+                    row *= MAX_SPEED_MPS / speed
+                tracks[p].velocity = row
+        kept = np.where(np.isfinite(fused), fused, joints)
+        for track, row in zip(tracks, kept, strict=True):
+            track.joints = row
+            track.last_seen_s = t_s
+            track.fused_once = True
 
     def swap_sides(self, person_id: int) -> None:
         """Swap left and right in a person's skeleton (the whole track was mirrored)."""

@@ -228,8 +228,7 @@ class FusionPipeline:
                 batch.slot_of,
                 batch.widest,
             )
-            for p, person_id in enumerate(ids):
-                self.tracker.move(person_id, fused[p], t_s)
+            self.tracker.move_all(ids, fused, t_s)
             self._check_walking_directions(ids, t_s)  # each only looks at its own person
 
             # 7. Filter, 8. bone-length fit.

@@ -84,3 +84,44 @@ def test_births_and_assignment_still_group_views_into_persons() -> None:
         person_of[1]: [("a", 6)],
         person_of[2]: [("a", 7), ("b", 20)],
     }
+
+
+def move_alone(track: Track, fused: npt.NDArray[np.float64], t_s: float) -> None:
+    """One person's move as it was written before persons were moved together."""
+    dt = t_s - track.last_seen_s
+    moving = np.isfinite(fused[0]).all() and np.isfinite(track.joints[0]).all()
+    if track.fused_once and 0 < dt < 0.5 and moving:
+        velocity = (fused[0] - track.joints[0]) / dt
+        velocity[1] = 0.0
+        track.velocity = 0.6 * track.velocity + 0.4 * velocity
+        speed = float(np.linalg.norm(track.velocity))
+        if speed > 3.0:
+            track.velocity *= 3.0 / speed
+    track.joints = np.where(np.isfinite(fused), fused, track.joints)
+    track.last_seen_s = t_s
+    track.fused_once = True
+
+
+def test_moving_persons_together_gives_each_persons_own_motion() -> None:
+    rng = np.random.default_rng(8)
+    tracker, alone = PersonTracker(FusionSettings()), PersonTracker(FusionSettings())
+    for k, joints in enumerate(skeletons(rng, 8)):
+        # Some seen long ago or never fused, some without a SpineBase, some far too fast.
+        seen = 10.0 - [0.03, 0.03, 0.6, 0.03, 0.03, 0.1, 0.0, 0.03][k]
+        track = Track(k + 1, joints, seen, 0.0, velocity=rng.normal(0, 1, 3), fused_once=k != 3)
+        tracker.tracks[k + 1] = track
+        alone.tracks[k + 1] = Track(k + 1, joints.copy(), seen, 0.0, velocity=track.velocity.copy(),
+                                    fused_once=track.fused_once)  # fmt: skip
+    fused = tracker.tracks[1].joints + rng.normal(0.0, 0.05, (8, JOINT_COUNT, 3))
+    fused[4] += 1.0  # 30 m/s
+    fused[5, 0] = np.nan
+    ids = [3, 1, 2, 4, 5, 6, 7, 8]
+    tracker.move_all(ids, fused, 10.0)
+    for p, person_id in enumerate(ids):
+        move_alone(alone.tracks[person_id], fused[p], 10.0)
+    for person_id, want in alone.tracks.items():
+        got = tracker.tracks[person_id]
+        assert got.joints.tobytes() == want.joints.tobytes()
+        assert got.velocity.tobytes() == want.velocity.tobytes()
+        assert (got.last_seen_s, got.fused_once) == (want.last_seen_s, want.fused_once)
+    assert any(np.linalg.norm(t.velocity) == pytest.approx(3.0) for t in alone.tracks.values())
