@@ -23,7 +23,6 @@ metres, world frame (+Y up). Every factor is in (0, 1]; NaN inputs give 1.
 
 from __future__ import annotations
 
-from itertools import pairwise
 from typing import Final
 
 import numpy as np
@@ -144,8 +143,13 @@ def reliability_factors(
         hidden |= np.asarray(states) == TrackingState.INFERRED
     variance = floor2 + lean**2 + jitter**2 + np.where(hidden, occlusion_m**2, 0.0)
     raw = floor2 / variance
-    factors: FloatArray = np.ones_like(raw)
-    for lo, hi in pairwise(starts):
-        if hi - lo > 1:
-            factors[lo:hi] = raw[lo:hi] / raw[lo:hi].max(axis=0)
+    counts = np.diff(starts)
+    if not (counts > 1).any():
+        return np.ones_like(raw)
+    # Each person's best view per joint, all persons at once (a maximum: exact in any order);
+    # a person seen by one view keeps 1.
+    person_of = np.repeat(np.arange(len(counts)), counts)
+    first = np.minimum(starts[:-1], len(raw) - 1)  # (a person without views gets no rows)
+    best = np.maximum.reduceat(raw, first, axis=0)[person_of]
+    factors: FloatArray = np.where((counts > 1)[person_of][:, None], raw / best, 1.0)
     return factors
