@@ -15,10 +15,10 @@ from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse
 from pydantic import (
     BaseModel,
+    BeforeValidator,
     ConfigDict,
     Field,
     StrictFloat,
-    StrictInt,
     StrictStr,
     field_validator,
 )
@@ -37,7 +37,23 @@ from skelfuse.server.errors import (
 
 router = APIRouter(prefix="/api/calibration", tags=["calibration"])
 
-Point = tuple[float, float, float]
+# Strict numbers and strings: what the schema says is what is taken ("1.5" is not a number,
+# true is not 1; issue 12's fuzzing). Arrays still become tuples.
+Point = tuple[StrictFloat, StrictFloat, StrictFloat]
+
+
+def _not_bool_or_text(value: object) -> object:
+    """JSON Schema's integer: 3 and 3.0, but not true or "3".
+
+    Raises:
+        ValueError: a boolean or a string.
+    """
+    if isinstance(value, bool | str):
+        raise ValueError("must be an integer")
+    return value
+
+
+JsonInt = Annotated[int, BeforeValidator(_not_bool_or_text)]
 
 
 class PointPair(BaseModel):
@@ -51,7 +67,7 @@ class PointPair(BaseModel):
 
 class SensorPoints(BaseModel):
     model_config = ConfigDict(allow_inf_nan=False, extra="forbid")
-    sensor: str
+    sensor: StrictStr
     pairs: list[PointPair] = Field(max_length=1000)
 
 
@@ -77,22 +93,24 @@ class RunRequest(BaseModel):
         allow_inf_nan=False, extra="forbid", json_schema_extra={"allOf": _METHOD_NEEDS}
     )
     method: Literal["auto", "skeleton", "points", "icp", "sensor"] = "auto"
-    reference: str | None = Field(
+    reference: StrictStr | None = Field(
         None,
         description="sensor whose frame anchors the world (default: the first sensor by id); "
         "'world' for points given in world coordinates",
     )
-    sensors: list[str] | None = Field(
+    sensors: list[StrictStr] | None = Field(
         None, description="sensors to calibrate (default: every connected sensor)"
     )
-    sensor: str | None = Field(
+    sensor: StrictStr | None = Field(
         None,
         description="method sensor: the one sensor to re-solve against the others (a bumped "
         "one), whose poses stay",
     )
-    duration_s: float = Field(15.0, ge=3.0, le=120.0, description="skeleton capture time")
+    duration_s: StrictFloat = Field(15.0, ge=3.0, le=120.0, description="skeleton capture time")
     points: list[SensorPoints] | None = Field(None, description="method points: the pairs")
-    min_overlap: float = Field(0.3, gt=0.0, le=1.0, description="icp: warn below this overlap")
+    min_overlap: StrictFloat = Field(
+        0.3, gt=0.0, le=1.0, description="icp: warn below this overlap"
+    )
 
 
 Row = Annotated[list[StrictFloat], Field(min_length=4, max_length=4)]
@@ -138,7 +156,7 @@ class CalibrationFile(BaseModel):
 
     model_config = ConfigDict(allow_inf_nan=False)
     format: Literal[1]  # calibration.store.FORMAT_VERSION
-    version: StrictInt = 0
+    version: JsonInt = 0
     created_unix_s: StrictFloat = 0.0
     note: StrictStr = ""
     sensors: dict[str, ImportedSensor] = Field(default_factory=dict)
@@ -146,7 +164,7 @@ class CalibrationFile(BaseModel):
 
 class RollbackRequest(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    version: int = Field(ge=1)
+    version: JsonInt = Field(ge=1)
 
 
 def _service(request: Request) -> CalibrationService:

@@ -18,7 +18,7 @@ from typing import Any
 
 from fastapi import APIRouter, Request
 from fastapi.responses import FileResponse
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, StrictStr
 
 from skelfuse import __version__
 from skelfuse.fusion.hub import FusionHub
@@ -38,7 +38,7 @@ _ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$")
 
 
 class StartBody(BaseModel):
-    name: str | None = Field(default=None, max_length=64, description="a label for the take")
+    name: StrictStr | None = Field(default=None, max_length=64, description="a label for the take")
 
 
 def _folder(request: Request) -> Path:
