@@ -30,6 +30,7 @@ from skelfuse.server.errors import (
     Conflict,
     InvalidRequest,
     NotFound,
+    SensorUnavailable,
     SolverCrashed,
 )
 from skelfuse.server.settings import Settings
@@ -237,7 +238,7 @@ async def test_points_run_is_solved_at_once_and_committed_once(tmp_path: Path) -
     ("spec", "error", "message"),
     [
         (RunSpec("bogus", "cam-a", ("cam-a", "cam-b")), InvalidRequest, "method must be"),
-        (RunSpec("auto", "cam-a", ("cam-a", "cam-x")), InvalidRequest, "unknown sensor"),
+        (RunSpec("auto", "cam-a", ("cam-a", "cam-x")), SensorUnavailable, "unknown sensor"),
         (RunSpec("points", "world", ("cam-a",)), InvalidRequest, "at least 3 pairs"),
         (RunSpec("skeleton", "cam-a", ("cam-a",)), Conflict, "at least 2 connected"),
         (RunSpec("icp", "cam-b", ("cam-a",)), InvalidRequest, "reference must be one"),
