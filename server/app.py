@@ -27,7 +27,7 @@ from skelfuse.server import openapi, routes_calibration, routes_fusion, routes_r
 from skelfuse.server.agent_requests import AgentRequests
 from skelfuse.server.auth import SensorAuthenticator
 from skelfuse.server.body_limit import BodyLimit
-from skelfuse.server.broadcast import Broadcaster, Variant, encode_message
+from skelfuse.server.broadcast import PREFRAMED, Broadcaster, Outgoing, Variant, encode_message
 from skelfuse.server.calibration_runs import CalibrationService
 from skelfuse.server.clock import SystemClock
 from skelfuse.server.errors import (
@@ -219,12 +219,16 @@ class _WebSocketFeed:
 
     def __init__(self, websocket: WebSocket) -> None:
         self._websocket = websocket
+        # skelfuse server's uvicorn protocol writes the broadcaster's shared framing as is
+        self._preframed = PREFRAMED in (websocket.scope.get("extensions") or {})
 
-    async def send(self, payload: bytes | str) -> None:
-        if isinstance(payload, bytes):
-            await self._websocket.send_bytes(payload)
+    async def send(self, message: Outgoing) -> None:
+        if self._preframed:
+            await self._websocket.send({"type": "websocket.send", PREFRAMED: message.framed})
+        elif isinstance(message.payload, bytes):
+            await self._websocket.send_bytes(message.payload)
         else:
-            await self._websocket.send_text(payload)
+            await self._websocket.send_text(message.payload)
 
     async def closed(self) -> None:
         while True:  # what the client sends is ignored; reading it notices the disconnect

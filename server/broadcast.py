@@ -6,14 +6,15 @@ one the client has not taken yet (counted as ``conflated``); each client's sende
 newest frame only once its previous send has drained (``server/feed_protocol.py`` keeps the
 socket's buffers to about one frame), so a slow client gets the newest frame at its own pace,
 never a queue of old ones, and a client that keeps up gets every frame. A client for which a
-frame has waited ``send_timeout_s`` (``ws_send_timeout_s``, 5 s), or whose one send takes that
+frame has waited ``send_timeout_s`` (``ws_send_timeout_s``, 5 s), or whose greeting takes that
 long, is closed with code 1008 and counted as evicted.
 
 Each fused frame is encoded once per (format, raw) variant, however many clients want it, and
-that one text or bytes object is what every such client's mailbox holds. JSON is encoded by
-orjson (about a tenth of ``json.dumps``'s time), whose output for feed messages is the same
-text as ``json.dumps(..., separators=(",", ":"))`` except that non-ASCII is written as UTF-8,
-not ``\\u`` escapes, and NaN or infinity become ``null``.
+that one text or bytes object, with its WebSocket framing, is what every such client's mailbox
+holds (a server that takes pre-framed messages, ``PREFRAMED``, writes the framing as is).
+JSON is encoded by orjson (about a tenth of ``json.dumps``'s time), whose output for feed
+messages is the same text as ``json.dumps(..., separators=(",", ":"))`` except that non-ASCII
+is written as UTF-8, not ``\\u`` escapes, and NaN or infinity become ``null``.
 
 The socket is anything with :class:`FeedSocket`'s three methods (the app adapts Starlette's
 WebSocket), so this module is tested with a fake one.
@@ -31,12 +32,16 @@ from typing import Any, Protocol
 
 import msgpack
 import orjson
+from websockets.frames import Frame, Opcode
 
 from skelfuse.fusion.hub import FusedFrame
 from skelfuse.protocol.feed import frame_json
 
 logger = logging.getLogger(__name__)
 
+PREFRAMED = "skelfuse.preframed"
+"""ASGI scope extension of a server that takes ``{"type": "websocket.send", PREFRAMED: bytes}``:
+a whole WebSocket message, framed once and written as is (``server/feed_protocol.py``)."""
 STALLED_CLOSE_CODE = 1008
 CLOSE_WAIT_S = 1.0
 """How long a stalled client's close frame may take: it may never leave a full socket buffer."""
@@ -48,11 +53,30 @@ class Variant:
     raw: bool  # include every sensor's raw bodies
 
 
+@dataclass(frozen=True, slots=True)
+class Outgoing:
+    """One message for clients: its payload, and the same message framed for the wire."""
+
+    payload: bytes | str
+    framed: bytes
+    """The unmasked WebSocket message (header and payload) a server without extensions sends:
+    framed once per frame and variant, not once per client."""
+
+
+def outgoing(payload: bytes | str) -> Outgoing:
+    """``payload`` with its WebSocket framing (binary for bytes, text for str)."""
+    if isinstance(payload, bytes):
+        frame = Frame(Opcode.BINARY, payload)
+    else:
+        frame = Frame(Opcode.TEXT, payload.encode())
+    return Outgoing(payload, frame.serialize(mask=False))
+
+
 class FeedSocket(Protocol):
     """One client's connection, as the broadcaster uses it."""
 
-    async def send(self, payload: bytes | str) -> None:
-        """Send one message (bytes: a binary message; str: a text message)."""
+    async def send(self, message: Outgoing) -> None:
+        """Send one message (a bytes payload: a binary message; str: a text message)."""
         ...
 
     async def closed(self) -> None:
@@ -90,7 +114,7 @@ class Client:
     connected_at_s: float = 0.0
     remote: str = ""
     stall_limit_s: float = 5.0
-    pending: bytes | str | None = None
+    pending: Outgoing | None = None
     """The mailbox: the newest frame the sender has not taken yet (None: nothing waiting)."""
     waiting_since: float | None = None
     """Monotonic seconds when a frame last found the mailbox empty and has waited since (None:
@@ -102,7 +126,7 @@ class Client:
     stalled: asyncio.Event = field(default_factory=asyncio.Event)
     """Set when a frame has waited for the client over ``stall_limit_s``: it is to be closed."""
 
-    def offer(self, payload: bytes | str, now_mono: float) -> None:
+    def offer(self, payload: Outgoing, now_mono: float) -> None:
         """Put the newest frame in the mailbox without ever blocking; it replaces an untaken one.
 
         A frame that has waited in the mailbox for more than ``stall_limit_s`` (``now_mono``:
@@ -121,7 +145,7 @@ class Client:
         self.pending = payload
         self.ready.set()
 
-    def take(self) -> bytes | str | None:
+    def take(self) -> Outgoing | None:
         """Empty the mailbox (the sender's side): the newest frame, or None if none waits."""
         payload, self.pending = self.pending, None
         self.waiting_since = None
@@ -160,24 +184,28 @@ class Broadcaster:
         the stall check.
         """
         self.published += 1
-        cache: dict[Variant, bytes | str] = {}
+        cache: dict[Variant, Outgoing] = {}
         for client in list(self.clients.values()):
-            payload = cache.get(client.variant)
-            if payload is None:
-                payload = encode_message(
-                    frame_json(frame, client.variant.raw, now_s), client.variant.binary
+            message = cache.get(client.variant)
+            if message is None:
+                message = outgoing(
+                    encode_message(
+                        frame_json(frame, client.variant.raw, now_s), client.variant.binary
+                    )
                 )
-                cache[client.variant] = payload
-            client.offer(payload, now_mono)
+                cache[client.variant] = message
+            client.offer(message, now_mono)
 
     async def serve(self, client: Client, socket: FeedSocket, greeting: bytes | str) -> None:
         """Send ``greeting``, then the client's frames until it disconnects, fails or stalls.
 
-        A client that stalls (a frame waiting in its mailbox for ``send_timeout_s``, or one send,
-        the greeting's too, taking that long) is counted in :attr:`evicted` and closed with code
+        A client that stalls (a frame waiting in its mailbox for ``send_timeout_s``, or its
+        greeting taking that long) is counted in :attr:`evicted` and closed with code
         1008 "client too slow". The client is removed however this ends.
         """
-        sender = asyncio.create_task(pump(client, socket.send, self.send_timeout_s, greeting))
+        sender = asyncio.create_task(
+            pump(client, socket.send, self.send_timeout_s, outgoing(greeting))
+        )
         receiver = asyncio.create_task(socket.closed())
         stalled = asyncio.create_task(client.stalled.wait())
         try:
@@ -216,27 +244,31 @@ class Broadcaster:
 
 async def pump(
     client: Client,
-    send: Callable[[bytes | str], Awaitable[None]],
+    send: Callable[[Outgoing], Awaitable[None]],
     timeout_s: float,
-    greeting: bytes | str | None = None,
+    greeting: Outgoing | None = None,
 ) -> None:
-    """Send ``greeting`` (if any), then the newest frame each time the previous send is done,
-    until a send fails or takes ``timeout_s``.
+    """Send ``greeting`` (if any; it fails after ``timeout_s``), then the newest frame each time
+    the previous send is done, until a send fails.
 
     ``send`` should return once its message has drained from the server's buffers (as
     ``server/feed_protocol.py`` makes uvicorn's do): the frame taken next is then the newest at
-    that moment, and the frames published meanwhile were conflated in the mailbox.
+    that moment, and the frames published meanwhile were conflated in the mailbox. A frame send
+    has no timer of its own (one per client and frame costs): while frames are published, the
+    mailbox's stall check ends a send that never returns; when none are, it costs nothing.
+
+    Raises:
+        TimeoutError: the greeting took ``timeout_s``.
     """
     if greeting is not None:
+        # asyncio.timeout, not wait_for: on 3.11 wait_for swallows a cancellation that arrives
+        # as the send completes, and the pump would then outlive its client.
         async with asyncio.timeout(timeout_s):
             await send(greeting)
     while True:
         await client.ready.wait()
-        payload = client.take()
-        if payload is None:
+        message = client.take()
+        if message is None:
             continue
-        # asyncio.timeout, not wait_for: on 3.11 wait_for swallows a cancellation that arrives
-        # as the send completes, and the pump would then outlive its client.
-        async with asyncio.timeout(timeout_s):
-            await send(payload)
+        await send(message)
         client.sent += 1

@@ -40,10 +40,14 @@ from asyncio import BaseTransport, Transport
 from typing import Any, cast
 
 from uvicorn._types import ASGISendEvent
+from uvicorn.protocols.utils import ClientDisconnected
 from uvicorn.protocols.websockets.websockets_sansio_impl import WebSocketsSansIOProtocol
 from websockets.exceptions import InvalidState
 from websockets.frames import Frame
+from websockets.http11 import Request
+from websockets.protocol import State
 
+from skelfuse.server.broadcast import PREFRAMED
 from skelfuse.server.feed_pacing import Pacer
 
 TCP_NOTSENT_LOWAT = getattr(socket, "TCP_NOTSENT_LOWAT", 25)
@@ -77,18 +81,35 @@ class FeedWebSocketProtocol(WebSocketsSansIOProtocol):
                 sock.setsockopt(socket.IPPROTO_TCP, TCP_NOTSENT_LOWAT, NOTSENT_LOWAT_BYTES)
         tcp.set_write_buffer_limits(high=0, low=0)
 
+    def handle_connect(self, event: Request) -> None:
+        """Accept as uvicorn does; offer pre-framed sends when no extension changes the framing
+        (permessage-deflate compresses each message per connection)."""
+        super().handle_connect(event)
+        if self.handshake_initiated and not self.handshake_complete and not self.conn.extensions:
+            self.scope.setdefault("extensions", {})[PREFRAMED] = {}
+
     async def send(self, message: ASGISendEvent) -> None:
         """Send as uvicorn does; a data message returns once it has left the transport.
+
+        ``{"type": "websocket.send", PREFRAMED: bytes}`` writes a message framed by the caller
+        (one framing shared by every client, ``server/broadcast.py``), when the scope offers it.
 
         Raises:
             uvicorn.protocols.utils.ClientDisconnected: the client is gone.
             RuntimeError: a message the ASGI WebSocket protocol does not allow now.
         """
+        framed = cast(dict[str, Any], message).get(PREFRAMED)
         if message["type"] == "websocket.close" and self.handshake_complete:
             # uvicorn waits for the transport to be writable before anything, the close too;
             # a client that stopped reading never makes it writable again.
             self.writable.set()
-        await super().send(message)
+        if isinstance(framed, bytes) and message["type"] == "websocket.send":
+            await self.writable.wait()
+            if self.disconnected or self.close_sent or self.conn.state is not State.OPEN:
+                raise ClientDisconnected()
+            self.transport.write(framed)
+        else:
+            await super().send(message)
         if message["type"] == "websocket.send":
             await self.writable.wait()  # set again by resume_writing or connection_lost
             ping, wait = self.pacer.after_frame(self.loop.time())

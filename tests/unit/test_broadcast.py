@@ -16,7 +16,15 @@ from starlette.websockets import WebSocketDisconnect
 from skelfuse.fusion.hub import FusedFrame
 from skelfuse.fusion.views import FusedPerson, View
 from skelfuse.protocol.skeleton import JOINT_COUNT
-from skelfuse.server.broadcast import Broadcaster, Client, Variant, encode_message, pump
+from skelfuse.server.broadcast import (
+    Broadcaster,
+    Client,
+    Outgoing,
+    Variant,
+    encode_message,
+    outgoing,
+    pump,
+)
 
 JSON, JSON_RAW, MSGPACK = Variant(False, False), Variant(False, True), Variant(True, False)
 
@@ -40,7 +48,8 @@ class FakeSocket:
         self.refuse = refuse
         self.delivered = asyncio.Event()
 
-    async def send(self, payload: bytes | str) -> None:
+    async def send(self, message: Outgoing) -> None:
+        payload = message.payload
         if self.refuse:
             raise WebSocketDisconnect(1001)
         if self.block_after is not None and len(self.sent) >= self.block_after:
@@ -55,29 +64,39 @@ class FakeSocket:
         self.closes.append((code, reason))
 
 
+def payload_of(message: Outgoing | None) -> bytes | str | None:
+    return None if message is None else message.payload
+
+
+def test_a_message_is_framed_once_as_the_websocket_message_every_client_gets() -> None:
+    assert outgoing("hi").framed == b"\x81\x02hi"  # FIN + text, unmasked, 2 bytes
+    big = outgoing(b"x" * 300)
+    assert big.framed[:4] == b"\x82\x7e\x01\x2c" and big.framed[4:] == big.payload
+
+
 def test_the_mailbox_keeps_only_the_newest_frame_and_counts_the_rest() -> None:
     client = Broadcaster().add(JSON, "a", 0.0)
     for payload in ("f1", "f2", "f3", "f4"):
-        client.offer(payload, 0.0)
-    assert client.take() == "f4" and client.take() is None
+        client.offer(outgoing(payload), 0.0)
+    assert payload_of(client.take()) == "f4" and client.take() is None
     assert client.conflated == 3 and not client.stalled.is_set()
 
 
 def test_a_frame_waiting_longer_than_the_limit_marks_the_client_stalled() -> None:
     client = Broadcaster(send_timeout_s=5.0).add(JSON, "a", 0.0)
-    client.offer("f0", 10.0)  # waiting from t = 10
-    client.offer("f1", 15.0)  # 5 s: at the limit, not past it
+    client.offer(outgoing("f0"), 10.0)  # waiting from t = 10
+    client.offer(outgoing("f1"), 15.0)  # 5 s: at the limit, not past it
     assert not client.stalled.is_set() and client.waiting_since == 10.0
-    client.offer("f2", 15.1)
+    client.offer(outgoing("f2"), 15.1)
     assert client.stalled.is_set()
 
 
 def test_a_client_that_takes_a_frame_restarts_the_stall_clock() -> None:
     client = Broadcaster(send_timeout_s=5.0).add(JSON, "a", 0.0)
     for step in range(240):  # 8 s of a 30 Hz feed; a slow reader takes 5 frames/s
-        client.offer(f"f{step}", 10.0 + step / 30)
+        client.offer(outgoing(f"f{step}"), 10.0 + step / 30)
         if step % 6 == 5:
-            assert client.take() == f"f{step}"  # always the newest
+            assert payload_of(client.take()) == f"f{step}"  # always the newest
     assert not client.stalled.is_set() and client.conflated == 200
 
 
@@ -89,8 +108,8 @@ class DrainingSocket:
         self.drained = asyncio.Semaphore(0)
         self.writing = asyncio.Event()
 
-    async def send(self, payload: bytes | str) -> None:
-        self.sent.append(payload)
+    async def send(self, message: Outgoing) -> None:
+        self.sent.append(message.payload)
         self.writing.set()
         await self.drained.acquire()
 
@@ -99,10 +118,10 @@ async def test_the_sender_takes_the_newest_frame_once_the_previous_send_has_drai
     client = Broadcaster().add(JSON, "a", 0.0)
     socket = DrainingSocket()
     task = asyncio.create_task(pump(client, socket.send, 5.0))
-    client.offer("f1", 0.0)
+    client.offer(outgoing("f1"), 0.0)
     await socket.writing.wait()
     for payload in ("f2", "f3", "f4"):  # published while f1 is still draining
-        client.offer(payload, 0.0)
+        client.offer(outgoing(payload), 0.0)
     socket.writing.clear()
     socket.drained.release()
     await socket.writing.wait()
@@ -116,18 +135,17 @@ async def test_a_client_that_keeps_up_gets_every_frame() -> None:
     socket = FakeSocket()
     task = asyncio.create_task(pump(client, socket.send, 5.0))
     for step in range(30):
-        client.offer(f"f{step}", step / 30)
+        client.offer(outgoing(f"f{step}"), step / 30)
         await asyncio.sleep(0)  # the sender runs between two fusion steps
     task.cancel()
     await asyncio.gather(task, return_exceptions=True)
     assert socket.sent == [f"f{step}" for step in range(30)] and client.conflated == 0
 
 
-async def test_pump_gives_up_on_a_send_that_takes_too_long() -> None:
+async def test_pump_gives_up_on_a_greeting_that_takes_too_long() -> None:
     client = Broadcaster().add(JSON, "a", 0.0)
-    client.offer("f0", 0.0)
-    with pytest.raises(TimeoutError):
-        await pump(client, FakeSocket(block_after=0).send, 0.0)  # zero timeout: at once
+    with pytest.raises(TimeoutError):  # zero timeout: at once
+        await pump(client, FakeSocket(block_after=0).send, 0.0, outgoing("hello"))
 
 
 def test_publish_encodes_once_per_variant_with_the_given_send_time() -> None:
@@ -136,12 +154,13 @@ def test_publish_encodes_once_per_variant_with_the_given_send_time() -> None:
     binary = broadcaster.add(MSGPACK, "m", 0.0)
     broadcaster.publish(fused_frame(), 1000.5, 3.0)
     first, second, raw = (c.take() for c in clients)
-    assert first is second, "one encoding shared by the clients of a variant"
-    message = json.loads(first)  # type: ignore[arg-type]
+    assert first is not None and raw is not None
+    assert first is second, "one encoding, one framing, shared by the clients of a variant"
+    message = json.loads(first.payload)
     assert message["t_sent"] == 1000.5 and message["seq"] == 7 and "raw" not in message
     assert message["persons"][0]["joints"][3] is None
-    assert json.loads(raw)["raw"][0]["tracking_id"] == str(2**63 + 5)  # type: ignore[arg-type]
-    assert msgpack.unpackb(binary.take()) == message  # type: ignore[arg-type]
+    assert json.loads(raw.payload)["raw"][0]["tracking_id"] == str(2**63 + 5)
+    assert msgpack.unpackb(payload_of(binary.take())) == message
     assert broadcaster.published == 1
 
 
@@ -157,7 +176,7 @@ async def test_serve_greets_then_streams_until_the_client_leaves() -> None:
     client = broadcaster.add(JSON, "a", 0.0)
     socket = FakeSocket()
     serving = asyncio.create_task(broadcaster.serve(client, socket, "hello"))
-    client.offer("f1", 0.0)
+    client.offer(outgoing("f1"), 0.0)
     await socket.delivered.wait()
     while len(socket.sent) < 2:
         socket.delivered.clear()
