@@ -66,4 +66,5 @@ def _configure_logging(level: str) -> None:
         datefmt="%H:%M:%S",
     )
     for handler in logging.getLogger().handlers:  # whatever logger a token or key reaches it by
-        handler.addFilter(RedactSecrets())
+        if not any(isinstance(f, RedactSecrets) for f in handler.filters):  # main() run again
+            handler.addFilter(RedactSecrets())
