@@ -21,7 +21,7 @@ class Settings(HubSettings):
     data_dir: Path = Path("skelfuse-data")
     ws_send_timeout_s: float = 5.0
     """A WebSocket client that has not taken a frame for this long (the newest waiting in its
-    one-frame mailbox), or whose one send takes this long, is closed with 1008 and counted."""
+    one-frame mailbox), or whose greeting takes this long, is closed with 1008 and counted."""
     api_token: str | None = None
     """When set, REST mutations and reads of people's data (``security.needs_token``) need
     ``Authorization: Bearer <token>`` and the WebSocket needs ``?token=<token>``; status reads
