@@ -32,13 +32,18 @@ def nanmedian_axis(data: FloatArray, axis: int) -> FloatArray:
 
     All-NaN slices give NaN without a warning.
     """
-    ordered = np.sort(data, axis=axis)  # NaN last
-    count = np.isfinite(data).sum(axis=axis, keepdims=True)
-    low = np.take_along_axis(ordered, np.maximum((count - 1) // 2, 0), axis=axis)
-    high = np.take_along_axis(ordered, count // 2, axis=axis)
-    median = np.where(count > 0, (low + high) / 2.0, np.nan)
-    result: FloatArray = np.squeeze(median, axis=axis)
-    return result
+    moved = np.moveaxis(data, axis, -1)
+    if moved.shape[-1] == 0:
+        return np.full(moved.shape[:-1], np.nan)
+    rows = np.sort(moved, axis=-1).reshape(-1, moved.shape[-1])  # NaN last
+    count = np.isfinite(rows).sum(axis=1)
+    # The middle two of each row's finite values, by their flat index.
+    first = np.arange(0, rows.size, rows.shape[1])
+    flat = rows.reshape(-1)
+    low = flat[first + np.maximum((count - 1) // 2, 0)]
+    high = flat[first + count // 2]
+    median: FloatArray = np.where(count > 0, (low + high) / 2.0, np.nan)
+    return median.reshape(moved.shape[:-1])
 
 
 class SampleWindow:

@@ -306,8 +306,10 @@ def observe_bone_lengths(
         return
     good_view = np.isfinite(cosines) & (cosines >= GOOD_VIEW_COS)
     tracked = states == _TRACKED
-    both_tracked = tracked[:, _BONE_PARENT] & tracked[:, _BONE_CHILD]
-    lengths = np.linalg.norm(joints[:, _BONE_CHILD] - joints[:, _BONE_PARENT], axis=-1)
+    both_tracked = np.take(tracked, _BONE_PARENT, axis=1) & np.take(tracked, _BONE_CHILD, axis=1)
+    bones = np.take(joints, _BONE_CHILD, axis=1) - np.take(joints, _BONE_PARENT, axis=1)
+    # What np.linalg.norm(bones, axis=-1) computes, without its checks and copies.
+    lengths = np.sqrt(np.add.reduce(bones * bones, axis=-1))
     usable = both_tracked & np.isfinite(lengths)
     # (persons, views, bones, 2): good views only, then any view.
     padded = np.full((len(models), widest, BONE_COUNT, 2), np.nan)
