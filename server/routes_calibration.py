@@ -225,7 +225,7 @@ async def get_run(run_id: str, request: Request) -> dict[str, Any]:
 @router.post("/runs/{run_id}/commit", responses=error_responses(NotFound, Conflict))
 async def commit_run(run_id: str, request: Request) -> dict[str, Any]:
     """Make the run's result the active calibration (a new version); fusion uses it at once."""
-    return calibration_json(_service(request).commit(run_id))
+    return calibration_json(await _service(request).commit(run_id))
 
 
 @router.get("")
@@ -258,7 +258,7 @@ async def history(request: Request) -> dict[str, Any]:
                     for k, v in sorted(c.sensors.items())
                 },
             }
-            for c in service.store.history()
+            for c in await service.history()
         ],
     }
 
@@ -266,7 +266,7 @@ async def history(request: Request) -> dict[str, Any]:
 @router.post("/rollback", responses=error_responses(UnknownVersion))
 async def rollback(body: RollbackRequest, request: Request) -> dict[str, Any]:
     """Make an earlier version active again (saved as a new version)."""
-    return calibration_json(_service(request).rollback(body.version))
+    return calibration_json(await _service(request).rollback(body.version))
 
 
 @router.get("/export", responses=error_responses(NotFound))
@@ -285,4 +285,4 @@ async def export(request: Request) -> JSONResponse:
 @router.post("/import", responses=error_responses(CalibrationFileError))
 async def import_calibration(request: Request, body: CalibrationFile) -> dict[str, Any]:
     """Validate an exported calibration and make it active (a new version)."""
-    return calibration_json(_service(request).import_json(body.model_dump()))
+    return calibration_json(await _service(request).import_json(body.model_dump()))
