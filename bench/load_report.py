@@ -148,7 +148,7 @@ def print_calibration(r: RunResult) -> None:
     """The event loop while a calibration ran under this load, against the window before it."""
     c = r.config
     print(
-        f"\nA `{c.calibrate}` calibration ({c.calibrate_capture_s:.0f} s capture) in the window: "
+        f"\nCalibration `{c.calibrate}` ({c.calibrate_capture_s:.0f} s capture) in the window: "
         f"{r.calibration_state}, {r.calibration_s:.1f} s\n"
     )
     print(f"| event loop | target | during the calibration ({r.calibration_s:.0f} s) | "
