@@ -7,8 +7,9 @@ when each live sensor's newest frame was captured, whether the next instant can 
   or after it (each sensor is then interpolated, never extrapolated). The wait is set by the
   sensor whose capture phase comes last after the grid's: up to one frame period.
 - ``phased``: the same rule, on a grid whose phase follows the sensors' capture phases. The
-  phase is chosen so that the expected wait for the last sensor is smallest, from each sensor's
-  capture phase and delivery delay estimated over the frames seen (re-chosen every
+  candidates are just before each sensor's capture phase (:data:`PHASE_MARGINS_S`); the one
+  whose wait for the last sensor, replayed over the sensors' last :data:`PHASE_SAMPLES` frames
+  (capture times and delays until seen), is smallest is taken (re-chosen every
   :data:`REPHASE_EVERY_S`, and only for a gain of :data:`REPHASE_GAIN_S`, so the grid does not
   hop on noise). Which instants are fused changes; how each is fused does not.
 - ``deadline``: as ``phased``, but an instant is also fused when ``deadline_s`` has passed since
@@ -26,22 +27,30 @@ import math
 from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from statistics import median
 from typing import Literal
+
+import numpy as np
+import numpy.typing as npt
 
 from skelfuse.fusion.sensors import SensorState
 
 Policy = Literal["aligned", "phased", "deadline"]
+FloatArray = npt.NDArray[np.float64]
 
 REPHASE_EVERY_S = 1.0
 """How often (server seconds) the grid's phase is re-chosen from the sensors' phases."""
 REPHASE_GAIN_S = 0.001
 """A new phase is taken only when it cuts the expected wait by more than this (hysteresis)."""
-PHASE_MARGIN_S = 0.0005
-"""The grid is put this much before the sensor phase it is aligned with, so that the estimate's
-noise does not make that sensor's frame miss the instant by a hair (a whole period's wait)."""
+PHASE_MARGINS_S = (0.0005, 0.001, 0.002, 0.004)
+"""The grid is put one of these before the sensor phase it is aligned with (whichever replays
+best), so that the scatter of that sensor's capture times (delivery jitter moving the one-way
+clock offset, clock noise) does not make its frame miss the instant by a hair: a whole period's
+wait."""
 PHASE_SAMPLES = 60
 """Frames per sensor the phase and delay estimates are taken over (2 s at 30 fps)."""
+PHASE_MIN_SAMPLES = 30
+"""Frames every sensor must have before the phase is first chosen: the first few frames' clock
+mapping is still settling (a grid chosen from them measured worse than phase 0)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -110,32 +119,25 @@ def circular_phase(times_s: Sequence[float], period_s: float) -> float:
     return (origin + math.atan2(s, c) / omega) % period_s
 
 
-def expected_wait(phase_s: float, sensors: Sequence[tuple[float, float, float]]) -> float:
-    """How long after an instant of a grid of phase ``phase_s`` the last sensor's frame at or
-    after it is seen (seconds): the max over sensors of (their next capture after the instant)
-    + (their delay). ``sensors``: (capture phase, period, delay) each, seconds."""
-    return max((capture - phase_s) % period + delay for capture, period, delay in sensors)
+def replayed_waits(
+    phases_s: FloatArray, captures_s: FloatArray, delays_s: FloatArray, periods_s: FloatArray
+) -> FloatArray:
+    """For each candidate grid phase, the mean wait the sensors' recent frames would have given:
+    per frame (the sensors' i-th newest frames taken as one instant's), the max over sensors of
+    (time from the instant before the capture to the capture) + (its delay until seen).
 
+    Args:
+        phases_s: (C,) candidate grid phases, seconds in [0, grid period).
+        captures_s: (S, L) each sensor's last L capture times modulo its period, seconds.
+        delays_s: (S, L) how long after capture each of those frames was seen, seconds.
+        periods_s: (S,) the sensors' frame periods, seconds.
 
-def best_phase(sensors: Sequence[tuple[float, float, float]], grid_period_s: float) -> float:
-    """The grid phase in [0, grid period) with the smallest :func:`expected_wait`.
-
-    The wait falls as the grid phase moves later until it passes a sensor's capture phase
-    (that sensor then waits a whole period), so the best phase is at one of the sensors'
-    capture phases (every one of a faster sensor's within the grid period), less
-    :data:`PHASE_MARGIN_S`.
-
-    Raises:
-        ValueError: ``sensors`` is empty.
+    Returns:
+        (C,) mean wait per candidate, seconds.
     """
-    if not sensors:
-        raise ValueError("no sensors to choose a phase from")
-    candidates = [
-        (capture + k * period - PHASE_MARGIN_S) % grid_period_s
-        for capture, period, _ in sensors
-        for k in range(max(1, round(grid_period_s / period)))
-    ]
-    return min(candidates, key=lambda phase: expected_wait(phase, sensors))
+    ahead = np.mod(captures_s[None] - phases_s[:, None, None], periods_s[None, :, None])
+    waits: FloatArray = (ahead + delays_s[None]).max(axis=1).mean(axis=1)
+    return waits
 
 
 class Alignment:
@@ -263,16 +265,25 @@ class Alignment:
                 seen.delays.append(max(now_s - sensor.newest_s, 0.0))
         if now_s < self._next_rephase_s:
             return
-        estimates: list[tuple[float, float, float]] = []
-        for sensor in sensors:
-            seen = self._sensors[sensor.sensor_id]
-            if len(seen.captures) < 3:
-                return  # a sensor too new to have a phase: keep the grid until it has one
-            phase = circular_phase(seen.captures, sensor.period_s)
-            estimates.append((phase, sensor.period_s, median(seen.delays)))
+        history = [self._sensors[sensor.sensor_id] for sensor in sensors]
+        frames = min(len(seen.captures) for seen in history)
+        if frames < PHASE_MIN_SAMPLES:
+            return  # a sensor too new to have a phase: keep the grid until it has one
         self._next_rephase_s = now_s + REPHASE_EVERY_S
-        candidate = best_phase(estimates, self.period_s)
-        if expected_wait(candidate, estimates) < (
-            expected_wait(self.phase_s, estimates) - REPHASE_GAIN_S
-        ):
-            self.phase_s = candidate
+        grid = self.period_s
+        periods = np.array([sensor.period_s for sensor in sensors])
+        captures = np.array(
+            [[t % sensor.period_s for t in list(seen.captures)[-frames:]]
+             for sensor, seen in zip(sensors, history, strict=True)]
+        )  # fmt: skip
+        delays = np.array([list(seen.delays)[-frames:] for seen in history])
+        candidates = [
+            (circular_phase(seen.captures, sensor.period_s) + k * sensor.period_s - margin) % grid
+            for sensor, seen in zip(sensors, history, strict=True)
+            for k in range(max(1, round(grid / sensor.period_s)))
+            for margin in PHASE_MARGINS_S
+        ]
+        waits = replayed_waits(np.array([*candidates, self.phase_s]), captures, delays, periods)
+        best = int(np.argmin(waits[:-1]))
+        if waits[best] < waits[-1] - REPHASE_GAIN_S:
+            self.phase_s = candidates[best]

@@ -16,14 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from skelfuse.fusion.alignment import (
-    PHASE_MARGIN_S,
-    Alignment,
-    SensorTiming,
-    best_phase,
-    circular_phase,
-    expected_wait,
-)
+from skelfuse.fusion.alignment import Alignment, SensorTiming, circular_phase, replayed_waits
 from skelfuse.fusion.config import FusionConfigError, fusion_settings_from_mapping
 from skelfuse.fusion.extrapolation import extrapolated_bodies
 from skelfuse.fusion.hub import FusedFrame, FusionHub
@@ -114,14 +107,37 @@ def test_circular_phase_averages_across_the_wrap() -> None:
         circular_phase([], P)
 
 
-def test_best_phase_puts_the_grid_just_before_the_last_sensor_after_the_widest_gap() -> None:
-    # Captures at 5, 10 and 25 ms into each period, 2 ms delivery: the grid just before 25 ms
-    # waits for 5 + P - 25 + 2 ≈ 15 ms; phase 0 would wait 25 + 2 = 27 ms.
-    sensors = [(0.005, P, 0.002), (0.010, P, 0.002), (0.025, P, 0.002)]
-    phase = best_phase(sensors, P)
-    assert phase == pytest.approx(0.025 - PHASE_MARGIN_S)
-    assert expected_wait(phase, sensors) == pytest.approx(0.010 + P - 0.025 + 0.0025)
-    assert expected_wait(0.0, sensors) == pytest.approx(0.027)
+def test_replayed_waits_are_the_wait_for_the_last_sensor() -> None:
+    # Captures at 5, 10 and 25 ms into each period, 2 ms delivery: a grid just before 25 ms
+    # waits for the 10 ms sensor's next frame (P - 24.5 + 10 + 2 ms), just before 5 ms for the
+    # 25 ms one, phase 0 for 25 + 2 ms.
+    captures = np.array([[0.005] * 4, [0.010] * 4, [0.025] * 4])
+    waits = replayed_waits(
+        np.array([0.0, 0.0245, 0.0045]), captures, np.full((3, 4), 0.002), np.full(3, P)
+    )
+    np.testing.assert_allclose(waits, [0.027, P - 0.0245 + 0.010 + 0.002, 0.025 - 0.0045 + 0.002])
+
+
+def test_a_scattered_sensor_gets_a_wider_margin() -> None:
+    """Sensor b's captures scatter by ±1.5 ms (its clock mapping moves): a grid 0.5 ms before
+    its mean phase lets half its frames miss the instant (a whole period more); the policy
+    replays the frames and puts the grid far enough before it."""
+    rng = np.random.default_rng(3)
+    policy = Alignment("phased", 30.0)
+    base = math.floor(T0 / P) * P
+    newest: dict[str, float] = {}
+    for n in range(90):
+        for sensor, capture in sorted(
+            (
+                ("a", base + n * P + 0.030),
+                ("b", base + n * P + 0.020 + rng.uniform(-1.5, 1.5) / 1e3),
+            ),
+            key=lambda item: item[1],
+        ):
+            newest[sensor] = capture
+            policy.next_instant([timing(s, t) for s, t in newest.items()], capture + 0.001)
+    gap = (0.020 - policy.phase_s) % P
+    assert 0.001 < gap <= 0.0041, "further before b than the 0.5 ms a steady sensor gets"
 
 
 def test_the_grid_phase_follows_the_sensors_and_cuts_the_wait() -> None:
@@ -252,7 +268,7 @@ def test_a_late_sensor_is_extrapolated_to_the_instant_and_marked_in_the_feed() -
 
 
 def test_aligned_hub_output_has_no_extrapolation_mark() -> None:
-    hub = hub_with_sensors(Settings())
+    hub = hub_with_sensors(Settings(fusion=FusionSettings(alignment="aligned")))
     fused = drive(hub, periods=30)
     assert len(fused) >= 29 and all(f.extrapolated == () for f in fused)
     assert all(f.fused_at_s - f.t_s > 0.015 for f in fused[1:]), "waits for b"
