@@ -21,8 +21,9 @@ _SECRET_PARAMETER = re.compile(
     r"(=|%3D)([^&\s\"'#;]+)"
 )
 """``name=value`` where name is a secret's (in a query string, a form, a command line)."""
-_BEARER = re.compile(r"(?i)(?<![A-Za-z0-9_])(bearer\s+)([^\s\"',;]+)")
-"""An ``Authorization: Bearer <token>`` value (uvicorn's trace log prints request headers)."""
+_BEARER = re.compile(r"(?i)(authorization['\"]?\s*[:,=]\s*b?['\"]?\s*bearer\s+)([^\s\"',;)]+)")
+"""The credentials of an ``Authorization: Bearer …`` header, written as text or as uvicorn's
+trace log prints headers (``(b'authorization', b'Bearer …')``)."""
 
 UVICORN_LOGGERS: Final = ("uvicorn.access", "uvicorn.error", "uvicorn.asgi")
 """Access lines, WebSocket handshakes (``"WebSocket /ws/skeletons?token=…" [accepted]``), and
@@ -53,12 +54,24 @@ class RedactSecrets(logging.Filter):
     """
 
     def filter(self, record: logging.LogRecord) -> bool:
-        if isinstance(record.msg, str):
-            record.msg = redact(record.msg)
+        if not record.args:
+            if isinstance(record.msg, str):
+                record.msg = redact(record.msg)
+            return True
+        # Arguments one by one, so that formatters reading them (uvicorn's access log takes
+        # the path from args[2]) still find them where they were.
         if isinstance(record.args, dict):
             record.args = {k: _redacted(v) for k, v in record.args.items()}
-        elif record.args:
+        else:
             record.args = tuple(_redacted(a) for a in record.args)
+        # The format string is masked only as the whole message: masking "token=%s" alone would
+        # eat its placeholder and break the formatting.
+        try:
+            message = record.getMessage()
+        except (TypeError, ValueError):  # a broken record: logging reports it as it is
+            return True
+        if redact(message) != message:
+            record.msg, record.args = redact(message), None
         return True
 
 

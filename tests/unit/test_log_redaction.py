@@ -24,6 +24,7 @@ TOKEN = "-Zx9_secret-TOKEN~"
         (f"(b'authorization', b'Bearer {TOKEN}')", "(b'authorization', b'Bearer ***')"),
         ("/api/persons?tokens_left=3&monkey=1", "/api/persons?tokens_left=3&monkey=1"),
         ("no secrets here", "no secrets here"),
+        ("a Bearer token; ?token= then it", "a Bearer token; ?token= then it"),
     ],
 )  # fmt: skip
 def test_secret_values_are_masked_and_nothing_else(text: str, expected: str) -> None:
@@ -44,6 +45,24 @@ def test_an_access_line_is_written_without_the_token(caplog: pytest.LogCaptureFi
     assert caplog.text.count("token=***") == 2
     assert "Bearer ***" in caplog.text
     assert caplog.records[0].args[4] == 101  # type: ignore[index]  # the rest untouched
+
+
+def test_a_secret_in_the_format_string_keeps_the_record_formattable(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """Masking ``token=%s`` in the format string alone would eat the placeholder: the record
+    could not be formatted any more ("not all arguments converted"), and the line was lost."""
+    logger = logging.getLogger("test.redaction.format")
+    logger.addFilter(RedactSecrets())
+    caplog.set_level(logging.INFO, logger=logger.name)
+    logger.info("open %s/?token=%s (docs at %s)", "http://lab:8000", TOKEN, "http://lab:8000/docs")
+    logger.info("open %s/?token=<%s>", "http://lab:8000", "your --token")
+    logger.info("Authorization: Bearer %s sent to %d sensors", TOKEN, 3)
+    assert [r.getMessage() for r in caplog.records] == [
+        "open http://lab:8000/?token=*** (docs at http://lab:8000/docs)",
+        "open http://lab:8000/?token=*** --token>",
+        "Authorization: Bearer *** sent to 3 sensors",
+    ]
 
 
 def test_uvicorn_loggers_get_one_filter_each() -> None:
