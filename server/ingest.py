@@ -71,6 +71,9 @@ def connection_probe(socket: zmq.asyncio.Socket) -> Callable[[bytes], bool]:
     raw: zmq.Socket[bytes] = zmq.Socket.shadow(socket.underlying)
 
     def probe(routing_id: bytes) -> bool:
+        # Reading EVENTS makes libzmq apply the commands its I/O thread left for the socket,
+        # such as "this connection closed" (a send applies them at most once a millisecond).
+        raw.getsockopt(zmq.EVENTS)
         try:
             raw.send_multipart([routing_id, encode(Heartbeat(time.time_ns()))], zmq.NOBLOCK)
         except zmq.Again:
@@ -132,6 +135,11 @@ _HANDSHAKE_ADVICE = {
     "(keys/agents/<sensor id>.key; restart the server after adding one)",
     "handshake_protocol": "a ZeroMQ handshake failed (a peer that is not a skelfuse agent, or "
     "an agent with keys against a server without --curve)",
+    # What a CurveZMQ server usually sees of an agent without a key: the agent notices the
+    # mechanism mismatch first and hangs up, so the server's side has no detail.
+    "handshake_failed": "a connection was closed during the ZeroMQ handshake: with --curve, "
+    "most likely an agent without a CurveZMQ key (it needs --key <sensor id>.key_secret and "
+    "--server-key server.key; docs/security.md)",
 }
 
 
@@ -139,6 +147,8 @@ def handshake_failure(event: int, value: int) -> str:
     """The ``rejected_unregistered`` reason of a failed handshake (a monitor event)."""
     if event == zmq.EVENT_HANDSHAKE_FAILED_AUTH:
         return "handshake_key_refused"
+    if event == zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL:
+        return "handshake_failed"
     if value == zmq.PROTOCOL_ERROR_ZMTP_MECHANISM_MISMATCH:
         return "handshake_no_key"
     return "handshake_protocol"
@@ -150,7 +160,9 @@ async def handshake_monitor_loop(socket: zmq.asyncio.Socket, hub: FusionHub) -> 
     (per cause at most every :data:`HANDSHAKE_WARNING_EVERY_S`). They never reach the ingest
     loop, so nothing else would see them; the handshake itself is libzmq's, unchanged."""
     monitor = socket.get_monitor_socket(
-        zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL | zmq.EVENT_HANDSHAKE_FAILED_AUTH
+        zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL
+        | zmq.EVENT_HANDSHAKE_FAILED_AUTH
+        | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL
     )
     warned: dict[str, float] = {}
     try:
