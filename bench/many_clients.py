@@ -187,6 +187,7 @@ def run_once(args: argparse.Namespace, seed: int, log_dir: Path) -> dict[str, An
         url = f"ws://127.0.0.1:{http_port}/ws/skeletons"
         shares = [args.clients // args.processes] * args.processes
         shares[0] += args.clients - sum(shares)
+        shares = [share for share in shares if share]  # --clients 0: the server alone
         for share in shares:
             child = ctx.Process(
                 target=clients_process,

@@ -33,11 +33,22 @@ def test_a_reader_slow_from_the_start_stays_paced_after_one_quick_read() -> None
 
 
 def test_a_late_pong_paces_a_released_client_within_a_few_frames() -> None:
-    pacer = Pacer(late_pong_s=0.1, ping_every=1, paced=False)
+    pacer = Pacer(late_after_frames=3, ping_every=1, paced=False)
     assert pacer.after_frame(0.0) == (True, False)
     held = [pacer.after_frame(step * FRAME_S)[1] for step in range(1, 6)]
-    assert held == [False, False, False, True, True]  # 0.133 s > 0.1 s: wait for that pong
+    assert held == [False, False, False, True, True]  # 4 frames after its ping: wait for it
     assert pacer.paced
+
+
+def test_a_stall_of_the_server_itself_does_not_pace_anyone() -> None:
+    pacer = Pacer(late_after_frames=8, ping_every=10, paced=False)
+    for step in range(10):
+        pacer.after_frame(step * FRAME_S)  # the 10th is followed by a ping
+    assert pacer.ping_sent_at is not None
+    # the server's loop stalls for 2 s: the pong waits, unread, and no frame is sent meanwhile
+    assert pacer.after_frame(2.3) == (False, False)
+    pacer.on_pong(2.31)
+    assert not pacer.paced
 
 
 def test_a_paced_client_gets_a_ping_after_every_frame_until_it_answers_quickly() -> None:
