@@ -52,7 +52,7 @@ from skelfuse.fusion.priors import priors_of
 from skelfuse.fusion.reliability import reliability_factors
 from skelfuse.fusion.sensors import SensorState, body_arrays_at
 from skelfuse.fusion.settings import FusionSettings
-from skelfuse.fusion.views import FusedPerson, View
+from skelfuse.fusion.views import FusedPerson, View, fused_persons
 from skelfuse.fusion.weighted import carriers, cauchy_reweight
 from skelfuse.protocol.transform import Matrix4, apply
 
@@ -249,7 +249,7 @@ class FusionPipeline:
                     skeletons.update(zip(fitted, fit, strict=True))
             flags = mirrored.tolist()
             spans = [(batch.starts[p], batch.starts[p + 1]) for p in alive]
-            persons = _persons(
+            persons = fused_persons(
                 [ids[p] for p in alive],
                 [skeletons[p] for p in alive],
                 confidence[alive],
@@ -372,45 +372,3 @@ class FusionPipeline:
             return False
         memory.bones.set_lengths = None if lengths is None else np.array(lengths, dtype=float)
         return True
-
-
-def _persons(
-    person_ids: list[int],
-    joints: list[FloatArray],
-    confidence: FloatArray,
-    views: list[list[View]],
-    carried: npt.NDArray[np.bool_],
-    mirrored: list[list[bool]],
-) -> list[FusedPerson]:
-    """The fused persons as apps receive them, with which sensors carried each joint.
-
-    Args:
-        person_ids, joints, views, mirrored: per person: its id, (25, 3) skeleton, views and
-            whether each view was mirrored. confidence: (A, 25). carried: (A, widest, 25)
-            whether each view (padded to the widest person) carried each joint.
-    """
-    sources = [tuple(sorted({v.sensor_id for v in own})) for own in views]
-    widest = carried.shape[1]
-    slots = np.array(
-        [
-            [found.index(v.sensor_id) for v in own] + [0] * (widest - len(own))
-            for own, found in zip(views, sources, strict=True)
-        ],
-        dtype=np.int64,
-    ).reshape(carried.shape[:2])
-    # Each view's bit where it carried the joint, all persons at once (padding carries none).
-    joint_sources = np.bitwise_or.reduce(carried.astype(np.int64) << slots[..., None], axis=1)
-    return [
-        FusedPerson(
-            person_id=person_id,
-            joints=skeleton,
-            confidence=confidence[a],
-            sources=sources[a],
-            views=tuple(views[a]),
-            joint_sources=joint_sources[a],
-            mirrored=tuple(
-                sorted(v.sensor_id for v, m in zip(views[a], mirrored[a], strict=True) if m)
-            ),
-        )
-        for a, (person_id, skeleton) in enumerate(zip(person_ids, joints, strict=True))
-    ]

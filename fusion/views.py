@@ -53,3 +53,45 @@ class FusedPerson:
         default_factory=lambda: np.zeros(JOINT_COUNT, dtype=np.int64)
     )
     mirrored: tuple[str, ...] = ()
+
+
+def fused_persons(
+    person_ids: list[int],
+    joints: list[FloatArray],
+    confidence: FloatArray,
+    views: list[list[View]],
+    carried: npt.NDArray[np.bool_],
+    mirrored: list[list[bool]],
+) -> list[FusedPerson]:
+    """The fused persons as apps receive them, with which sensors carried each joint.
+
+    Args:
+        person_ids, joints, views, mirrored: per person: its id, (25, 3) skeleton, views and
+            whether each view was mirrored. confidence: (A, 25). carried: (A, widest, 25)
+            whether each view (padded to the widest person) carried each joint.
+    """
+    sources = [tuple(sorted({v.sensor_id for v in own})) for own in views]
+    widest = carried.shape[1]
+    slots = np.array(
+        [
+            [found.index(v.sensor_id) for v in own] + [0] * (widest - len(own))
+            for own, found in zip(views, sources, strict=True)
+        ],
+        dtype=np.int64,
+    ).reshape(carried.shape[:2])
+    # Each view's bit where it carried the joint, all persons at once (padding carries none).
+    joint_sources = np.bitwise_or.reduce(carried.astype(np.int64) << slots[..., None], axis=1)
+    return [
+        FusedPerson(
+            person_id=person_id,
+            joints=skeleton,
+            confidence=confidence[a],
+            sources=sources[a],
+            views=tuple(views[a]),
+            joint_sources=joint_sources[a],
+            mirrored=tuple(
+                sorted(v.sensor_id for v, m in zip(views[a], mirrored[a], strict=True) if m)
+            ),
+        )
+        for a, (person_id, skeleton) in enumerate(zip(person_ids, joints, strict=True))
+    ]
