@@ -317,6 +317,10 @@ def test_the_fusion_loop_publishes_at_the_deadline_with_no_further_frame() -> No
     assert hub.latest is not None and [s for s, _ in hub.latest.extrapolated] == ["b"]
 
 
+def test_phased_is_the_default() -> None:
+    assert FusionSettings().alignment == "phased"  # measured: docs/benchmarks.md
+
+
 def test_offline_replay_always_waits_for_every_sensor() -> None:
     take = Path(__file__).resolve().parents[1] / "data" / "golden" / "take.sfrec"
     deadline = Settings(fusion=FusionSettings(alignment="deadline"))
