@@ -72,8 +72,9 @@ def malformed(i: int) -> bytes:
 
 
 def flood(endpoint: str, messages: int) -> None:
-    """Send ``messages`` malformed messages as fast as possible from one DEALER; print the
-    seconds it took."""
+    """Connect, print ``ready``, wait for a line on stdin, then send ``messages`` malformed
+    messages as fast as possible from one DEALER; print the seconds it took. (Started ahead
+    and triggered, so that starting a Python process is not inside the measured window.)"""
     context = zmq.Context()
     dealer = context.socket(zmq.DEALER)
     dealer.sndhwm = messages + 10
@@ -81,6 +82,8 @@ def flood(endpoint: str, messages: int) -> None:
     dealer.connect(endpoint)
     time.sleep(0.3)  # connected
     payloads = [malformed(i) for i in range(messages)]
+    print("ready", flush=True)
+    sys.stdin.readline()
     started = time.perf_counter()
     for payload in payloads:
         dealer.send(payload)
@@ -142,19 +145,22 @@ async def _measure(http: str, endpoint: str, messages: int, settle_s: float) -> 
                 if json.loads(text).get("type") == "frame":
                     arrivals.append(time.monotonic())
 
-    reader = asyncio.create_task(read_feed())
-    await asyncio.sleep(settle_s)
-    before = sensor_row(http)
-    burst_at = time.monotonic()
     flooder = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "bench.malformed_burst", "--flood", endpoint,
-        "--messages", str(messages), stdout=asyncio.subprocess.PIPE,
+        "--messages", str(messages), stdin=asyncio.subprocess.PIPE,
+        stdout=asyncio.subprocess.PIPE,
     )  # fmt: skip
-    out, _ = await flooder.communicate()
+    assert flooder.stdout is not None
+    await flooder.stdout.readline()  # ready
+    reader = asyncio.create_task(read_feed())
+    await asyncio.sleep(settle_s)
+    before = await asyncio.to_thread(sensor_row, http)  # the reader keeps reading meanwhile
+    burst_at = time.monotonic()
+    out, _ = await flooder.communicate(b"go\n")
     await asyncio.sleep(3.0)
     reader.cancel()
     await asyncio.gather(reader, return_exceptions=True)
-    after = sensor_row(http)
+    after = await asyncio.to_thread(sensor_row, http)
     window = [t for t in arrivals if t >= burst_at - 1.0]
     baseline = [t for t in arrivals if t < burst_at - 1.0]
 
