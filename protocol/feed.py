@@ -114,22 +114,24 @@ def persons_json(persons: Sequence[FeedPerson], decimals: int = 4) -> list[dict[
     """
     if not persons:
         return []
-    joints = np.stack([np.asarray(p.joints, dtype=np.float64).reshape(-1, 3) for p in persons])
+    joints = np.array([p.joints for p in persons], dtype=np.float64).reshape(len(persons), -1, 3)
     rounded = np.round(joints, decimals)  # (P, J, 3)
     finite = np.asarray(np.isfinite(rounded).all(axis=2))  # (P, J)
-    confidence = np.stack([np.asarray(p.confidence, dtype=np.float64) for p in persons])
+    confidence = np.array([p.confidence for p in persons], dtype=np.float64)
     sent_confidence = np.where(finite, np.maximum(round_like_python(confidence, 3), 0.001), 0.0)
-    all_rows: list[list[list[float]]] = rounded.tolist()
-    all_finite: list[list[bool]] = finite.tolist()
+    all_rows: list[list[list[float] | None]] = rounded.tolist()
+    # Few joints are unknown: blank those rows in place rather than test all P·J rows in Python.
+    if not finite.all():
+        joint_count = finite.shape[1]
+        for flat in np.flatnonzero(~finite).tolist():
+            all_rows[flat // joint_count][flat % joint_count] = None
     all_confidence: list[list[float]] = sent_confidence.tolist()
     out: list[dict[str, object]] = []
-    for person, rows, present, conf in zip(
-        persons, all_rows, all_finite, all_confidence, strict=True
-    ):
+    for person, rows, conf in zip(persons, all_rows, all_confidence, strict=True):
         out.append(
             {
                 "id": person.person_id,
-                "joints": [row if ok else None for row, ok in zip(rows, present, strict=True)],
+                "joints": rows,
                 "confidence": conf,
                 "sources": list(person.sources),
                 # Per joint, bit k set when sources[k] contributed (≥ 5 % of its weight).
