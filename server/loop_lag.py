@@ -10,13 +10,13 @@ server started), which ``bench/calibration_stall.py`` reads around a calibration
 
 from __future__ import annotations
 
-import bisect
 from collections.abc import Iterator, Sequence
 
 from prometheus_client.core import GaugeMetricFamily, HistogramMetricFamily, Metric
 from prometheus_client.registry import Collector
 
 from skelfuse.server.clock import Clock
+from skelfuse.server.histogram import Histogram
 
 TICK_S = 0.005
 """How long the monitor sleeps each time: a stall shorter than this can hide between ticks."""
@@ -26,7 +26,7 @@ LAG_BUCKETS_S: tuple[float, ...] = (
 """Histogram upper bounds, seconds; 0.02 is the issue's target, 1 s an agent's heartbeat."""
 
 
-class LoopLagMonitor:
+class LoopLagMonitor(Histogram):
     """Sleeps ``tick_s`` on ``clock`` over and over and records how late each wake-up was.
 
     ``count``, ``sum_s`` and ``max_s`` cover every tick since :meth:`run` started;
@@ -37,13 +37,9 @@ class LoopLagMonitor:
     def __init__(
         self, clock: Clock, tick_s: float = TICK_S, buckets: Sequence[float] = LAG_BUCKETS_S
     ) -> None:
+        super().__init__(buckets)
         self._clock = clock
         self.tick_s = tick_s
-        self.buckets = tuple(buckets)
-        self.bucket_counts = [0] * (len(self.buckets) + 1)
-        self.count = 0
-        self.sum_s = 0.0
-        self.max_s = 0.0
 
     async def run(self) -> None:
         """Tick until cancelled."""
@@ -51,23 +47,6 @@ class LoopLagMonitor:
             before = self._clock.monotonic()
             await self._clock.sleep(self.tick_s)
             self.record(self._clock.monotonic() - before - self.tick_s)
-
-    def record(self, lag_s: float) -> None:
-        """Count one wake-up ``lag_s`` seconds late (negative, an early wake-up, counts as 0)."""
-        lag_s = max(0.0, lag_s)
-        self.count += 1
-        self.sum_s += lag_s
-        self.max_s = max(self.max_s, lag_s)
-        self.bucket_counts[bisect.bisect_left(self.buckets, lag_s)] += 1
-
-    def cumulative(self) -> list[tuple[str, int]]:
-        """Prometheus buckets: (upper bound, ticks at most that late), ending with ``+Inf``."""
-        out: list[tuple[str, int]] = []
-        total = 0
-        for bound, count in zip((*self.buckets, float("inf")), self.bucket_counts, strict=True):
-            total += count
-            out.append(("+Inf" if bound == float("inf") else repr(bound), total))
-        return out
 
 
 class LoopLagCollector(Collector):

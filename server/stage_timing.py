@@ -19,11 +19,12 @@ buckets is the window's histogram).
 
 from __future__ import annotations
 
-import bisect
 from collections.abc import Iterator, Sequence
 
 from prometheus_client.core import HistogramMetricFamily, Metric
 from prometheus_client.registry import Collector
+
+from skelfuse.server.histogram import Histogram
 
 STAGE_BUCKETS_S: tuple[float, ...] = (
     25e-6, 50e-6, 100e-6, 200e-6, 300e-6, 500e-6, 750e-6,
@@ -34,38 +35,6 @@ STAGE_BUCKETS_S: tuple[float, ...] = (
 enough together that a quantile interpolated within a bucket is within about 25 % of the truth."""
 
 STAGES = ("ingest", "fusion", "publish", "lag")
-
-
-class Histogram:
-    """Counts of values by upper bound (seconds), their sum and their maximum.
-
-    ``bucket_counts[i]`` counts the values at most ``buckets[i]`` and more than the bound before
-    it; the last slot counts values above every bound.
-    """
-
-    def __init__(self, buckets: Sequence[float] = STAGE_BUCKETS_S) -> None:
-        self.buckets = tuple(buckets)
-        self.bucket_counts = [0] * (len(self.buckets) + 1)
-        self.count = 0
-        self.sum_s = 0.0
-        self.max_s = 0.0
-
-    def record(self, value_s: float) -> None:
-        """Count one value (seconds; a negative one, from a clock step, counts as 0)."""
-        value_s = max(0.0, value_s)
-        self.count += 1
-        self.sum_s += value_s
-        self.max_s = max(self.max_s, value_s)
-        self.bucket_counts[bisect.bisect_left(self.buckets, value_s)] += 1
-
-    def cumulative(self) -> list[tuple[str, int]]:
-        """Prometheus buckets: (upper bound, values at most that), ending with ``+Inf``."""
-        out: list[tuple[str, int]] = []
-        total = 0
-        for bound, count in zip((*self.buckets, float("inf")), self.bucket_counts, strict=True):
-            total += count
-            out.append(("+Inf" if bound == float("inf") else repr(bound), total))
-        return out
 
 
 class StageTimes:
