@@ -86,10 +86,11 @@ def views_at(
         # All of the sensor's bodies in one product: the same floats as body by body.
         joints_world = apply(pose, bodies.joints_m)
         position, sensor_id, sensor_type = pose[:3, 3], sensor.sensor_id, sensor.sensor_type
+        hands = bodies.hands or [None] * len(bodies.tracking_ids)
         views.extend(
-            View(sensor_id, tracking_id, joints, states, position, sensor_type)
-            for tracking_id, joints, states in zip(
-                bodies.tracking_ids, joints_world, bodies.states, strict=True
+            View(sensor_id, tracking_id, joints, states, position, sensor_type, hand)
+            for tracking_id, joints, states, hand in zip(
+                bodies.tracking_ids, joints_world, bodies.states, hands, strict=True
             )
         )
     return views

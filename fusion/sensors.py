@@ -29,6 +29,7 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.points import finite_points
+from skelfuse.protocol.hands import Hands
 from skelfuse.protocol.skeleton import JOINT_COUNT, TrackingState
 from skelfuse.protocol.transform import Matrix4
 from skelfuse.protocol.wire import Body, Frame, Hello
@@ -102,12 +103,14 @@ class BodyArrays(NamedTuple):
     """A sensor's bodies at one instant, stacked (one array operation serves them all).
 
     tracking_ids: B ids, in the frame's order; joints_m: (B, 25, 3) float32, metres, the
-    sensor's own frame, NaN where unknown; states: (B, 25) uint8 TrackingState.
+    sensor's own frame, NaN where unknown; states: (B, 25) uint8 TrackingState; hands: B hand
+    states (None where a body has none), or None when no body has any (the usual case).
     """
 
     tracking_ids: list[int]
     joints_m: npt.NDArray[np.float32]
     states: npt.NDArray[np.uint8]
+    hands: list[Hands | None] | None = None
 
 
 @dataclass(slots=True)
@@ -128,7 +131,13 @@ class TimedFrame:
             else:
                 joints = np.empty((0, JOINT_COUNT, 3), np.float32)
                 states = np.empty((0, JOINT_COUNT), np.uint8)
-            self._arrays = BodyArrays([b.tracking_id for b in bodies], joints, states)
+            hands = [b.hands for b in bodies]
+            self._arrays = BodyArrays(
+                [b.tracking_id for b in bodies],
+                joints,
+                states,
+                hands if any(h is not None for h in hands) else None,
+            )
         return self._arrays
 
 
@@ -244,7 +253,8 @@ def bodies_at(
     arrays = body_arrays_at(frames, t_s, max_gap_s, max_age_s)
     if arrays is None:
         return None
-    return tuple(map(Body, arrays.tracking_ids, arrays.joints_m, arrays.states))
+    hands = arrays.hands or [None] * len(arrays.tracking_ids)
+    return tuple(map(Body, arrays.tracking_ids, arrays.joints_m, arrays.states, hands))
 
 
 def body_arrays_at(
@@ -256,8 +266,9 @@ def body_arrays_at(
     """The sensor's bodies at server time ``t_s``, interpolated between the two frames around it.
 
     A body present in both frames (same tracking id) is interpolated linearly joint by joint,
-    taking the lower of the two tracking states; a body in only one of them, or frames more than
-    ``max_gap_s`` apart, give the nearer frame's bodies, in the nearer frame's order. After the
+    taking the lower of the two tracking states (hand states: the nearer frame's); a body in only
+    one of them, or frames more than ``max_gap_s`` apart, give the nearer frame's bodies, in the
+    nearer frame's order. After the
     newest frame, that frame is used for ``max_age_s`` (no extrapolation); None when the sensor
     has nothing usable. All of a frame's bodies are interpolated at once.
     """
@@ -301,11 +312,11 @@ def body_arrays_at(
     else:
         joints, states = _lerp(near_joints, near_states, far_joints, far_states, alpha)
     if everyone:
-        return BodyArrays(nearer.tracking_ids, joints, states)
+        return BodyArrays(nearer.tracking_ids, joints, states, nearer.hands)
     all_joints, all_states = nearer.joints_m.copy(), nearer.states.copy()
     all_joints[mine] = joints
     all_states[mine] = states
-    return BodyArrays(nearer.tracking_ids, all_joints, all_states)
+    return BodyArrays(nearer.tracking_ids, all_joints, all_states, nearer.hands)
 
 
 def _lerp(

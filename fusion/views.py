@@ -11,6 +11,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
+from skelfuse.fusion.hands import fuse_hands
+from skelfuse.protocol.hands import Hands
 from skelfuse.protocol.skeleton import JOINT_COUNT
 
 FloatArray = npt.NDArray[np.float64]
@@ -25,6 +27,7 @@ class View:
     sensor_position: (3,) float64, where the sensor stands in the world (metres), if known.
     sensor_type: what the sensor's agent announced (``protocol.wire.SENSOR_TYPES``); selects
         the view's :class:`fusion.priors.SensorPrior`.
+    hands: the sensor's hand states for this body (nearest frame), None if it reports none.
     """
 
     sensor_id: str
@@ -33,6 +36,7 @@ class View:
     states: npt.NDArray[np.uint8]
     sensor_position: FloatArray | None = None
     sensor_type: str = "kinect_v2"
+    hands: Hands | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -42,6 +46,8 @@ class FusedPerson:
     joint_sources: (25,) int64 bitmask per joint: bit k set when ``sources[k]`` contributed at
         least 5 % of that joint's weight.
     mirrored: the sensors whose view of this person was swapped back (left ↔ right).
+    hands: one hand state per hand (the rule of :mod:`fusion.hands`); None when no view of
+        this person reports hand states.
     """
 
     person_id: int
@@ -53,6 +59,7 @@ class FusedPerson:
         default_factory=lambda: np.zeros(JOINT_COUNT, dtype=np.int64)
     )
     mirrored: tuple[str, ...] = ()
+    hands: Hands | None = None
 
 
 def fused_persons(
@@ -91,6 +98,9 @@ def fused_persons(
             joint_sources=joint_sources[a],
             mirrored=tuple(
                 sorted(v.sensor_id for v, m in zip(views[a], mirrored[a], strict=True) if m)
+            ),
+            hands=fuse_hands(
+                [(v.hands, v.states, m) for v, m in zip(views[a], mirrored[a], strict=True)]
             ),
         )
         for a, (person_id, skeleton) in enumerate(zip(person_ids, joints, strict=True))

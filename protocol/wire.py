@@ -14,15 +14,26 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any, Final
 
 import msgpack
 import numpy as np
-import numpy.typing as npt
 
 from skelfuse.protocol.constants import MAX_BODIES, MAX_MESSAGE_BYTES, PROTOCOL_VERSION
 from skelfuse.protocol.errors import DecodeError, VersionMismatch
+from skelfuse.protocol.hands import check_hands
+from skelfuse.protocol.messages import (
+    Body,
+    Bye,
+    ErrorMessage,
+    Frame,
+    Heartbeat,
+    Hello,
+    Message,
+    Request,
+    Response,
+    Welcome,
+)
 from skelfuse.protocol.skeleton import JOINT_COUNT, SKELETON_NAME
 from skelfuse.protocol.wire_bulk import frame_in_bulk
 from skelfuse.protocol.wire_checks import (
@@ -38,115 +49,24 @@ SENSOR_ID_PATTERN: Final = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
 SENSOR_TYPES: Final = frozenset({"kinect_v2", "azure_kinect", "femto", "sim", "replay"})
 POSE_HINT_SOURCES: Final = frozenset({"sim_truth", "manual"})
 
-
-# --- messages ---------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True)
-class Body:
-    """One body in one sensor frame.
-
-    tracking_id: the SDK's id for this body (uint64); stable while the sensor keeps tracking it.
-    joints_m: (25, 3) float32, metres, the sensor's own camera frame (+X sensor-left, +Y up,
-        +Z forward). Positions of NOT_TRACKED joints carry no meaning (may be NaN).
-    states: (25,) uint8 :class:`~protocol.skeleton.TrackingState` per joint.
-    """
-
-    tracking_id: int
-    joints_m: npt.NDArray[np.float32]
-    states: npt.NDArray[np.uint8]
-
-
-@dataclass(frozen=True, slots=True)
-class Hello:
-    """Agent registration; the first message of every connection (and after a server restart).
-
-    pose_hint: optional ``T_world_from_sensor`` (4×4 float64) the agent believes in, with its
-        ``pose_hint_source``: ``sim_truth`` (the simulator's true pose) or ``manual``. The server
-        uses it only for a sensor that has no stored calibration.
-    """
-
-    sensor_id: str
-    sensor_type: str
-    agent_version: str
-    fps: float
-    t_ns: int
-    skeleton: str = SKELETON_NAME
-    pose_hint: npt.NDArray[np.float64] | None = None
-    pose_hint_source: str | None = None
-
-
-@dataclass(frozen=True, slots=True)
-class Welcome:
-    """Server's answer to :class:`Hello`."""
-
-    server_version: str
-    heartbeat_interval_s: float
-    t_ns: int
-
-
-@dataclass(frozen=True, slots=True)
-class Frame:
-    """One captured sensor frame.
-
-    seq: per-connection frame counter, +1 per captured frame (gaps mean frames were dropped).
-    t_capture_ns: capture instant on the agent's clock, nanoseconds since the Unix epoch.
-    floor: the SDK's floor plane (a, b, c, d) in the sensor frame, ``a·x + b·y + c·z + d = 0``
-        with (a, b, c) a unit normal pointing up, or None.
-    """
-
-    seq: int
-    t_capture_ns: int
-    bodies: tuple[Body, ...]
-    floor: tuple[float, float, float, float] | None = None
-
-
-@dataclass(frozen=True, slots=True)
-class Heartbeat:
-    """Liveness in either direction; ``t_ns`` is the sender's clock (Unix ns).
-
-    ``echo_ns``: an agent answering a server heartbeat echoes the server's ``t_ns`` here, at
-    once, so the server can measure the round trip and the agent's clock offset (NTP-style).
-    """
-
-    t_ns: int
-    echo_ns: int | None = None
-
-
-@dataclass(frozen=True, slots=True)
-class Request:
-    """Server -> agent request (e.g. a depth capture for calibration)."""
-
-    request_id: int
-    method: str
-    params: dict[str, Any] = field(default_factory=dict)
-
-
-@dataclass(frozen=True, slots=True)
-class Response:
-    """Agent -> server answer to a :class:`Request`: ``result`` when ``ok``, else ``error``."""
-
-    request_id: int
-    ok: bool
-    result: Any = None
-    error: str | None = None
-
-
-@dataclass(frozen=True, slots=True)
-class ErrorMessage:
-    """Server -> agent: why a message was refused. ``code`` ``not_registered`` asks for Hello."""
-
-    code: str
-    message: str
-
-
-@dataclass(frozen=True, slots=True)
-class Bye:
-    """Agent -> server: a clean shutdown, so the sensor shows offline at once."""
-
-
-Message = Hello | Welcome | Frame | Heartbeat | Request | Response | ErrorMessage | Bye
-
+__all__ = [
+    "POSE_HINT_SOURCES",
+    "SENSOR_ID_PATTERN",
+    "SENSOR_TYPES",
+    "Body",
+    "Bye",
+    "ErrorMessage",
+    "Frame",
+    "Heartbeat",
+    "Hello",
+    "Message",
+    "Request",
+    "Response",
+    "Welcome",
+    "decode",
+    "decode_frame_precisely",
+    "encode",
+]
 
 # --- encoding ---------------------------------------------------------------------------------
 
@@ -217,7 +137,14 @@ def _encode_body(body: Body) -> dict[str, Any]:
         raise ValueError(
             f"a body needs (25, 3) joints and (25,) states, got {joints.shape} and {states.shape}"
         )
-    return {"id": int(body.tracking_id), "joints": joints.tobytes(), "states": states.tobytes()}
+    encoded: dict[str, Any] = {
+        "id": int(body.tracking_id),
+        "joints": joints.tobytes(),
+        "states": states.tobytes(),
+    }
+    if body.hands is not None:  # only Kinect v2 reports them (docs/protocol.md §7.4)
+        encoded["hands"] = body.hands.to_wire()
+    return encoded
 
 
 # --- decoding (the trust boundary) ------------------------------------------------------------
@@ -267,7 +194,7 @@ def _decode_frame(raw: dict[str, Any]) -> Frame:
     bulk = frame_in_bulk(raw)
     if bulk is None:
         return decode_frame_precisely(raw)
-    bodies = tuple(map(Body, bulk.tracking_ids, bulk.joints_m, bulk.states))
+    bodies = tuple(map(Body, bulk.tracking_ids, bulk.joints_m, bulk.states, bulk.hands))
     return Frame(bulk.seq, bulk.t_capture_ns, bodies, bulk.floor)
 
 
@@ -305,7 +232,8 @@ def _decode_body(raw: object, index: int) -> Body:
     joints_buf = field_of(raw, "joints", bytes)
     states_buf = field_of(raw, "states", bytes)
     joints, states = joint_arrays(joints_buf, states_buf, index)
-    return Body(tracking_id=tracking_id, joints_m=joints, states=states)
+    hands = check_hands(raw.get("hands"), index)
+    return Body(tracking_id=tracking_id, joints_m=joints, states=states, hands=hands)
 
 
 def _decode_hello(raw: dict[str, Any]) -> Hello:

@@ -21,6 +21,7 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.protocol.constants import MAX_BODIES, MAX_COORDINATE_M
+from skelfuse.protocol.hands import Hands, hands_quickly
 from skelfuse.protocol.skeleton import JOINT_COUNT
 from skelfuse.protocol.wire_checks import INT64_MAX, UINT64_MAX
 
@@ -38,6 +39,7 @@ class BulkFrame(NamedTuple):
     joints_m: B arrays (25, 3) float32, metres, NOT_TRACKED joints NaN, every other joint finite
         and within ``MAX_COORDINATE_M``; each is a writable row of one (B, 25, 3) array.
     states: B arrays (25,) uint8 in 0..2; rows of one writable (B, 25) array.
+    hands: B hand states (None where the body has none).
     """
 
     seq: int
@@ -46,6 +48,7 @@ class BulkFrame(NamedTuple):
     joints_m: list[npt.NDArray[np.float32]]
     states: list[npt.NDArray[np.uint8]]
     floor: tuple[float, float, float, float] | None
+    hands: list[Hands | None]
 
 
 def frame_in_bulk(raw: dict[str, Any]) -> BulkFrame | None:
@@ -75,6 +78,7 @@ def frame_in_bulk(raw: dict[str, Any]) -> BulkFrame | None:
     ids: list[int] = []
     joint_blobs: list[bytes] = []
     state_blobs: list[bytes] = []
+    hands: list[Hands | None] = []
     for body in bodies:
         if type(body) is not dict:
             return None
@@ -90,13 +94,19 @@ def frame_in_bulk(raw: dict[str, Any]) -> BulkFrame | None:
             or len(states) != JOINT_COUNT
         ):
             return None
+        hand_states = body.get("hands")
+        if hand_states is not None:
+            hand_states = hands_quickly(hand_states)
+            if hand_states is None:
+                return None
         ids.append(tracking_id)
         joint_blobs.append(joints)
         state_blobs.append(states)
+        hands.append(hand_states)
     if len(set(ids)) != len(ids):
         return None
     if not ids:
-        return BulkFrame(seq, t_capture_ns, ids, [], [], floor)
+        return BulkFrame(seq, t_capture_ns, ids, [], [], floor, hands)
     all_states = b"".join(state_blobs)
     if all_states.translate(None, _STATE_VALUES):  # a byte other than 0, 1, 2 is left
         return None
@@ -122,6 +132,7 @@ def frame_in_bulk(raw: dict[str, Any]) -> BulkFrame | None:
         list(joints.reshape(count, JOINT_COUNT, 3)),
         list(states.reshape(count, JOINT_COUNT)),
         floor,
+        hands,
     )
 
 

@@ -12,8 +12,10 @@ Conversions (conventions.md §1.2, §1.7): the tracker's 32 joints (depth camera
 (NONE → NotTracked, LOW → Inferred, MEDIUM/HIGH → Tracked). The body frame's device timestamp
 (µs) spaces the capture stamps, anchored to this PC's clock (:class:`DeviceClock`) and kept in
 :attr:`AzureKinectSource.last_device_timestamp_us`. The Body Tracking SDK 1.1 has no floor
-plane, so ``floor`` is None. :meth:`AzureKinectSource.depth_cloud` answers the server's depth
-requests for calibration: depth points of the latest capture, in our sensor frame.
+plane, so ``floor`` is None, and no hand states (k4abt bodies have joints and confidence
+levels only), so bodies carry no ``hands`` (docs/protocol.md §7.4).
+:meth:`AzureKinectSource.depth_cloud` answers the server's depth requests for calibration: depth
+points of the latest capture, in our sensor frame.
 """
 
 from __future__ import annotations

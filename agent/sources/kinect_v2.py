@@ -19,7 +19,8 @@ Frames: the SDK's camera space is our sensor frame (metres, +X sensor-left, +Y u
 its ``JointType`` order is our joint order and ``TrackingState`` our states: joints pass as is.
 ``FloorClipPlane`` (x, y, z, w) is the floor plane. ``RelativeTime`` (100 ns ticks, the sensor's
 clock) spaces the capture stamps; they are anchored to this PC's clock at the first frame and
-re-anchored if the two drift apart by more than 50 ms.
+re-anchored if the two drift apart by more than 50 ms. Hand states pass as the SDK reports
+them (``hand_left_state``, ``hand_left_confidence`` and the right ones; docs/protocol.md §7.4).
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ import numpy.typing as npt
 
 from skelfuse.agent.sources.base import Capture, SensorError
 from skelfuse.agent.sources.depth_reply import cloud_reply
+from skelfuse.protocol.hands import hands_from_sdk
 from skelfuse.protocol.skeleton import JOINT_COUNT
 from skelfuse.protocol.transform import Matrix4
 from skelfuse.protocol.wire import Body
@@ -145,7 +147,8 @@ def import_pykinect2() -> tuple[Any, Any]:
 
 
 def bodies_from_frame(frame: Any, joint_count: int = JOINT_COUNT) -> tuple[Body, ...]:
-    """Tracked bodies of a PyKinect2 ``KinectBodyFrameData`` as wire bodies (sensor frame)."""
+    """Tracked bodies of a PyKinect2 ``KinectBodyFrameData`` as wire bodies (sensor frame),
+    with their hand states (PyKinect2's ``KinectBody`` copies them from the SDK's ``IBody``)."""
     bodies = []
     for body in frame.bodies if frame.bodies is not None else ():
         if not body.is_tracked:
@@ -160,7 +163,13 @@ def bodies_from_frame(frame: Any, joint_count: int = JOINT_COUNT) -> tuple[Body,
         bad = ~np.isfinite(joints).all(axis=1)
         joints[bad] = np.nan
         states[bad] = 0
-        bodies.append(Body(int(body.tracking_id) % 2**64, joints, states))
+        hands = hands_from_sdk(
+            int(body.hand_left_state),
+            int(body.hand_right_state),
+            int(body.hand_left_confidence),
+            int(body.hand_right_confidence),
+        )
+        bodies.append(Body(int(body.tracking_id) % 2**64, joints, states, hands))
     return tuple(bodies)
 
 

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from skelfuse.agent.sim.depth_camera import KINECT_V2_DEPTH
+from skelfuse.agent.sim.hands import simulated_hands
 from skelfuse.agent.sim.kinect_model import KinectV2Params, SimulatedKinect
 from skelfuse.agent.sim.performer import Performer
 from skelfuse.agent.sim.room import Room, capture_point_cloud, default_room
@@ -23,7 +24,8 @@ class SimSource:
 
     ``clock_offset_ns`` and ``clock_drift_ppm`` make this "PC" clock wrong (to exercise the
     server's clock alignment): capture stamps and heartbeats use the wrong clock, the scene is
-    rendered at the true time.
+    rendered at the true time. ``hand_states`` adds made-up Kinect v2 hand states to each body
+    (:mod:`agent.sim.hands`; they change nothing else in the frames).
     """
 
     def __init__(
@@ -39,11 +41,13 @@ class SimSource:
         sleep: Callable[[float], None] = time.sleep,
         room: Room | None = None,
         send_pose_hint: bool = True,
+        hand_states: bool = True,
     ) -> None:
         self._performer = performer
         self._room = room or default_room()
         self._depth_rng = np.random.default_rng(seed + 7919)
         self._send_pose_hint = send_pose_hint
+        self._hand_states = hand_states
         self._kinect = SimulatedKinect(T_world_from_sensor, params, seed=seed)
         self._clock_offset_ns = clock_offset_ns
         self._clock_drift = clock_drift_ppm * 1e-6
@@ -118,7 +122,17 @@ class SimSource:
         """Render the frame captured at true time ``true_ns`` (no pacing)."""
         t_s = true_ns / 1e9
         observations = self._kinect.observe(self._performer.joints_at(t_s), t_s)
-        bodies = tuple(Body(o.tracking_id, o.joints_m, o.states) for o in observations)
+        bodies = tuple(
+            Body(
+                o.tracking_id,
+                o.joints_m,
+                o.states,
+                simulated_hands(o.joints_m, o.states, o.tracking_id, t_s)
+                if self._hand_states
+                else None,
+            )
+            for o in observations
+        )
         return Capture(
             t_capture_ns=self.agent_clock_ns(true_ns),
             bodies=bodies,

@@ -57,10 +57,14 @@ class _Vector4:
 
 
 class KinectBody:
-    def __init__(self, tracking_id=-1, joints=None, states=None):
+    # The real KinectBody copies these from IBody only for a tracked body (HandState values
+    # 0 Unknown .. 4 Lasso, TrackingConfidence 0 Low / 1 High).
+    def __init__(self, tracking_id=-1, joints=None, states=None, hands=(0, 0, 0, 0)):
         self.is_tracked = joints is not None
         self.tracking_id = tracking_id
         if joints is not None:
+            self.hand_left_state, self.hand_right_state = hands[0], hands[1]
+            self.hand_left_confidence, self.hand_right_confidence = hands[2], hands[3]
             self.joints = [_Joint(*joints[j], states[j]) for j in range(PyKinectV2.JointType_Count)]
 
 

@@ -1,0 +1,125 @@
+"""The messages of protocol v1 as Python values (what ``protocol.wire`` encodes and decodes).
+
+Field meanings, units and shapes are those of docs/protocol.md §6; ``protocol.wire`` is the only
+place that turns them into bytes or back, and re-exports them (import them from there).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from skelfuse.protocol.hands import Hands
+from skelfuse.protocol.skeleton import SKELETON_NAME
+
+
+@dataclass(frozen=True, slots=True)
+class Body:
+    """One body in one sensor frame.
+
+    tracking_id: the SDK's id for this body (uint64); stable while the sensor keeps tracking it.
+    joints_m: (25, 3) float32, metres, the sensor's own camera frame (+X sensor-left, +Y up,
+        +Z forward). Positions of NOT_TRACKED joints carry no meaning (may be NaN).
+    states: (25,) uint8 :class:`~protocol.skeleton.TrackingState` per joint.
+    hands: the sensor's hand states (Kinect v2 only, :mod:`protocol.hands`); None when the
+        sensor does not report them (Azure Kinect, Femto, older agents).
+    """
+
+    tracking_id: int
+    joints_m: npt.NDArray[np.float32]
+    states: npt.NDArray[np.uint8]
+    hands: Hands | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Hello:
+    """Agent registration; the first message of every connection (and after a server restart).
+
+    pose_hint: optional ``T_world_from_sensor`` (4×4 float64) the agent believes in, with its
+        ``pose_hint_source``: ``sim_truth`` (the simulator's true pose) or ``manual``. The server
+        uses it only for a sensor that has no stored calibration.
+    """
+
+    sensor_id: str
+    sensor_type: str
+    agent_version: str
+    fps: float
+    t_ns: int
+    skeleton: str = SKELETON_NAME
+    pose_hint: npt.NDArray[np.float64] | None = None
+    pose_hint_source: str | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Welcome:
+    """Server's answer to :class:`Hello`."""
+
+    server_version: str
+    heartbeat_interval_s: float
+    t_ns: int
+
+
+@dataclass(frozen=True, slots=True)
+class Frame:
+    """One captured sensor frame.
+
+    seq: per-connection frame counter, +1 per captured frame (gaps mean frames were dropped).
+    t_capture_ns: capture instant on the agent's clock, nanoseconds since the Unix epoch.
+    floor: the SDK's floor plane (a, b, c, d) in the sensor frame, ``a·x + b·y + c·z + d = 0``
+        with (a, b, c) a unit normal pointing up, or None.
+    """
+
+    seq: int
+    t_capture_ns: int
+    bodies: tuple[Body, ...]
+    floor: tuple[float, float, float, float] | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Heartbeat:
+    """Liveness in either direction; ``t_ns`` is the sender's clock (Unix ns).
+
+    ``echo_ns``: an agent answering a server heartbeat echoes the server's ``t_ns`` here, at
+    once, so the server can measure the round trip and the agent's clock offset (NTP-style).
+    """
+
+    t_ns: int
+    echo_ns: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Request:
+    """Server -> agent request (e.g. a depth capture for calibration)."""
+
+    request_id: int
+    method: str
+    params: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, slots=True)
+class Response:
+    """Agent -> server answer to a :class:`Request`: ``result`` when ``ok``, else ``error``."""
+
+    request_id: int
+    ok: bool
+    result: Any = None
+    error: str | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class ErrorMessage:
+    """Server -> agent: why a message was refused. ``code`` ``not_registered`` asks for Hello."""
+
+    code: str
+    message: str
+
+
+@dataclass(frozen=True, slots=True)
+class Bye:
+    """Agent -> server: a clean shutdown, so the sensor shows offline at once."""
+
+
+Message = Hello | Welcome | Frame | Heartbeat | Request | Response | ErrorMessage | Bye
