@@ -21,7 +21,7 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.protocol.skeleton import JOINT_COUNT, JOINT_NAMES
-from skelfuse.recording.take import Take, TakeError, resample
+from skelfuse.recording.take import Take, TakeError, frame_count, sample_at
 
 F64 = npt.NDArray[np.float64]
 BLOCK = 512
@@ -169,24 +169,29 @@ def _zero_last_offset(section: bytearray) -> None:
 
 
 def export_c3d(take: Take, path: str | Path, fps: float = 30.0) -> int:
-    """Every person's joints as markers on one regular clock; returns the frame count."""
+    """Every person's joints as markers on one regular clock; returns the frame count.
+
+    The clock starts at the take's first fused instant; every person is sampled on that same
+    clock (:func:`recording.take.sample_at`: linear within gaps up to 0.25 s), and a marker is
+    invalid (residual −1) where its joint is unknown over a longer gap or the person absent.
+
+    Raises:
+        TakeError: nobody in the take, a frame rate that is not positive, or a take too long or
+            with too many persons for C3D.
+    """
     if not take.persons:
         raise TakeError("nobody was fused in this take: nothing to export")
-    start, end = take.start_s, take.end_s
-    frames = int(np.floor((end - start) * fps + 1e-9)) + 1
+    start = take.start_s
+    offsets = np.arange(frame_count(start, take.end_s, fps)) / fps
     persons = list(take.persons.values())
-    points = np.full((frames, len(persons) * JOINT_COUNT, 3), np.nan)
+    points = np.full((offsets.size, len(persons) * JOINT_COUNT, 3), np.nan)
     labels: list[str] = []
     for k, person in enumerate(persons):
         labels += [f"P{person.person_id}_{name}" for name in JOINT_NAMES]
-        times, joints, _ = resample(person, fps)
-        first = round((times[0] - start) * fps)
-        count = min(times.size, frames - first)
-        points[first : first + count, k * JOINT_COUNT : (k + 1) * JOINT_COUNT] = z_up_mm(
-            joints[:count]
-        )
+        joints, _ = sample_at(person, start, offsets)
+        points[:, k * JOINT_COUNT : (k + 1) * JOINT_COUNT] = z_up_mm(joints)
     write_c3d(path, points, labels, fps)
-    return frames
+    return int(offsets.size)
 
 
 @dataclass(frozen=True, slots=True)

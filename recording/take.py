@@ -118,32 +118,89 @@ def take_from_jsonl(path: str | Path) -> Take:
     return builder.build()
 
 
-def resample(track: PersonTrack, fps: float, max_gap_s: float = 0.25) -> tuple[F64, F64, F64]:
-    """The track on a regular clock (for BVH and C3D, which need a fixed frame rate).
+MAX_GAP_S = 0.25
+"""Longest interval between two fused samples of a joint that resampling bridges (seconds)."""
 
-    Joints are interpolated linearly between fused samples no more than ``max_gap_s`` apart;
-    elsewhere they are NaN (confidence 0).
+ON_SAMPLE_S = 1e-6
+"""An instant this close to a fused sample takes that sample as is (seconds). Times are handled
+relative to the track's first instant: Unix-epoch seconds (~1.8e9) carry 2.4e-7 s steps."""
+
+
+def frame_count(start_s: float, end_s: float, fps: float) -> int:
+    """Instants ``start_s + k / fps`` up to ``end_s`` (inclusive, to :data:`ON_SAMPLE_S`).
+
+    Raises:
+        TakeError: ``fps`` is not positive or ``end_s`` is before ``start_s``.
+    """
+    if not fps > 0:
+        raise TakeError(f"frame rate must be positive, got {fps}")
+    if end_s < start_s:
+        raise TakeError(f"the take ends ({end_s}) before it starts ({start_s})")
+    return int(np.floor((end_s - start_s + ON_SAMPLE_S) * fps)) + 1
+
+
+def sample_at(
+    track: PersonTrack, start_s: float, offsets_s: F64, max_gap_s: float = MAX_GAP_S
+) -> tuple[F64, F64]:
+    """The track at instants ``start_s + offsets_s``, joint by joint.
+
+    A joint is taken from a fused sample within :data:`ON_SAMPLE_S` of the instant, else
+    interpolated linearly between its two fused samples around the instant when they are at
+    most ``max_gap_s`` apart (a joint unknown in a few fused frames is bridged from its own
+    neighbours); elsewhere (longer gaps, before the track's first or after its last sample of
+    that joint) it is NaN with confidence 0. Confidence is the lower of the two neighbours'.
+
+    Args:
+        track: the fused person.
+        start_s: Unix seconds the offsets count from (kept apart so that epoch-scale times
+            lose no precision).
+        offsets_s: (N,) seconds after ``start_s``, any order.
+        max_gap_s: longest interval bridged.
 
     Returns:
-        times (N,) from the track's first instant at 1/fps steps, joints (N, 25, 3),
-        confidence (N, 25).
+        joints (N, 25, 3) metres, NaN where empty; confidence (N, 25), 0 where empty.
     """
-    if fps <= 0:
-        raise TakeError(f"frame rate must be positive, got {fps}")
-    t = track.times_s
-    count = int(np.floor((t[-1] - t[0]) * fps + 1e-9)) + 1
-    grid = t[0] + np.arange(count) / fps
-    after = np.clip(np.searchsorted(t, grid, side="left"), 0, t.size - 1)
-    before = np.clip(after - 1, 0, t.size - 1)
-    exact = np.isclose(t[after], grid, atol=1e-9)
-    before = np.where(exact, after, before)
-    span = t[after] - t[before]
-    alpha = np.where(span > 0, (grid - t[before]) / np.where(span > 0, span, 1.0), 0.0)
-    ok = exact | (span <= max_gap_s)
-    a = alpha[:, None, None]
-    joints = (1 - a) * track.joints[before] + a * track.joints[after]
-    confidence = np.minimum(track.confidence[before], track.confidence[after])
-    joints[~ok] = np.nan
-    confidence[~ok] = 0.0
-    confidence[~np.isfinite(joints).all(axis=2)] = 0.0
-    return grid, joints, confidence
+    offsets = np.asarray(offsets_s, dtype=np.float64)
+    times = track.times_s - start_s
+    joints = np.full((offsets.size, JOINT_COUNT, 3), np.nan)
+    confidence = np.zeros((offsets.size, JOINT_COUNT))
+    known = np.asarray(np.isfinite(track.joints).all(axis=2), dtype=bool)
+    for j in range(JOINT_COUNT):
+        rows = np.flatnonzero(known[:, j])
+        if rows.size == 0:
+            continue
+        t = times[rows]
+        after = np.searchsorted(t, offsets - ON_SAMPLE_S, side="left")
+        inside = after < t.size
+        on = inside & (np.abs(t[np.minimum(after, t.size - 1)] - offsets) <= ON_SAMPLE_S)
+        a = np.minimum(after, t.size - 1)
+        b = np.maximum(after - 1, 0)
+        between = inside & ~on & (after > 0) & (t[a] - t[b] <= max_gap_s)
+        alpha = np.where(between, (offsets - t[b]) / np.where(between, t[a] - t[b], 1.0), 0.0)
+        alpha = np.where(on, 1.0, alpha)
+        ok = on | between
+        first, second = track.joints[rows[b], j], track.joints[rows[a], j]
+        value = first + alpha[:, None] * (second - first)
+        joints[ok, j] = value[ok]
+        c_first, c_second = track.confidence[rows[b], j], track.confidence[rows[a], j]
+        confidence[ok, j] = np.where(on, c_second, np.minimum(c_first, c_second))[ok]
+    return joints, confidence
+
+
+def resample(track: PersonTrack, fps: float, max_gap_s: float = MAX_GAP_S) -> tuple[F64, F64, F64]:
+    """The track on a regular clock (for BVH and C3D, which need a fixed frame rate).
+
+    The clock starts at the track's first fused instant; each joint is sampled as
+    :func:`sample_at` says (linear within gaps up to ``max_gap_s``, NaN beyond).
+
+    Returns:
+        times (N,) Unix seconds from the track's first instant at 1/fps steps, joints
+        (N, 25, 3), confidence (N, 25).
+
+    Raises:
+        TakeError: ``fps`` is not positive.
+    """
+    start = float(track.times_s[0])
+    offsets = np.arange(frame_count(start, float(track.times_s[-1]), fps)) / fps
+    joints, confidence = sample_at(track, start, offsets, max_gap_s)
+    return start + offsets, joints, confidence

@@ -88,11 +88,91 @@ def test_resample_interpolates_and_leaves_gaps_empty() -> None:
     assert confidence[10, 0] == 0 and out[20, 0, 0] == 3
 
 
+EPOCH = 1_795_000_000.123456
+
+
+def _moving_track(times_s: np.ndarray, person_id: int = 1) -> PersonTrack:
+    """Every joint moves in a straight line at a joint-specific speed (metres, per second since
+    EPOCH), so linear interpolation must give the motion exactly at any instant."""
+    since = times_s - EPOCH
+    speeds = np.linspace(0.2, 1.5, 25)[:, None] * np.array([1.0, -0.3, 0.6])
+    joints = np.array([0.1, 1.0, 2.0]) + since[:, None, None] * speeds
+    return PersonTrack(person_id, times_s, joints, np.full(joints.shape[:2], 0.8))
+
+
+def _motion_at(times_s: np.ndarray) -> np.ndarray:
+    return _moving_track(np.asarray(times_s, dtype=np.float64)).joints
+
+
+def _jittered_times(count: int, fps: float = 30.0, seed: int = 3) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return EPOCH + 0.0123 + np.arange(count) / fps + rng.uniform(-0.004, 0.004, count)
+
+
+def test_resample_on_epoch_seconds_interpolates_between_jittered_fused_instants() -> None:
+    track = _moving_track(_jittered_times(90))
+    times, joints, confidence = resample(track, 60.0)
+    assert times[0] == track.times_s[0] and np.diff(times) == pytest.approx(1 / 60, abs=1e-6)
+    assert times.size == int((track.times_s[-1] - track.times_s[0]) * 60) + 1
+    # Epoch-scale times must not pass as "on a fused instant" (rtol on 1.8e9 s is 5 h): each
+    # frame is the motion at its own instant, no frame repeats its neighbour.
+    np.testing.assert_allclose(joints, _motion_at(times), atol=1e-6)
+    assert (np.abs(np.diff(joints, axis=0)).max(axis=(1, 2)) > 0).all()
+    assert (confidence == 0.8).all()
+
+
+def test_resample_leaves_gaps_over_the_limit_empty_and_bridges_shorter_ones() -> None:
+    times = _jittered_times(120)
+    since = times - times[0]
+    keep = ~(((since > 1.0) & (since < 1.5)) | ((since > 0.5) & (since < 0.6)))
+    track = _moving_track(times[keep])
+    grid, joints, confidence = resample(track, 60.0)
+    rel = grid - track.times_s[0]
+    kept = since[keep]
+    last_before, first_after = kept[kept <= 1.0].max(), kept[kept >= 1.5].min()
+    assert first_after - last_before > 0.25  # the long gap
+    inside = (rel > last_before + 1e-6) & (rel < first_after - 1e-6)
+    assert inside.sum() >= 25
+    assert np.isnan(joints[inside]).all() and (confidence[inside] == 0).all()
+    np.testing.assert_allclose(joints[~inside], _motion_at(grid[~inside]), atol=1e-6)
+    assert (confidence[~inside] == 0.8).all()
+
+
+def test_resample_bridges_each_joint_from_its_own_samples() -> None:
+    times = _jittered_times(60)
+    track = _moving_track(times)
+    track.joints[10:13, 7] = np.nan  # a hand unknown for 0.1 s: bridged
+    track.joints[20:35, 3] = np.nan  # the head unknown for 0.5 s: left empty
+    grid, joints, _ = resample(track, 30.0)
+    hand_ok = np.isfinite(joints[:, 7]).all(axis=1)
+    assert hand_ok.all()
+    np.testing.assert_allclose(joints[:, 7], _motion_at(grid)[:, 7], atol=1e-6)
+    rel = grid - times[0]
+    head_gap = (rel > times[19] - times[0] + 1e-6) & (rel < times[35] - times[0] - 1e-6)
+    assert np.isnan(joints[head_gap, 3]).all() and np.isfinite(joints[~head_gap, 3]).all()
+    others = [j for j in range(25) if j != 3]
+    np.testing.assert_allclose(joints[:, others], _motion_at(grid)[:, others], atol=1e-6)
+
+
+def test_c3d_samples_every_person_on_the_takes_clock(tmp_path: Path) -> None:
+    early = _moving_track(_jittered_times(60), person_id=1)
+    late = _moving_track(_jittered_times(60, seed=4)[14:], person_id=4)  # joins 0.45 s in
+    frames = export_c3d(Take({1: early, 4: late}), tmp_path / "t.c3d", fps=60.0)
+    data = read_c3d(tmp_path / "t.c3d")
+    clock = early.times_s[0] + np.arange(frames) / 60.0
+    for k, person in enumerate((early, late)):
+        points = data.points[:, k * 25 : (k + 1) * 25]
+        present = (clock >= person.times_s[0] - 1e-6) & (clock <= person.times_s[-1] + 1e-6)
+        assert np.isnan(points[~present]).all()
+        expected = z_up_mm(_motion_at(clock[present]))
+        np.testing.assert_allclose(points[present], expected, atol=0.05)  # float32 mm
+
+
 def _take() -> Take:
     performer = ProceduralPerformer(2)
     joints = np.stack([performer.joints_at(t) for t in np.arange(0, 2, 1 / 30)])
     a, b = joints[:, 0].copy(), joints[:, 1].copy()
-    a[5, 3] = np.nan
+    a[5:15, 3] = np.nan  # the head unknown for 0.33 s: longer than resampling bridges
     return Take({1: _track(a, person_id=1), 4: _track(b[10:], person_id=4, first=10)})
 
 
