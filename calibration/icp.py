@@ -27,7 +27,7 @@ Method (per call of :func:`refine_icp`):
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Final
 
@@ -35,19 +35,22 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.calibration.errors import InvalidInput, NoOverlap
+from skelfuse.calibration.icp_constraints import constrained_update
 from skelfuse.calibration.open3d_loader import load_open3d
 from skelfuse.calibration.rigid import rotation_angle_deg
 from skelfuse.protocol.transform import Matrix4, apply, is_rigid
 
 FloatArray = npt.NDArray[np.float64]
+Progress = Callable[[float, str], None]
+"""Called as work gets done: share of the call's work done (0..1), what it is doing now."""
 
 DEFAULT_VOXELS_M: Final = (0.10, 0.05, 0.025)
 MIN_COARSE_FITNESS: Final = 0.02
 """Below this share of source points with a neighbour at the coarsest level: :class:`NoOverlap`."""
 MIN_EIGEN_RATIO: Final = 0.1
 """A direction of the pose is "constrained" when its point-to-plane eigenvalue is at least this
-share of the largest (see :func:`_constrained_update`); with only the floor shared, yaw and the
-horizontal position fall to 1–5 % and are left to the initial guess."""
+share of the largest (``icp_constraints.constrained_update``); with only the floor shared, yaw
+and the horizontal position fall to 1–5 % and are left to the initial guess."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -94,87 +97,17 @@ def _to_o3d(points: FloatArray) -> Any:
     return cloud
 
 
+def scaled_progress(progress: Progress | None, scale: float) -> Progress | None:
+    """``progress`` with every fraction multiplied by ``scale`` (a call that is part of a
+    larger piece of work)."""
+    if progress is None:
+        return None
+    report = progress
+    return lambda fraction, detail: report(scale * fraction, detail)
+
+
 def _truncated_cost(fitness: float, rmse: float, max_distance: float) -> float:
     return fitness * rmse**2 + (1.0 - fitness) * max_distance**2
-
-
-def _rotvec_to_matrix(rotvec: FloatArray) -> FloatArray:
-    angle = float(np.linalg.norm(rotvec))
-    if angle < 1e-12:
-        return np.eye(3)
-    k = rotvec / angle
-    cross = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    rotation: FloatArray = np.eye(3) + np.sin(angle) * cross + (1 - np.cos(angle)) * cross @ cross
-    return rotation
-
-
-def _matrix_to_rotvec(rotation: FloatArray) -> FloatArray:
-    angle = np.radians(rotation_angle_deg(rotation))
-    if angle < 1e-12:
-        return np.zeros(3)
-    axis = np.array(
-        [
-            rotation[2, 1] - rotation[1, 2],
-            rotation[0, 2] - rotation[2, 0],
-            rotation[1, 0] - rotation[0, 1],
-        ]
-    )
-    norm = float(np.linalg.norm(axis))
-    if norm < 1e-9:  # angle near 180°: take the axis from R + I
-        sym = rotation + np.eye(3)
-        axis = sym[:, int(np.argmax(np.linalg.norm(sym, axis=0)))]
-        norm = float(np.linalg.norm(axis))
-    rotvec: FloatArray = axis / norm * angle
-    return rotvec
-
-
-def _constrained_update(
-    source: FloatArray,
-    target: FloatArray,
-    target_normals: FloatArray,
-    init: Matrix4,
-    result: Matrix4,
-    distance: float,
-    min_ratio: float,
-) -> tuple[Matrix4, int]:
-    """Keep only the part of the ICP correction that the shared surfaces determine.
-
-    Builds the point-to-plane normal matrix at ``result`` (rotation about the matched source
-    centroid, scaled by the cloud's RMS radius so that rotation and translation compare) and
-    projects the correction ``result·init⁻¹`` onto its eigenvectors whose eigenvalue is at least
-    ``min_ratio`` of the largest: directions along which the surfaces slide (e.g. yaw and
-    horizontal position when only the floor is shared) keep the initial guess.
-
-    Returns:
-        the projected transform and the number of constrained directions (0..6).
-    """
-    from scipy.spatial import cKDTree
-
-    moved = source @ result[:3, :3].T + result[:3, 3]
-    dist, index = cKDTree(target).query(moved, distance_upper_bound=distance)
-    matched = np.isfinite(dist)
-    if matched.sum() < 6:
-        return init.copy(), 0
-    points, normals = moved[matched], target_normals[index[matched]]
-    centre = points.mean(axis=0)
-    centred = points - centre
-    scale = max(float(np.sqrt((centred**2).sum(axis=1).mean())), 1e-6)
-    jacobian = np.hstack([np.cross(centred, normals) / scale, normals])
-    eigenvalues, eigenvectors = np.linalg.eigh(jacobian.T @ jacobian)
-    strong = eigenvalues >= min_ratio * eigenvalues[-1]
-    correction = result @ np.linalg.inv(init)  # target frame
-    rot = correction[:3, :3]
-    twist = np.concatenate(
-        [_matrix_to_rotvec(rot) * scale, rot @ centre + correction[:3, 3] - centre]
-    )
-    basis = eigenvectors[:, strong]
-    kept = basis @ (basis.T @ twist)
-    rot_kept = _rotvec_to_matrix(kept[:3] / scale)
-    update = np.eye(4)
-    update[:3, :3] = rot_kept
-    update[:3, 3] = centre + kept[3:] - rot_kept @ centre
-    projected: Matrix4 = update @ init
-    return projected, int(strong.sum())
 
 
 def refine_icp(
@@ -188,6 +121,7 @@ def refine_icp(
     min_overlap: float = 0.3,
     min_eigen_ratio: float = MIN_EIGEN_RATIO,
     max_correction: tuple[float, float] | None = None,
+    progress: Progress | None = None,
 ) -> IcpResult:
     """Refine ``T_target_from_source`` by point-to-plane ICP, coarse to fine.
 
@@ -204,6 +138,8 @@ def refine_icp(
             further than this from the initial guess. Pass the initial guess's plausible
             error (e.g. a skeleton estimate's p95): a better-scoring fit that far away is ICP
             locking onto the wrong surfaces, not a correction.
+        progress: told after each level, each weighted by its expected work (the points of
+            a surface grow as 1/voxel²).
 
     Returns:
         :class:`IcpResult`.
@@ -226,6 +162,7 @@ def refine_icp(
     warnings: list[str] = []
     transform = init.copy()
     level: tuple[Any, Any, float] | None = None
+    work = np.cumsum([1.0 / v**2 for v in voxel_sizes]) / sum(1.0 / v**2 for v in voxel_sizes)
     for number, voxel in enumerate(voxel_sizes):
         src = src_cloud.voxel_down_sample(voxel)
         tgt = tgt_cloud.voxel_down_sample(voxel)
@@ -247,9 +184,11 @@ def refine_icp(
         result = reg.registration_icp(src, tgt, distance, transform, estimation, criteria)
         transform = np.asarray(result.transformation, dtype=np.float64).copy()
         level = (src, tgt, distance)
+        if progress is not None:
+            progress(float(work[number]), f"level {number + 1} of {len(voxel_sizes)} done")
     assert level is not None  # voxel_sizes is non-empty
     src, tgt, distance = level
-    transform, dofs = _constrained_update(
+    transform, dofs = constrained_update(
         np.asarray(src.points),
         np.asarray(tgt.points),
         np.asarray(tgt.normals),
@@ -319,6 +258,7 @@ def refine_all(
     reference: str,
     *,
     second_pass: bool = True,
+    progress: Progress | None = None,
     **icp_options: Any,
 ) -> dict[str, IcpResult]:
     """Refine every non-reference sensor's pose against the others' clouds in the world.
@@ -335,6 +275,8 @@ def refine_all(
         T_world_from_sensor_init: sensor id → (4, 4) initial pose (same keys).
         reference: the sensor whose pose is kept as is.
         second_pass: run pass 2.
+        progress: told after each level of each sensor's refinement; every refinement of a
+            pass counts the same (pass 1 and pass 2 each one per non-reference sensor).
         icp_options: passed to :func:`refine_icp`.
 
     Returns:
@@ -355,14 +297,33 @@ def refine_all(
     results: dict[str, IcpResult] = {}
     target_ref = apply(poses[reference], clouds[reference])
     pending: list[str] = []
+    others = len(clouds) - 1
+    total = max(1, others * (2 if second_pass else 1))
+    done = 0
+
+    def step(sensor: str, pass_number: int) -> Progress | None:
+        if progress is None:
+            return None
+        report, base = progress, done
+
+        def level(fraction: float, detail: str) -> None:
+            share = min(1.0, (base + fraction) / total)
+            report(share, f"{sensor}, pass {pass_number}: {detail}")
+
+        return level
+
     for sensor in sorted(clouds):
         if sensor == reference:
             continue
         try:
-            results[sensor] = refine_icp(clouds[sensor], target_ref, poses[sensor], **icp_options)
+            results[sensor] = refine_icp(
+                clouds[sensor], target_ref, poses[sensor], progress=step(sensor, 1), **icp_options
+            )
         except NoOverlap:
+            done += 1
             pending.append(sensor)
             continue
+        done += 1
         poses[sensor] = results[sensor].T_target_from_source
     if second_pass or pending:
         for sensor in sorted(clouds):
@@ -373,11 +334,15 @@ def refine_all(
             )
             previous = results.get(sensor)
             try:
-                refined = refine_icp(clouds[sensor], target, poses[sensor], **icp_options)
+                refined = refine_icp(
+                    clouds[sensor], target, poses[sensor], progress=step(sensor, 2), **icp_options
+                )
             except NoOverlap:
                 if previous is None:
                     raise
                 continue
+            finally:
+                done += 1
             if previous is None or refined.applied:
                 if previous is not None:
                     refined.warnings[:0] = [w for w in previous.warnings if "overlap" in w]

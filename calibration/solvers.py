@@ -28,7 +28,7 @@ import numpy.typing as npt
 from skelfuse.calibration.body_pairing import solve_with_body_pairing
 from skelfuse.calibration.errors import CalibrationError, InvalidInput, NotEnoughCorrespondences
 from skelfuse.calibration.floor import fit_floor, floor_from_kinect_plane, level_to_floor
-from skelfuse.calibration.icp import refine_all, refine_icp
+from skelfuse.calibration.icp import Progress, refine_all, refine_icp, scaled_progress
 from skelfuse.calibration.rigid import fit_rigid, pose_error
 from skelfuse.calibration.skeleton_pose import SKELETON_ERROR_BOUND
 from skelfuse.protocol.skeleton import JointId
@@ -198,6 +198,7 @@ def refine_with_depth(
     clouds: Mapping[str, FloatArray],
     initial: Mapping[str, SensorResult],
     min_overlap: float,
+    progress: Progress | None = None,
 ) -> Solution:
     """Refine every pose with ICP on depth clouds, then level the world with the floor in the
     reference's cloud (keeping the world's yaw and origin).
@@ -208,6 +209,8 @@ def refine_with_depth(
         initial: sensor id → the pose to start from (same keys as ``clouds``). Skeleton
             estimates (method ``skeleton``) may move by at most ``SKELETON_ERROR_BOUND``.
         min_overlap: below this share of overlapping points, ICP warns.
+        progress: told as ICP gets done (``refine_all``'s levels; the floor fit is the last
+            3 %).
 
     Returns:
         The refined poses (method ``<before>+icp`` where ICP moved them) with ICP metrics;
@@ -225,7 +228,10 @@ def refine_with_depth(
         reference,
         min_overlap=min_overlap,
         max_correction=SKELETON_ERROR_BOUND if from_skeleton else None,
+        progress=scaled_progress(progress, 0.97),
     )
+    if progress is not None:
+        progress(0.97, "fitting the floor in the reference's depth")
     results: dict[str, SensorResult] = {}
     for sensor_id in clouds:
         before = initial[sensor_id]
@@ -345,6 +351,7 @@ def refine_sensor_with_depth(
     initial: SensorResult,
     fixed: Mapping[str, Matrix4],
     min_overlap: float,
+    progress: Progress | None = None,
 ) -> SensorResult:
     """Refine one sensor's pose by ICP against the others' clouds placed with their fixed poses.
 
@@ -356,6 +363,7 @@ def refine_sensor_with_depth(
             most ``SKELETON_ERROR_BOUND``.
         fixed: other sensor id → (4, 4) ``T_world_from_sensor``, kept as is.
         min_overlap: below this share of overlapping points, ICP warns.
+        progress: told after each ICP level.
 
     Raises:
         InvalidInput: bad clouds, or no fixed sensor's cloud.
@@ -371,6 +379,7 @@ def refine_sensor_with_depth(
         initial.T_world_from_sensor,
         min_overlap=min_overlap,
         max_correction=SKELETON_ERROR_BOUND if initial.method == "sensor" else None,
+        progress=progress,
     )
     return SensorResult(
         icp.T_target_from_source,

@@ -99,14 +99,15 @@ def encode_reply(points: npt.ArrayLike, **extra: object) -> dict[str, object]:
     }
 
 
-def decode_reply(result: object) -> npt.NDArray[np.float64]:
+def decode_reply(result: object, min_points: int = MIN_POINTS) -> npt.NDArray[np.float64]:
     """The points of a ``depth_cloud`` reply: (N, 3) float64, metres, the sensor frame, finite.
 
-    Rows with a non-finite value are dropped.
+    Rows with a non-finite value are dropped. ``min_points``: fewer finite points are refused
+    (default :data:`MIN_POINTS`, what ICP needs; a viewer that asked for fewer passes less).
 
     Raises:
         DecodeError: not a map with a ``points`` bin (reason ``bad_field``), a length that is
-            not a multiple of 12 bytes (``bad_shape``), or fewer than :data:`MIN_POINTS` finite
+            not a multiple of 12 bytes (``bad_shape``), or fewer than ``min_points`` finite
             points (``out_of_range``).
     """
     if not isinstance(result, Mapping) or not isinstance(result.get("points"), bytes):
@@ -118,10 +119,10 @@ def decode_reply(result: object) -> npt.NDArray[np.float64]:
         )
     points = np.frombuffer(raw, dtype="<f4").reshape(-1, 3).astype(np.float64)
     points = points[np.isfinite(points).all(axis=1)]
-    if len(points) < MIN_POINTS:
+    if len(points) < min_points:
         raise DecodeError(
             "out_of_range",
-            f"the depth cloud has only {len(points)} finite points (need {MIN_POINTS}); "
+            f"the depth cloud has only {len(points)} finite points (need {min_points}); "
             "is the sensor's view blocked?",
         )
     return points

@@ -11,6 +11,8 @@ from enum import StrEnum
 from typing import Any
 
 from skelfuse.calibration.solvers import PointPairs, SensorResult
+from skelfuse.protocol.transform import Matrix4
+from skelfuse.server.calibration_run_progress import RunProgress
 
 
 class RunState(StrEnum):
@@ -36,19 +38,30 @@ class CalibrationRun:
     run_id: str
     spec: RunSpec
     created_unix_s: float
+    tracker: RunProgress
+    """Stage, progress and time left (``skelfuse.server.calibration_run_progress``)."""
     state: RunState = RunState.CAPTURING
-    stage: str = "starting"
-    progress: float = 0.0
     finished_unix_s: float | None = None
     results: dict[str, SensorResult] = field(default_factory=dict)
     floor: dict[str, Any] | None = None
     warnings: list[str] = field(default_factory=list)
     error: str | None = None
     committed_version: int | None = None
+    provisional: dict[str, Matrix4] = field(default_factory=dict)
+    """While the run is active: poses it has solved so far (after its skeleton stage), which
+    viewers use to place the sensors' clouds and bodies before the run ends."""
 
     @property
     def active(self) -> bool:
         return self.state in (RunState.CAPTURING, RunState.SOLVING)
+
+    @property
+    def stage(self) -> str:
+        return self.tracker.stage
+
+    @property
+    def progress(self) -> float:
+        return self.tracker.progress
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -57,8 +70,7 @@ class CalibrationRun:
             "reference": self.spec.reference,
             "sensors": list(self.spec.sensors),
             "state": str(self.state),
-            "stage": self.stage,
-            "progress": round(self.progress, 3),
+            **self.tracker.to_json(),  # stage, stage_index, stages, progress, eta_s, ...
             "created_unix_s": self.created_unix_s,
             "finished_unix_s": self.finished_unix_s,
             "results": {k: v.to_json() for k, v in sorted(self.results.items())},

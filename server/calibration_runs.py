@@ -25,7 +25,6 @@ from __future__ import annotations
 import asyncio
 import logging
 import uuid
-from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
 
@@ -44,10 +43,12 @@ from skelfuse.calibration.solvers import (
 )
 from skelfuse.calibration.store import Calibration, CalibrationStore, SensorCalibration, merge
 from skelfuse.fusion.hub import FusionHub
-from skelfuse.fusion.sensors import bodies_at
 from skelfuse.protocol.transform import Matrix4
-from skelfuse.protocol.wire import Body
+from skelfuse.server import calibration_run_progress as stages
 from skelfuse.server.calibration_run import CalibrationRun, RunSpec, RunState
+from skelfuse.server.calibration_run_capture import capture_skeletons, reference_floor_plane
+from skelfuse.server.calibration_run_checks import validate
+from skelfuse.server.calibration_run_progress import RunProgress, StageRates
 from skelfuse.server.clock import Clock, SystemClock
 from skelfuse.server.depth_clouds import AgentCaller, capture_clouds
 from skelfuse.server.errors import (
@@ -55,17 +56,11 @@ from skelfuse.server.errors import (
     Conflict,
     InvalidRequest,
     NotFound,
-    SensorUnavailable,
     ServerError,
 )
 from skelfuse.server.solver_pool import ProcessSolvers, Solvers
 
 logger = logging.getLogger(__name__)
-
-METHODS = ("auto", "skeleton", "points", "icp", "sensor")
-SAMPLE_HZ = 30.0
-SAMPLE_DELAY_S = 0.15
-"""Sample a little in the past so every sensor's frames around the instant have arrived."""
 
 
 class CalibrationService:
@@ -90,6 +85,7 @@ class CalibrationService:
         self._keep_runs = keep_runs
         self._solvers = solvers or ProcessSolvers()
         self._tasks: set[asyncio.Task[None]] = set()
+        self._rates = StageRates()  # how long each stage took here last time (time left)
         self._store_lock = asyncio.Lock()  # one store write at a time (each awaits a thread)
 
     # --- starting ---------------------------------------------------------------------------
@@ -103,13 +99,14 @@ class CalibrationService:
             SensorUnavailable: a sensor (or the reference) is unknown: never connected.
             InvalidRequest: an unknown method, or unusable points.
         """
-        busy = next((r for r in self.runs.values() if r.active), None)
+        busy = self.active_run()
         if busy is not None:
             raise Conflict(f"run {busy.run_id} is still {busy.state}; wait for it to finish")
-        self._validate(spec)
-        run = CalibrationRun(uuid.uuid4().hex[:12], spec, self._clock.time())
+        validate(spec, self.hub)
+        run = CalibrationRun(uuid.uuid4().hex[:12], spec, self._clock.time(), self._tracker(spec))
         if spec.method == "points":
             # Closed form and instant: solve now, so bad points are a 400, not a failed run.
+            run.tracker.enter(stages.POINTS)
             try:
                 run.results = self._solve_points(spec)
             except CalibrationError as exc:
@@ -135,6 +132,36 @@ class CalibrationService:
         await asyncio.gather(*self._tasks, return_exceptions=True)
         await self._solvers.aclose()
 
+    def _tracker(self, spec: RunSpec) -> RunProgress:
+        """The run's stages, with the work units of each (for the progress split and time left).
+
+        A unit is a second of the walk, a sensor paired (skeleton solve), one capture of every
+        sensor's depth, one sensor refined by ICP (two passes of every non-reference sensor;
+        method ``sensor``: the one sensor once)."""
+        others = max(1, len(spec.sensors) - 1)
+        if spec.method == "sensor":
+            others = max(1, len(self.hub.connected_poses()) - 1)
+        units = {
+            stages.WALK: spec.duration_s,
+            stages.SKELETONS: others,
+            stages.DEPTH: 1,
+            stages.ICP: 1 if spec.method == "sensor" else 2 * others,
+            stages.POINTS: 1,
+        }
+        return RunProgress(stages.STAGES[spec.method], units, self._rates, self._clock)
+
+    def active_run(self) -> CalibrationRun | None:
+        return next((r for r in self.runs.values() if r.active), None)
+
+    def viewer_pose(self, sensor_id: str) -> tuple[Matrix4 | None, str]:
+        """The pose viewers place the sensor's cloud and bodies with: a running calibration's
+        provisional pose once it has one (so people see whether the clouds line up), else what
+        fusion uses (:meth:`FusionHub.pose_of`)."""
+        run = self.active_run()
+        if run is not None and sensor_id in run.provisional:
+            return run.provisional[sensor_id], "provisional"
+        return self.hub.pose_of(sensor_id)
+
     def run(self, run_id: str) -> CalibrationRun:
         """The run with this id.
 
@@ -145,46 +172,6 @@ class CalibrationService:
         if run is None:
             raise NotFound(f"no calibration run {run_id!r}")
         return run
-
-    def _validate(self, spec: RunSpec) -> None:
-        if spec.method not in METHODS:
-            raise InvalidRequest(f"method must be one of {', '.join(METHODS)}")
-        known = self.hub.sensors
-        unknown = [s for s in spec.sensors if s not in known]
-        if spec.reference != "world" and spec.reference not in known:
-            unknown.append(spec.reference)
-        if unknown:  # not connected yet, as far as the server can tell: 409, retry later
-            raise SensorUnavailable(
-                f"unknown sensor(s) {sorted(set(unknown))}: no agent with that id has connected; "
-                f"known: {sorted(known) or 'none'}"
-            )
-        if spec.method == "points":
-            if not spec.points:
-                raise InvalidRequest("method points needs 'points': at least 3 pairs per sensor")
-            return
-        offline = [s for s in spec.sensors if not known[s].connected]
-        if offline:
-            raise Conflict(f"sensor(s) {offline} are offline; start their agents and retry")
-        if spec.method == "sensor":
-            if len(spec.sensors) != 1:
-                raise InvalidRequest("method sensor re-solves one sensor: name it in 'sensor'")
-            if set(self.hub.connected_poses()) <= {spec.sensors[0]}:
-                raise Conflict(
-                    "method sensor solves a sensor against the others: it needs at least one "
-                    "other connected sensor with a pose"
-                )
-            return
-        if len(spec.sensors) < 2 and spec.method in ("skeleton", "auto"):
-            raise Conflict(f"method {spec.method} needs at least 2 connected sensors")
-        if spec.reference not in spec.sensors:
-            raise InvalidRequest("the reference must be one of the run's sensors")
-        if spec.method == "icp":
-            missing = [s for s in spec.sensors if self.hub.pose_of(s)[0] is None]
-            if missing:
-                raise Conflict(
-                    f"icp refines existing poses, but {missing} have none: run 'skeleton', "
-                    "'points' or 'auto' first"
-                )
 
     # --- running ----------------------------------------------------------------------------
 
@@ -197,16 +184,16 @@ class CalibrationService:
                 return
             poses: dict[str, SensorResult] = {}
             if spec.method in ("skeleton", "auto"):
-                share = 0.7 if spec.method == "auto" else 0.95
-                samples = await self._capture_skeletons(run, 0.0, share)
-                run.state, run.stage = RunState.SOLVING, "solving skeleton poses"
-                floor_plane = self._reference_floor_plane(spec.reference)
+                samples = await self._capture(run, spec.sensors)
+                run.state = RunState.SOLVING
+                run.tracker.enter(stages.SKELETONS)
+                floor_plane = reference_floor_plane(self.hub, spec.reference)
                 solution = await self._solvers.run(
                     solve_skeletons, spec.reference, spec.sensors, samples, floor_plane
                 )
                 poses, run.floor = solution.results, solution.floor
                 run.warnings.extend(solution.warnings)
-                run.progress = share
+                run.provisional = {s: r.T_world_from_sensor for s, r in poses.items()}
             if spec.method in ("icp", "auto"):
                 poses = await self._refine(run, spec, poses)
             run.results = poses
@@ -222,13 +209,20 @@ class CalibrationService:
     ) -> dict[str, SensorResult]:
         """ICP on depth clouds from ``poses`` (or the current ones); ``auto`` keeps ``poses`` when
         a sensor has no depth (e.g. a replayed recording) or open3d cannot load here."""
-        run.state, run.stage = RunState.CAPTURING, "capturing depth clouds"
+        run.state = RunState.CAPTURING
+        run.tracker.enter(stages.DEPTH)
         try:
             clouds = await capture_clouds(self._agents, spec.sensors)
-            run.state, run.stage = RunState.SOLVING, "refining with ICP"
+            run.state = RunState.SOLVING
+            run.tracker.enter(stages.ICP)
             start = poses or {s: self._current(s) for s in spec.sensors}
-            refined = await self._solvers.run(
-                refine_with_depth, spec.reference, clouds, start, spec.min_overlap
+            refined = await self._solvers.run_reporting(
+                refine_with_depth,
+                run.tracker.advance,
+                spec.reference,
+                clouds,
+                start,
+                spec.min_overlap,
             )
         except (AgentRequestFailed, IcpUnavailable) as exc:
             if spec.method == "icp":
@@ -246,16 +240,25 @@ class CalibrationService:
         fixed = {s: p for s, p in self.hub.connected_poses().items() if s != sensor_id}
         committed = self._current(sensor_id).T_world_from_sensor
         sensors = (sensor_id, *sorted(fixed))
-        samples = await self._capture_skeletons(run, 0.0, 0.7, sensors)
-        run.state, run.stage = RunState.SOLVING, f"solving {sensor_id} against {sorted(fixed)}"
+        samples = await self._capture(run, sensors)
+        run.state = RunState.SOLVING
+        run.tracker.enter(stages.SKELETONS, f"{sensor_id} against {', '.join(sorted(fixed))}")
         result = await self._solvers.run(solve_sensor, sensor_id, fixed, samples)
-        run.progress = 0.7
-        run.state, run.stage = RunState.CAPTURING, "capturing depth clouds"
+        run.provisional = {sensor_id: result.T_world_from_sensor}
+        run.state = RunState.CAPTURING
+        run.tracker.enter(stages.DEPTH)
         try:
             clouds = await capture_clouds(self._agents, sensors)
-            run.state, run.stage = RunState.SOLVING, "refining with ICP"
-            result = await self._solvers.run(
-                refine_sensor_with_depth, sensor_id, clouds, result, fixed, run.spec.min_overlap
+            run.state = RunState.SOLVING
+            run.tracker.enter(stages.ICP)
+            result = await self._solvers.run_reporting(
+                refine_sensor_with_depth,
+                run.tracker.advance,
+                sensor_id,
+                clouds,
+                result,
+                fixed,
+                run.spec.min_overlap,
             )
         except (AgentRequestFailed, CalibrationError) as exc:
             run.warnings.append(f"no ICP refinement: {exc}; kept the skeleton pose")
@@ -268,7 +271,9 @@ class CalibrationService:
         return {sensor_id: replace(result, metrics=metrics)}
 
     def _finish(self, run: CalibrationRun) -> None:
-        run.state, run.stage, run.progress = RunState.DONE, "done", 1.0
+        run.state = RunState.DONE
+        run.tracker.finish()
+        run.provisional = {}
         run.finished_unix_s = self._clock.time()
         logger.info(
             "calibration run %s done: %s",
@@ -277,7 +282,9 @@ class CalibrationService:
         )
 
     def _fail(self, run: CalibrationRun, message: str) -> None:
-        run.state, run.stage, run.error = RunState.FAILED, "failed", message
+        run.state, run.error = RunState.FAILED, message
+        run.tracker.fail()
+        run.provisional = {}
         run.finished_unix_s = self._clock.time()
         logger.warning("calibration run %s failed: %s", run.run_id, message)
 
@@ -289,40 +296,11 @@ class CalibrationService:
 
     # --- capture ----------------------------------------------------------------------------
 
-    async def _capture_skeletons(
-        self,
-        run: CalibrationRun,
-        start: float,
-        share: float,
-        sensors: Sequence[str] | None = None,
-    ) -> Samples:
-        """Every sensor's (default: the run's) bodies at common instants (:data:`SAMPLE_HZ` per
-        second) for ``duration_s``, while progress goes from ``start`` to ``start + share``."""
-        spec = run.spec
-        sensors = spec.sensors if sensors is None else sensors
-        run.stage = f"walk through the capture area ({spec.duration_s:.0f} s)"
-        samples: dict[str, list[tuple[Body, ...]]] = {s: [] for s in sensors}
-        began = self._clock.monotonic()
-        gap = self.hub.settings.interpolation_gap_s
-        while (elapsed := self._clock.monotonic() - began) < spec.duration_s:
-            run.progress = start + share * elapsed / spec.duration_s
-            t = self._clock.time() - SAMPLE_DELAY_S
-            for sensor_id in sensors:
-                sensor = self.hub.sensors.get(sensor_id)
-                bodies = None
-                if sensor is not None and sensor.connected:
-                    bodies = bodies_at(sensor.frames, t, gap, 1.5 / max(sensor.nominal_fps, 1))
-                samples[sensor_id].append(bodies or ())
-            await self._clock.sleep(1.0 / SAMPLE_HZ)
-        return samples
-
-    def _reference_floor_plane(self, sensor_id: str) -> tuple[float, float, float, float] | None:
-        """The newest floor plane the sensor reported (Kinect ``FloorClipPlane``), if any."""
-        sensor = self.hub.sensors.get(sensor_id)
-        for timed in reversed(sensor.frames if sensor else ()):
-            if timed.frame.floor is not None:
-                return timed.frame.floor
-        return None
+    async def _capture(self, run: CalibrationRun, sensors: tuple[str, ...]) -> Samples:
+        """The walk stage: every sensor's bodies for the run's ``duration_s``."""
+        duration = run.spec.duration_s
+        run.tracker.enter(stages.WALK, f"{duration:.0f} s left")
+        return await capture_skeletons(self.hub, self._clock, sensors, duration, run.tracker)
 
     def _solve_points(self, spec: RunSpec) -> dict[str, SensorResult]:
         if spec.reference == "world":

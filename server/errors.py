@@ -8,6 +8,7 @@
     ├── Conflict                not now: another run is active, a sensor is offline (409)
     │   └── SensorUnavailable   the sensor is unknown or offline
     ├── AgentRequestFailed      an agent refused a request, failed, or did not answer (502)
+    ├── CloudUnavailable        a viewer's depth cloud: the agent cannot give one now (503)
     └── SolverCrashed           the calibration worker process died mid-solve (500)
 
 Errors of the layers below keep their own classes and are mapped here too (most specific class
@@ -72,6 +73,12 @@ class AgentRequestFailed(ServerError):
     """An agent answered a request with an error, or did not answer in time."""
 
     status = 502
+
+
+class CloudUnavailable(ServerError):
+    """The sensor's agent cannot give a depth cloud now (no depth, busy, or it timed out)."""
+
+    status = 503
 
 
 class SolverCrashed(ServerError):

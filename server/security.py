@@ -2,7 +2,8 @@
 
 - **Token**: when ``Settings.api_token`` is set, every REST request that changes something
   (POST, PUT, PATCH, DELETE) and every read of people's data (:data:`PERSONAL_DATA_PATHS`: the
-  fused skeletons, bone lengths, recordings) needs ``Authorization: Bearer <token>``, and the
+  fused skeletons, bone lengths, recordings; :data:`PERSONAL_SENSOR_VIEWS`: a sensor's depth
+  cloud and raw bodies) needs ``Authorization: Bearer <token>``, and the
   WebSocket feed needs ``?token=<token>`` (browsers cannot set headers on a WebSocket). Status
   reads (health, sensors, calibration, metrics) stay open for dashboards and health checks.
   Tokens are compared in constant time.
@@ -29,6 +30,9 @@ MUTATING_METHODS = frozenset({"POST", "PUT", "PATCH", "DELETE"})
 PERSONAL_DATA_PATHS = ("/api/persons", "/api/recordings")
 """Paths (and everything below them) whose reads return people's motion or body measurements:
 the latest fused frame, reference bone lengths, recordings and their downloads or exports."""
+PERSONAL_SENSOR_VIEWS = ("/cloud", "/bodies")
+"""Below ``/api/sensors/{id}``: a sensor's depth cloud and raw bodies show people too (the list
+of sensors itself stays a status read)."""
 
 
 def needs_token(method: str, path: str) -> bool:
@@ -36,6 +40,8 @@ def needs_token(method: str, path: str) -> bool:
     if method.upper() in MUTATING_METHODS:
         return True
     path = path.rstrip("/")
+    if path.startswith("/api/sensors/") and path.endswith(PERSONAL_SENSOR_VIEWS):
+        return True
     return any(path == p or path.startswith(p + "/") for p in PERSONAL_DATA_PATHS)
 
 

@@ -9,6 +9,12 @@ created on first use, kept for the next runs, shut down with the server. Errors 
 come back as the same exception with the same message; a worker that dies fails the call with
 :class:`~skelfuse.server.errors.SolverCrashed`, and the next call gets a fresh worker.
 
+Progress: :meth:`ProcessSolvers.run_reporting` passes the solver a ``progress(fraction,
+detail)`` function; in the worker it puts each report on a multiprocessing queue, which a thread
+of the server reads and hands to the caller's callback on its event loop
+(``loop.call_soon_threadsafe``): the loop never waits for the worker, and a report arriving after
+its call ended is dropped.
+
 :class:`ThreadSolvers` runs them in a thread of this process instead: for tests and embedders that
 inject solver fakes (which a worker process could not import), not for a live server.
 """
@@ -18,6 +24,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import functools
+import itertools
 import logging
 import multiprocessing
 import os
@@ -25,7 +32,7 @@ import threading
 from collections.abc import Callable
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
-from typing import ParamSpec, Protocol, TypeVar
+from typing import Any, ParamSpec, Protocol, TypeVar
 
 from skelfuse.server.errors import SolverCrashed
 
@@ -33,6 +40,9 @@ logger = logging.getLogger(__name__)
 
 P = ParamSpec("P")
 T = TypeVar("T")
+
+Progress = Callable[[float, str], None]
+"""A solver's progress report: share of its work done (0..1) and what it is doing."""
 
 WORKER_NICE = 10
 """Niceness added to the worker: on a small machine the live feed, not the solve, gets the
@@ -54,15 +64,82 @@ class Solvers(Protocol):
         """
         ...
 
+    async def run_reporting(
+        self, fn: Callable[..., T], on_progress: Progress, /, *args: Any, **kwargs: Any
+    ) -> T:
+        """``fn(*args, progress=<reporter>, **kwargs)``'s result; each call of the reporter
+        reaches ``on_progress`` on the caller's event loop, until ``fn`` returns.
+
+        Raises:
+            SolverCrashed: the worker running it died.
+        """
+        ...
+
     async def aclose(self) -> None:
         """Stop the workers (waits for a call still running)."""
         ...
 
 
-def _init_worker(nice: int) -> None:
+_progress_queue: Any = None
+"""In the worker process: where progress reports go (:func:`_init_worker`)."""
+
+
+def _init_worker(nice: int, progress_queue: Any = None) -> None:
     """Runs first in the worker process."""
+    global _progress_queue
+    _progress_queue = progress_queue
     if nice and hasattr(os, "nice"):
         os.nice(nice)
+
+
+def _call_reporting(
+    fn: Callable[..., T], call_id: int, args: tuple[Any, ...], kwargs: dict[str, Any]
+) -> T:
+    """In the worker: ``fn`` with a ``progress`` that puts ``(call_id, fraction, detail)`` on the
+    progress queue (a put does not wait: the queue's feeder thread sends it)."""
+    queue = _progress_queue
+
+    def report(fraction: float, detail: str) -> None:
+        if queue is not None:
+            queue.put((call_id, float(fraction), str(detail)))
+
+    return fn(*args, progress=report, **kwargs)
+
+
+class _ProgressReader:
+    """A thread of the server reading one worker's progress queue and handing each report to
+    the listener of its call, on the listener's event loop."""
+
+    def __init__(
+        self,
+        queue: Any,
+        listeners: dict[int, tuple[asyncio.AbstractEventLoop, Progress]],
+    ) -> None:
+        self.queue = queue
+        self._listeners = listeners
+        self._thread = threading.Thread(target=self._read, name="solver-progress", daemon=True)
+        self._thread.start()
+
+    def _read(self) -> None:
+        while True:
+            try:
+                item = self.queue.get()
+            except (EOFError, OSError, ValueError):  # the queue was closed under us
+                return
+            if item is None:
+                return
+            call_id, fraction, detail = item
+            listener = self._listeners.get(call_id)
+            if listener is None:  # its call has returned: a late report
+                continue
+            loop, callback = listener
+            with contextlib.suppress(RuntimeError):  # the loop closed meanwhile
+                loop.call_soon_threadsafe(callback, fraction, detail)
+
+    def stop(self) -> None:
+        """Let the thread end (it reads the end mark after any report still queued)."""
+        with contextlib.suppress(OSError, ValueError):
+            self.queue.put(None)
 
 
 def _preload() -> None:
@@ -84,13 +161,21 @@ class ProcessSolvers:
         self._nice = nice
         self._pool: ProcessPoolExecutor | None = None
         self._lock = threading.Lock()  # warm() submits from a thread of its own
+        self._reader: _ProgressReader | None = None
+        self._listeners: dict[int, tuple[asyncio.AbstractEventLoop, Progress]] = {}
+        self._call_ids = itertools.count(1)
 
     def _new_pool(self) -> ProcessPoolExecutor:
+        # A queue per worker: one that died mid-report may leave its queue unreadable.
+        if self._reader is not None:
+            self._reader.stop()
+        queue = self._context.Queue()
+        self._reader = _ProgressReader(queue, self._listeners)
         return ProcessPoolExecutor(
             max_workers=1,  # one run at a time, its solves one after another
             mp_context=self._context,
             initializer=_init_worker,
-            initargs=(self._nice,),
+            initargs=(self._nice, queue),
         )
 
     def _submit(self, call: Callable[[], T]) -> tuple[ProcessPoolExecutor, Future[T]]:
@@ -110,9 +195,23 @@ class ProcessSolvers:
         threading.Thread(target=self._submit, args=(_preload,), name="solver-warm").start()
 
     async def run(self, fn: Callable[P, T], /, *args: P.args, **kwargs: P.kwargs) -> T:
+        return await self._run(functools.partial(fn, *args, **kwargs), fn)
+
+    async def run_reporting(
+        self, fn: Callable[..., T], on_progress: Progress, /, *args: Any, **kwargs: Any
+    ) -> T:
+        call_id = next(self._call_ids)
+        self._listeners[call_id] = (asyncio.get_running_loop(), on_progress)
+        try:
+            call = functools.partial(_call_reporting, fn, call_id, args, kwargs)
+            return await self._run(call, fn)
+        finally:
+            self._listeners.pop(call_id, None)
+
+    async def _run(self, call: Callable[[], T], fn: Callable[..., Any]) -> T:
         # Submitting from a thread: the first submit starts the process, 10-25 ms (more under
         # load) of the submitting thread, which must not be the event loop's.
-        pool, future = await asyncio.to_thread(self._submit, functools.partial(fn, *args, **kwargs))
+        pool, future = await asyncio.to_thread(self._submit, call)
         try:
             return await asyncio.wrap_future(future)  # what loop.run_in_executor does
         except BrokenProcessPool as exc:
@@ -130,8 +229,11 @@ class ProcessSolvers:
     async def aclose(self) -> None:
         with self._lock:
             pool, self._pool = self._pool, None
+            reader, self._reader = self._reader, None
         if pool is not None:
             await asyncio.to_thread(pool.shutdown, wait=True, cancel_futures=True)
+        if reader is not None:
+            reader.stop()
 
 
 class ThreadSolvers:
@@ -143,6 +245,21 @@ class ThreadSolvers:
 
     async def run(self, fn: Callable[P, T], /, *args: P.args, **kwargs: P.kwargs) -> T:
         return await asyncio.to_thread(fn, *args, **kwargs)
+
+    async def run_reporting(
+        self, fn: Callable[..., T], on_progress: Progress, /, *args: Any, **kwargs: Any
+    ) -> T:
+        loop = asyncio.get_running_loop()
+        done = False
+
+        def report(fraction: float, detail: str) -> None:
+            if not done:  # as the worker's: nothing after the call returned
+                loop.call_soon_threadsafe(on_progress, fraction, detail)
+
+        try:
+            return await self.run(fn, *args, progress=report, **kwargs)
+        finally:
+            done = True
 
     async def aclose(self) -> None:
         """Nothing to stop: each call's thread ends with it."""

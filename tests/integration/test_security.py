@@ -46,6 +46,8 @@ PERSONAL_READS = {
     "/api/persons/{person_id}/bones",
     "/api/recordings",
     "/api/recordings/{recording_id}/download",
+    "/api/sensors/{sensor_id}/cloud",
+    "/api/sensors/{sensor_id}/bodies",
 }
 OPEN_READS = {
     "/api/health", "/api/sensors", "/api/skeleton", "/api/clients", "/api/calibration",
@@ -60,7 +62,9 @@ def test_every_read_of_people_needs_the_token_status_reads_do_not(guarded: LiveS
     gets = {r.path for r in app.routes if isinstance(r, APIRoute | Route) and "GET" in r.methods}
     assert gets - PERSONAL_READS - OPEN_READS == set(), "classify the new route(s) above"
     for template in sorted(gets):
-        url = guarded.http_url + template.format(person_id=1, recording_id="x", run_id="x")
+        url = guarded.http_url + template.format(
+            person_id=1, recording_id="x", run_id="x", sensor_id="x"
+        )
         anonymous = httpx.get(url)
         if template in PERSONAL_READS:
             assert anonymous.status_code == 401, template
