@@ -4,6 +4,10 @@ The one builder of these messages (docs/api.md), used by the live server and by 
 NaN never leaves the server: unknown joints become ``null``. Tracking ids become strings because
 a uint64 does not fit a JavaScript number. The builder reads the fusion results through the small
 protocols below, so this layer does not import the fusion layer that produces them.
+
+Two additions leave the default message's bytes as they were: a person's (and a raw body's)
+``hands`` only where a sensor reports hand states, and joint rotations only for clients that
+ask for them (``orientations``, computed by the server: ``recording/joint_orientations.py``).
 """
 
 from __future__ import annotations
@@ -13,6 +17,8 @@ from typing import Final, Protocol
 
 import numpy as np
 import numpy.typing as npt
+
+from skelfuse.protocol.hands import Hands
 
 FEED_VERSION: Final = 1
 """The ``v`` of every feed message."""
@@ -39,6 +45,29 @@ class FeedPerson(Protocol):
     def joint_sources(self) -> npt.NDArray[np.integer]: ...
     @property
     def mirrored(self) -> Sequence[str]: ...
+    @property
+    def hands(self) -> Hands | None: ...
+
+
+class FeedOrientations(Protocol):
+    """Joint rotations of a frame's persons, in the frame's person order
+    (``skelfuse.recording.joint_orientations.Orientations``).
+
+    world, local: (P, 25, 4) unit quaternions ``(x, y, z, w)``.
+    rest_offsets: (P, 25, 3) metres.
+    """
+
+    @property
+    def world(self) -> npt.NDArray[np.floating]: ...
+    @property
+    def local(self) -> npt.NDArray[np.floating]: ...
+    @property
+    def rest_offsets(self) -> npt.NDArray[np.floating]: ...
+
+
+QUATERNION_DECIMALS: Final = 5
+"""Rotations are sent to 1e-5 (about 0.001°): along the longest chain, SpineBase to a hand tip
+(nine bones, about 1.5 m), that moves the tip by at most about 0.1 mm."""
 
 
 class FeedView(Protocol):
@@ -56,6 +85,8 @@ class FeedView(Protocol):
     def joints_world(self) -> npt.NDArray[np.floating]: ...
     @property
     def states(self) -> npt.NDArray[np.uint8]: ...
+    @property
+    def hands(self) -> Hands | None: ...
 
 
 class FeedFrame(Protocol):
@@ -104,13 +135,41 @@ def round_like_python(values: npt.NDArray[np.float64], decimals: int) -> npt.NDA
     return out
 
 
-def persons_json(persons: Sequence[FeedPerson], decimals: int = 4) -> list[dict[str, object]]:
+def hands_json(hands: Hands) -> dict[str, object]:
+    """One body's hand states: per hand (the person's left and right) its state and confidence,
+    by name (``open``, ``closed``, ``lasso``, ``unknown``, ``not_tracked``; ``high``, ``low``)."""
+    return {
+        side: {"state": state.name.lower(), "confidence": confidence.name.lower()}
+        for side, state, confidence in (
+            ("left", hands.left, hands.left_confidence),
+            ("right", hands.right, hands.right_confidence),
+        )
+    }
+
+
+def _rows(values: npt.NDArray[np.floating], decimals: int) -> list[list[list[float]]]:
+    """(P, J, K) numbers rounded, as nested lists (no ``-0.0``)."""
+    rows: list[list[list[float]]] = (np.round(values.astype(np.float64), decimals) + 0.0).tolist()
+    return rows
+
+
+def persons_json(
+    persons: Sequence[FeedPerson],
+    decimals: int = 4,
+    orientations: FeedOrientations | None = None,
+) -> list[dict[str, object]]:
     """Fused persons as apps receive them: NaN never leaves the server (null instead).
 
     Confidence is 0 exactly where the joint is null (docs/api.md): a joint that is present but
     only barely trusted is sent as 0.001, not rounded away to 0. The rounding runs once over
     every person of the frame (numpy calls, not one Python call per number), and gives the
     numbers ``round`` gave person by person.
+
+    Args:
+        persons: the frame's fused persons.
+        decimals: of the joint positions (metres).
+        orientations: the persons' joint rotations, in the same order, for a client that asked
+            for them (``rotations``, ``local_rotations``, ``rest_offsets``); None leaves them out.
     """
     if not persons:
         return []
@@ -128,17 +187,26 @@ def persons_json(persons: Sequence[FeedPerson], decimals: int = 4) -> list[dict[
     all_confidence: list[list[float]] = sent_confidence.tolist()
     out: list[dict[str, object]] = []
     for person, rows, conf in zip(persons, all_rows, all_confidence, strict=True):
-        out.append(
-            {
-                "id": person.person_id,
-                "joints": rows,
-                "confidence": conf,
-                "sources": list(person.sources),
-                # Per joint, bit k set when sources[k] contributed (≥ 5 % of its weight).
-                "joint_sources": np.asarray(person.joint_sources).tolist(),
-                "mirrored": list(person.mirrored),
-            }
-        )
+        message: dict[str, object] = {
+            "id": person.person_id,
+            "joints": rows,
+            "confidence": conf,
+            "sources": list(person.sources),
+            # Per joint, bit k set when sources[k] contributed (≥ 5 % of its weight).
+            "joint_sources": np.asarray(person.joint_sources).tolist(),
+            "mirrored": list(person.mirrored),
+        }
+        if person.hands is not None:  # only where a sensor reports them: others' bytes as before
+            message["hands"] = hands_json(person.hands)
+        out.append(message)
+    if orientations is not None:
+        world = _rows(orientations.world, QUATERNION_DECIMALS)
+        local = _rows(orientations.local, QUATERNION_DECIMALS)
+        offsets = _rows(orientations.rest_offsets, decimals)
+        for k, message in enumerate(out):
+            message["rotations"] = world[k]
+            message["local_rotations"] = local[k]
+            message["rest_offsets"] = offsets[k]
     return out
 
 
@@ -149,16 +217,22 @@ def person_json(person: FeedPerson, decimals: int = 4) -> dict[str, object]:
 
 def view_json(view: FeedView, decimals: int = 4) -> dict[str, object]:
     """One sensor's body as sent in a frame's ``raw`` list."""
-    return {
+    message: dict[str, object] = {
         "sensor": view.sensor_id,
         "tracking_id": str(view.tracking_id),  # uint64 does not fit a JavaScript number
         "joints": joints_json(view.joints_world, decimals),
         "states": np.asarray(view.states).tolist(),
     }
+    if view.hands is not None:
+        message["hands"] = hands_json(view.hands)
+    return message
 
 
 def frame_json(
-    frame: FeedFrame, include_raw: bool, sent_at_s: float | None = None
+    frame: FeedFrame,
+    include_raw: bool,
+    sent_at_s: float | None = None,
+    orientations: FeedOrientations | None = None,
 ) -> dict[str, object]:
     """A fused frame message.
 
@@ -167,6 +241,8 @@ def frame_json(
         include_raw: add every sensor's bodies (``raw``), for clients that asked for them.
         sent_at_s: the server's wall clock when sending (Unix seconds), sent as ``t_sent``; None
             leaves ``t_sent`` out, as offline replay does so that its output is deterministic.
+        orientations: the persons' joint rotations (in ``frame.persons`` order), for clients
+            that asked for them; None leaves them out.
     """
     message: dict[str, object] = {
         "type": "frame",
@@ -176,7 +252,7 @@ def frame_json(
     }
     if sent_at_s is not None:
         message["t_sent"] = round(sent_at_s, 6)
-    message["persons"] = persons_json(frame.persons)
+    message["persons"] = persons_json(frame.persons, orientations=orientations)
     if frame.extrapolated:  # only then: frames fused with every sensor on time stay as before
         message["extrapolated"] = {sensor: round(s, 4) for sensor, s in frame.extrapolated}
     if include_raw:

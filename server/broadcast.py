@@ -9,12 +9,14 @@ never a queue of old ones, and a client that keeps up gets every frame. A client
 frame has waited ``send_timeout_s`` (``ws_send_timeout_s``, 5 s), or whose greeting takes that
 long, is closed with code 1008 and counted as evicted.
 
-Each fused frame is encoded once per (format, raw) variant, however many clients want it, and
-that one text or bytes object, with its WebSocket framing, is what every such client's mailbox
-holds (a server that takes pre-framed messages, ``PREFRAMED``, writes the framing as is).
-JSON is encoded by orjson (about a tenth of ``json.dumps``'s time), whose output for feed
-messages is the same text as ``json.dumps(..., separators=(",", ":"))`` except that non-ASCII
-is written as UTF-8, not ``\\u`` escapes, and NaN or infinity become ``null``.
+Each fused frame is encoded once per (format, raw, rotations) variant, however many clients
+want it, and that one text or bytes object, with its WebSocket framing, is what every such
+client's mailbox holds (a server that takes pre-framed messages, ``PREFRAMED``, writes the
+framing as is). The persons' joint rotations are computed once per frame, only when a client
+asked for them (``recording/joint_orientations.py``). JSON is encoded by orjson (about a tenth
+of ``json.dumps``'s time), whose output for feed messages is the same text as
+``json.dumps(..., separators=(",", ":"))`` except that non-ASCII is written as UTF-8, not ``\\u``
+escapes, and NaN or infinity become ``null``.
 
 The socket is anything with :class:`FeedSocket`'s three methods (the app adapts Starlette's
 WebSocket), so this module is tested with a fake one.
@@ -25,17 +27,20 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
 from itertools import count
 from typing import Any, Protocol
 
 import msgpack
+import numpy as np
 import orjson
 from websockets.frames import Frame, Opcode
 
 from skelfuse.fusion.hub import FusedFrame
+from skelfuse.fusion.views import FusedPerson
 from skelfuse.protocol.feed import frame_json
+from skelfuse.recording.joint_orientations import Orientations, orientations
 
 logger = logging.getLogger(__name__)
 
@@ -51,6 +56,14 @@ CLOSE_WAIT_S = 1.0
 class Variant:
     binary: bool  # msgpack instead of JSON
     raw: bool  # include every sensor's raw bodies
+    rotations: bool = False  # include the persons' joint rotations (docs/api.md, "Rotations")
+
+
+def persons_orientations(persons: Sequence[FusedPerson]) -> Orientations | None:
+    """The joint rotations of a frame's persons, in their order (None for no person)."""
+    if not persons:
+        return None
+    return orientations(np.stack([p.joints for p in persons]))
 
 
 @dataclass(frozen=True, slots=True)
@@ -185,15 +198,18 @@ class Broadcaster:
         """
         self.published += 1
         cache: dict[Variant, Outgoing] = {}
+        rotations: list[Orientations | None] = []  # computed once, for the first that asks
         for client in list(self.clients.values()):
-            message = cache.get(client.variant)
+            variant = client.variant
+            message = cache.get(variant)
             if message is None:
-                message = outgoing(
-                    encode_message(
-                        frame_json(frame, client.variant.raw, now_s), client.variant.binary
-                    )
+                if variant.rotations and not rotations:
+                    rotations.append(persons_orientations(frame.persons))
+                built = frame_json(
+                    frame, variant.raw, now_s, rotations[0] if variant.rotations else None
                 )
-                cache[client.variant] = message
+                message = outgoing(encode_message(built, variant.binary))
+                cache[variant] = message
             client.offer(message, now_mono)
 
     async def serve(self, client: Client, socket: FeedSocket, greeting: bytes | str) -> None:
@@ -233,6 +249,7 @@ class Broadcaster:
                 "remote": c.remote,
                 "format": "msgpack" if c.variant.binary else "json",
                 "raw": c.variant.raw,
+                "rotations": c.variant.rotations,
                 "sent": c.sent,
                 "conflated": c.conflated,
                 "dropped": c.conflated,  # the name before conflation, kept for existing readers
