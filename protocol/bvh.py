@@ -12,7 +12,12 @@ the file.
 Forward kinematics: the local rotation of a joint is the product of its rotation channels in
 the order of its ``CHANNELS`` line (``Zrotation Yrotation Xrotation`` gives R = Rz·Ry·Rx, angles
 in degrees); its global rotation is the parent's global rotation times that; a joint sits at
-parent position + parent R · OFFSET (plus its own position channels, if any, added to OFFSET).
+parent position + parent R · (its local translation). The local translation is OFFSET, except
+that a position channel *replaces* OFFSET's component on its axis: the BVH convention, as
+Blender's importer and bvhio read it (a joint with ``Xposition Yposition Zposition`` sits at its
+channels' values from the parent whatever its OFFSET says; OFFSET is then its rest pose). Where
+a joint has only some position channels, bvhio keeps OFFSET on the other axes, as here, and
+Blender takes 0 there; files with all three (ours, CMU's roots) read the same everywhere.
 """
 
 from __future__ import annotations
@@ -292,7 +297,7 @@ def forward_kinematics(bvh: Bvh) -> F64:
         for ch in joint.channels:
             key = ch.lower()
             if key in _POSITION_AXIS:
-                translation[:, _POSITION_AXIS[key]] += data[:, column]
+                translation[:, _POSITION_AXIS[key]] = data[:, column]
             else:
                 rot_axes.append(_ROTATION_AXIS[key])
                 rot_angles.append(np.deg2rad(data[:, column]))

@@ -63,9 +63,11 @@ def bvh_from_joints(
 ) -> str:
     """BVH text for (T, 25, 3) world positions (metres, Y up) sampled at ``fps``.
 
-    ``stretch``: also give every bone position channels carrying its per-frame length change, so
-    the file reproduces the fused joints exactly (analysis tools); default rigid bones
-    (animation tools), which reproduce them within the fused bone-length jitter.
+    ``stretch``: also give every joint position channels carrying its per-frame local
+    translation (the full translation from its parent, which replaces OFFSET as the BVH
+    convention says; OFFSET stays the rest bone), so the file reproduces the fused joints
+    exactly (analysis tools); default rigid bones (animation tools), which reproduce them within
+    the fused bone-length jitter.
 
     Raises:
         TakeError: ``joints`` is not (T >= 1, 25, 3).
@@ -86,10 +88,10 @@ def bvh_from_joints(
     angles = euler_zxy_deg(local)
     columns = [roots * CM_PER_M, angles[:, 0]]
     if stretch:
-        stretches = _stretches(joints, offsets, rotations, roots)
+        translations = _translations(joints, offsets, rotations, roots)
         for n in range(1, len(NODES)):
             if _stretchable(n):
-                columns.append(stretches[:, n] * CM_PER_M)
+                columns.append(translations[:, n] * CM_PER_M)
             columns.append(angles[:, n])
     else:
         columns.append(angles[:, 1:].reshape(joints.shape[0], -1))
@@ -124,11 +126,13 @@ def _stretchable(n: int) -> bool:
     return node.parent >= 0 and node.child is None
 
 
-def _stretches(joints: F64, offsets: F64, rotations: F64, roots: F64) -> F64:
-    """Per-frame offset changes (T, nodes, 3) in the parent node's frame that put each joint
-    exactly on its fused position (zero where the joint is unknown)."""
+def _translations(joints: F64, offsets: F64, rotations: F64, roots: F64) -> F64:
+    """Per-frame local translations (T, nodes, 3), metres, in the parent node's frame, that put
+    each stretchable joint exactly on its fused position: what its position channels carry (the
+    BVH convention: the channels replace OFFSET). Where the joint is unknown it keeps its last
+    known translation (the rest offset before the first), as its rotation is kept."""
     frames = joints.shape[0]
-    deltas = np.zeros((frames, len(NODES), 3))
+    translations = np.zeros((frames, len(NODES), 3))
     positions = np.zeros((frames, JOINT_COUNT, 3))
     positions[:, 0] = roots
     for n, node in enumerate(NODES):
@@ -137,11 +141,12 @@ def _stretches(joints: F64, offsets: F64, rotations: F64, roots: F64) -> F64:
         j, parent_joint = node.joint, NODES[node.parent].joint
         parent_rot = rotations[:, node.parent]
         base = positions[:, parent_joint]
-        wanted = np.einsum("fji,fj->fi", parent_rot, joints[:, j] - base) - offsets[j]
+        wanted = np.einsum("fji,fj->fi", parent_rot, joints[:, j] - base)
         known = np.isfinite(wanted).all(axis=1)
-        deltas[known, n] = wanted[known]
-        positions[:, j] = base + np.einsum("fij,fj->fi", parent_rot, offsets[j] + deltas[:, n])
-    return deltas
+        held = np.vstack([offsets[j], wanted[known]])  # row k: the k-th known frame's
+        translations[:, n] = held[np.cumsum(known)]
+        positions[:, j] = base + np.einsum("fij,fj->fi", parent_rot, translations[:, n])
+    return translations
 
 
 def export_bvh(

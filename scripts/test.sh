@@ -11,6 +11,9 @@ echo "==> installing skelfuse with the dev extras"
 if ! command -v chromium >/dev/null 2>&1; then
   install_debian_packages "the viewer's browser tests need it (skipped without it)" chromium
 fi
+if ! command -v blender >/dev/null 2>&1; then
+  install_debian_packages "the export tests import our BVH files into Blender headless (skipped without it)" blender
+fi
 ensure_open3d_libraries
 
 echo "==> ruff"

@@ -36,6 +36,29 @@ def test_written_file_reads_back_as_the_same_hierarchy_and_motion() -> None:
     np.testing.assert_allclose(positions[1, bvh.index("Leg.end")], [2, 2, 5], atol=1e-12)
 
 
+def test_position_channels_replace_the_offset_as_the_bvh_convention_says() -> None:
+    # Blender's importer and bvhio place a joint with position channels at the channels' values
+    # from its parent: OFFSET is only its rest pose (it used to be added here, which no other
+    # reader does).
+    joints = (
+        BvhJoint("Hips", -1, np.array([5.0, 0.0, 0.0]), ("Xposition", "Yposition", "Zposition")),
+        BvhJoint(
+            "Arm",
+            0,
+            np.array([1.0, 0.0, 0.0]),
+            ("Xposition", "Yposition", "Zposition", "Zrotation"),
+        ),
+        BvhJoint("Arm.end", 1, np.array([0.0, 2.0, 0.0]), end_site=True),
+        BvhJoint("Leg", 0, np.array([0.0, -1.0, 0.0]), ("Yposition",)),
+    )
+    motion = np.array([[10.0, 20.0, 30.0, 0.0, 3.0, 0.0, 90.0, -4.0]])
+    positions = forward_kinematics(parse_bvh(format_bvh(Bvh(joints, 1 / 30, 30.0, motion))))
+    np.testing.assert_allclose(positions[0, 0], [10, 20, 30], atol=1e-12)
+    np.testing.assert_allclose(positions[0, 1], [10, 23, 30], atol=1e-12)
+    np.testing.assert_allclose(positions[0, 2], [8, 23, 30], atol=1e-12)  # Rz(90) turns +Y to -X
+    np.testing.assert_allclose(positions[0, 3], [10, 16, 30], atol=1e-12)  # X, Z kept from OFFSET
+
+
 def test_channel_names_are_spelled_as_bvh_does() -> None:
     text = format_bvh(Bvh(ARM, 1 / 30, 30.0, MOTION)).replace(
         "Zrotation Xrotation", "ZROTATION xrotation"
