@@ -13,6 +13,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
+from skelfuse.fusion import kernels
 from skelfuse.protocol.skeleton import JOINT_COUNT, PARENTS, JointId
 
 FloatArray = npt.NDArray[np.float64]
@@ -280,8 +281,14 @@ def joint_angles(views: npt.ArrayLike) -> dict[str, tuple[FloatArray, int]]:
 def rom_factors_and_forward(
     views: npt.ArrayLike, scale_deg: float
 ) -> tuple[FloatArray, FloatArray]:
-    """:func:`range_of_motion_factors` and the views' ``forward`` axes (:func:`body_frame`)."""
+    """:func:`range_of_motion_factors` and the views' ``forward`` axes (:func:`body_frame`).
+
+    Runs the compiled kernel when :func:`skelfuse.fusion.kernels.enabled` (the same bits); the
+    numpy code below is the reference.
+    """
     joints = np.asarray(views, dtype=np.float64)
+    if kernels.enabled():
+        return kernels.rom_factors_and_forward(joints, scale_deg, _ANGLE_LOW, _ANGLE_HIGH)
     major = np.ascontiguousarray(joints.transpose(2, 0, 1))  # fancy indexing is faster on it
     with np.errstate(invalid="ignore", divide="ignore"):
         left, up, forward = _body_frame(major)

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import TextIO
 
 from skelfuse.calibration.store import Calibration, SensorCalibration
+from skelfuse.fusion import kernels
 from skelfuse.fusion.hub import FusedFrame, FusionHub
 from skelfuse.fusion.settings import HubSettings
 from skelfuse.protocol.feed import frame_json
@@ -31,6 +32,9 @@ class ReplayStats:
     first_t_s: float | None = None
     last_t_s: float | None = None
     read: ReadStatus | None = None
+    warm_up_s: float = 0.0
+    """Seconds spent compiling (or loading from cache) the fusion kernels before the first
+    record (0.0 with the kernels off: :mod:`skelfuse.fusion.kernels`)."""
 
     @property
     def duration_s(self) -> float:
@@ -72,6 +76,7 @@ def replay(
         RecordingError: the file is not a readable recording.
     """
     stats = stats if stats is not None else ReplayStats()
+    stats.warm_up_s = kernels.warm_up()  # compile before the first frame, not inside one
     with RecordingReader(path, strict=strict) as reader:
         stats.read = reader.status
         settings = settings or HubSettings()

@@ -1,0 +1,103 @@
+"""The compiled fusion kernels give the same bits as their numpy reference, on random inputs.
+
+Each kernel (skelfuse.fusion.kernels) is run against the numpy code it replaces, on skeletons
+from the simulator with noise, unknown joints, whole missing trunks and plain random points;
+the results must be byte-identical (the kernels repeat numpy's operations in its order). The
+golden replay (test_golden_replay.py) is run with the kernels on and off in the same way.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from skelfuse.agent.sim.performer import ProceduralPerformer
+from skelfuse.fusion import anatomy, kernels
+from skelfuse.fusion.kernels_jit import numba_module
+from skelfuse.protocol.skeleton import JointId as J
+from tests.unit import test_golden_replay as golden
+
+FloatArray = np.ndarray
+
+
+@pytest.fixture
+def numba_kernels() -> Iterator[None]:
+    """The kernels on; skips (fails under CI, where the dev extra installs numba) without numba."""
+    if numba_module() is None:
+        if os.environ.get("CI"):
+            pytest.fail("CI installs the dev extra, which has numba: the kernels must be tested")
+        pytest.skip("numba is not installed (pip install -e .[fast])")
+    with kernels.forced("numba"):
+        yield
+
+
+def _views(seed: int) -> FloatArray:
+    """(M, 25, 3) views: simulated poses with noise, unknown joints, missing trunk parts, and
+    random points (angles far outside every range, degenerate frames)."""
+    rng = np.random.default_rng(seed)
+    performer = ProceduralPerformer(3)
+    poses = np.concatenate([performer.joints_at(t) for t in rng.uniform(0, 60, 12)])
+    poses = poses + rng.normal(0.0, 0.05, poses.shape)
+    noisy = poses + rng.normal(0.0, 0.3, poses.shape)
+    unknown = noisy.copy()
+    unknown[rng.random(unknown.shape[:2]) < 0.15] = np.nan
+    trunk = poses[:8].copy()
+    trunk[0:2, [J.HIP_LEFT, J.SHOULDER_RIGHT]] = np.nan  # the hips and the shoulders cut
+    trunk[2:4, J.HIP_RIGHT, 1] = np.nan  # one hip known, the shoulders whole
+    trunk[4:6, J.SPINE_SHOULDER] = np.nan  # no up axis
+    trunk[6, J.HIP_LEFT] = trunk[6, J.HIP_RIGHT]  # a zero-length lateral vector
+    random = rng.normal(0.0, 1.0, (20, 25, 3))
+    coincident = np.zeros((2, 25, 3))
+    return np.concatenate([poses, noisy, unknown, trunk, random, coincident])
+
+
+def _same_bits(a: FloatArray, b: FloatArray) -> bool:
+    return a.shape == b.shape and a.dtype == b.dtype and a.tobytes() == b.tobytes()
+
+
+@pytest.mark.parametrize("seed", range(5))
+@pytest.mark.parametrize("scale_deg", [15.0, 7.5])
+def test_rom_kernel_gives_the_numpy_bits(numba_kernels: None, seed: int, scale_deg: float) -> None:
+    views = _views(seed)
+    factors, forward = anatomy.rom_factors_and_forward(views, scale_deg)
+    with kernels.forced("numpy"):
+        assert not kernels.enabled()
+        expected_factors, expected_forward = anatomy.rom_factors_and_forward(views, scale_deg)
+    assert _same_bits(factors, expected_factors)
+    assert _same_bits(forward, expected_forward)
+    assert (factors < 1.0).any() and np.isnan(forward).any()  # the inputs reach every branch
+
+
+def test_forcing_numpy_turns_the_kernels_off(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv(kernels.ENV, "numpy")
+    assert kernels.mode() == "numpy" and not kernels.enabled()
+    assert kernels.warm_up() == 0.0
+    monkeypatch.setenv(kernels.ENV, "fortran")
+    with pytest.raises(ValueError, match="SKELFUSE_KERNELS"):
+        kernels.mode()
+    with kernels.forced("auto"):
+        assert kernels.mode() == "auto"
+    with pytest.raises(ValueError, match="mode must be"):
+        kernels.forced("fortran").__enter__()
+
+
+def test_warm_up_compiles_every_kernel(numba_kernels: None) -> None:
+    assert kernels.warm_up() > 0.0
+    views = _views(0)[:4]
+    assert anatomy.rom_factors_and_forward(views, 15.0)[0].shape == (4, 25)
+
+
+@pytest.mark.parametrize("mode", ["numpy", "numba"])
+@pytest.mark.parametrize("config", sorted(golden.DIGESTS))
+def test_golden_replay_on_each_path(mode: str, config: str, tmp_path: Path) -> None:
+    """test_golden_replay.py's digests, with the kernels forced on and forced off."""
+    if mode == "numba" and numba_module() is None:
+        if os.environ.get("CI"):
+            pytest.fail("CI installs the dev extra, which has numba: the kernels must be tested")
+        pytest.skip("numba is not installed (pip install -e .[fast])")
+    with kernels.forced(mode):
+        golden.test_replay_output_is_byte_identical_to_the_golden_digest(config, tmp_path)
