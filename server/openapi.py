@@ -10,6 +10,8 @@ the middleware and FastAPI and is added here, from the same rules that produce i
 - **413** (``server/body_limit.py``) and **400** (a body that is not JSON text, which FastAPI
   refuses before validation) on every operation that takes a body;
 - **422** FastAPI declares itself, on operations with parameters or a body.
+
+:func:`install` also serves the document's pages: ``/docs`` offline (``server/api_docs.py``).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from typing import Any
 
 from fastapi import FastAPI
 
+from skelfuse.server import api_docs
 from skelfuse.server.errors import ErrorBody
 from skelfuse.server.security import needs_token
 
@@ -72,7 +75,12 @@ def _add(responses: dict[str, Any], status: int, description: str) -> None:
 
 
 def install(app: FastAPI, token_required: bool, max_body_bytes: int) -> None:
-    """Make ``app``'s ``/openapi.json`` carry the common errors (generated once, on first use)."""
+    """Make ``app``'s ``/openapi.json`` carry the common errors (generated once, on first use),
+    and serve ``/docs`` from the installed Swagger UI instead of a CDN (:mod:`api_docs`).
+
+    Raises:
+        RuntimeError: Swagger UI's files are missing (a broken install).
+    """
     generate = app.openapi
     completed: list[dict[str, Any]] = []
 
@@ -84,3 +92,4 @@ def install(app: FastAPI, token_required: bool, max_body_bytes: int) -> None:
         return completed[0]
 
     app.openapi = openapi  # type: ignore[method-assign]
+    api_docs.install(app)
