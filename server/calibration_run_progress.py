@@ -116,7 +116,11 @@ class RunProgress:
         return self._units.get(stage, 1.0) * (PRIOR_S_PER_UNIT[stage] if rate is None else rate)
 
     def enter(self, stage: str, detail: str = "") -> None:
-        """Start ``stage`` (a later one of ``stages``: skipped ones count as done)."""
+        """Start ``stage`` (a later one of ``stages``: skipped ones count as done; the current
+        one again: only its detail changes)."""
+        if 0 <= self.index < len(self.stages) and self.stages[self.index] == stage:
+            self.detail = detail
+            return
         now = self._clock.monotonic()
         self._end_stage(now)
         self._base = self.progress

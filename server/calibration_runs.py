@@ -113,6 +113,7 @@ class CalibrationService:
                 raise InvalidRequest(str(exc)) from exc
             self._finish(run)
         else:
+            run.tracker.enter(run.tracker.stages[0])  # its first stage from the first answer
             self._solvers.warm()  # the worker starts and imports while the capture runs
             task = asyncio.create_task(self._execute(run), name=f"calibration-{run.run_id}")
             self._tasks.add(task)
