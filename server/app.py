@@ -21,7 +21,7 @@ from prometheus_client import CollectorRegistry, make_asgi_app
 from skelfuse import __version__
 from skelfuse.calibration.store import CalibrationStore
 from skelfuse.fusion.hub import FusionHub
-from skelfuse.protocol.feed import person_json
+from skelfuse.protocol.feed import persons_json
 from skelfuse.protocol.skeleton import skeleton_definition
 from skelfuse.server import (
     openapi,
@@ -33,7 +33,14 @@ from skelfuse.server import (
 from skelfuse.server.agent_requests import AgentRequests
 from skelfuse.server.auth import SensorAuthenticator
 from skelfuse.server.body_limit import BodyLimit
-from skelfuse.server.broadcast import PREFRAMED, Broadcaster, Outgoing, Variant, encode_message
+from skelfuse.server.broadcast import (
+    PREFRAMED,
+    Broadcaster,
+    Outgoing,
+    Variant,
+    encode_message,
+    persons_orientations,
+)
 from skelfuse.server.calibration_runs import CalibrationService
 from skelfuse.server.clock import SystemClock
 from skelfuse.server.depth_clouds import LatestClouds
@@ -169,14 +176,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         }
 
     @app.get("/api/persons", tags=["status"])
-    async def persons() -> dict[str, object]:
+    async def persons(rotations: bool = Query(False)) -> dict[str, object]:
         latest = hub_of(app).latest
         if latest is None:
             return {"seq": 0, "t": None, "persons": []}
+        joint_rotations = persons_orientations(latest.persons) if rotations else None
         return {
             "seq": latest.seq,
             "t": round(latest.t_s, 6),
-            "persons": [person_json(p) for p in latest.persons],
+            "persons": persons_json(latest.persons, orientations=joint_rotations),
         }
 
     @app.get("/api/skeleton", tags=["status"])
@@ -193,6 +201,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         websocket: WebSocket,
         format: Literal["json", "msgpack"] = Query("json"),
         raw: bool = Query(False),
+        rotations: bool = Query(False),
         token: str | None = Query(None),
     ) -> None:
         if not token_ok(settings.api_token, token):
@@ -205,7 +214,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         await websocket.accept()
         broadcaster: Broadcaster = app.state.broadcaster
         binary = format == "msgpack"
-        client = broadcaster.add(Variant(binary, raw), str(websocket.client), time.time())
+        variant = Variant(binary, raw, rotations)
+        client = broadcaster.add(variant, str(websocket.client), time.time())
         greeting = encode_message(skeleton_definition(), binary)
         await broadcaster.serve(client, _WebSocketFeed(websocket), greeting)
 
