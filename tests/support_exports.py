@@ -124,3 +124,91 @@ def fused_motion_at(track: PersonTrack, start_s: float, fps: float, count: int) 
         out[(nearest > 1e-6) & (gap > MAX_GAP_S), j] = np.nan
     on_sample = np.abs(times[None, :] - grid[:, None]).min(axis=1) <= 1e-6
     return Reference(out, on_sample)
+
+
+def bvhio_positions_m(path: Path, names: list[str]) -> F64:
+    """World positions (frames, names, 3) in metres as bvhio computes them (our BVH is in cm).
+
+    Raises:
+        ImportError: bvhio is not installed (it is in the dev extra).
+    """
+    import bvhio  # an independent reader: imported only where used
+
+    root = bvhio.readAsHierarchy(str(path))
+    joints = {joint.Name: joint for joint, _, _ in root.layout()}
+    first, last = root.getKeyframeRange()
+    out = np.zeros((last - first + 1, len(names), 3))
+    for frame in range(first, last + 1):
+        root.loadPose(frame, recursive=True)
+        for k, name in enumerate(names):
+            p = joints[name].PositionWorld
+            out[frame - first, k] = (p.x, p.y, p.z)
+    return out / 100.0
+
+
+def ezc3d_world_m(path: Path, labels: list[str]) -> F64:
+    """Markers ``labels`` (frames, markers, 3) as ezc3d reads them, back in our world frame
+    (metres, +Y up); NaN where the residual is negative.
+
+    Raises:
+        ImportError: ezc3d is not installed (it is in the dev extra).
+    """
+    import ezc3d
+
+    c3d = ezc3d.c3d(str(path))
+    names = c3d["parameters"]["POINT"]["LABELS"]["value"]
+    z_up = c3d["data"]["points"][:3, [names.index(n) for n in labels], :].transpose(2, 1, 0)
+    world: F64 = np.stack([z_up[..., 0], z_up[..., 2], -z_up[..., 1]], axis=-1) / 1000.0
+    return world
+
+
+def _figures(fps: float) -> None:
+    """Print each export's error against the fused motion, per reader (docs/benchmarks.md)."""
+    import tempfile
+
+    from skelfuse.protocol.bvh import forward_kinematics, read_bvh
+    from skelfuse.protocol.skeleton import JOINT_NAMES
+    from skelfuse.recording.export_bvh import export_bvh
+    from skelfuse.recording.export_c3d import export_c3d
+    from tests.support_blender import blender_bvh_positions, blender_executable
+
+    def row(what: str, positions: F64, reference: Reference) -> None:
+        errors = np.linalg.norm(positions - reference.joints, axis=-1) * 1000.0
+        e = errors[np.isfinite(reference.joints[..., 0])]
+        print(f"| {what} | {np.median(e):.2f} | {e.mean():.2f} | {np.percentile(e, 95):.2f} "
+              f"| {e.max():.2f} | {e.size} |")  # fmt: skip
+
+    names = list(JOINT_NAMES)
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        take = simulated_take(folder)
+        person = take.main_person()
+        print(f"\nExports at {fps:g} fps of a simulated take: error vs the fused motion, mm\n")
+        print("| export, reader | median | mean | p95 | max | joints x frames |")
+        print("|---|---:|---:|---:|---:|---:|")
+        files = []
+        for mode in ("rigid", "stretch"):
+            path = folder / f"{mode}.bvh"
+            export = export_bvh(person, path, fps=fps, stretch=mode == "stretch")
+            reference = fused_motion_at(person, float(person.times_s[0]), fps, export.frames)
+            bvh = read_bvh(path)
+            ours = forward_kinematics(bvh)[:, [bvh.index(n) for n in names]] / 100.0
+            row(f"BVH {mode}, protocol/bvh.py", ours, reference)
+            row(f"BVH {mode}, bvhio", bvhio_positions_m(path, names), reference)
+            files.append((mode, path, reference))
+        blender = blender_executable()
+        if blender is not None:
+            results = blender_bvh_positions(blender, [f for _, f, _ in files], folder / "b.json")
+            for (mode, _, reference), result in zip(files, results, strict=True):
+                columns = [result["bones"].index(n) for n in names]
+                row(f"BVH {mode}, Blender", result["positions"][:, columns], reference)
+        frames = export_c3d(take, folder / "take.c3d", fps=fps)
+        for pid, track in take.persons.items():
+            labels = [f"P{pid}_{n}" for n in names]
+            reference = fused_motion_at(track, take.start_s, fps, frames)
+            row(f"C3D person {pid}, ezc3d", ezc3d_world_m(folder / "take.c3d", labels), reference)
+
+
+if __name__ == "__main__":
+    for rate in (30.0, 60.0):
+        _figures(rate)

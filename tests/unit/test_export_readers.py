@@ -32,6 +32,7 @@ from tests.support_exports import (
     LONG_OUTAGE_S,
     T0,
     Reference,
+    bvhio_positions_m,
     fused_motion_at,
     write_simulated_recording,
 )
@@ -88,18 +89,8 @@ def test_the_take_is_realistic(exports: Exports) -> None:
 
 
 def _bvhio_positions_m(path: Path, names: list[str]) -> np.ndarray:
-    """World positions (frames, names, 3) in metres as bvhio computes them (the file is cm)."""
-    bvhio = pytest.importorskip("bvhio")  # in the dev extra
-    root = bvhio.readAsHierarchy(str(path))
-    joints = {joint.Name: joint for joint, _, _ in root.layout()}
-    first, last = root.getKeyframeRange()
-    out = np.zeros((last - first + 1, len(names), 3))
-    for frame in range(first, last + 1):
-        root.loadPose(frame, recursive=True)
-        for k, name in enumerate(names):
-            p = joints[name].PositionWorld
-            out[frame - first, k] = (p.x, p.y, p.z)
-    return out / 100.0
+    pytest.importorskip("bvhio")  # in the dev extra
+    return bvhio_positions_m(path, names)
 
 
 @pytest.mark.parametrize("mode", ["rigid", "stretch"])
