@@ -33,6 +33,7 @@ from skelfuse.protocol.messages import (
     Request,
     Response,
     Welcome,
+    checked_body,
 )
 from skelfuse.protocol.skeleton import JOINT_COUNT, SKELETON_NAME
 from skelfuse.protocol.wire_bulk import frame_in_bulk
@@ -194,7 +195,7 @@ def _decode_frame(raw: dict[str, Any]) -> Frame:
     bulk = frame_in_bulk(raw)
     if bulk is None:
         return decode_frame_precisely(raw)
-    bodies = tuple(map(Body, bulk.tracking_ids, bulk.joints_m, bulk.states, bulk.hands))
+    bodies = tuple(map(checked_body, bulk.tracking_ids, bulk.joints_m, bulk.states, bulk.hands))
     return Frame(bulk.seq, bulk.t_capture_ns, bodies, bulk.floor)
 
 

@@ -1,8 +1,9 @@
 """A frame's checks in bulk: the fast path of ``decode`` for a valid ``frame`` message.
 
 :func:`frame_in_bulk` checks a whole frame at once: the scalar fields with exact ``type`` tests,
-and the joints and states of all bodies joined into one array each, so a 6-body frame costs a
-dozen numpy calls instead of a dozen per body. It only ever says "valid, here are the values"
+and the joints and states of all bodies joined into one blob each. The joints are judged on
+their bytes first (the top byte of a float32 says whether |value| < 32 m), so a frame of
+tracked joints takes no numpy reduction, and one with NaN at its NOT_TRACKED joints takes one. It only ever says "valid, here are the values"
 or "not sure" (``None``); it never names an error. On ``None``, ``protocol.wire`` runs the
 precise checks in their documented order (docs/protocol.md §6.3), which accept the frame or
 raise the one :class:`~protocol.errors.DecodeError` that names the first rule it breaks. So the
@@ -30,6 +31,9 @@ _LITTLE_ENDIAN: Final = sys.byteorder == "little"
 _NUMBER: Final = (float, int)  # msgpack's numbers; type() is never bool here
 _STATE_VALUES: Final = bytes(range(3))  # NOT_TRACKED, INFERRED, TRACKED
 _UNSEEN: Final = bytes([1]) + bytes(255)  # a translate table: 1 where NOT_TRACKED, else 0
+# A translate table for a float32's top byte (sign and 7 exponent bits): 1 where |value| >= 32
+# or the value is NaN or infinite (exponent >= 132, top byte without its sign >= 0x42), else 0.
+_LARGE: Final = bytes(1 if (b & 0x7F) >= 0x42 else 0 for b in range(256))
 
 
 class BulkFrame(NamedTuple):
@@ -79,30 +83,35 @@ def frame_in_bulk(raw: dict[str, Any]) -> BulkFrame | None:
     joint_blobs: list[bytes] = []
     state_blobs: list[bytes] = []
     hands: list[Hands | None] = []
-    for body in bodies:
-        if type(body) is not dict:
-            return None
-        tracking_id = body.get("id")
-        joints = body.get("joints")
-        states = body.get("states")
-        if (
-            type(tracking_id) is not int
-            or not 0 <= tracking_id <= UINT64_MAX
-            or type(joints) is not bytes
-            or len(joints) != _JOINT_BYTES
-            or type(states) is not bytes
-            or len(states) != JOINT_COUNT
-        ):
-            return None
-        hand_states = body.get("hands")
-        if hand_states is not None:
-            hand_states = hands_quickly(hand_states)
-            if hand_states is None:
+    try:
+        for body in bodies:
+            # Subscripts, not .get (a missing key ends in the except below): the loop runs
+            # once per body, and method calls are most of its cost.
+            if type(body) is not dict:
                 return None
-        ids.append(tracking_id)
-        joint_blobs.append(joints)
-        state_blobs.append(states)
-        hands.append(hand_states)
+            tracking_id = body["id"]
+            joints = body["joints"]
+            states = body["states"]
+            if (
+                type(tracking_id) is not int
+                or not 0 <= tracking_id <= UINT64_MAX
+                or type(joints) is not bytes
+                or len(joints) != _JOINT_BYTES
+                or type(states) is not bytes
+                or len(states) != JOINT_COUNT
+            ):
+                return None
+            hand_states = None
+            if "hands" in body and body["hands"] is not None:
+                hand_states = hands_quickly(body["hands"])
+                if hand_states is None:
+                    return None
+            ids.append(tracking_id)
+            joint_blobs.append(joints)
+            state_blobs.append(states)
+            hands.append(hand_states)
+    except KeyError:
+        return None
     if len(set(ids)) != len(ids):
         return None
     if not ids:
@@ -112,16 +121,7 @@ def frame_in_bulk(raw: dict[str, Any]) -> BulkFrame | None:
         return None
     all_joints = b"".join(joint_blobs)
     joints = np.frombuffer(bytearray(all_joints), dtype=np.float32)  # a writable copy
-    if b"\x00" in all_states:  # some joints are NOT_TRACKED: their values count only if ±inf
-        if np.logical_or.reduce(np.isinf(joints)):
-            return None
-        unseen = np.frombuffer(all_states.translate(_UNSEEN), dtype=np.bool_).repeat(3)
-        np.putmask(joints, unseen, 0.0)
-        within = _within_range(joints)
-        np.putmask(joints, unseen, np.nan)
-    else:
-        within = _within_range(joints)
-    if not within:
+    if not _joints_valid(all_joints, all_states, joints):
         return None
     count = len(ids)
     states = np.frombuffer(bytearray(all_states), dtype=np.uint8)
@@ -134,6 +134,63 @@ def frame_in_bulk(raw: dict[str, Any]) -> BulkFrame | None:
         floor,
         hands,
     )
+
+
+def _joints_valid(all_joints: bytes, all_states: bytes, joints: npt.NDArray[np.float32]) -> bool:
+    """The joint rules of all bodies at once; sets NOT_TRACKED joints of ``joints`` to NaN.
+
+    Most frames are settled on the bytes alone, without a numpy reduction: the top byte of each
+    little-endian float32 tells whether the value is small (|v| < 32 m, hence finite and within
+    range) or not. Large values (NaN, ±inf, 32 m and beyond) are fine only at NOT_TRACKED joints
+    and only if none is infinite; anything less clear-cut is decided on the floats.
+
+    Args:
+        all_joints: B × 300 bytes, the bodies' joints blobs joined; all_states: B × 25 bytes,
+            each 0, 1 or 2; joints: (B × 75,) float32, a writable copy of ``all_joints``.
+    """
+    large = all_joints[3::4].translate(_LARGE)  # one byte per coordinate: 1 if large
+    if b"\x00" not in all_states:  # every joint seen: every value must be small, or checked
+        return b"\x01" not in large or _valid_on_the_floats(joints, all_states)
+    unseen = all_states.translate(_UNSEEN)  # one byte per joint: 1 if NOT_TRACKED
+    unseen_coordinates = np.frombuffer(unseen, dtype=np.bool_).repeat(3)
+    if b"\x01" in large:
+        # Large values are fine only at NOT_TRACKED joints, and only if none is infinite. The
+        # usual case, a NaN in every coordinate of every NOT_TRACKED joint (as agents SHOULD
+        # send), is one comparison of bytes; any other needs each joint's flags.
+        if large != unseen_coordinates.tobytes() and _large_where_seen(large, unseen):
+            return _valid_on_the_floats(joints, all_states)
+        if np.logical_or.reduce(np.isinf(joints)):
+            return False
+    # NOT_TRACKED positions carry no meaning: NaN, as the precise checks write.
+    np.putmask(joints, unseen_coordinates, np.nan)
+    return True
+
+
+def _large_where_seen(large: bytes, unseen: bytes) -> bool:
+    """Whether a joint that is not NOT_TRACKED has a large coordinate.
+
+    large: one byte (0 or 1) per coordinate; unseen: one byte (0 or 1) per joint.
+    """
+    # OR of each joint's x, y and z flags, eight bits per joint, as one integer.
+    large_joints = (
+        int.from_bytes(large[0::3], "little")
+        | int.from_bytes(large[1::3], "little")
+        | int.from_bytes(large[2::3], "little")
+    )
+    return bool(large_joints & ~int.from_bytes(unseen, "little"))
+
+
+def _valid_on_the_floats(joints: npt.NDArray[np.float32], all_states: bytes) -> bool:
+    """:func:`_joints_valid` decided on the floats (large values at tracked joints, or ±inf)."""
+    if b"\x00" in all_states:  # some joints are NOT_TRACKED: their values count only if ±inf
+        if np.logical_or.reduce(np.isinf(joints)):
+            return False
+        unseen = np.frombuffer(all_states.translate(_UNSEEN), dtype=np.bool_).repeat(3)
+        np.putmask(joints, unseen, 0.0)
+        within = _within_range(joints)
+        np.putmask(joints, unseen, np.nan)
+        return within
+    return _within_range(joints)
 
 
 def _within_range(joints: npt.NDArray[np.float32]) -> bool:
