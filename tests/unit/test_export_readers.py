@@ -200,6 +200,7 @@ def _unavailable(reason: str, ci_hint: str) -> NoReturn:
     pytest.skip(reason)
 
 
+@pytest.mark.timeout(300)  # one Blender launch: about 4 s on an idle machine, 20 s under load
 def test_blender_imports_both_bvh_files_with_the_fused_motion(exports: Exports) -> None:
     blender = blender_executable()
     if blender is None:
