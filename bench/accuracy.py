@@ -60,7 +60,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.accuracy_alignment import print_alignment, run_alignment
+from bench.accuracy_alignment import chosen_policies, print_alignment, run_alignment
 from bench.accuracy_methods import METHODS
 from bench.accuracy_paper import paper_experiment
 from bench.accuracy_report import (
@@ -74,6 +74,7 @@ from bench.accuracy_scenarios import CMU_DIR, birth_scenarios, scenarios
 from bench.filter_latency import filter_latency
 from bench.oracle import print_oracle, run_oracle, with_reliability
 from skelfuse.agent.sim.kinect_model import KinectV2Params
+from skelfuse.fusion.settings import FusionSettings
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -104,6 +105,9 @@ def main(argv: list[str] | None = None) -> int:
                              "(bench/accuracy_alignment.py)")  # fmt: skip
     parser.add_argument("--jitter-ms", type=float, default=0.0,
                         help="--alignment: mean exponential delivery jitter, ms")  # fmt: skip
+    parser.add_argument("--policies", default=None,
+                        help="--alignment: comma-separated policy labels "
+                             "(bench/accuracy_alignment.py ALL_POLICIES)")  # fmt: skip
     args = parser.parse_args(argv)
     methods = METHODS
     if args.no_mirror_redecide:
@@ -121,7 +125,9 @@ def main(argv: list[str] | None = None) -> int:
         print_oracle(oracle)
         return 0
     if args.alignment:
-        return alignment_only(args.quick, args.runs, args.jitter_ms, args.json)
+        return alignment_only(
+            args.quick, args.runs, args.jitter_ms, args.json, chosen_policies(args.policies)
+        )
 
     if not args.paper and not args.birth:
         print_filter_latency(filter_latency())
@@ -156,7 +162,13 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def alignment_only(quick: bool, runs: int, jitter_ms: float, json_path: Path | None) -> int:
+def alignment_only(
+    quick: bool,
+    runs: int,
+    jitter_ms: float,
+    json_path: Path | None,
+    policies: dict[str, FusionSettings] | None = None,
+) -> int:
     """``--alignment``: every scenario under every alignment policy; prints the table."""
     results: dict[str, list[dict[str, dict[str, float]]]] = {}
     groups: dict[str, list[str]] = {}
@@ -164,7 +176,8 @@ def alignment_only(quick: bool, runs: int, jitter_ms: float, json_path: Path | N
         groups.setdefault(scenario.group, []).append(scenario.name)
         t = time.perf_counter()
         results[scenario.name] = [
-            run_alignment(scenario, seed, KinectV2Params(), jitter_ms) for seed in range(runs)
+            run_alignment(scenario, seed, KinectV2Params(), jitter_ms, policies)
+            for seed in range(runs)
         ]
         print(f"  {scenario.name}: {time.perf_counter() - t:.0f} s", file=sys.stderr)
     summary = print_alignment(results, groups, jitter_ms)

@@ -22,22 +22,68 @@ from dataclasses import replace
 import numpy as np
 
 from bench.accuracy_metrics import Log
-from bench.accuracy_runner import NETWORK_DELAY_S, T0, Capture, SimulatedRig, _new_hub
+from bench.accuracy_runner import (
+    NETWORK_DELAY_S,
+    T0,
+    Capture,
+    SimulatedRig,
+    _new_hub,
+    label_decisions,
+)
 from bench.accuracy_scenarios import Scenario
 from skelfuse.agent.sim.kinect_model import KinectV2Params
 from skelfuse.fusion.hub import FusedFrame, FusionHub
 from skelfuse.server.settings import FusionSettings
 
 DEFAULT = FusionSettings()
-POLICIES: dict[str, FusionSettings] = {
+OWN = replace(DEFAULT, alignment="deadline", alignment_predictor="own")
+TRACK = replace(DEFAULT, alignment="deadline", alignment_predictor="track")
+HORIZON = replace(TRACK, alignment_grid="horizon", alignment_skip_expected_late=True)
+ALL_POLICIES: dict[str, FusionSettings] = {
     "aligned": replace(DEFAULT, alignment="aligned"),
     "phased": replace(DEFAULT, alignment="phased"),
-    "deadline 5 ms": replace(DEFAULT, alignment="deadline", alignment_deadline_s=0.005),
-    "deadline 10 ms": replace(DEFAULT, alignment="deadline", alignment_deadline_s=0.010),
-    "deadline 20 ms": replace(DEFAULT, alignment="deadline", alignment_deadline_s=0.020),
+    # The first version: late sensors linear from their own two newest frames.
+    "own 5 ms": replace(OWN, alignment_deadline_s=0.005),
+    "own 10 ms": replace(OWN, alignment_deadline_s=0.010),
+    "own 20 ms": replace(OWN, alignment_deadline_s=0.020),
+    # Late sensors carried by their person's filtered motion (velocity and acceleration).
+    "track 5 ms": replace(TRACK, alignment_deadline_s=0.005),
+    "track 10 ms": replace(TRACK, alignment_deadline_s=0.010),
+    "track 20 ms": replace(TRACK, alignment_deadline_s=0.020),
+    "track v 10 ms": replace(TRACK, alignment_predict_acceleration=False),
+    # ... with the grid put for the shortest extrapolation, expected-late sensors not waited for.
+    "horizon 5 ms": replace(HORIZON, alignment_deadline_s=0.005),
+    "horizon 10 ms": replace(HORIZON, alignment_deadline_s=0.010),
+    "horizon 15 ms": replace(HORIZON, alignment_deadline_s=0.015),
+    "horizon 20 ms": replace(HORIZON, alignment_deadline_s=0.020),
+    "horizon own 10 ms": replace(HORIZON, alignment_predictor="own"),
+    "horizon own 15 ms": replace(HORIZON, alignment_predictor="own", alignment_deadline_s=0.015),
+    "horizon own 20 ms": replace(HORIZON, alignment_predictor="own", alignment_deadline_s=0.020),
 }
-"""The policies compared (the extrapolation bound is the default's, 34 ms, for every one)."""
+"""Every policy the bench knows (the extrapolation bound is the default's, 34 ms, for every
+one); ``--policies`` picks some (``aligned`` always runs: the differences are against it)."""
+POLICIES: dict[str, FusionSettings] = {
+    label: ALL_POLICIES[label]
+    for label in ("aligned", "phased", "own 10 ms", "track 10 ms", "horizon 10 ms")
+}
+"""The policies compared by default."""
 Figures = dict[str, float]
+
+
+def chosen_policies(labels: str | None) -> dict[str, FusionSettings]:
+    """``--policies``: comma-separated labels of :data:`ALL_POLICIES` (None: :data:`POLICIES`),
+    ``aligned`` first whether named or not.
+
+    Raises:
+        ValueError: a label that is not a known policy.
+    """
+    if labels is None:
+        return dict(POLICIES)
+    wanted = [label.strip() for label in labels.split(",") if label.strip()]
+    unknown = [label for label in wanted if label not in ALL_POLICIES]
+    if unknown:
+        raise ValueError(f"unknown policies {unknown}; known: {', '.join(ALL_POLICIES)}")
+    return {label: ALL_POLICIES[label] for label in ["aligned", *wanted]}
 
 
 def deliver(hub: FusionHub, capture: Capture, arrival_s: float) -> list[FusedFrame]:
@@ -82,19 +128,27 @@ def run_alignment(
     logs = {label: Log() for label in hubs}
     waits: dict[str, list[float]] = {label: [] for label in hubs}
     extrapolated = dict.fromkeys(hubs, 0)
+    swapped: dict[tuple[str, int], dict[int, bool]] = {}  # (sensor, seq) → tracking id → truth
     for arrival, capture in arrivals(list(rig.captures()), jitter_ms, seed):
+        swapped[(capture.name, capture.seq)] = {
+            o.tracking_id: o.mirrored for o in capture.observations
+        }
         for label, hub in hubs.items():
             for fused in deliver(hub, capture, arrival):
                 waits[label].append(fused.fused_at_s - fused.t_s)
                 extrapolated[label] += bool(fused.extrapolated)
                 truth = rig.performer.joints_at(fused.t_s - T0)
                 persons = [(p.person_id, p.joints) for p in fused.persons]
-                logs[label].add(logs[label].frames + 1, persons, truth)
+                labels = label_decisions(hub, fused, swapped)
+                logs[label].add(logs[label].frames + 1, persons, truth, labels)
     out: dict[str, Figures] = {}
     for label, log in logs.items():
         wait_ms = np.array(waits[label]) * 1000
+        summary = log.summary()
         out[label] = {
-            "mpjpe_mm": log.summary()["mpjpe_mm"],
+            "mpjpe_mm": summary["mpjpe_mm"],
+            "jitter_mm": summary["jitter_mm"],
+            "wrong_labels": summary["wrong_labels"],
             "wait_mean_ms": float(wait_ms.mean()) if wait_ms.size else math.nan,
             "wait_p99_ms": float(np.percentile(wait_ms, 99)) if wait_ms.size else math.nan,
             "extrapolated": extrapolated[label] / max(len(wait_ms), 1),
@@ -110,9 +164,10 @@ def print_alignment(
     (mean of the per-run differences, and the worst run), the wait's mean and p99 (mean over
     runs), frames with a sensor extrapolated; returns the rows."""
     print(f"\nAlignment policies (delivery 2 ms + exponential jitter of mean {jitter_ms:g} ms)\n")
-    print("| scenario | policy | MPJPE mm | Δ vs aligned mm (worst run) | wait mean ms "
-          "| wait p99 ms | frames extrapolated | fused frames |")  # fmt: skip
-    print("|---|---|---:|---:|---:|---:|---:|---:|")
+    print("| scenario | policy | MPJPE mm | Δ vs aligned mm (worst run) | jitter mm "
+          "| wrong labels % | wait mean ms | wait p99 ms | frames extrapolated "
+          "| fused frames |")  # fmt: skip
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     summary: dict[str, dict[str, Figures]] = {}
     for group, names in groups.items():
         runs = [run for name in names for run in results[name]]
@@ -124,7 +179,8 @@ def print_alignment(
             rows[label] = row
             print(
                 f"| {group} | {label} | {row['mpjpe_mm']:.1f} | {row['delta_mm']:+.2f} "
-                f"({row['worst_delta_mm']:+.2f}) | {row['wait_mean_ms']:.1f} | "
+                f"({row['worst_delta_mm']:+.2f}) | {row['jitter_mm']:.2f} | "
+                f"{row['wrong_labels']:.2%} | {row['wait_mean_ms']:.1f} | "
                 f"{row['wait_p99_ms']:.1f} | {row['extrapolated']:.0%} | {row['frames']:.0f} |"
             )
         summary[group] = rows

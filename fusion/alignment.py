@@ -15,7 +15,12 @@ when each live sensor's newest frame was captured, whether the next instant can 
 - ``deadline``: as ``phased``, but an instant is also fused when ``deadline_s`` has passed since
   it, whoever has reported: a sensor whose newest frame is before the instant is *late*, and is
   extrapolated to it when its newest frame is at most ``max_extrapolation_s`` before the
-  instant, otherwise left out of that instant.
+  instant, otherwise left out of that instant. Two options tune it to the rig from the sensors'
+  observed capture phases and delays: ``grid = "horizon"`` puts the grid where the late sensors'
+  extrapolation is shortest (the sum of squared horizons, replayed over the same frames as
+  ``phased``, :func:`replayed_horizons`) instead of where the wait for the last sensor is; with
+  ``skip_expected_late`` an instant does not wait for a sensor whose frame is expected after the
+  deadline anyway (late in most replayed frames): it is fused as soon as the others are in.
 
 Pure logic on times: nothing here reads a clock (the hub passes ``now_s``, server clock, Unix
 seconds), so tests drive it with a clock of their own.
@@ -33,8 +38,10 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.sensors import SensorState
+from skelfuse.fusion.settings import FusionSettings
 
 Policy = Literal["aligned", "phased", "deadline"]
+Grid = Literal["wait", "horizon"]
 FloatArray = npt.NDArray[np.float64]
 
 REPHASE_EVERY_S = 1.0
@@ -51,6 +58,10 @@ PHASE_SAMPLES = 60
 PHASE_MIN_SAMPLES = 30
 """Frames every sensor must have before the phase is first chosen: the first few frames' clock
 mapping is still settling (a grid chosen from them measured worse than phase 0)."""
+HORIZON_TIE_S = 1e-4
+"""``grid = "horizon"``: the replayed wait (seconds) counts this much (seconds², per second of
+wait) beside the squared horizons, so that among grids as good for extrapolation (every sensor
+on time, say) the one that waits least wins."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -140,6 +151,35 @@ def replayed_waits(
     return waits
 
 
+def replayed_horizons(
+    phases_s: FloatArray,
+    captures_s: FloatArray,
+    delays_s: FloatArray,
+    periods_s: FloatArray,
+    deadline_s: float,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """For each candidate grid phase, what the ``deadline`` policy would have done with the
+    sensors' recent frames: a sensor whose frame after the instant would have been seen later
+    than ``deadline_s`` after it is late, carried forward from its frame before the instant by
+    its *horizon* (time from that capture to the instant).
+
+    Args: as :func:`replayed_waits`, and the deadline (seconds after the instant).
+
+    Returns:
+        (C,) the mean over frames of the sum over sensors of squared horizons (s²);
+        (C,) the mean wait for the last on-time sensor (seconds; 0 when all are late);
+        (C, S) the share of frames in which each sensor was late.
+    """
+    ahead = np.mod(captures_s[None] - phases_s[:, None, None], periods_s[None, :, None])
+    seen = ahead + delays_s[None]
+    late = seen > deadline_s
+    horizon = np.where(late, periods_s[None, :, None] - ahead, 0.0)
+    cost: FloatArray = (horizon**2).sum(axis=1).mean(axis=1)
+    waits: FloatArray = np.where(late, 0.0, seen).max(axis=1).mean(axis=1)
+    shares: FloatArray = late.mean(axis=2)
+    return cost, waits, shares
+
+
 class Alignment:
     """The output grid and the policy deciding when its next instant is fused.
 
@@ -148,6 +188,9 @@ class Alignment:
         output_hz: instants per second.
         deadline_s: ``deadline``: fuse at the latest this long after the instant.
         max_extrapolation_s: ``deadline``: the furthest a late sensor is extrapolated.
+        grid: ``deadline``: place the grid for the least wait (``wait``, as ``phased``) or
+            for the shortest extrapolation of late sensors (``horizon``).
+        skip_expected_late: ``deadline``: do not wait for sensors expected late.
     """
 
     def __init__(
@@ -156,8 +199,15 @@ class Alignment:
         output_hz: float,
         deadline_s: float = 0.010,
         max_extrapolation_s: float = 0.034,
+        grid: Grid = "wait",
+        skip_expected_late: bool = False,
     ) -> None:
         self.policy = policy
+        self.grid: Grid = grid if policy == "deadline" else "wait"
+        self.skip_expected_late = skip_expected_late and policy == "deadline"
+        self.expected_late: frozenset[str] = frozenset()
+        """``skip_expected_late``: the sensors the pending instants do not wait for (late in
+        most replayed frames at the chosen phase); re-chosen with the phase."""
         self.period_s = 1.0 / output_hz
         self.deadline_s = deadline_s
         self.max_extrapolation_s = max_extrapolation_s
@@ -167,6 +217,15 @@ class Alignment:
         self._sensors: dict[str, _SensorPhase] = {}
         self._next_rephase_s = -math.inf
         self._due_s: float | None = None
+
+    @classmethod
+    def of(cls, settings: FusionSettings, output_hz: float) -> Alignment:
+        """The policy ``settings`` choose (``alignment`` and the ``alignment_*`` fields)."""
+        s = settings
+        return cls(
+            s.alignment, output_hz, s.alignment_deadline_s, s.alignment_max_extrapolation_s,
+            s.alignment_grid, s.alignment_skip_expected_late,
+        )  # fmt: skip
 
     @property
     def due_s(self) -> float | None:
@@ -200,13 +259,18 @@ class Alignment:
         if next_t < fusable - 2 * period:  # start, or resync after a stall
             next_t = self._grid_floor(fusable)
         if next_t > ready_until:
-            if self.policy == "deadline" and now_s >= next_t + self.deadline_s:
+            if self.policy != "deadline":
+                self._due_s = None
+                return None
+            waited = [s.newest_s for s in sensors if s.sensor_id not in self.expected_late]
+            due = next_t if not waited else next_t + self.deadline_s
+            if now_s >= due or (waited and min(waited) >= next_t):
                 instant = self._take(self._late_instant(next_t, sensors), period)
                 # Nobody within the bound (every sensor stalled): skip the instant rather than
                 # publish a frame without anyone in it.
                 on_time = len(sensors) - len(instant.late) - len(instant.left_out)
                 return instant if on_time or instant.late else None
-            self._due_s = next_t + self.deadline_s if self.policy == "deadline" else None
+            self._due_s = due
             return None
         return self._take(Instant(next_t), period)
 
@@ -236,8 +300,14 @@ class Alignment:
     def _take(self, instant: Instant, period: float) -> Instant:
         self._last_t = instant.t_s
         following = self._grid_point(instant.t_s + period)
-        self._due_s = following + self.deadline_s if self.policy == "deadline" else None
+        self._due_s = None
+        if self.policy == "deadline":
+            self._due_s = following + (self.deadline_s if self._waits_for_any() else 0.0)
         return instant
+
+    def _waits_for_any(self) -> bool:
+        """Whether some sensor is waited for (not every one is expected late)."""
+        return not self.expected_late or any(s not in self.expected_late for s in self._sensors)
 
     def _late_instant(self, t_s: float, sensors: Sequence[SensorTiming]) -> Instant:
         late: list[tuple[str, float]] = []
@@ -277,13 +347,36 @@ class Alignment:
              for sensor, seen in zip(sensors, history, strict=True)]
         )  # fmt: skip
         delays = np.array([list(seen.delays)[-frames:] for seen in history])
+        # ``horizon`` also tries the grid just after a sensor's phase: that sensor is then late
+        # by a hair (extrapolated by under a millisecond) and the others are placed around it.
+        signs = (1.0, -1.0) if self.grid == "horizon" else (1.0,)
         candidates = [
-            (circular_phase(seen.captures, sensor.period_s) + k * sensor.period_s - margin) % grid
+            (circular_phase(seen.captures, sensor.period_s) + k * sensor.period_s - sign * margin)
+            % grid
             for sensor, seen in zip(sensors, history, strict=True)
             for k in range(max(1, round(grid / sensor.period_s)))
             for margin in PHASE_MARGINS_S
+            for sign in signs
         ]
-        waits = replayed_waits(np.array([*candidates, self.phase_s]), captures, delays, periods)
-        best = int(np.argmin(waits[:-1]))
-        if waits[best] < waits[-1] - REPHASE_GAIN_S:
-            self.phase_s = candidates[best]
+        phases = np.array([*candidates, self.phase_s])
+        if self.grid == "wait":
+            waits = replayed_waits(phases, captures, delays, periods)
+            best = int(np.argmin(waits[:-1]))
+            if waits[best] < waits[-1] - REPHASE_GAIN_S:
+                self.phase_s = candidates[best]
+        else:
+            cost, waits, _ = replayed_horizons(phases, captures, delays, periods, self.deadline_s)
+            score = cost + HORIZON_TIE_S * waits
+            best = int(np.argmin(score[:-1]))
+            # Hysteresis as for waits: a gain worth a millisecond of wait.
+            if score[best] < score[-1] - HORIZON_TIE_S * REPHASE_GAIN_S:
+                self.phase_s = candidates[best]
+        if self.skip_expected_late:
+            _, _, shares = replayed_horizons(
+                np.array([self.phase_s]), captures, delays, periods, self.deadline_s
+            )
+            self.expected_late = frozenset(
+                sensor.sensor_id
+                for sensor, share in zip(sensors, shares[0].tolist(), strict=True)
+                if share > 0.5
+            )

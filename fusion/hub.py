@@ -23,7 +23,7 @@ from skelfuse import __version__
 from skelfuse.calibration.store import Calibration
 from skelfuse.fusion.alignment import Alignment, live_timings
 from skelfuse.fusion.drift import DriftMonitor
-from skelfuse.fusion.extrapolation import views_with_late
+from skelfuse.fusion.extrapolation import late_motions, views_with_late
 from skelfuse.fusion.hub_seams import MessageTap, PendingRequests
 from skelfuse.fusion.pipeline import FusionPipeline
 from skelfuse.fusion.registration import PeerProbe, registration_refusal
@@ -85,9 +85,7 @@ class FusionHub:
         self.frame_arrived = asyncio.Event()
         self._seq = 0
         f = settings.fusion
-        self.alignment = Alignment(
-            f.alignment, settings.output_hz, f.alignment_deadline_s, f.alignment_max_extrapolation_s
-        )
+        self.alignment = Alignment.of(f, settings.output_hz)
         """The output grid and when its next instant is fused (its ``due_s``: the deadline)."""
         self.started_s = time.time()
         self._requests: PendingRequests | None = None
@@ -375,7 +373,7 @@ class FusionHub:
         if instant.late or instant.left_out:
             views = views_with_late(
                 self.sensors.values(), self._stored_pose, t_target, s.interpolation_gap_s,
-                dict(instant.late), instant.left_out,
+                dict(instant.late), instant.left_out, late_motions(self.pipeline, s.fusion),
             )  # fmt: skip
             persons = self.pipeline.update(views, t_target)
         else:

@@ -220,6 +220,21 @@ class FusionSettings:
     alignment_max_extrapolation_s: float = 0.034
     """``deadline``: a late sensor's newest frame is extrapolated to the instant by at most this
     much (seconds, about one frame period at 30 fps); a sensor further behind is left out."""
+    # The late-sensor treatment under ``deadline`` (fusion/extrapolation.py, fusion/track_motion.py,
+    # fusion/alignment.py; issue 11's raw latency target): how a late view is carried forward and
+    # where the grid is put. None of these changes ``aligned`` or ``phased``.
+    alignment_predictor: Literal["track", "own"] = "track"
+    """``deadline``: a late sensor's bodies are carried to the instant by their person's motion as
+    its filter estimates it, per joint (``track``), or linearly from the sensor's own two newest
+    frames (``own``, the first version: their frame-to-frame noise makes a poor velocity)."""
+    alignment_predict_acceleration: bool = True
+    """``deadline``, ``track``: use the filter's acceleration as well as its velocity."""
+    alignment_grid: Literal["wait", "horizon"] = "wait"
+    """``deadline``: put the grid where the wait for the last sensor is least (``wait``, as
+    ``phased``) or where the late sensors' extrapolation is shortest (``horizon``)."""
+    alignment_skip_expected_late: bool = False
+    """``deadline``: an instant does not wait for a sensor whose frame, by the phases and delays
+    observed, comes after the deadline anyway; it is fused once the others are in."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -1,0 +1,243 @@
+"""The late-sensor treatment under the ``deadline`` alignment (issue 11's raw latency target):
+late views carried by their person's filtered motion (fusion/track_motion.py,
+fusion/extrapolation.py), and the grid put where late sensors are carried least, not waiting for
+sensors expected late anyway (fusion/alignment.py), all driven by clocks of the test's own."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from skelfuse.fusion.alignment import Alignment, SensorTiming, replayed_horizons
+from skelfuse.fusion.extrapolation import carried_by_motion
+from skelfuse.fusion.hub import FusedFrame, FusionHub
+from skelfuse.fusion.pipeline import FusionPipeline
+from skelfuse.fusion.track_motion import PersonMotion, track_motions
+from skelfuse.fusion.views import View
+from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION
+from skelfuse.protocol.transform import look_at_pose
+from skelfuse.protocol.wire import Body, Frame, Hello, encode
+from skelfuse.server.settings import FusionSettings, Settings
+
+P = 1 / 30
+T0 = 1_800_000_000.0
+DELIVERY_S = 0.002
+"""Every frame reaches the server this long after capture: its one-way clock mapping reads each
+capture this much late, so a view at server time t shows the walker at t − 2 ms."""
+POSES = {
+    "a": look_at_pose((0.0, 1.0, 3.0), (0.0, 0.9, 0.0)),
+    "b": look_at_pose((3.0, 1.0, 0.0), (0.0, 0.9, 0.0)),
+}
+
+
+# --- the predictor on its own -------------------------------------------------------------------
+
+
+def test_carried_by_motion_is_exact_for_constant_acceleration() -> None:
+    """x(t) = x0 + v·t + a·t²/2 per joint: carried from 1.00 s to 1.02 s by the estimate held
+    at 0.98 s (velocity at 0.98 s), the body lands on the curve exactly."""
+    rng = np.random.default_rng(0)
+    x0, v, a = (rng.normal(size=(JOINT_COUNT, 3)) for _ in range(3))
+
+    def x(t: float) -> np.ndarray:
+        return np.asarray(x0 + v * t + a * t * t / 2)
+
+    motion = PersonMotion(v + a * 0.98, a, np.full((JOINT_COUNT, 3), 0.98))
+    np.testing.assert_allclose(carried_by_motion(x(1.0), motion, 1.0, 1.02), x(1.02), atol=1e-12)
+    still = motion.without_acceleration()
+    np.testing.assert_allclose(
+        carried_by_motion(x(1.0), still, 1.0, 1.02), x(1.0) + (v + a * 0.98) * 0.02, atol=1e-12
+    )
+
+
+def test_joints_without_an_estimate_and_bodies_without_a_person_are_held() -> None:
+    joints = np.ones((JOINT_COUNT, 3))
+    velocity = np.full((JOINT_COUNT, 3), 2.0)
+    velocity[3] = np.nan
+    motion = PersonMotion(velocity, np.zeros_like(velocity), np.zeros_like(velocity))
+    carried = carried_by_motion(joints, motion, 1.0, 1.01)
+    np.testing.assert_allclose(carried[3], 1.0)
+    np.testing.assert_allclose(carried[0], 1.02)
+    np.testing.assert_allclose(carried_by_motion(joints, None, 1.0, 1.01), joints)
+    with pytest.raises(ValueError, match="before"):
+        carried_by_motion(joints, motion, 1.0, 0.99)
+
+
+def test_a_mirrored_body_gets_its_persons_motion_with_sides_swapped() -> None:
+    """Two sensors see one person walking; sensor b's body is remembered as mirrored (the
+    pipeline swapped its left and right): its motion is the person's, left and right swapped."""
+    pipeline = FusionPipeline(FusionSettings(filter="kalman", enforce_bone_lengths=False))
+    for n in range(10):
+        t = T0 + n * P
+        world = walker(t)
+        world[:, 2] = np.linspace(0.0, 0.5, JOINT_COUNT) * (t - T0)  # every joint its own speed
+        pipeline.update([View("a", 1, world, full_states()), View("b", 4, world, full_states())], t)
+    (person_id,) = pipeline.memories
+    pipeline.memories[person_id].labels[("b", 4)] = True
+    motions = track_motions(pipeline)
+    straight, swapped = motions[("a", 1)], motions[("b", 4)]
+    assert np.isfinite(straight.velocity).all()
+    np.testing.assert_array_equal(swapped.velocity, straight.velocity[list(MIRROR_PERMUTATION)])
+    assert not np.array_equal(swapped.velocity, straight.velocity)
+
+
+# --- through the hub ----------------------------------------------------------------------------
+
+
+def walker(t_s: float, stop_s: float = math.inf) -> np.ndarray:
+    """A vertical line of joints moving sideways at 1 m/s from x = 0 at T0, standing still from
+    ``stop_s`` on (world frame, metres)."""
+    joints = np.zeros((JOINT_COUNT, 3))
+    joints[:, 1] = np.linspace(0.1, 1.7, JOINT_COUNT)
+    joints[:, 0] = min(t_s, stop_s) - T0
+    return joints
+
+
+def full_states() -> np.ndarray:
+    return np.full(JOINT_COUNT, 2, np.uint8)
+
+
+def drive(fusion: FusionSettings, periods: int, stop_s: float = math.inf) -> list[FusedFrame]:
+    """Sensor a captures on the phase-0 grid, b 15 ms later; each delivered in 2 ms; the hub's
+    deadline honoured as the live loop's timer does (``fuse_step`` at ``due_s``)."""
+    hub = FusionHub(Settings(fusion=fusion))
+    for name, pose in POSES.items():
+        hello = Hello(name, "sim", "test", 30.0, 0, pose_hint=pose, pose_hint_source="sim_truth")
+        hub.handle_message(name.encode(), [encode(hello)], T0, 0.0)
+    base = math.floor(T0 / P) * P + 1.0
+    fused = []
+    for n in range(periods):
+        for name, offset in (("a", 0.0), ("b", 0.015)):
+            capture = base + n * P + offset
+            while (due := hub.alignment.due_s) is not None and due <= capture + DELIVERY_S:
+                fused.append(hub.fuse_step(due))
+            world = walker(capture, stop_s)
+            pose = POSES[name]
+            local = (np.linalg.inv(pose) @ np.c_[world, np.ones(JOINT_COUNT)].T).T[:, :3]
+            body = Body(1, local.astype(np.float32), full_states())
+            frame = Frame(n + 1, int(capture * 1e9), (body,))
+            received = capture + DELIVERY_S
+            hub.handle_message(name.encode(), [encode(frame)], received, received - T0)
+            fused.append(hub.fuse_step(received))
+    return [f for f in fused if f is not None]
+
+
+def late_view(frame: FusedFrame) -> np.ndarray:
+    (view,) = [v for v in frame.raw if v.sensor_id == "b"]
+    return view.joints_world
+
+
+TRACK = FusionSettings(alignment="deadline", alignment_predictor="track", filter="kalman_ca",
+                       enforce_bone_lengths=False)  # fmt: skip
+
+
+def test_a_late_view_carried_by_its_persons_motion_lands_on_a_constant_velocity_line() -> None:
+    """Once the person's filter has settled on the walker's 1 m/s, b's late view is exactly
+    where the walker is at the instant (its frame 18 ms older), and the frame says so."""
+    fused = drive(TRACK, periods=90)
+    late = [f for f in fused if f.extrapolated and f.t_s > T0 + 2.0]
+    assert len(late) >= 25
+    for frame in late:
+        ((sensor, behind),) = frame.extrapolated
+        assert sensor == "b" and behind == pytest.approx(P - 0.015, abs=0.001)
+        np.testing.assert_allclose(late_view(frame), walker(frame.t_s - DELIVERY_S), atol=1e-4)
+    held = drive(
+        FusionSettings(alignment="deadline", alignment_predictor="track", filter="none"), 90
+    )
+    off = [np.abs(late_view(f) - walker(f.t_s - DELIVERY_S)).max() for f in held if f.extrapolated]
+    assert min(off[5:]) > 0.015, "without a filter there is no motion: held, 18 mm behind"
+
+
+def test_a_sudden_stop_is_overshot_until_the_filter_sees_it() -> None:
+    """The predictor's failing case: the walker stops dead; the person's filter still says 1 m/s,
+    so b's late view is carried on past where the walker stands (by up to v·18 ms), and comes
+    back once the filter has seen the stop."""
+    stop = math.floor(T0 / P) * P + 1.0 + 2.0 + 0.005
+    fused = drive(TRACK, periods=150, stop_s=stop)
+    after = [f for f in fused if f.extrapolated and f.t_s > stop + 0.02]
+    errors = [float(np.abs(late_view(f) - walker(f.t_s, stop)).max()) for f in after]
+    assert errors[0] > 0.008, "carried on at the old speed"
+    assert max(errors) <= 0.0185 + 1e-4, "never more than the old speed times the horizon"
+    assert errors[-1] < 0.001, "settled once the filter has seen the stop"
+
+
+# --- the grid for the shortest extrapolation ----------------------------------------------------
+
+
+def test_replayed_horizons_count_the_late_sensors_squared_horizons() -> None:
+    # Captures 0 and 15 ms into the period, delivered in 2 ms, deadline 10 ms. A grid at 11 ms:
+    # b is 4 + 2 ms after it (on time), a's frame before it 11 ms old (late). At 0.5 ms: a is
+    # 33.3 − 0.5 ms ahead (late, 0.5 ms old), b 14.5 + 2 ms (late, 18.8 ms old).
+    captures = np.array([[0.0] * 3, [0.015] * 3])
+    cost, waits, shares = replayed_horizons(
+        np.array([0.011, 0.0005]), captures, np.full((2, 3), DELIVERY_S), np.full(2, P), 0.010
+    )
+    np.testing.assert_allclose(cost, [0.011**2, 0.0005**2 + (P - 0.0145) ** 2])
+    np.testing.assert_allclose(waits, [0.006, 0.0])
+    np.testing.assert_array_equal(shares, [[1.0, 0.0], [1.0, 1.0]])
+
+
+def run_policy(policy: Alignment, periods: int = 90) -> list[tuple[float, float, tuple[str, ...]]]:
+    """a captures at phase 0, b 15 ms later, each delivered in 2 ms; the deadline honoured as
+    the live loop's timer does. (arrival or timer, instant, late sensors) per fused instant."""
+    base = math.floor(T0 / P) * P
+    events = sorted(
+        (base + n * P + offset + DELIVERY_S, sensor, base + n * P + offset)
+        for n in range(periods)
+        for sensor, offset in (("a", 0.0), ("b", 0.015))
+    )
+    newest: dict[str, float] = {}
+    out = []
+    for arrival, sensor, capture in events:
+        while (due := policy.due_s) is not None and due <= arrival:
+            timings = [SensorTiming(s, t, P) for s, t in newest.items()]
+            if (instant := policy.next_instant(timings, due)) is not None:
+                out.append((due, instant.t_s, tuple(s for s, _ in instant.late)))
+        newest[sensor] = capture
+        timings = [SensorTiming(s, t, P) for s, t in newest.items()]
+        if (instant := policy.next_instant(timings, arrival)) is not None:
+            out.append((arrival, instant.t_s, tuple(s for s, _ in instant.late)))
+    return out
+
+
+def test_the_horizon_grid_carries_late_sensors_less_and_fuses_without_waiting_for_them() -> None:
+    """With a 10 ms deadline, b 15 ms after a: the wait grid goes just before a (b late, its
+    frame 18 ms old, every instant at the deadline); the horizon grid goes 4 ms before b (b on
+    time, a's frame 11 ms old) and, a being late anyway, each instant is fused as b arrives:
+    6 ms after it."""
+    settled = T0 + 2.0
+    wait_grid = run_policy(Alignment("deadline", 30.0, deadline_s=0.010))
+    horizon = Alignment("deadline", 30.0, deadline_s=0.010, grid="horizon", skip_expected_late=True)
+    horizon_grid = run_policy(horizon)
+    assert horizon.expected_late == {"a"}
+    assert (0.015 - horizon.phase_s) % P == pytest.approx(0.004, abs=1e-6)
+    for rows, wait, late in ((wait_grid, 0.010, ("b",)), (horizon_grid, 0.006, ("a",))):
+        rows = [row for row in rows if row[1] > settled]
+        assert len(rows) >= 25, "still one instant per period"
+        for fused_at, instant, late_sensors in rows:
+            assert fused_at - instant == pytest.approx(wait, abs=1e-6)
+            assert late_sensors == late
+
+
+def test_with_every_sensor_expected_late_the_timer_is_the_instant_itself() -> None:
+    policy = Alignment("deadline", 30.0, deadline_s=0.010, grid="horizon", skip_expected_late=True)
+    run_policy(policy)
+    t = policy.phase_s + math.ceil((T0 + 5.0 - policy.phase_s) / P) * P
+    timings = [SensorTiming("a", t - 0.011, P), SensorTiming("b", t - 0.020, P)]
+    resync = policy.next_instant(timings, t - 0.001)  # (the phase is re-chosen here too)
+    assert resync is not None and resync.t_s == pytest.approx(t - P), "the grid resumes"
+    policy.expected_late = frozenset({"a", "b"})  # as a rig whose sensors all come too late
+    assert policy.next_instant(timings, t - 0.001) is None, "not before the instant"
+    assert policy.due_s == pytest.approx(t), "the loop's timer: the instant itself"
+    instant = policy.next_instant(timings, t)
+    assert instant is not None and instant.t_s == pytest.approx(t)
+    assert policy.due_s == pytest.approx(t + P), "the next one at its own instant"
+
+
+def test_the_new_fields_do_not_change_aligned_or_phased() -> None:
+    for name in ("aligned", "phased"):
+        plain = Alignment(name, 30.0)  # type: ignore[arg-type]
+        tuned = Alignment(name, 30.0, grid="horizon", skip_expected_late=True)  # type: ignore[arg-type]
+        assert run_policy(plain) == run_policy(tuned)
