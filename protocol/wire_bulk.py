@@ -3,8 +3,9 @@
 :func:`frame_in_bulk` checks a whole frame at once: the scalar fields with exact ``type`` tests,
 and the joints and states of all bodies joined into one blob each. The joints are judged on
 their bytes first (the top byte of a float32 says whether |value| < 32 m), so a frame of
-tracked joints takes no numpy reduction, and one with NaN at its NOT_TRACKED joints takes one. It only ever says "valid, here are the values"
-or "not sure" (``None``); it never names an error. On ``None``, ``protocol.wire`` runs the
+tracked joints needs no numpy call to check them, and one with NaN at its NOT_TRACKED joints
+needs an ``isinf`` and the NaN write. It only ever says "valid, here are the values" or "not
+sure" (``None``); it never names an error. On ``None``, ``protocol.wire`` runs the
 precise checks in their documented order (docs/protocol.md §6.3), which accept the frame or
 raise the one :class:`~protocol.errors.DecodeError` that names the first rule it breaks. So the
 rejection reasons and messages are those of the precise path by construction; what this module
@@ -152,17 +153,23 @@ def _joints_valid(all_joints: bytes, all_states: bytes, joints: npt.NDArray[np.f
     if b"\x00" not in all_states:  # every joint seen: every value must be small, or checked
         return b"\x01" not in large or _valid_on_the_floats(joints, all_states)
     unseen = all_states.translate(_UNSEEN)  # one byte per joint: 1 if NOT_TRACKED
-    unseen_coordinates = np.frombuffer(unseen, dtype=np.bool_).repeat(3)
-    if b"\x01" in large:
-        # Large values are fine only at NOT_TRACKED joints, and only if none is infinite. The
-        # usual case, a NaN in every coordinate of every NOT_TRACKED joint (as agents SHOULD
-        # send), is one comparison of bytes; any other needs each joint's flags.
-        if large != unseen_coordinates.tobytes() and _large_where_seen(large, unseen):
-            return _valid_on_the_floats(joints, all_states)
-        if np.logical_or.reduce(np.isinf(joints)):
+    if b"\x01" not in large:
+        mask = np.frombuffer(unseen, dtype=np.bool_).repeat(3)
+    elif large[0::3] == unseen and large[1::3] == unseen and large[2::3] == unseen:
+        # The usual case: every coordinate of every NOT_TRACKED joint is large (the NaN agents
+        # SHOULD send) and no other is. Then the large flags are the mask to write NaN through.
+        # count_nonzero: a third of the cost of a logical_or reduction on a few hundred flags.
+        if np.count_nonzero(np.isinf(joints)):  # NOT_TRACKED joints may be NaN, never ±inf
             return False
+        mask = np.frombuffer(large, dtype=np.bool_)
+    elif _large_where_seen(large, unseen):  # a tracked joint is 32 m or more away, or not finite
+        return _valid_on_the_floats(joints, all_states)
+    else:
+        if np.count_nonzero(np.isinf(joints)):
+            return False
+        mask = np.frombuffer(unseen, dtype=np.bool_).repeat(3)
     # NOT_TRACKED positions carry no meaning: NaN, as the precise checks write.
-    np.putmask(joints, unseen_coordinates, np.nan)
+    np.putmask(joints, mask, np.nan)
     return True
 
 
@@ -183,7 +190,7 @@ def _large_where_seen(large: bytes, unseen: bytes) -> bool:
 def _valid_on_the_floats(joints: npt.NDArray[np.float32], all_states: bytes) -> bool:
     """:func:`_joints_valid` decided on the floats (large values at tracked joints, or ±inf)."""
     if b"\x00" in all_states:  # some joints are NOT_TRACKED: their values count only if ±inf
-        if np.logical_or.reduce(np.isinf(joints)):
+        if np.count_nonzero(np.isinf(joints)):
             return False
         unseen = np.frombuffer(all_states.translate(_UNSEEN), dtype=np.bool_).repeat(3)
         np.putmask(joints, unseen, 0.0)
