@@ -16,7 +16,6 @@ deleting its ``agents/<id>.key`` and restarting the server.
 from __future__ import annotations
 
 import logging
-import shutil
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -83,17 +82,55 @@ def create_server_keys(data_dir: Path) -> KeyPaths:
     return paths
 
 
-def create_agent_keys(data_dir: Path, sensor_id: str) -> Path:
-    """Create (or keep) a sensor's key pair and allowlist it; returns the file for its PC."""
+@dataclass(frozen=True, slots=True)
+class AgentKey:
+    """A sensor's key pair after :func:`create_agent_keys`."""
+
+    sensor_id: str
+    secret: Path
+    """The key pair file to copy to that sensor's PC (may have been moved away already)."""
+    created: bool
+    """True: made now; False: the sensor's allowlisted key was kept as it was."""
+
+
+def create_agent_keys(data_dir: Path, sensor_id: str) -> AgentKey:
+    """Create a sensor's key pair and allowlist it, or keep the allowlisted one it has.
+
+    Run again with the whole list of sensors, only the missing ones get keys: an existing key is
+    never replaced, and a key that was revoked (its secret here, its allowlist entry deleted) is
+    not silently allowed again.
+
+    Raises:
+        KeysMissing: ``sensor_id`` is not a valid sensor id; its allowlisted public key is not
+            the one of its secret key here; or its secret key is here but not allowlisted (the
+            message says which file to delete to give it a new key pair).
+    """
     if not SENSOR_ID_PATTERN.fullmatch(sensor_id):
         raise KeysMissing(f"{sensor_id!r} is not a valid sensor id (A-Z a-z 0-9 . _ -, ≤ 64)")
     paths = key_paths(data_dir)
-    if not paths.agent_secret(sensor_id).exists():
-        _create_pair(paths.agent_secrets, sensor_id)
+    allowlisted = paths.agents / f"{sensor_id}.key"
+    secret = paths.agent_secret(sensor_id)
+    if allowlisted.exists():
+        if secret.exists() and _public_key(secret) != _public_key(allowlisted):
+            raise KeysMissing(
+                f"{sensor_id}: {allowlisted} is not the public key of {secret}; delete the one "
+                "that is wrong (or both, then run this again for a new key pair)"
+            )
+        return AgentKey(sensor_id, secret, created=False)
+    if secret.exists():
+        raise KeysMissing(
+            f"{sensor_id}: {secret} exists but is not allowlisted in {paths.agents} (revoked?); "
+            f"to give {sensor_id} a new key pair, delete {secret} and run this again"
+        )
+    _create_pair(paths.agent_secrets, sensor_id)
     paths.agents.mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(paths.agent_secrets / f"{sensor_id}.key", paths.agents / f"{sensor_id}.key")
-    (paths.agent_secrets / f"{sensor_id}.key").unlink()
-    return paths.agent_secret(sensor_id)
+    (paths.agent_secrets / f"{sensor_id}.key").replace(allowlisted)  # the same file system
+    return AgentKey(sensor_id, secret, created=True)
+
+
+def _public_key(path: Path) -> bytes:
+    public, _ = zmq.auth.load_certificate(path)
+    return bytes(public)
 
 
 def allowed_agents(data_dir: Path) -> dict[str, str]:

@@ -6,7 +6,10 @@ WebSocket -> viewer. Sensors stand evenly around the room looking at the perform
 Calibration (default ``auto``): the demo calibrates itself through the REST API exactly as a
 user would with curl (README): start an ``auto`` run while the simulated people walk, wait,
 commit. With ``truth`` the agents instead tell the server their true poses (``pose_hint`` with
-source ``sim_truth``).
+source ``sim_truth``). A ``--data`` folder that already holds a calibration of every sensor is
+used as it is (``recalibrate`` to calibrate again).
+
+Once fusion runs, the viewer's address is the last thing on the terminal, in a box.
 """
 
 from __future__ import annotations
@@ -27,7 +30,7 @@ import urllib.request
 from pathlib import Path
 from typing import Any
 
-from skelfuse.server.auth import create_agent_keys, create_server_keys, key_paths
+from skelfuse.server.auth import KeysMissing, create_agent_keys, create_server_keys, key_paths
 
 logger = logging.getLogger("skelfuse.demo")
 
@@ -146,21 +149,22 @@ def _terminate(processes: list[subprocess.Popen[bytes]], timeout_s: float = 5.0)
             process.wait()
 
 
-def _show_viewer_address(url: str, token: str, *, chosen: bool, data_dir: Path) -> None:
-    """Tell the user how to open the viewer without writing the token to the log.
-
-    Logs end up in files, journals and CI output (issue 12: no secret in any log line), so the
-    log names where the token is: the user's own ``--token``, or a random one saved in
-    ``<data>/api-token`` (owner-only). An interactive terminal also gets the whole address,
-    written to the terminal itself rather than logged.
-    """
+def _token_location(token: str, *, chosen: bool, data_dir: Path) -> str:
+    """Where the token is, in words: the user's own, or a random one saved owner-only."""
     if chosen:
-        where = "your --token"
-    else:
-        token_file = data_dir / "api-token"
-        token_file.write_text(token + "\n", encoding="utf-8")
-        token_file.chmod(0o600)
-        where = f"the token in {token_file}"
+        return "your --token"
+    token_file = data_dir / "api-token"
+    token_file.write_text(token + "\n", encoding="utf-8")
+    token_file.chmod(0o600)
+    return f"the token in {token_file}"
+
+
+def _announce_viewer(url: str, where: str) -> None:
+    """Log, without the token itself, where the viewer is and where its token is.
+
+    Logs end up in files, journals and CI output (issue 12: no secret in any log line); the
+    whole address goes to the terminal only (:func:`viewer_box`).
+    """
     # Worded so that nothing here looks like a secret to the log's masking (token=…, Bearer …).
     logger.info(
         "open the viewer at %s/?token= followed by %s  (REST docs at %s/docs; changes send the "
@@ -169,8 +173,46 @@ def _show_viewer_address(url: str, token: str, *, chosen: bool, data_dir: Path) 
         where,
         url,
     )
-    if sys.stderr.isatty():  # a person is watching: the address, to click
-        print(f"viewer: {url}/?token={token}", file=sys.stderr, flush=True)
+
+
+def viewer_box(url: str, token: str, where: str, *, terminal: bool) -> str:
+    """The viewer's address in a box, for the last lines of the demo's terminal.
+
+    Args:
+        url: the server's base address (``http://host:port``).
+        token: the API token; shown only when ``terminal`` (a person is watching), because
+            output that is not a terminal usually ends up in a file or a CI log.
+        where: where the token is, in words (:func:`_token_location`), for the other case.
+        terminal: the box goes to an interactive terminal.
+    """
+    address = f"{url}/?token={token}" if terminal else f"{url}/?token=<{where}>"
+    lines = ["skelfuse demo is fusing; open the viewer (Ctrl-C stops):", address]
+    width = max(len(line) for line in lines)
+    rule = "+" + "-" * (width + 2) + "+"
+    return "\n".join([rule, *(f"| {line:<{width}} |" for line in lines), rule])
+
+
+def _wait_fusing(url: str, sensors: int, stop: threading.Event, timeout_s: float) -> bool:
+    """Wait until every sensor is online and the server fuses people (``/api/health``);
+    False on timeout or stop."""
+    deadline = time.monotonic() + timeout_s
+    while not stop.is_set() and time.monotonic() < deadline:
+        try:
+            health = _api(url + "/api/health")
+            if health["sensors_online"] >= sensors and int(health["persons"]) > 0:
+                return True
+        except (RuntimeError, OSError, ValueError, KeyError):
+            pass
+        stop.wait(0.25)
+    return False
+
+
+def _kept_calibration(url: str, sensor_ids: list[str]) -> int | None:
+    """The version of the server's stored calibration if it covers every sensor, else None."""
+    active = _api(url + "/api/calibration")
+    if active.get("version") is None or not set(sensor_ids) <= set(active.get("sensors") or ()):
+        return None
+    return int(active["version"])
 
 
 def run_demo(
@@ -184,8 +226,14 @@ def run_demo(
     log_level: str = "INFO",
     calibration: str = "auto",
     token: str | None = None,
+    recalibrate: bool = False,
+    access_log: bool = False,
 ) -> int:
-    """Run until Ctrl-C (or ``duration_s``); returns the exit status."""
+    """Run until Ctrl-C (or ``duration_s``); returns the exit status.
+
+    ``recalibrate``: calibrate (``auto``) even when ``data_dir`` holds a calibration of every
+    sensor. ``access_log``: the server logs every HTTP request.
+    """
     if not 1 <= sensors <= 8:
         logger.error("--sensors must be 1..8")
         return 2
@@ -198,6 +246,10 @@ def run_demo(
         temporary = tempfile.TemporaryDirectory(prefix="skelfuse-demo-")
         data_dir = Path(temporary.name)
     python = [sys.executable, "-m", "skelfuse", "--log-level", log_level]
+    # The agents' INFO lines are a statistic every 10 s each: they would push the viewer's
+    # address (the last thing the demo prints) off the screen. Their warnings still show.
+    quiet = "DEBUG" if log_level.upper() == "DEBUG" else "WARNING"
+    agent_python = [sys.executable, "-m", "skelfuse", "--log-level", quiet]
     zmq_bind = (
         f"tcp://{host}:{zmq_port}" if host not in ("0.0.0.0", "::") else f"tcp://*:{zmq_port}"
     )
@@ -207,8 +259,17 @@ def run_demo(
     token_given = token is not None
     token = token or secrets.token_urlsafe(12)
     keys = key_paths(data_dir)
-    create_server_keys(data_dir)
-    agent_keys = {sensor_id: create_agent_keys(data_dir, sensor_id) for sensor_id, _ in layout}
+    try:  # a --data folder from an earlier run keeps its keys
+        create_server_keys(data_dir)
+        agent_keys = {sensor_id: create_agent_keys(data_dir, sensor_id).secret
+                      for sensor_id, _ in layout}  # fmt: skip
+    except KeysMissing as exc:
+        logger.error("%s", exc)
+        return 2
+    missing = [str(path) for path in agent_keys.values() if not path.exists()]
+    if missing:
+        logger.error("the simulated agents' secret keys are missing: %s", ", ".join(missing))
+        return 2
     # The children get their own process group: Ctrl-C in a terminal signals the whole
     # foreground group, and a server signalled twice (by the terminal, then by the demo's own
     # orderly stop) aborts its shutdown with a traceback. The demo alone stops them.
@@ -216,7 +277,7 @@ def run_demo(
     server = subprocess.Popen(
         [
             *python, "server", "--http", f"{host}:{port}", "--zmq", zmq_bind,
-            "--data", str(data_dir), "--curve",
+            "--data", str(data_dir), "--curve", *(["--access-log"] if access_log else []),
         ],
         # The token goes in the environment: a command line is readable by every local user.
         env={**os.environ, "SKELFUSE_TOKEN": token},
@@ -251,7 +312,7 @@ def run_demo(
             processes.append(
                 subprocess.Popen(
                     [
-                        *python,
+                        *agent_python,
                         "agent",
                         "--source",
                         "sim",
@@ -270,13 +331,24 @@ def run_demo(
                 )
             )
         logger.info("demo running: %d simulated sensors, %d people", sensors, persons)
-        _show_viewer_address(url, token, chosen=token_given, data_dir=data_dir)
+        where = _token_location(token, chosen=token_given, data_dir=data_dir)
+        _announce_viewer(url, where)
         deadline = None if duration_s is None else time.monotonic() + duration_s
-        if calibration == "auto" and not calibrate(url, sensors, stop, token):
+        kept = None if recalibrate else _kept_calibration(url, [s for s, _ in layout])
+        if kept is not None:
+            logger.info("using calibration v%d kept in %s (--recalibrate to calibrate again)",
+                        kept, data_dir)  # fmt: skip
+        elif calibration == "auto" and not calibrate(url, sensors, stop, token):
             if stop.is_set():
                 return 0
             logger.error("automatic calibration failed; try --calibration truth")
             return 1
+        wait_s = 60.0 if deadline is None else min(60.0, max(0.0, deadline - time.monotonic()))
+        if not _wait_fusing(url, sensors, stop, timeout_s=wait_s) and not stop.is_set():
+            logger.warning("no fused people after %.0f s; the viewer may stay empty", wait_s)
+        if not stop.is_set():
+            terminal = sys.stderr.isatty()  # a person is watching: the address, to click
+            print(viewer_box(url, token, where, terminal=terminal), file=sys.stderr, flush=True)
         while not stop.is_set():
             if deadline is not None and time.monotonic() >= deadline:
                 break

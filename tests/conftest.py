@@ -20,6 +20,7 @@ from skelfuse.cli.values import parse_pose
 from skelfuse.demo import sensor_layout
 from skelfuse.protocol.transform import invert, pose_from_position_yaw_pitch
 from tests.support import free_port, wait_until
+from tests.support_terminal import popen_in_terminal
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = PROJECT_ROOT.parent / "shared" / "data"
@@ -85,12 +86,12 @@ def demo_stack(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DemoStack]:
     http_port, zmq_port = free_port(), free_port()
     log_path = tmp_path_factory.mktemp("demo") / "demo.log"
     data_dir = log_path.parent / "data"
-    log = log_path.open("wb")
-    process = subprocess.Popen(
+    # On a terminal, as a person runs it: the demo then shows the viewer's address in full.
+    process = popen_in_terminal(
         [sys.executable, "-m", "skelfuse", "demo", "--sensors", "3", "--persons", "2",
          "--http", f"127.0.0.1:{http_port}", "--zmq-port", str(zmq_port), "--duration", "300",
          f"--token={DEMO_TOKEN}", "--data", str(data_dir)],
-        stdout=log, stderr=subprocess.STDOUT, cwd=PROJECT_ROOT,
+        log_path, cwd=PROJECT_ROOT,
     )  # fmt: skip
     stack = DemoStack(f"http://127.0.0.1:{http_port}", f"ws://127.0.0.1:{http_port}", zmq_port,
                       3, 2, process, log_path, data_dir)  # fmt: skip
@@ -116,4 +117,3 @@ def demo_stack(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DemoStack]:
             except subprocess.TimeoutExpired:
                 process.kill()
                 process.wait()
-        log.close()

@@ -28,6 +28,17 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "--token", default=None, help="API token for REST changes and the feed (default: random)"
     )
     demo.add_argument("--duration", type=float, default=None, help="stop after N seconds")
+    demo.add_argument(
+        "--recalibrate",
+        action="store_true",
+        help="with --data: calibrate again even when the folder holds a calibration of every "
+        "sensor (by default the demo restarts with it)",
+    )
+    demo.add_argument(
+        "--access-log",
+        action="store_true",
+        help="the server logs every HTTP request (off by default: the viewer polls)",
+    )
     demo.set_defaults(func=run)
 
 
@@ -49,4 +60,6 @@ def run(args: argparse.Namespace) -> int:
         log_level=args.log_level,
         calibration=args.calibration,
         token=args.token,
+        recalibrate=args.recalibrate,
+        access_log=args.access_log,
     )

@@ -63,6 +63,11 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         action="store_true",
         help="authenticate agents with CurveZMQ keys from <data>/keys ('skelfuse keys create')",
     )
+    server.add_argument(
+        "--access-log",
+        action="store_true",
+        help="log every HTTP request (off by default: the viewer polls, one line each)",
+    )
     server.set_defaults(func=run)
 
 
@@ -109,7 +114,12 @@ def run(args: argparse.Namespace) -> int:
             "serving %s without --token: anyone on the network can change calibration", host
         )
     config = uvicorn_config(
-        create_app(settings), host, port, args.log_level.lower(), args.ws_compression
+        create_app(settings),
+        host,
+        port,
+        args.log_level.lower(),
+        args.ws_compression,
+        access_log=args.access_log,
     )
     server = uvicorn.Server(config)
     server.run()
@@ -142,9 +152,18 @@ def check_agent_endpoint(endpoint: str) -> None:
 
 
 def uvicorn_config(
-    app: Any, host: str, port: int, log_level: str, ws_compression: bool
+    app: Any,
+    host: str,
+    port: int,
+    log_level: str,
+    ws_compression: bool,
+    *,
+    access_log: bool = False,
 ) -> uvicorn.Config:
     """How ``skelfuse server`` runs uvicorn: the WebSocket limits, pings and compression.
+
+    ``access_log``: a line per HTTP request. Off by default (issue 13): the viewer polls the
+    REST API every second or so, and those lines scroll away what the terminal says once.
 
     ``ws_compression``: negotiate permessage-deflate with clients that offer it. Off by default
     because the deflate stream is per connection: every frame is compressed again for every
@@ -159,6 +178,7 @@ def uvicorn_config(
         host=host,
         port=port,
         log_level=log_level,
+        access_log=access_log,
         # Send buffers of about one frame, so the feed conflates instead of queueing in the
         # kernel (issue 12, defect 2); a client that stops reading is then evicted by the
         # broadcaster (1008, 5 s) before the keepalive below would cut it (1011, about 10 s).
