@@ -103,6 +103,27 @@ class Frame:
     floor: tuple[float, float, float, float] | None = None
 
 
+_set_seq = cast(Any, Frame).seq.__set__
+_set_t_capture_ns = cast(Any, Frame).t_capture_ns.__set__
+_set_bodies = cast(Any, Frame).bodies.__set__
+_set_floor = cast(Any, Frame).floor.__set__
+
+
+def checked_frame(
+    seq: int,
+    t_capture_ns: int,
+    bodies: tuple[Body, ...],
+    floor: tuple[float, float, float, float] | None,
+) -> Frame:
+    """``Frame(seq, t_capture_ns, bodies, floor)`` for checked values, as :func:`checked_body`."""
+    frame: Frame = _new_object(Frame)
+    _set_seq(frame, seq)
+    _set_t_capture_ns(frame, t_capture_ns)
+    _set_bodies(frame, bodies)
+    _set_floor(frame, floor)
+    return frame
+
+
 @dataclass(frozen=True, slots=True)
 class Heartbeat:
     """Liveness in either direction; ``t_ns`` is the sender's clock (Unix ns).

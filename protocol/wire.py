@@ -34,6 +34,7 @@ from skelfuse.protocol.messages import (
     Response,
     Welcome,
     checked_body,
+    checked_frame,
 )
 from skelfuse.protocol.skeleton import JOINT_COUNT, SKELETON_NAME
 from skelfuse.protocol.wire_bulk import frame_in_bulk
@@ -195,8 +196,9 @@ def _decode_frame(raw: dict[str, Any]) -> Frame:
     bulk = frame_in_bulk(raw)
     if bulk is None:
         return decode_frame_precisely(raw)
-    bodies = tuple(map(checked_body, bulk.tracking_ids, bulk.joints_m, bulk.states, bulk.hands))
-    return Frame(bulk.seq, bulk.t_capture_ns, bodies, bulk.floor)
+    seq, t_capture_ns, tracking_ids, joints_m, states, floor, hands = bulk
+    bodies = tuple(map(checked_body, tracking_ids, joints_m, states, hands))
+    return checked_frame(seq, t_capture_ns, bodies, floor)
 
 
 def decode_frame_precisely(raw: dict[str, Any]) -> Frame:
