@@ -11,9 +11,10 @@ from typing import Final, Literal
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.anatomy import CHAIN_LEVELS
+from skelfuse.fusion import kernels
+from skelfuse.fusion.anatomy import CHAIN_LEVELS, CHAIN_ORDER
 from skelfuse.fusion.bone_window import SampleWindow, nanmedian_axis
-from skelfuse.protocol.skeleton import BONE_MIRROR_PERMUTATION, BONES, TrackingState
+from skelfuse.protocol.skeleton import BONE_MIRROR_PERMUTATION, BONES, PARENTS, TrackingState
 
 FloatArray = npt.NDArray[np.float64]
 BONE_COUNT: Final = len(BONES)
@@ -163,10 +164,12 @@ def project_bone_lengths(
     """
     original = np.asarray(joints, dtype=np.float64)
     ref = np.asarray(reference, dtype=np.float64)
+    move = np.ones(original.shape[:-1]) if mobility is None else np.asarray(mobility, np.float64)
+    move = np.maximum(move, 1e-6)
+    if kernels.enabled():  # the same bits in one compiled loop; the code below is the reference
+        return kernels.project_bone_lengths(original, ref, move, iterations, BONE_TABLES)
     missing = np.asarray(~np.isfinite(original).all(axis=-1))  # (..., 25)
     out = np.where(missing[..., None], 0.0, original)  # NaN-free while iterating
-    move = np.ones(out.shape[:-1]) if mobility is None else np.asarray(mobility, np.float64)
-    move = np.maximum(move, 1e-6)
     # Fixed over the passes, for all bones at once in group order: each bone's target and its
     # ends' shares (0 for a bone with an unknown target or a missing end: it moves nothing).
     target = ref[..., _GROUPED]
@@ -193,6 +196,20 @@ def project_bone_lengths(
     out[missing] = np.nan
     return enforce_bone_lengths(out, ref)
 
+
+_BONE_TO_JOINT: Final = _SOURCE_OF - 1
+_BONE_TO_JOINT[_ROOT] = -1
+BONE_TABLES: Final = (
+    _GROUPED,
+    _BONE_PARENT,
+    _BONE_CHILD,
+    np.array(CHAIN_ORDER, dtype=np.intp),
+    np.array([max(parent, 0) for parent in PARENTS], dtype=np.intp),
+    _BONE_TO_JOINT,
+)
+"""The index tables of :func:`skelfuse.fusion.kernels_bones.project_loop`: the bones in group
+order, each bone's parent and child, the joints parents first, each joint's parent (SpineBase:
+itself, unused) and the bone ending at each joint (−1: SpineBase)."""
 
 BoneSource = Literal["set", "estimated", "none"]
 

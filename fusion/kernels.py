@@ -30,6 +30,7 @@ import numpy.typing as npt
 from skelfuse.fusion.kernels_jit import numba_module
 
 FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.intp]
 
 ENV: Final = "SKELFUSE_KERNELS"
 MODES: Final = ("auto", "numba", "numpy")
@@ -93,6 +94,37 @@ def rom_factors_and_forward(
     return factors, forward
 
 
+def project_bone_lengths(
+    joints: FloatArray,
+    reference: FloatArray,
+    move: FloatArray,
+    iterations: int,
+    tables: tuple[IntArray, IntArray, IntArray, IntArray, IntArray, IntArray],
+) -> FloatArray:
+    """The compiled :func:`skelfuse.fusion.bones.project_bone_lengths` (same bits).
+
+    Args:
+        joints: (..., 25, 3) metres, NaN where unknown; reference: (..., 24) metres (NaN: leave
+            that bone); move: (..., 25) mobilities, floored at 1e-6; iterations: passes;
+            tables: :data:`skelfuse.fusion.bones.BONE_TABLES` (the skeleton's index tables).
+
+    Returns:
+        (..., 25, 3) float64.
+    """
+    from skelfuse.fusion import kernels_bones  # imports numba: only when used
+
+    shape = joints.shape
+    flat = np.ascontiguousarray(joints, dtype=np.float64).reshape(-1, 25, 3)
+    ref = np.ascontiguousarray(reference, dtype=np.float64).reshape(-1, reference.shape[-1])
+    mobility = np.ascontiguousarray(np.broadcast_to(move, shape[:-1])).reshape(-1, 25)
+    out = np.empty_like(flat)
+    grouped, parents, children, order, parent_of, bone_to = tables
+    kernels_bones.project_loop(
+        flat, ref, mobility, iterations, grouped, parents, children, order, parent_of, bone_to, out
+    )
+    return out.reshape(shape)
+
+
 def warm_up() -> float:
     """Compile (or load from numba's cache) every kernel now; returns the seconds it took
     (0.0 when the kernels are off). Call at start, off any latency-bound loop."""
@@ -102,4 +134,7 @@ def warm_up() -> float:
     views = np.zeros((2, 25, 3))
     limits = np.zeros(13)
     rom_factors_and_forward(views, 15.0, limits, limits)
+    index = np.zeros(25, dtype=np.intp)  # the index tables' types, any content
+    tables = (index, index, index, index, index, np.full(25, -1, dtype=np.intp))
+    project_bone_lengths(views, np.ones((2, 24)), np.ones((2, 25)), 1, tables)
     return time.perf_counter() - start

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from skelfuse.agent.sim.performer import ProceduralPerformer
-from skelfuse.fusion import anatomy, kernels
+from skelfuse.fusion import anatomy, bones, kernels
 from skelfuse.fusion.kernels_jit import numba_module
 from skelfuse.protocol.skeleton import JointId as J
 from tests.unit import test_golden_replay as golden
@@ -101,3 +101,27 @@ def test_golden_replay_on_each_path(mode: str, config: str, tmp_path: Path) -> N
         pytest.skip("numba is not installed (pip install -e .[fast])")
     with kernels.forced(mode):
         golden.test_replay_output_is_byte_identical_to_the_golden_digest(config, tmp_path)
+
+
+@pytest.mark.parametrize("seed", range(5))
+@pytest.mark.parametrize("iterations", [1, 3])
+def test_bone_projection_kernel_gives_the_numpy_bits(
+    numba_kernels: None, seed: int, iterations: int
+) -> None:
+    rng = np.random.default_rng(seed)
+    skeletons = _views(seed)
+    true_lengths = np.linalg.norm(
+        skeletons[:, bones._BONE_CHILD] - skeletons[:, bones._BONE_PARENT], axis=-1
+    )
+    references = true_lengths * rng.uniform(0.8, 1.2, true_lengths.shape)
+    references[rng.random(references.shape) < 0.1] = np.nan  # bones left alone
+    mobility = rng.uniform(0.0, 1.0, skeletons.shape[:2])
+    for args in ((skeletons, references), (skeletons, references, mobility)):
+        fitted = bones.project_bone_lengths(*args, iterations=iterations)
+        with kernels.forced("numpy"):
+            expected = bones.project_bone_lengths(*args, iterations=iterations)
+        assert _same_bits(fitted, expected)
+    one = bones.project_bone_lengths(skeletons[0], references[0], iterations=iterations)
+    with kernels.forced("numpy"):
+        expected = bones.project_bone_lengths(skeletons[0], references[0], iterations=iterations)
+    assert _same_bits(one, expected)  # one skeleton, (25, 3)
