@@ -25,6 +25,19 @@ def connected(url: str) -> list[str]:
     return [r["id"] for r in httpx.get(url + "/api/sensors").json()["sensors"] if r["connected"]]
 
 
+def answer(url: str, path: str, status: int = 200) -> httpx.Response:
+    """The first answer with ``status`` within 30 s: on a machine at load 15-20 the in-process
+    agents and server stall for seconds at times (agents "went silent", a render over 5 s)."""
+    answers: list[httpx.Response] = []
+
+    def got() -> bool:
+        answers.append(httpx.get(url + path, timeout=10))
+        return answers[-1].status_code == status
+
+    assert wait_until(got, timeout_s=30, interval_s=0.6), answers[-1].text
+    return answers[-1]
+
+
 def floor_share(points: np.ndarray, height: float) -> float:
     """Share of the points within 3 cm of the plane y = ``height``."""
     return float(np.mean(np.abs(points[:, 1] - height) < 0.03))
@@ -41,9 +54,9 @@ def test_cloud_in_sensor_frame_then_world_bounded_shared_and_refused_as_document
     assert wait_until(lambda: len(connected(url)) == 3, timeout_s=15)
     clouds: LatestClouds = live_server.server.config.app.state.clouds
 
-    response = httpx.get(url + "/api/sensors/cam-a/cloud", params={"max_points": 300}, timeout=10)
-    assert response.status_code == 200, response.text
-    before = response.json()
+    answer(url, "/api/sensors/cam-b/cloud")  # each agent's first render is the slowest
+    time.sleep(0.6)
+    before = answer(url, "/api/sensors/cam-a/cloud?max_points=300").json()
     assert before["sensor_id"] == "cam-a" and before["frame"] == "sensor"
     assert before["pose"] is None  # no pose hint, no calibration
     points = np.asarray(before["points"])
@@ -52,8 +65,8 @@ def test_cloud_in_sensor_frame_then_world_bounded_shared_and_refused_as_document
     # Sensor frame: the sensor stands 1 m above the floor, looking level.
     assert floor_share(points, -1.0) > 0.2 and floor_share(points, 0.0) < 0.05
 
-    default = httpx.get(url + "/api/sensors/cam-b/cloud", timeout=10).json()
-    assert 1000 < default["count"] <= 2000  # the default bound
+    time.sleep(0.6)
+    assert 1000 < answer(url, "/api/sensors/cam-b/cloud").json()["count"] <= 2000  # default
 
     async def at_once() -> list[httpx.Response]:
         async with httpx.AsyncClient(base_url=url, timeout=10) as client:
@@ -75,8 +88,8 @@ def test_cloud_in_sensor_frame_then_world_bounded_shared_and_refused_as_document
         assert httpx.get(url + "/api/sensors/cam-a/cloud", params=params).status_code == status
     missing = httpx.get(url + "/api/sensors/nope/cloud")
     assert missing.status_code == 404 and "cam-a" in missing.json()["detail"]
-    no_depth = httpx.get(url + "/api/sensors/cam-c/cloud", timeout=10)
-    assert no_depth.status_code == 503 and "depth_cloud" in no_depth.json()["detail"]
+    no_depth = answer(url, "/api/sensors/cam-c/cloud", 503)
+    assert "depth_cloud" in no_depth.json()["detail"]
 
     bodies = httpx.get(url + "/api/sensors/cam-a/bodies").json()
     assert bodies["pose"] is None and bodies["T_world_from_sensor"] is None
@@ -89,8 +102,7 @@ def test_cloud_in_sensor_frame_then_world_bounded_shared_and_refused_as_document
     }
     assert httpx.post(url + "/api/calibration/import", json=calibration).status_code == 200
     time.sleep(0.6)
-    after = httpx.get(url + "/api/sensors/cam-b/cloud", params={"max_points": 3000}, timeout=10)
-    world = after.json()
+    world = answer(url, "/api/sensors/cam-b/cloud?max_points=3000").json()
     assert world["frame"] == "world" and world["pose"] == "stored"
     assert world["count"] <= 3000
     # World frame: the floor is y = 0 (cam-b stands 1.4 m above it).
