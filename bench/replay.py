@@ -11,7 +11,9 @@ arrival time, exactly as the server's recorder stores it. Then:
 - **BVH round trip**: each fused person longer than 10 s is exported to BVH (30 fps), read back,
   forward kinematics run, and the positions compared with the fused joints (mean, p95, max).
 
-Run: ``python bench/replay.py`` (``--minutes 1`` for a quicker run, ``--json FILE`` to save).
+Run: ``python bench/replay.py`` (``--minutes 1`` for a quicker run, ``--json FILE`` to save,
+``--kernels both`` for numpy against the compiled fusion kernels, interleaved; the kernels'
+warm-up is reported apart and not counted in the replay times).
 """
 
 from __future__ import annotations
@@ -31,13 +33,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from skelfuse.agent.sim.kinect_model import SimulatedKinect
 from skelfuse.agent.sim.performer import ProceduralPerformer
+from skelfuse.fusion import kernels
 from skelfuse.fusion.hub import FusedFrame
 from skelfuse.protocol.feed import frame_json
 from skelfuse.protocol.recording_file import Header, pack_record
 from skelfuse.protocol.transform import look_at_pose
 from skelfuse.protocol.wire import Body, Frame, Hello, encode
 from skelfuse.recording.export_bvh import export_bvh, roundtrip_errors_m
-from skelfuse.recording.replay import replay
+from skelfuse.recording.replay import ReplayStats, replay
 from skelfuse.recording.take import take_from_frames
 
 FPS = 30.0
@@ -82,16 +85,21 @@ def generate_recording(
     return path.stat().st_size
 
 
-def fused_digest(path: Path) -> tuple[str, list[FusedFrame], float]:
-    started = time.perf_counter()
-    frames = list(replay(path))
-    elapsed = time.perf_counter() - started
+def fused_digest(path: Path, mode: str = "auto") -> tuple[str, list[FusedFrame], float, float]:
+    """Replay ``path`` with the fusion kernels in ``mode`` (skelfuse.fusion.kernels): the fused
+    frames' digest, the frames, the replay's seconds without the kernels' warm-up, and the
+    warm-up's seconds (compiling, or loading numba's cache; 0 with the kernels off)."""
+    stats = ReplayStats()
+    with kernels.forced(mode):
+        started = time.perf_counter()
+        frames = list(replay(path, stats=stats))
+        elapsed = time.perf_counter() - started - stats.warm_up_s
     digest = hashlib.sha256()
     for frame in frames:
         digest.update(
             json.dumps(frame_json(frame, include_raw=False), separators=(",", ":")).encode()
         )
-    return digest.hexdigest(), frames, elapsed
+    return digest.hexdigest(), frames, elapsed, stats.warm_up_s
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -100,15 +108,24 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sensors", type=int, default=4)
     parser.add_argument("--persons", type=int, default=2)
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument(
+        "--kernels", choices=("auto", "numpy", "both"), default="auto",
+        help="fusion kernels (SKELFUSE_KERNELS); both: numpy and compiled replays interleaved",
+    )  # fmt: skip
     args = parser.parse_args(argv)
     duration = args.minutes * 60
+    modes = ("numpy", "numba", "numpy", "numba") if args.kernels == "both" else (args.kernels,) * 2
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "bench.sfrec"
         started = time.perf_counter()
         size = generate_recording(path, args.sensors, args.persons, duration)
         generated = time.perf_counter() - started
-        digest1, frames, elapsed1 = fused_digest(path)
-        digest2, _, elapsed2 = fused_digest(path)
+        runs = [(mode, *fused_digest(path, mode)) for mode in modes]
+    frames = runs[0][2]
+    warm_up_s = max(run[4] for run in runs)
+    per_mode = {
+        mode: min(run[3] for run in runs if run[0] == mode) for mode in dict.fromkeys(modes)
+    }
     take = take_from_frames(frames)
     rows = []
     for person in take.persons.values():
@@ -122,21 +139,28 @@ def main(argv: list[str] | None = None) -> int:
                          "mean_mm": float(errors.mean()),
                          "p95_mm": float(np.percentile(errors, 95)),
                          "max_mm": float(errors.max())})  # fmt: skip
-    best = min(elapsed1, elapsed2)
+    best = min(run[3] for run in runs)
+    identical = len({run[1] for run in runs}) == 1
     result = {
         "sensors": args.sensors, "persons": args.persons, "duration_s": duration,
-        "file_mb": size / 1e6, "generate_s": generated, "replay_s": [elapsed1, elapsed2],
-        "speed_x_realtime": duration / best, "fused_frames": len(frames),
-        "deterministic": digest1 == digest2, "bvh": rows,
+        "file_mb": size / 1e6, "generate_s": generated, "replay_s": [run[3] for run in runs],
+        "modes": list(modes), "speed_x_realtime": duration / best,
+        "speed_x_realtime_by_mode": {m: duration / e for m, e in per_mode.items()},
+        "kernel_warm_up_s": warm_up_s, "fused_frames": len(frames),
+        "deterministic": identical, "bvh": rows,
     }  # fmt: skip
     print(f"\nReplay: {args.sensors} sensors, {args.persons} persons, {duration:.0f} s recorded, "
           f"{size / 1e6:.1f} MB\n")  # fmt: skip
     print("| measure | value |")
     print("|---|---:|")
-    print(f"| replay wall time (best of 2) | {best:.1f} s |")
-    print(f"| replay speed | {duration / best:.0f}× real time |")
+    print(f"| replay wall time (best of {len(runs)}) | {best:.1f} s |")
+    for mode, elapsed in per_mode.items():
+        print(f"| replay speed, kernels {mode} | {duration / elapsed:.1f}× real time |")
+    if len(per_mode) == 2:
+        print(f"| numpy ÷ compiled wall time | {per_mode['numpy'] / per_mode['numba']:.2f} |")
+    print(f"| kernel warm-up (not in the replay times) | {warm_up_s:.2f} s |")
     print(f"| fused frames | {len(frames)} |")
-    print(f"| two replays byte-identical | {'yes' if digest1 == digest2 else 'NO'} |")
+    print(f"| replays byte-identical | {'yes' if identical else 'NO'} |")
     print("\n| person | BVH bones | frames | round trip mean mm | p95 mm | max mm |")
     print("|---:|---|---:|---:|---:|---:|")
     for row in rows:
