@@ -22,9 +22,9 @@ Measured over a window that starts after all sensors are online and a warm-up:
   server's share ``t_sent − t``. The server fuses instant ``t`` of its 30 Hz grid once *every*
   live sensor has a frame past ``t``, so up to one frame period (33 ms) of deliberate alignment
   wait is part of that figure by design. The agents record every capture instant, so the bench
-  computes that wait exactly for each fused frame (capture time of the last frame the instant
-  needed, minus ``t``) and also reports the latency beyond it: client receive time − capture time
-  of the frame that completed the instant;
+  computes that wait for each fused frame (``bench/load_waits.py``: the capture time of the last
+  frame the instant needed, mapped onto the server's clock with the offset estimates sampled
+  through the run, minus ``t``) and also reports the latency beyond it;
 - per stage of the live path (``load_stages``): the exact alignment wait above; the server's own
   histograms ``skelfuse_live_stage_seconds`` over the window (ingest per agent message, fusion
   step and publish per fused frame, fusion start − ``t``); ``t_sent`` → client receive; p50 / p99

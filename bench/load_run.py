@@ -30,6 +30,7 @@ from bench.load_server import (
     wait_for,
 )
 from bench.load_stages import Buckets, scrape_stages, window_quantile
+from bench.load_waits import alignment_waits, offset_series
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -128,28 +129,6 @@ def _pct(values: Sequence[float], q: float) -> float:
     return float(np.percentile(np.asarray(values), q)) * 1e3 if len(values) else math.nan
 
 
-def alignment_waits(
-    fused_t: FloatArray, captures: dict[str, FloatArray], offsets: dict[str, float]
-) -> FloatArray:
-    """Per fused instant: capture time of the last frame it needed, minus the instant.
-
-    The server maps a capture stamp onto its clock by adding the sensor's estimated offset, and
-    fuses instant ``t`` once every sensor has a frame at or past ``t``; the frame that completes
-    ``t`` is, per sensor, the first one with ``capture + offset >= t``.
-    """
-    completing = np.full(fused_t.shape, -np.inf)
-    for sensor_id, caps in captures.items():
-        if not len(caps):
-            continue
-        offset = offsets.get(sensor_id, 0.0)
-        idx = np.searchsorted(caps + offset, fused_t, side="left")
-        first = caps[np.minimum(idx, len(caps) - 1)]
-        first = np.where(idx < len(caps), first, np.nan)
-        completing = np.fmax(completing, first)
-    out: FloatArray = completing - fused_t
-    return out
-
-
 def stage_figures(result: RunResult, before: dict[str, Buckets], after: dict[str, Buckets]) -> None:
     """Set ``result``'s server stage p50 / p99 from two scrapes of the stage histograms."""
     for stage in ("ingest", "fusion", "publish", "lag"):
@@ -220,6 +199,9 @@ async def run_once(config: RunConfig, seed: int, log_dir: Path) -> RunResult:
 
         stages0 = await asyncio.to_thread(scrape_stages, base)
         t0, cpu0, sensors0, health0 = await snapshot()
+        # The server maps each frame with its clock offset estimate of the moment: sample them
+        # through the run for the alignment-wait reconstruction (bench/load_waits.py).
+        offset_samples = [(t0, {s["id"]: s["clock_offset_s"] for s in sensors0["sensors"]})]
         result.server_rss_start_mb = proc_rss_mb(server.pid)
         rss_max = result.server_rss_start_mb
         stalled_seen: dict[int, dict[str, Any]] = {}
@@ -233,7 +215,12 @@ async def run_once(config: RunConfig, seed: int, log_dir: Path) -> RunResult:
         while (now := time.time()) < end:
             await asyncio.sleep(min(1.0, end - now))
             rss_max = max(rss_max, proc_rss_mb(server.pid))
-            clients = await get(base + "/api/clients")
+            clients, sensors = await asyncio.gather(
+                get(base + "/api/clients"), get(base + "/api/sensors")
+            )
+            offset_samples.append(
+                (time.time(), {s["id"]: s["clock_offset_s"] for s in sensors["sensors"]})
+            )
             for _, port, _ in stalled:
                 entry = next(
                     (c for c in clients["clients"] if str(c["remote"]).endswith(f"{port})")), None
@@ -318,7 +305,8 @@ async def run_once(config: RunConfig, seed: int, log_dir: Path) -> RunResult:
     rx1 = sum(s["frames_received"] for s in sensors1["sensors"])
     result.ingest_fps = (rx1 - rx0) / result.window_s
     result.fused_fps = (health1["fused_frames"] - health0["fused_frames"]) / result.window_s
-    offsets = {s["id"]: float(s["clock_offset_s"] or 0.0) for s in sensors1["sensors"]}
+    offset_samples.append((t1, {s["id"]: s["clock_offset_s"] for s in sensors1["sensors"]}))
+    offsets = offset_series(offset_samples)
     captures = {s: np.asarray(a["captures"], dtype=np.float64) for s, a in per_agent.items()}
 
     # --- clients ----------------------------------------------------------------------------
