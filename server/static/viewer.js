@@ -1,19 +1,27 @@
 // skelfuse live viewer: fused skeletons, raw per-sensor views and sensor poses in three.js.
 //
-// Data: WebSocket /ws/skeletons?raw=1 (skeleton definition, then frames), GET /api/sensors
-// polled once a second, and the calibration REST API (/api/calibration: the active version every
-// 2 s; /api/calibration/runs: the newest run, every 0.5 s while one is running). World frame =
+// Data: WebSocket /ws/skeletons?raw=1 (skeleton definition, then frames) through the ES module
+// client (skelfuse-client.js: token, reconnects, refusals), GET /api/sensors polled once a second,
+// and the calibration REST API (/api/calibration: the active version every 2 s;
+// /api/calibration/runs: the newest run, every 0.5 s while one is running). Depth clouds
+// (viewer-clouds.js) and recordings (viewer-recording.js) have their own modules. World frame =
 // three.js frame (right-handed, +Y up, metres, floor y = 0).
 //
 // Test hook: window.skelfuseViewer (see HOOK below), refreshed after every render.
 
 import * as THREE from 'three';
 import { OrbitControls } from './vendor/OrbitControls.js';
+import { ApiClient, FeedClient, pageToken, storeToken } from './skelfuse-client.js';
+import { CloudLayer } from './viewer-clouds.js';
+import { initRecording } from './viewer-recording.js';
 
 // --- test hook ---------------------------------------------------------------------------------
 
 const HOOK = {
   connected: false, // WebSocket open
+  feedState: 'stopped', // the feed client's state: connecting | open | closed | refused
+  tokenPrompt: false, // the token field is shown (the feed refused the page)
+  feedRefusals: 0, // times the feed refused the page (token missing or wrong)
   framesReceived: 0, // "frame" messages received since page load (all connections)
   lastSeq: -1, // seq of the newest frame received (-1: none yet)
   personsDrawn: 0, // fused persons currently in the scene
@@ -42,6 +50,11 @@ const HOOK = {
   calibrationRunCommitted: null, // its committed_version, or null
   calibrationError: null, // the last error shown in the panel (a 4xx detail), or null
   ghostSensorsDrawn: 0, // dashed frustums of a done, uncommitted run's proposed poses
+  calibrationStage: null, // the run's current stage (its name), or null
+  calibrationStages: [], // the run's stages, in order
+  calibrationStageIndex: 0, // index of the current stage in calibrationStages
+  calibrationEtaS: null, // seconds left as the server estimates them, or null (not known)
+  labelsClipped: [], // 3D labels (sensor ids, "#id") drawn partly outside the canvas
   // joint colouring
   confidenceColouring: false, // state of the "colour by confidence" checkbox
 };
@@ -187,9 +200,14 @@ function hashString(s) {
 const GREY = new THREE.Color(0x6b7178);
 const MOVED_COLOR = new THREE.Color(0xf0735a); // a sensor drift detection flags "moved?" (as .bad)
 
-// Confidence ramp: red (0) → yellow (0.5) → green (1), interpolated in sRGB. Joints without a
+// Confidence scale, evenly spaced stops for 0, 1/3, 2/3, 1, interpolated in sRGB. The fused
+// confidence is 1 − Π(1 − w_k) over the views' weights (docs/fusion.md §7-8): how much evidence
+// backs a joint, not an error. One view side-on or an inferred joint gives about 0.3 (the median
+// in the demo), one tracked frontal view about 0.7, two good views 0.9 and more. So the scale has
+// no red (which reads as "wrong"): violet, little evidence → blue → teal → yellow-green, several
+// good views; the legend (#confidence-legend) says what the values mean. Joints without a
 // confidence value are drawn white.
-const CONFIDENCE_RAMP = ['#ff3020', '#ffe600', '#20e040'];
+const CONFIDENCE_RAMP = ['#8a6cff', '#3d8bff', '#1fd1c1', '#d4f55a'];
 const confidenceRampSrgb = CONFIDENCE_RAMP.map((hex) => {
   const v = parseInt(hex.slice(1), 16);
   return [(v >> 16) & 255, (v >> 8) & 255, v & 255].map((x) => x / 255);
@@ -260,14 +278,26 @@ const axes = new THREE.AxesHelper(0.6);
 axes.position.y = 0.002; // above the grid lines: no z-fighting
 scene.add(axes);
 
-window.addEventListener('resize', () => {
+// The HUD covers the left of the canvas: the projection's centre moves right by the HUD's width
+// (a wider virtual image of which the canvas shows the left part), so the scene is centred in
+// the free part and the view fit (frameSensors) keeps sensors and labels out from under the HUD.
+let hudShiftPx = 0;
+
+function applyViewSize() {
   const w = window.innerWidth;
   const h = Math.max(1, window.innerHeight);
-  camera.aspect = w / h;
+  const hud = document.getElementById('hud');
+  const right = hud ? hud.getBoundingClientRect().right : 0;
+  hudShiftPx = w - right >= 400 ? right : 0; // a narrow window: the HUD floats over the scene
+  camera.aspect = (w + hudShiftPx) / h;
+  if (hudShiftPx > 0) camera.setViewOffset(w + hudShiftPx, h, 0, 0, w, h);
+  else camera.clearViewOffset();
   camera.updateProjectionMatrix();
   if (renderer) renderer.setSize(w, h);
   requestRender();
-});
+}
+
+window.addEventListener('resize', applyViewSize);
 
 // --- shared resources --------------------------------------------------------------------------
 
@@ -343,12 +373,15 @@ function drawSensorLabel(sprite, title, sub) {
   ctx.lineWidth = 7;
   ctx.strokeText(title, canvas.width / 2, 32, canvas.width - 8);
   ctx.fillText(title, canvas.width / 2, 32, canvas.width - 8);
+  let textWidth = ctx.measureText(title).width;
   if (sub) {
     ctx.font = '500 26px system-ui, sans-serif';
     ctx.lineWidth = 6;
     ctx.strokeText(sub, canvas.width / 2, 82, canvas.width - 8);
     ctx.fillText(sub, canvas.width / 2, 82, canvas.width - 8);
+    textWidth = Math.max(textWidth, ctx.measureText(sub).width);
   }
+  sprite.userData.textFrac = Math.min(1, (textWidth + 14) / canvas.width); // for labelsClipped
   sprite.material.map.needsUpdate = true;
   requestRender();
 }
@@ -366,6 +399,7 @@ function drawLabel(sprite, text) {
   ctx.strokeText(text, canvas.width / 2, canvas.height / 2, canvas.width - 8);
   ctx.fillStyle = '#ffffff';
   ctx.fillText(text, canvas.width / 2, canvas.height / 2, canvas.width - 8);
+  sprite.userData.textFrac = Math.min(1, (ctx.measureText(text).width + 14) / canvas.width);
   sprite.material.map.needsUpdate = true;
 }
 
@@ -815,6 +849,7 @@ function applySensors(list) {
   HOOK.sensorsListed = seen.size;
   HOOK.sensorsMoved = list.filter(isMoved).map((s) => s.id);
   renderSensorTable(list);
+  frameSensors();
   requestRender();
 }
 
@@ -882,100 +917,83 @@ function applyFrame(frame) {
   updatePersonChips();
 }
 
-// --- WebSocket ---------------------------------------------------------------------------------
+// --- feed and token ----------------------------------------------------------------------------
 
-const BACKOFF_MIN_MS = 250;
-const BACKOFF_MAX_MS = 3000;
-let backoffMs = BACKOFF_MIN_MS;
-let socket = null;
 const frameTimes = []; // receive instants over the last second, for frames/s
 
-// A server started with --token wants it on the WebSocket and on every change (docs/security.md);
-// the viewer takes it from its own address: http://server:8000/?token=...
-const API_TOKEN = new URLSearchParams(location.search).get('token');
+// A server started with --token wants it on the WebSocket and on every change (docs/security.md).
+// The viewer takes it from its own address (http://server:8000/?token=...), else from this tab's
+// session storage, where the token field (shown when the feed refuses the page) keeps it.
+const api = new ApiClient({ token: pageToken() });
 
-function socketUrl() {
-  const proto = location.protocol === 'https:' ? 'wss:' : 'ws:';
-  const token = API_TOKEN ? `&token=${encodeURIComponent(API_TOKEN)}` : '';
-  return `${proto}//${location.host}/ws/skeletons?raw=1${token}`;
-}
-
-function connect() {
-  setConnState('connecting');
-  let ws;
-  try {
-    ws = new WebSocket(socketUrl());
-  } catch (e) {
-    reportError(`WebSocket: ${e && e.message ? e.message : e}`);
-    scheduleReconnect();
-    return;
-  }
-  socket = ws;
-  ws.onopen = () => {
-    HOOK.connected = true;
-    setConnState('open');
-  };
-  ws.onmessage = (ev) => {
-    backoffMs = BACKOFF_MIN_MS; // the server talks: the next drop retries quickly
-    handleMessage(ev.data);
-  };
-  ws.onclose = () => {
-    if (socket !== ws) return;
-    socket = null;
-    HOOK.connected = false;
-    pendingFrame = EMPTY_FRAME; // no stale skeletons while disconnected
-    lastFrame = EMPTY_FRAME;
-    scheduleReconnect();
-  };
-  ws.onerror = () => {}; // a close event follows
-}
-
-function scheduleReconnect() {
-  const delay = backoffMs;
-  backoffMs = Math.min(backoffMs * 2, BACKOFF_MAX_MS);
-  setConnState('closed', delay);
-  setTimeout(connect, delay);
-}
-
-function handleMessage(data) {
-  if (typeof data !== 'string') return; // binary: not part of protocol v1
-  let msg;
-  try {
-    msg = JSON.parse(data);
-  } catch (e) {
-    reportError(`bad JSON from /ws/skeletons: ${e.message}`);
-    return;
-  }
-  if (!msg || typeof msg !== 'object') return;
-  if (msg.type === 'skeleton') {
-    applySkeleton(msg);
-  } else if (msg.type === 'frame') {
+const feed = new FeedClient({
+  token: api.token,
+  raw: true,
+  api,
+  onSkeleton: applySkeleton,
+  onFrame: (msg) => {
     HOOK.framesReceived++;
     if (Number.isInteger(msg.seq)) HOOK.lastSeq = msg.seq;
     frameTimes.push(performance.now());
     pendingFrame = msg;
     lastFrame = msg;
-  }
-  // other types (e.g. "calibration") are ignored for now
+  },
+  onState: (state, info) => {
+    HOOK.feedState = state;
+    HOOK.connected = state === 'open';
+    if (state === 'refused') HOOK.feedRefusals++;
+    if (state === 'closed' || state === 'refused') {
+      pendingFrame = EMPTY_FRAME; // no stale skeletons while disconnected
+      lastFrame = EMPTY_FRAME;
+    }
+    setConnState(state, info);
+    showTokenPrompt(state === 'refused' ? info.reason || 'the server refused the feed' : null);
+  },
+  onError: reportError,
+});
+
+const tokenUi = {
+  form: document.getElementById('hud-token'),
+  message: document.getElementById('token-message'),
+  input: document.getElementById('token-input'),
+};
+
+function showTokenPrompt(reason) {
+  const show = reason !== null;
+  HOOK.tokenPrompt = show;
+  tokenUi.form.hidden = !show;
+  if (!show) return;
+  tokenUi.message.textContent =
+    `${reason}: the live feed, recordings and changes need the token the server was started with ` +
+    `(skelfuse server --token, or SKELFUSE_TOKEN; skelfuse demo prints its viewer address with ` +
+    `it). Paste it here; it is kept for this browser tab only.`;
+  if (document.activeElement !== tokenUi.input) tokenUi.input.focus();
 }
+
+tokenUi.form.addEventListener('submit', (ev) => {
+  ev.preventDefault();
+  const token = tokenUi.input.value.trim();
+  if (!token) return;
+  storeToken(token);
+  tokenUi.input.value = '';
+  feed.setToken(token); // the API client too: it is shared
+  recording.poll();
+});
 
 // --- /api/sensors ------------------------------------------------------------------------------
 
 // Once a second; calling pollSensors() polls at once (after a commit: the frustums move).
 const pollSensors = makePoller(async () => {
-  const ctrl = new AbortController();
-  const timer = setTimeout(() => ctrl.abort(), 2500);
   try {
-    const r = await fetch('/api/sensors', { cache: 'no-store', signal: ctrl.signal });
+    const r = await api.json('GET', '/api/sensors', undefined, { timeoutMs: 2500 });
     if (!r.ok) throw new Error(`HTTP ${r.status}`);
-    const body = await r.json();
-    applySensors(body && body.sensors);
+    const list = r.data && r.data.sensors;
+    applySensors(list);
+    if (Array.isArray(list)) clouds.setSensors(list.filter((x) => x && x.connected).map((x) => String(x.id)));
     setApiNote('');
   } catch (e) {
     // Transient while the server restarts: shown in the HUD, not counted as an error.
     setApiNote(`/api/sensors: ${e && e.name === 'AbortError' ? 'timeout' : e && e.message ? e.message : e}`);
-  } finally {
-    clearTimeout(timer);
   }
 }, () => 1000);
 
@@ -991,11 +1009,13 @@ const hudApi = document.getElementById('hud-api');
 const rawToggle = document.getElementById('raw-toggle');
 const confidenceToggle = document.getElementById('confidence-toggle');
 
-function setConnState(state, retryMs) {
+function setConnState(state, info) {
   hudConn.className = `state state-${state}`;
   if (state === 'open') hudConn.textContent = 'connected';
   else if (state === 'connecting') hudConn.textContent = 'connecting…';
-  else hudConn.textContent = `disconnected, retry in ${(retryMs / 1000).toFixed(1)} s`;
+  else if (state === 'refused') hudConn.textContent = 'refused: token needed';
+  else if (state === 'closed') hudConn.textContent = `disconnected, retry in ${(info.retryMs / 1000).toFixed(1)} s`;
+  else hudConn.textContent = state;
 }
 
 function setApiNote(text) {
@@ -1143,6 +1163,8 @@ const calUi = {
   bar: document.getElementById('cal-progress-bar'),
   progressText: document.getElementById('cal-progress-text'),
   stage: document.getElementById('cal-stage'),
+  stages: document.getElementById('cal-stages'),
+  eta: document.getElementById('cal-eta'),
   results: document.getElementById('cal-results'),
   resultRows: document.getElementById('cal-result-rows'),
   floor: document.getElementById('cal-floor'),
@@ -1179,27 +1201,8 @@ function residualText(entry) {
 }
 
 /** fetch + JSON: {ok, status, data}; throws on network errors and timeouts. */
-async function apiJson(method, path, body) {
-  const ctrl = new AbortController();
-  const timer = setTimeout(() => ctrl.abort(), 8000);
-  try {
-    const init = { method, cache: 'no-store', signal: ctrl.signal, headers: {} };
-    if (API_TOKEN) init.headers.Authorization = `Bearer ${API_TOKEN}`;
-    if (body !== undefined) {
-      init.headers['Content-Type'] = 'application/json';
-      init.body = JSON.stringify(body);
-    }
-    const r = await fetch(path, init);
-    let data = null;
-    try {
-      data = await r.json();
-    } catch (e) {
-      data = null;
-    }
-    return { ok: r.ok, status: r.status, data };
-  } finally {
-    clearTimeout(timer);
-  }
+function apiJson(method, path, body) {
+  return api.json(method, path, body);
 }
 
 /** The server's reason for a refusal: FastAPI's `detail` (a string, or validation errors). */
@@ -1282,7 +1285,7 @@ function applyActiveCalibration(data) {
   cal.active = data;
   const version = Number.isInteger(data.version) ? data.version : null;
   HOOK.calibrationVersion = version;
-  calUi.version.textContent = version === null ? 'none' : String(version);
+  calUi.version.textContent = version === null ? 'none yet' : `v${version}`;
   const note = typeof data.note === 'string' ? data.note : '';
   calUi.note.textContent = note;
   const created = Number.isFinite(data.created_unix_s)
@@ -1300,6 +1303,10 @@ function applyRun(run) {
   HOOK.calibrationRunState = r && typeof r.state === 'string' ? r.state : null;
   HOOK.calibrationRunProgress = r && Number.isFinite(r.progress) ? r.progress : 0;
   HOOK.calibrationRunCommitted = r && Number.isInteger(r.committed_version) ? r.committed_version : null;
+  HOOK.calibrationStage = r && typeof r.stage === 'string' ? r.stage : null;
+  HOOK.calibrationStages = r && Array.isArray(r.stages) ? r.stages.map(String) : [];
+  HOOK.calibrationStageIndex = r && Number.isInteger(r.stage_index) ? r.stage_index : 0;
+  HOOK.calibrationEtaS = r && isActiveRun(r) && Number.isFinite(r.eta_s) ? r.eta_s : null;
   updateGhosts(r);
   renderRun();
   renderCalSummary();
@@ -1318,7 +1325,10 @@ function renderCalSummary() {
   else if (cal.active) parts.push('none');
   const r = cal.run;
   if (r) {
-    if (isActiveRun(r)) parts.push(`${r.method} ${r.state} ${Math.round(HOOK.calibrationRunProgress * 100)} %`);
+    if (isActiveRun(r)) {
+      const eta = HOOK.calibrationEtaS === null ? '' : `, ${etaText(HOOK.calibrationEtaS)}`;
+      parts.push(`${r.method} ${Math.round(HOOK.calibrationRunProgress * 100)} %${eta}`);
+    }
     else if (r.state === 'done' && r.committed_version == null) parts.push(`${r.method} run done: review, commit`);
     else if (r.state === 'failed') parts.push(`${r.method} run failed`);
   }
@@ -1344,9 +1354,13 @@ function renderRun() {
   calUi.bar.style.width = `${(progress * 100).toFixed(1)}%`;
   calUi.bar.className = `cal-progress-bar${state === 'done' ? ' done' : state === 'failed' ? ' failed' : ''}`;
   calUi.progressText.textContent = `${Math.round(progress * 100)} %`;
+  calUi.eta.textContent = HOOK.calibrationEtaS === null ? '' : etaText(HOOK.calibrationEtaS);
+  renderStages(r);
   let stage = '';
-  if (isActiveRun(r)) stage = typeof r.stage === 'string' ? r.stage : '';
-  else if (state === 'done') {
+  if (isActiveRun(r)) {
+    const detail = typeof r.stage_detail === 'string' && r.stage_detail ? r.stage_detail : '';
+    stage = detail || (HOOK.calibrationStages.length ? '' : HOOK.calibrationStage || '');
+  } else if (state === 'done') {
     stage = Number.isInteger(r.committed_version)
       ? `committed as version ${r.committed_version}`
       : 'done, not committed: the dashed frustums show the proposed poses';
@@ -1375,6 +1389,36 @@ function renderRun() {
     calUi.floor.textContent = `floor (${floor.source || '?'})${bits.length ? `: ${bits.join(', ')}` : ''}`;
   }
   renderResults(r);
+}
+
+/** "about 40 s left", "about 2 min left", "a few seconds left". */
+function etaText(s) {
+  if (s < 5) return 'a few seconds left';
+  if (s < 90) return `about ${Math.round(s / 5) * 5} s left`;
+  return `about ${Math.round(s / 60)} min left`;
+}
+
+/** The run's stages as steps: done ✓, the current one ▸ (with its own share done), to come ○. */
+function renderStages(r) {
+  const stages = HOOK.calibrationStages;
+  calUi.stages.hidden = stages.length === 0;
+  const active = isActiveRun(r);
+  const done = r.state === 'done';
+  const current = HOOK.calibrationStageIndex;
+  const share = Number.isFinite(r.stage_progress) ? Math.round(r.stage_progress * 100) : null;
+  const items = stages.map((name, i) => {
+    const li = document.createElement('li');
+    const status = done || i < current ? 'done' : active && i === current ? 'current' : r.state === 'failed' && i === current ? 'failed' : 'todo';
+    li.className = `cal-step cal-step-${status}`;
+    const mark = { done: '✓', current: '▸', failed: '✗', todo: '○' }[status];
+    li.textContent = `${mark} ${name}${status === 'current' && share !== null ? ` · ${share} %` : ''}`;
+    return li;
+  });
+  const key = items.map((li) => li.className + li.textContent).join('|');
+  if (calUi.stages.dataset.key !== key) {
+    calUi.stages.dataset.key = key;
+    calUi.stages.replaceChildren(...items);
+  }
 }
 
 function renderResults(r) {
@@ -1570,6 +1614,85 @@ function updateHover() {
   tip.hidden = false;
 }
 
+// --- framing: every sensor and its label in view -------------------------------------------------
+
+// Until the user moves the camera, the view is fitted to the sensors each time their poses
+// change: the default camera (3 m up, 6 m back) cut off sensors and their labels in wider rigs.
+let userMovedCamera = false;
+let framedKey = '';
+if (controls) controls.addEventListener('start', () => (userMovedCamera = true));
+const VIEW_DIRECTION = new THREE.Vector3(0, 0.42, 1).normalize(); // from the target to the camera
+
+function frameSensors() {
+  if (userMovedCamera) return;
+  const positions = [...sensorViews.values()].filter((v) => v.group.visible).map((v) => v.label.position);
+  const key = positions.map((p) => `${p.x.toFixed(2)},${p.y.toFixed(2)},${p.z.toFixed(2)}`).join(';');
+  if (!positions.length || key === framedKey) return;
+  framedKey = key;
+  const box = new THREE.Box3().setFromPoints(positions);
+  box.max.y += 0.35; // the labels above the sensors
+  box.min.y = Math.max(0, box.min.y - 0.4); // and the sensors' frustums below them
+  box.expandByScalar(0.2);
+  const center = box.getCenter(new THREE.Vector3());
+  const target = new THREE.Vector3(center.x, Math.min(1, center.y), center.z);
+  applyViewSize(); // the HUD's width now that it lists the sensors
+  // The nearest camera (along VIEW_DIRECTION) from which the box's corners all project into
+  // the canvas right of the HUD, with a margin: a bisection over the distance.
+  const corners = [];
+  for (const x of [box.min.x, box.max.x])
+    for (const y of [box.min.y, box.max.y]) for (const z of [box.min.z, box.max.z]) corners.push(new THREE.Vector3(x, y, z));
+  const left = (2 * hudShiftPx) / Math.max(1, window.innerWidth) - 1 + 0.04;
+  const fits = (distance) => {
+    camera.position.copy(target).addScaledVector(VIEW_DIRECTION, distance);
+    camera.lookAt(target);
+    camera.updateMatrixWorld();
+    return corners.every((c) => {
+      const p = c.clone().project(camera);
+      return p.z < 1 && p.x >= left && p.x <= 0.96 && Math.abs(p.y) <= 0.92;
+    });
+  };
+  let near = 1;
+  let far = 60;
+  for (let i = 0; i < 30; i++) {
+    const mid = (near + far) / 2;
+    if (fits(mid)) far = mid;
+    else near = mid;
+  }
+  camera.position.copy(target).addScaledVector(VIEW_DIRECTION, far);
+  camera.lookAt(target);
+  if (controls) {
+    controls.target.copy(target);
+    controls.update();
+  }
+  requestRender();
+}
+
+const labelNdc = new THREE.Vector3();
+
+/** Ids of the visible 3D labels whose text reaches past the canvas edge (sprites drawn at a
+ * constant size on screen: their extent in NDC is scale × the projection's focal terms). */
+function clippedLabels() {
+  const out = [];
+  const P = camera.projectionMatrix.elements;
+  const labels = [
+    ...[...sensorViews.values()].map((v) => [v.id, v.label]),
+    ...[...activePersons.values()].map((slot) => [`#${slot.id}`, slot.label]),
+  ];
+  for (const [id, sprite] of labels) {
+    if (!sprite.visible || !sprite.parent) continue;
+    sprite.getWorldPosition(labelNdc).project(camera);
+    if (labelNdc.z > 1) continue; // behind the camera
+    const frac = sprite.userData.textFrac || 1;
+    const halfW = P[0] * sprite.scale.x * frac * 0.5;
+    const x0 = labelNdc.x + P[0] * sprite.scale.x * (0.5 - sprite.center.x) - halfW;
+    const x1 = x0 + 2 * halfW;
+    const y0 = labelNdc.y - P[5] * sprite.scale.y * sprite.center.y;
+    const y1 = y0 + P[5] * sprite.scale.y;
+    if (x0 < -1 || x1 > 1 || y0 < -1 || y1 > 1) out.push(id);
+  }
+  return out;
+}
+
 // --- main loop ---------------------------------------------------------------------------------
 
 // A pass renders only when something changed (a frame, the camera, sensors, calibration...) or
@@ -1609,6 +1732,7 @@ function renderOnce() {
     HOOK.renders++;
     HOOK.gpuGeometries = renderer.info.memory.geometries;
     HOOK.gpuTextures = renderer.info.memory.textures;
+    HOOK.labelsClipped = clippedLabels();
   } else {
     HOOK.personsDrawn = HOOK.jointsDrawn = HOOK.bonesDrawn = HOOK.rawViewsDrawn = HOOK.sensorsDrawn = 0;
   }
@@ -1625,7 +1749,29 @@ if (renderer) {
   // No WebGL: still apply frames so the HUD and the counters stay live.
   setInterval(renderOnce, 100);
 }
-connect();
+const clouds = new CloudLayer({
+  scene,
+  api,
+  colorOf: sensorColor,
+  bones: () => skeleton.bones,
+  requestRender,
+  hook: HOOK,
+  onNote: (text) => {
+    cloudNote.textContent = text;
+  },
+});
+const cloudNote = document.getElementById('cloud-note');
+const cloudsToggle = document.getElementById('clouds-toggle');
+cloudsToggle.checked = false;
+cloudsToggle.addEventListener('change', () => clouds.setEnabled(cloudsToggle.checked));
+
+const legend = document.getElementById('confidence-legend');
+document.getElementById('legend-bar').style.background = `linear-gradient(to right, ${CONFIDENCE_RAMP.join(', ')})`;
+confidenceToggle.addEventListener('change', () => (legend.hidden = !confidenceToggle.checked));
+
+const recording = initRecording({ api, hook: HOOK });
+
+feed.start();
 pollSensors();
 pollActiveCalibration();
 pollRuns();

@@ -13,11 +13,13 @@ either is missing, and fail when the ``CI`` environment variable is set (CI must
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shutil
 import struct
 import time
+import urllib.request
 import warnings
 import zlib
 from collections.abc import Iterator
@@ -51,7 +53,7 @@ CHROMIUM_ARGS = [
     "--disable-sync",
     "--no-first-run",
 ]
-VIEWPORT = {"width": 1280, "height": 720}
+VIEWPORT = {"width": 1280, "height": 800}  # issue 13: nothing clipped at 1280×800
 DEMO_SENSORS = 3
 DEMO_PERSONS = 2
 HOOK = "window.skelfuseViewer"
@@ -453,7 +455,8 @@ def test_raw_views_toggle(viewer: ViewerPage) -> None:
 
 
 def confidence_ramp(samples: int = 41) -> list[RGB]:
-    """Colours along viewer.js CONFIDENCE_RAMP (stops for 0, 0.5, 1; interpolated in sRGB)."""
+    """Colours along viewer.js CONFIDENCE_RAMP (evenly spaced stops from 0 to 1; interpolated
+    in sRGB)."""
     source = VIEWER_JS.read_text(encoding="utf-8")
     m = re.search(r"const CONFIDENCE_RAMP = \[(.*?)\]", source, re.S)
     assert m, f"CONFIDENCE_RAMP not found in {VIEWER_JS}"
@@ -464,7 +467,7 @@ def confidence_ramp(samples: int = 41) -> list[RGB]:
         ],
         np.float64,
     )
-    assert len(stops) == 3, stops
+    assert len(stops) >= 3, stops
     out: list[RGB] = []
     for t in np.linspace(0.0, 1.0, samples):
         x = t * (len(stops) - 1)
@@ -515,9 +518,16 @@ def test_colour_by_confidence_toggle(viewer: ViewerPage) -> None:
         f"off: people {people_off}, ramp {ramp_off}; on: people {people_on} ({persons_on}), "
         f"ramp {ramp_on}"
     )
-    # The skeletons are drawn in ramp colours now (red, yellow, green by confidence)...
+    # The skeletons are drawn in ramp colours now (violet, blue, teal, yellow-green)...
     assert ramp_on >= 300, report
     assert ramp_on > 3 * ramp_off + 100, report
+    # The legend says what the values mean, and the scale has no red (which reads as "wrong":
+    # the median fused confidence, ~0.3, is one side-on view, not a failure).
+    legend = page.locator("#confidence-legend")
+    assert legend.is_visible()
+    assert "0.3" in legend.inner_text() and "evidence" in legend.inner_text()
+    for r, g, b in confidence_ramp():
+        assert not (r > 1.5 * g and r > 1.5 * b), f"a red on the confidence scale: {(r, g, b)}"
     # ...and no longer in the people's colours (only their "#id" labels keep them). A person
     # colour on the ramp itself (orange, lime) cannot be told apart from it: not checked.
     off_ramp = [
@@ -537,6 +547,7 @@ def test_colour_by_confidence_toggle(viewer: ViewerPage) -> None:
     people_back, ramp_back, _ = shot("viewer-confidence-off-again.png")
     report += f"; off again: people {people_back}, ramp {ramp_back}"
     assert ramp_back < ramp_on / 3, report
+    assert legend.is_hidden()
     assert sum(people_back.values()) >= 300, report
     viewer.assert_no_errors()
 
@@ -571,7 +582,7 @@ def test_calibration_panel_shows_the_active_calibration(
     assert "v1" in page.inner_text("#cal-summary")
 
     open_calibration_panel(viewer)
-    assert page.inner_text("#cal-version") == "1"
+    assert page.inner_text("#cal-version") == "v1"
     assert page.inner_text("#cal-note") == active["note"]
     assert page.inner_text("#cal-run-state") == "done"
     assert "committed as version 1" in page.inner_text("#cal-stage")
@@ -711,7 +722,7 @@ def test_calibration_run_from_the_panel_and_commit(
     assert demo_stack.get_json(f"/api/calibration/runs/{run_id}")["committed_version"] == (
         version_after
     )
-    assert page.inner_text("#cal-version") == str(version_after)
+    assert page.inner_text("#cal-version") == f"v{version_after}"
     assert f"v{version_after}" in page.inner_text("#cal-summary")
     assert f"committed as version {version_after}" in page.inner_text("#cal-stage")
     assert commit.is_disabled()
@@ -783,3 +794,132 @@ def test_a_moved_sensor_is_flagged_with_a_resolve_button(
     finally:
         page.unroute("**/api/sensors", stub)
     viewer.wait_for(f"{HOOK}.sensorsMoved.length === 0", timeout_s=5)
+
+
+# --- layout at 1280×800 -------------------------------------------------------------------------
+
+
+def test_nothing_is_clipped_at_1280x800(viewer: ViewerPage) -> None:
+    """Every panel open: no HUD text runs past the panel's edge, the panel does not scroll
+    sideways, and no 3D label (sensor ids, "#id") reaches past the canvas edge."""
+    page = viewer.page
+    assert page.viewport_size == {"width": 1280, "height": 800}
+    viewer.wait_for(f"{HOOK}.sensorsDrawn === {DEMO_SENSORS} && {HOOK}.personsDrawn > 0", 20)
+    page.click("#confidence-toggle")
+    open_calibration_panel(viewer)
+    page.click("#hud-recording > summary")
+    viewer.wait_for(f"{HOOK}.calibrationVersion !== null", timeout_s=10)
+    # Before any calibration the panel said "vnone"; now "v1", and never "vnone".
+    assert page.inner_text("#cal-version") == f"v{viewer.hook()['calibrationVersion']}"
+    assert "vnone" not in page.inner_text("#hud")
+    overflow = page.evaluate(
+        """() => {
+          const hud = document.getElementById('hud');
+          const edge = hud.getBoundingClientRect().right;
+          const out = [];
+          if (hud.scrollWidth > hud.clientWidth + 1) out.push(`#hud scrolls: ${hud.scrollWidth}`);
+          for (const e of hud.querySelectorAll('*')) {
+            if (!e.offsetParent || !e.textContent.trim()) continue;
+            const r = e.getBoundingClientRect();
+            if (r.right > edge + 0.5) out.push(`${e.tagName}#${e.id}.${e.className} ${r.right}`);
+            const style = getComputedStyle(e);
+            if (style.overflow !== 'visible' && e !== hud && e.scrollWidth > e.clientWidth + 1)
+              out.push(`${e.tagName}#${e.id} cut: ${e.scrollWidth}/${e.clientWidth}`);
+          }
+          return out;
+        }"""
+    )
+    assert overflow == [], overflow
+    # The 3D labels, over a few seconds of walking people (the view fits the sensors).
+    for _ in range(10):
+        assert viewer.hook()["labelsClipped"] == [], viewer.hook()["labelsClipped"]
+        time.sleep(0.3)
+    viewer.assert_no_errors()
+
+
+# --- token ----------------------------------------------------------------------------------------
+
+
+def test_token_field_when_the_feed_refuses_the_page(
+    browser: Browser, demo_stack: DemoStack
+) -> None:
+    """Opened without the token (the README's plain URL), the page says why nothing streams and
+    asks for the token; a wrong one is refused again, the right one connects and is kept for
+    the tab's session (a reload without ?token= connects)."""
+    context = browser.new_context(viewport=VIEWPORT, device_scale_factor=1)
+    try:
+        page = context.new_page()
+        page.set_default_timeout(15_000)
+        vp = ViewerPage(page)
+        page.goto(demo_stack.http_url + "/", wait_until="load", timeout=15_000)
+        vp.wait_for(f"{HOOK} && {HOOK}.feedState === 'refused'", timeout_s=20)
+        form = page.locator("#hud-token")
+        assert form.is_visible()
+        assert "token" in page.inner_text("#token-message")
+        assert page.inner_text("#hud-conn") == "refused: token needed"
+        state = vp.hook()
+        assert state["framesReceived"] == 0 and state["tokenPrompt"] is True, state
+        # Status reads stay open: the sensors still show.
+        vp.wait_for(f"{HOOK}.sensorsListed === {DEMO_SENSORS}", timeout_s=10)
+
+        refusals = vp.hook()["feedRefusals"]
+        page.fill("#token-input", "not-the-token")
+        page.click("#token-submit")
+        vp.wait_for(f"{HOOK}.feedRefusals > {refusals}", timeout_s=20)
+        assert vp.hook()["feedState"] == "refused"
+        assert vp.hook()["framesReceived"] == 0
+        assert "refused this token" in page.inner_text("#token-message")
+
+        page.fill("#token-input", demo_stack.token)
+        page.click("#token-submit")
+        vp.wait_for(f"{HOOK}.connected && {HOOK}.framesReceived > 10", timeout_s=20)
+        assert form.is_hidden()
+        assert vp.hook()["tokenPrompt"] is False
+        stored = page.evaluate("sessionStorage.getItem('skelfuse.token')")
+        assert stored == demo_stack.token
+
+        page.reload(wait_until="load")
+        vp.wait_for(f"{HOOK} && {HOOK}.connected && {HOOK}.framesReceived > 10", timeout_s=20)
+        assert vp.hook()["tokenPrompt"] is False
+        assert page.url == demo_stack.http_url + "/", "the token stays out of the address"
+        # The refusals were logged by the browser (403 handshake, 401 probe): nothing else.
+        assert vp.page_errors == [] and vp.dialogs == []
+        assert vp.hook()["errors"] == []
+    finally:
+        context.close()
+
+
+# --- recording ------------------------------------------------------------------------------------
+
+
+def test_recording_start_stop_lists_the_take(viewer: ViewerPage, demo_stack: DemoStack) -> None:
+    page = viewer.page
+    page.click("#hud-recording > summary")
+    viewer.wait_for(f"{HOOK}.recordingId === null", timeout_s=10)
+    takes_before = viewer.hook()["takeIds"]
+    page.fill("#rec-name", "e2e take")
+    page.click("#rec-start")
+    viewer.wait_for(f"{HOOK}.recordingId !== null", timeout_s=10)
+    take = str(viewer.hook()["recordingId"])
+    assert take.endswith("e2e-take"), take
+    assert page.locator("#rec-start").is_disabled() and page.locator("#rec-stop").is_enabled()
+    viewer.wait_for("document.getElementById('rec-status').textContent.includes('frames')", 10)
+    time.sleep(1.5)
+    page.click("#rec-stop")
+    viewer.wait_for(
+        f"{HOOK}.recordingId === null && {HOOK}.takeIds.includes('{take}')", timeout_s=15
+    )
+    assert viewer.hook()["takeIds"][0] == take, "newest first"
+    assert take not in takes_before
+    row = page.locator(f"#rec-take-rows tr[data-id='{take}']")
+    assert "e2e take" in row.inner_text()
+    # The server agrees: a complete take with frames.
+    request = urllib.request.Request(
+        demo_stack.http_url + "/api/recordings",
+        headers={"Authorization": f"Bearer {demo_stack.token}"},
+    )
+    with urllib.request.urlopen(request, timeout=5) as response:
+        listed = {r["id"]: r for r in json.load(response)["recordings"]}
+    assert listed[take]["state"] == "complete" and listed[take]["frames"] > 10, listed[take]
+    assert viewer.hook()["recordingError"] is None
+    viewer.assert_no_errors()
