@@ -20,7 +20,7 @@ from skelfuse.protocol.skeleton import PARENTS
 from skelfuse.recording.replay import replay
 from skelfuse.server import broadcast
 from skelfuse.server.broadcast import Broadcaster, Variant, encode_message
-from tests.unit.test_joint_orientations import forward_kinematics
+from tests.unit.test_joint_orientations import chain_known, forward_kinematics
 
 TAKE = Path(__file__).resolve().parents[1] / "data" / "golden" / "take.sfrec"
 HANDS = Hands(HandState.OPEN, HandState.LASSO, HandConfidence.HIGH, HandConfidence.LOW)
@@ -44,7 +44,7 @@ def test_forward_kinematics_on_the_message_gives_its_joints_back_on_fused_motion
             local /= np.linalg.norm(local, axis=1, keepdims=True)  # as sent: to 1e-5
             root = joints[0] if np.isfinite(joints[0]).all() else np.zeros(3)
             positions = forward_kinematics(root, local, np.array(person["rest_offsets"]))
-            known = np.isfinite(joints).all(axis=1)
+            known = chain_known(joints)
             worst = max(worst, float(np.abs(positions - joints)[known].max()))
             checked += int(known.sum())
     assert checked > 2000

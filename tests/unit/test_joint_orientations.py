@@ -45,6 +45,16 @@ def forward_kinematics(root: np.ndarray, local: np.ndarray, offsets: np.ndarray)
     return positions
 
 
+def chain_known(joints: np.ndarray) -> np.ndarray:
+    """(25,) whether a joint and every joint up to the root are known: FK gives those back
+    exactly; below an unknown joint, bones take the rig's default lengths."""
+    finite = np.isfinite(joints).all(axis=1)
+    known = finite.copy()
+    for _ in range(JOINT_COUNT):
+        known = finite & np.array([p < 0 or known[p] for p in PARENTS])
+    return known
+
+
 def _noisy_routine(persons: int, seconds: float, seed: int) -> np.ndarray:
     performer = ProceduralPerformer(persons)
     frames = np.stack([performer.joints_at(t) for t in np.arange(0.0, seconds, 0.2)])
