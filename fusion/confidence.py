@@ -309,8 +309,14 @@ def _distinct(
     priors: Sequence[SensorPrior],
 ) -> tuple[list[SensorPrior], npt.NDArray[np.intp]]:
     """The distinct priors (first-seen order) and each view's index among them, (N,)."""
+    # Views share a handful of prior objects: hashing each object once (a frozen dataclass
+    # hashes all its fields every time) instead of once per view is most of this function.
+    objects: dict[int, SensorPrior] = {}
+    for prior in priors:
+        objects.setdefault(id(prior), prior)
     index: dict[SensorPrior, int] = {}
-    of_view = np.array([index.setdefault(p, len(index)) for p in priors], dtype=np.intp)
+    of_object = {key: index.setdefault(prior, len(index)) for key, prior in objects.items()}
+    of_view = np.array([of_object[id(prior)] for prior in priors], dtype=np.intp)
     return list(index), of_view
 
 
