@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import itertools
-import json
 import os
 import socket
 import statistics
@@ -32,7 +31,8 @@ from pathlib import Path
 import httpx
 import msgpack
 import zmq
-from websockets.asyncio.client import connect
+
+from skelfuse.client import FeedClient
 
 SKELFUSE = [sys.executable, "-m", "skelfuse"]
 
@@ -140,10 +140,11 @@ async def _measure(http: str, endpoint: str, messages: int, settle_s: float) -> 
     arrivals: list[float] = []
 
     async def read_feed() -> None:
-        async with connect(http.replace("http", "ws") + "/ws/skeletons") as ws:
-            async for text in ws:
-                if json.loads(text).get("type") == "frame":
-                    arrivals.append(time.monotonic())
+        # Arrival stamped as the message is read, before it is decoded.
+        async with FeedClient(http, reconnect=False, clock=time.monotonic) as feed:
+            async for frame in feed:
+                assert frame.received is not None
+                arrivals.append(frame.received)
 
     flooder = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "bench.malformed_burst", "--flood", endpoint,

@@ -14,6 +14,7 @@ import pytest
 import zmq
 from websockets.asyncio.client import connect
 
+from skelfuse.client import FeedClient
 from skelfuse.protocol.skeleton import JOINT_COUNT, SKELETON_NAME
 from skelfuse.protocol.wire import Body, ErrorMessage, Frame, Hello, decode, encode
 from skelfuse.server.settings import FusionSettings
@@ -110,14 +111,13 @@ async def test_stalled_websocket_client_does_not_delay_others(
     start_two(live_server, agent_factory)
     async with (
         connect(live_server.ws_url + "/ws/skeletons"),  # never reads
-        connect(live_server.ws_url + "/ws/skeletons") as healthy,
+        FeedClient(live_server.http_url, reconnect=False) as healthy,
     ):
-        await healthy.recv()
         started = time.monotonic()
-        received = [json.loads(await healthy.recv()) for _ in range(90)]
+        received = [await healthy.next_frame() for _ in range(90)]
         elapsed = time.monotonic() - started
     assert elapsed < 6.0, f"90 frames took {elapsed:.1f} s next to a stalled client"
-    assert received[-1]["seq"] > received[0]["seq"]
+    assert received[-1].seq > received[0].seq
 
 
 def raw_agent(live: LiveServer, sensor_id: str) -> zmq.Socket[Any]:
@@ -237,17 +237,16 @@ async def test_agent_clock_offset_is_absorbed(
         ),
         10,
     )
-    async with connect(live_server.ws_url + "/ws/skeletons") as ws:
-        await ws.recv()
-        frames = [json.loads(await ws.recv()) for _ in range(60)]
+    async with FeedClient(live_server.http_url, reconnect=False) as feed:
+        frames = [await feed.next_frame() for _ in range(60)]
     offsets = {s["id"]: s["clock_offset_s"] for s in sensors_by_id(live_server).values()}
     # Within a few ms on an idle machine; the bounds leave room for a loaded one.
     assert offsets["cam-a"] == pytest.approx(1.5, abs=0.02), offsets  # server − agent
     assert offsets["cam-b"] == pytest.approx(-3.0, abs=0.03), offsets  # + up to ~10 ms drift
-    both = [f for f in frames if f["persons"] and len(f["persons"][0]["sources"]) == 2]
+    both = [f for f in frames if f.persons and len(f.persons[0].sources) == 2]
     assert len(both) > 30, "both sensors should contribute to the same person"
-    assert all(len(f["persons"]) == 1 for f in frames[10:]), "no duplicate person"
-    assert abs(frames[-1]["t"] - time.time()) < 0.5
+    assert all(len(f.persons) == 1 for f in frames[10:]), "no duplicate person"
+    assert frames[-1].received is not None and abs(frames[-1].t - frames[-1].received) < 0.5
 
 
 async def test_websocket_rejects_an_unknown_format(live_server: LiveServer) -> None:
