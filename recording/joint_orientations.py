@@ -47,6 +47,7 @@ from skelfuse.recording.bvh_rig import (
 )
 
 F64 = npt.NDArray[np.float64]
+_EYE: Final = np.eye(3)
 _EPS_M: Final = 1e-6
 """A bone shorter than this has no direction (as in the BVH rig)."""
 
@@ -108,7 +109,8 @@ def orientations(joints: npt.ArrayLike) -> Orientations:
     parent_world = world[:, [max(p, 0) for p in PARENTS]]
     local = np.einsum("pjki,pjkl->pjil", parent_world, world)  # parentᵀ · own
     local[:, 0] = world[:, 0]
-    return Orientations(matrix_to_quaternion(world), matrix_to_quaternion(local), offsets)
+    quaternions = matrix_to_quaternion(np.stack([world, local]))  # one call for both
+    return Orientations(quaternions[0], quaternions[1], offsets)
 
 
 def rest_offsets(joints: F64) -> F64:
@@ -209,10 +211,9 @@ def node_rotations(joints: F64, offsets: F64) -> F64:
     recon[:, 0] = np.where(finite[:, 0, None], joints[:, 0], 0.0)
     for step in _STEPS:
         nodes = list(step.nodes)
-        # A root's missing parent is the identity: the node's rotation before any frame.
-        parent_rot = np.where(
-            np.array(step.parents)[:, None, None] >= 0, current[:, list(step.parents)], np.eye(3)
-        )  # (P, K, 3, 3)
+        parent_rot = current[:, list(step.parents)]  # (P, K, 3, 3)
+        if min(step.parents) < 0:  # the root's missing parent: the identity (before any frame)
+            parent_rot = np.where(np.array(step.parents)[:, None, None] >= 0, parent_rot, _EYE)
         if step.kind == "leaf":
             current[:, nodes] = parent_rot
             continue
@@ -295,7 +296,7 @@ def _align(a: F64, b: F64) -> F64:
     c = (a * b).sum(axis=-1)
     skew = (v @ _SKEW).reshape(*v.shape, 3)
     rotation = (
-        c[..., None, None] * np.eye(3)
+        c[..., None, None] * _EYE
         + skew
         + v[..., :, None] * (v / (1.0 + c)[..., None])[..., None, :]
     )
@@ -305,7 +306,7 @@ def _align(a: F64, b: F64) -> F64:
         short = _norm(axis) < 1e-6
         axis = np.where(short[..., None], _cross(a, np.array([0.0, 1.0, 0.0])), axis)
         axis /= _norm(axis)[..., None]
-        flip = 2.0 * axis[..., :, None] * axis[..., None, :] - np.eye(3)
+        flip = 2.0 * axis[..., :, None] * axis[..., None, :] - _EYE
         rotation = np.where(opposite[..., None, None], flip, rotation)
     result: F64 = rotation
     return result
