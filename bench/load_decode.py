@@ -5,7 +5,9 @@ frame, every joint TRACKED as the load bench's agents send them, and the same fr
 hand tips and thumbs NOT_TRACKED (NaN) and the feet INFERRED, as a real sensor sends them. Timed
 beside it: ``msgpack.unpackb`` alone with decode's limits (the floor), and the precise
 field-by-field checks after that unpack (``decode_frame_precisely``, which was the whole frame
-decode before the bulk path). ``python bench/load.py --decode-only`` prints the table.
+decode before the bulk path). ``decode`` takes its msgspec path (``protocol.wire_canonical``)
+for these frames when msgspec is installed (``server`` extra), else the msgpack bulk path.
+``python bench/load.py --decode-only`` prints the table.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import numpy as np
 
 from bench.load_encode import median_us
 from skelfuse.agent.sim.performer import ProceduralPerformer
+from skelfuse.protocol import wire_canonical
 from skelfuse.protocol.wire import Body, Frame, decode, decode_frame_precisely, encode
 
 HAND_JOINTS = [21, 22, 23, 24]  # HandTipLeft, ThumbLeft, HandTipRight, ThumbRight
@@ -75,7 +78,10 @@ def decode_timing(bodies: int = 6, not_tracked: bool = False, runs: int = 5000) 
 
 def print_decode(timings: list[DecodeTiming]) -> None:
     """The decode cost table (Markdown, as in docs/benchmarks.md)."""
-    print(f"\nDecode + validate one incoming frame, median of {timings[0].runs} runs\n")
+    path = "msgspec" if wire_canonical.ENABLED else "msgpack bulk (msgspec not installed)"
+    print(
+        f"\nDecode + validate one incoming frame ({path} path), median of {timings[0].runs} runs\n"
+    )
     print("| frame | bytes | `decode` µs | target | precise checks µs (before) "
           "| msgpack unpack µs (floor) |")  # fmt: skip
     print("|---|---|---|---|---|---|")

@@ -1,4 +1,5 @@
-"""Shared skeleton model and agent <-> server wire protocol. Depends on numpy and msgpack only."""
+"""Shared skeleton model and agent <-> server wire protocol. Depends on numpy and msgpack only
+(msgspec, if installed, speeds up decoding frames: ``protocol.wire_canonical``)."""
 
 from skelfuse.protocol.constants import PROTOCOL_VERSION
 from skelfuse.protocol.errors import DecodeError, ProtocolError, VersionMismatch

@@ -4,7 +4,8 @@
 wire, on both sides. ``decode`` is the trust boundary: everything it returns has been checked
 (version, types, shapes, finite values, ranges, sizes), and everything it refuses raises
 :class:`~protocol.errors.DecodeError` with a short ``reason`` used for counting. The checks of
-single values are in :mod:`protocol.wire_checks`, a frame's fast bulk path in ``wire_bulk``.
+single values are in :mod:`protocol.wire_checks`, a frame's fast bulk path in ``wire_bulk`` and
+its fastest, for frames in the reference encoder's exact bytes, in ``wire_canonical``.
 
 The byte-level format is specified in ``docs/protocol.md``; keep the two in step.
 """
@@ -37,7 +38,8 @@ from skelfuse.protocol.messages import (
     checked_frame,
 )
 from skelfuse.protocol.skeleton import JOINT_COUNT, SKELETON_NAME
-from skelfuse.protocol.wire_bulk import frame_in_bulk
+from skelfuse.protocol.wire_bulk import BulkFrame, frame_in_bulk
+from skelfuse.protocol.wire_canonical import canonical_frame
 from skelfuse.protocol.wire_checks import (
     UINT64_MAX,
     field_of,
@@ -164,6 +166,9 @@ def decode(buf: bytes, max_bytes: int = MAX_MESSAGE_BYTES) -> Message:
     """
     if len(buf) > max_bytes:
         raise DecodeError("too_large", f"message of {len(buf)} bytes > {max_bytes}")
+    canonical = canonical_frame(buf)  # nearly every message: a frame from one of our agents
+    if canonical is not None:
+        return _frame_of(canonical)
     try:
         raw = msgpack.unpackb(
             buf,
@@ -196,6 +201,10 @@ def _decode_frame(raw: dict[str, Any]) -> Frame:
     bulk = frame_in_bulk(raw)
     if bulk is None:
         return decode_frame_precisely(raw)
+    return _frame_of(bulk)
+
+
+def _frame_of(bulk: BulkFrame) -> Frame:
     seq, t_capture_ns, tracking_ids, joints_m, states, floor, hands = bulk
     bodies = tuple(map(checked_body, tracking_ids, joints_m, states, hands))
     return checked_frame(seq, t_capture_ns, bodies, floor)

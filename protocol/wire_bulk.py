@@ -77,7 +77,7 @@ def frame_in_bulk(raw: dict[str, Any]) -> BulkFrame | None:
         or len(bodies) > MAX_BODIES
     ):
         return None
-    floor = _floor(raw.get("floor"))
+    floor = checked_floor(raw.get("floor"))
     if isinstance(floor, bool):  # False: the floor needs the precise checks
         return None
     ids: list[int] = []
@@ -113,6 +113,24 @@ def frame_in_bulk(raw: dict[str, Any]) -> BulkFrame | None:
             hands.append(hand_states)
     except KeyError:
         return None
+    return frame_of_blobs(seq, t_capture_ns, ids, joint_blobs, state_blobs, hands, floor)
+
+
+def frame_of_blobs(
+    seq: int,
+    t_capture_ns: int,
+    ids: list[int],
+    joint_blobs: list[bytes],
+    state_blobs: list[bytes],
+    hands: list[Hands | None],
+    floor: tuple[float, float, float, float] | None,
+) -> BulkFrame | None:
+    """The frame's checked values from its fields, each checked already for type, range and
+    size but for the bodies' ids (all different), states (0..2) and joints; None as above.
+
+    joint_blobs: B blobs of 300 bytes; state_blobs: B blobs of 25 bytes; ids: B ints in
+    0..2^64-1; hands: B checked hand states or None.
+    """
     if len(set(ids)) != len(ids):
         return None
     if not ids:
@@ -205,11 +223,12 @@ def _within_range(joints: npt.NDArray[np.float32]) -> bool:
     return float(np.maximum.reduce(np.abs(joints))) <= MAX_COORDINATE_M
 
 
-def _floor(value: object) -> tuple[float, float, float, float] | bool | None:
-    """A checked floor plane, None for none, False for "take the precise path"."""
+def checked_floor(value: object) -> tuple[float, float, float, float] | bool | None:
+    """A checked floor plane (a list, or a tuple from a typed decoder), None for none, False for
+    "take the precise path"."""
     if value is None:
         return None
-    if type(value) is not list or len(value) != 4:
+    if (type(value) is not list and type(value) is not tuple) or len(value) != 4:
         return False
     a, b, c, d = value
     if not (

@@ -1,0 +1,100 @@
+"""The fastest path of ``decode``: a ``frame`` encoded byte for byte as the reference encoder
+writes it, parsed by msgspec into typed fields instead of msgpack into dicts.
+
+Every frame the project's agents send is in that canonical form (docs/protocol.md §3.3: keys
+in §6's order, ``floor`` always written, integers in their shortest form, floats as float64,
+``hands`` only when present). msgspec checks the fields' types, sizes and integer ranges while
+it parses (in C), which leaves the per-body Python loop of :func:`~protocol.wire_bulk.frame_in_bulk`
+with nothing to do; the joints and states are then checked by
+:func:`~protocol.wire_bulk.frame_of_blobs`, as on the bulk path.
+
+Why "canonical" only: msgspec accepts some messages that ``decode``'s msgpack limits refuse
+(a map repeating a key more than 32 times, an array over 64 elements) and reads others
+differently (a repeated key: the last wins). :func:`canonical_frame` therefore re-encodes what
+it parsed and takes it only if that gives the very bytes received; anything else, valid or not
+(other key orders, float32 floors, unknown keys, absent ``floor``, broken messages), returns
+None and ``decode`` goes the usual way, so every rejection keeps its reason and message. Like
+``wire_bulk``, this module only says "valid, here are the values" or "not sure".
+
+msgspec is optional (the ``server`` extra): without it, :func:`canonical_frame` always says
+"not sure". Agents never need it.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from skelfuse.protocol.constants import MAX_BODIES
+from skelfuse.protocol.hands import Hands, hands_quickly
+from skelfuse.protocol.skeleton import JOINT_COUNT
+from skelfuse.protocol.wire_bulk import BulkFrame, checked_floor, frame_of_blobs
+from skelfuse.protocol.wire_checks import INT64_MAX, UINT64_MAX
+
+try:
+    import msgspec
+except ImportError:  # pragma: no cover - the fast path is off without it
+    msgspec = None  # type: ignore[assignment]
+
+ENABLED: bool = msgspec is not None
+"""Whether :func:`canonical_frame` runs at all (tests switch it off to compare the paths)."""
+
+if msgspec is not None:
+    _UINT63 = msgspec.Meta(ge=0, le=INT64_MAX)
+    _JOINT_BYTES = JOINT_COUNT * 3 * 4
+
+    class _Body(msgspec.Struct, forbid_unknown_fields=True, omit_defaults=True):
+        id: int  # msgspec bounds stop at int64; 0..2^64-1 is checked below
+        joints: Annotated[bytes, msgspec.Meta(min_length=_JOINT_BYTES, max_length=_JOINT_BYTES)]
+        states: Annotated[bytes, msgspec.Meta(min_length=JOINT_COUNT, max_length=JOINT_COUNT)]
+        hands: list[int] | None = None
+
+    class _Frame(msgspec.Struct, forbid_unknown_fields=True):
+        v: Literal[1]
+        type: Literal["frame"]
+        seq: Annotated[int, _UINT63]
+        t_capture_ns: Annotated[int, _UINT63]
+        bodies: Annotated[list[_Body], msgspec.Meta(max_length=MAX_BODIES)]
+        floor: tuple[float, float, float, float] | None
+
+    _decode_frame: Any = msgspec.msgpack.Decoder(_Frame).decode
+    _encode: Any = msgspec.msgpack.Encoder().encode
+
+
+def canonical_frame(buf: bytes) -> BulkFrame | None:
+    """The checked values of a canonical ``frame`` message, or None ("not sure": take the
+    msgpack path). Raises nothing for bad input.
+
+    Args:
+        buf: the message as received (its size already checked against the limit).
+    """
+    if not ENABLED:
+        return None
+    try:
+        frame = _decode_frame(buf)
+    except Exception:  # msgspec.DecodeError, UnicodeDecodeError for a bad str...: "not sure"
+        return None
+    if _encode(frame) != buf:  # not the canonical bytes of what was parsed
+        return None
+    floor = checked_floor(frame.floor)
+    if isinstance(floor, bool):
+        return None
+    ids: list[int] = []
+    joint_blobs: list[bytes] = []
+    state_blobs: list[bytes] = []
+    hands: list[Hands | None] = []
+    for body in frame.bodies:
+        tracking_id = body.id
+        if not 0 <= tracking_id <= UINT64_MAX:
+            return None
+        hand_states = None
+        if body.hands is not None:
+            hand_states = hands_quickly(body.hands)
+            if hand_states is None:
+                return None
+        ids.append(tracking_id)
+        joint_blobs.append(body.joints)
+        state_blobs.append(body.states)
+        hands.append(hand_states)
+    return frame_of_blobs(
+        frame.seq, frame.t_capture_ns, ids, joint_blobs, state_blobs, hands, floor
+    )
