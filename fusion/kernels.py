@@ -22,7 +22,7 @@ import os
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Final
+from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
@@ -72,6 +72,13 @@ def forced(chosen: str) -> Iterator[None]:
         _state["mode"] = saved
 
 
+def _plain(array: npt.ArrayLike, dtype: type = np.float64) -> Any:
+    """``array`` as a writable C-contiguous array of ``dtype`` (copied only when it is not):
+    every call then has the argument types the warm-up compiled for, so no frame waits for a
+    second compilation (a read-only or strided array is another numba signature)."""
+    return np.require(array, dtype=dtype, requirements=("C", "W"))
+
+
 def rom_factors_and_forward(
     views: FloatArray, scale_deg: float, low: FloatArray, high: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
@@ -85,12 +92,12 @@ def rom_factors_and_forward(
     Returns:
         factors (M, 25), forward (M, 3), as the numpy version.
     """
-    joints = np.ascontiguousarray(views, dtype=np.float64)
+    joints = _plain(views)
     factors = np.ones(joints.shape[:2])
     forward = np.empty((joints.shape[0], 3))
     from skelfuse.fusion.kernels_rom import rom_loop  # imports numba: only when used
 
-    rom_loop(joints, float(scale_deg), low, high, factors, forward)
+    rom_loop(joints, float(scale_deg), _plain(low), _plain(high), factors, forward)
     return factors, forward
 
 
@@ -114,15 +121,26 @@ def project_bone_lengths(
     from skelfuse.fusion import kernels_bones  # imports numba: only when used
 
     shape = joints.shape
-    flat = np.ascontiguousarray(joints, dtype=np.float64).reshape(-1, 25, 3)
-    ref = np.ascontiguousarray(reference, dtype=np.float64).reshape(-1, reference.shape[-1])
-    mobility = np.ascontiguousarray(np.broadcast_to(move, shape[:-1])).reshape(-1, 25)
+    flat = _plain(joints.reshape(-1, 25, 3))
+    ref = _plain(reference.reshape(-1, reference.shape[-1]))
+    mobility = _plain(np.broadcast_to(move, shape[:-1]).reshape(-1, 25))
     out = np.empty_like(flat)
-    grouped, parents, children, order, parent_of, bone_to = tables
+    grouped, parents, children, order, parent_of, bone_to = (_plain(t, np.intp) for t in tables)
     kernels_bones.project_loop(
-        flat, ref, mobility, iterations, grouped, parents, children, order, parent_of, bone_to, out
+        flat,
+        ref,
+        mobility,
+        int(iterations),
+        grouped,
+        parents,
+        children,
+        order,
+        parent_of,
+        bone_to,
+        out,
     )
-    return out.reshape(shape)
+    result: FloatArray = out.reshape(shape)
+    return result
 
 
 def warm_up() -> float:
