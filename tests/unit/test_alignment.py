@@ -250,8 +250,9 @@ def drive(hub: FusionHub, periods: int) -> list[FusedFrame]:
 
 def test_a_late_sensor_is_extrapolated_to_the_instant_and_marked_in_the_feed() -> None:
     fusion = FusionSettings(
-        alignment="deadline", alignment_predictor="own", filter="none", enforce_bone_lengths=False
-    )
+        alignment="deadline", alignment_predictor="own", alignment_grid="wait",
+        alignment_skip_expected_late=False, filter="none", enforce_bone_lengths=False,
+    )  # fmt: skip
     fused = drive(hub_with_sensors(Settings(fusion=fusion)), periods=60)
     late = [f for f in fused if f.extrapolated and f.persons]  # published from the 3rd frame
     assert len(late) >= 50, "b's frames come 17 ms after a's instants: after a 10 ms deadline"

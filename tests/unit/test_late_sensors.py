@@ -6,6 +6,7 @@ sensors expected late anyway (fusion/alignment.py), all driven by clocks of the 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -130,7 +131,9 @@ def late_view(frame: FusedFrame) -> np.ndarray:
 
 
 TRACK = FusionSettings(alignment="deadline", alignment_predictor="track", filter="kalman_ca",
+                       alignment_grid="wait", alignment_skip_expected_late=False,
                        enforce_bone_lengths=False)  # fmt: skip
+"""b late at every instant (the wait grid, just before a)."""
 
 
 def test_a_late_view_carried_by_its_persons_motion_lands_on_a_constant_velocity_line() -> None:
@@ -143,9 +146,7 @@ def test_a_late_view_carried_by_its_persons_motion_lands_on_a_constant_velocity_
         ((sensor, behind),) = frame.extrapolated
         assert sensor == "b" and behind == pytest.approx(P - 0.015, abs=0.001)
         np.testing.assert_allclose(late_view(frame), walker(frame.t_s - DELIVERY_S), atol=1e-4)
-    held = drive(
-        FusionSettings(alignment="deadline", alignment_predictor="track", filter="none"), 90
-    )
+    held = drive(replace(TRACK, filter="none"), 90)
     off = [np.abs(late_view(f) - walker(f.t_s - DELIVERY_S)).max() for f in held if f.extrapolated]
     assert min(off[5:]) > 0.015, "without a filter there is no motion: held, 18 mm behind"
 
@@ -241,3 +242,16 @@ def test_the_new_fields_do_not_change_aligned_or_phased() -> None:
         plain = Alignment(name, 30.0)  # type: ignore[arg-type]
         tuned = Alignment(name, 30.0, grid="horizon", skip_expected_late=True)  # type: ignore[arg-type]
         assert run_policy(plain) == run_policy(tuned)
+
+
+def test_the_hub_under_the_default_deadline_settings_uses_the_horizon_grid() -> None:
+    """``alignment = "deadline"`` with the other fields left alone: once the phase is chosen, a
+    (15 ms before b) is the late one, carried 11 ms, and each instant is fused as b arrives: 4 ms
+    after it (the one-way clock mapping puts b's capture at its arrival: no delivery delay)."""
+    fused = drive(FusionSettings(alignment="deadline", enforce_bone_lengths=False), periods=90)
+    settled = [f for f in fused if f.t_s > T0 + 2.5]
+    assert len(settled) >= 25
+    for frame in settled:
+        ((sensor, behind),) = frame.extrapolated
+        assert sensor == "a" and behind == pytest.approx(0.011, abs=1e-4)
+        assert frame.fused_at_s - frame.t_s == pytest.approx(0.004, abs=1e-4)
