@@ -138,8 +138,8 @@ def refine_icp(
             further than this from the initial guess. Pass the initial guess's plausible
             error (e.g. a skeleton estimate's p95): a better-scoring fit that far away is ICP
             locking onto the wrong surfaces, not a correction.
-        progress: told after each level, each weighted by its expected work (the points of
-            a surface grow as 1/voxel²).
+        progress: told after each level, each weighted by 1/voxel (as measured: 0.3-0.7,
+            0.9-1.0 and 1.9-2.1 s for 10, 5 and 2.5 cm on the 2-core test machine).
 
     Returns:
         :class:`IcpResult`.
@@ -162,7 +162,7 @@ def refine_icp(
     warnings: list[str] = []
     transform = init.copy()
     level: tuple[Any, Any, float] | None = None
-    work = np.cumsum([1.0 / v**2 for v in voxel_sizes]) / sum(1.0 / v**2 for v in voxel_sizes)
+    work = np.cumsum([1.0 / v for v in voxel_sizes]) / sum(1.0 / v for v in voxel_sizes)
     for number, voxel in enumerate(voxel_sizes):
         src = src_cloud.voxel_down_sample(voxel)
         tgt = tgt_cloud.voxel_down_sample(voxel)

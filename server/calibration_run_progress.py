@@ -14,7 +14,8 @@ the depth, one sensor refinement for ICP), or :data:`PRIOR_S_PER_UNIT` before it
 bar therefore never goes back: what is done stays done, only the split of what is left moves.
 
 **Time left** (``eta_s``): the current stage's rest from its own measured rate (elapsed / share
-done, counting down between reports), plus the later stages at their measured rates; ``null``
+done, counting down between reports; blended with the stage's time in the last run while little
+is done, in proportion to the share done), plus the later stages at their measured rates; ``null``
 while any of them has no measurement (a stage without inner steps before its first run on this
 server, a stage not begun yet that never ran here). Never a prior: a guess is not shown as a
 time.
@@ -95,6 +96,7 @@ class RunProgress:
         self._fraction = 0.0  # share of the current stage done
         self._began = 0.0  # monotonic start of the current stage
         self._reported = 0.0  # monotonic time of the last fraction reported
+        self._measure = True  # record the current stage's time when it ends
 
     @property
     def stage(self) -> str:
@@ -115,9 +117,10 @@ class RunProgress:
         rate = self._rates.measured(stage)
         return self._units.get(stage, 1.0) * (PRIOR_S_PER_UNIT[stage] if rate is None else rate)
 
-    def enter(self, stage: str, detail: str = "") -> None:
+    def enter(self, stage: str, detail: str = "", measure: bool = True) -> None:
         """Start ``stage`` (a later one of ``stages``: skipped ones count as done; the current
-        one again: only its detail changes)."""
+        one again: only its detail changes). ``measure``: record how long the stage took for
+        the next runs (not when it includes a one-off wait, e.g. the solver process starting)."""
         if 0 <= self.index < len(self.stages) and self.stages[self.index] == stage:
             self.detail = detail
             return
@@ -130,6 +133,7 @@ class RunProgress:
         self._share = (1.0 - self._base) * (later[0] / total if total > 0 else 1.0)
         self._fraction = 0.0
         self._began = self._reported = now
+        self._measure = measure
         self.detail = detail
 
     def advance(self, fraction: float, detail: str | None = None) -> None:
@@ -150,7 +154,7 @@ class RunProgress:
         self.failed = True
 
     def _end_stage(self, now: float) -> None:
-        if 0 <= self.index < len(self.stages) and not self.failed:
+        if 0 <= self.index < len(self.stages) and not self.failed and self._measure:
             stage = self.stages[self.index]
             self._rates.record(stage, now - self._began, self._units.get(stage, 1.0))
 
@@ -162,13 +166,16 @@ class RunProgress:
             return None
         now = self._clock.monotonic()
         stage = self.stages[self.index]
+        rate = self._rates.measured(stage)
+        before = None if rate is None else rate * self._units.get(stage, 1.0)
         if self._fraction > 0:
             total = (self._reported - self._began) / self._fraction
+            if before is not None:  # little done yet: the last run's time weighs more
+                total = self._fraction * total + (1.0 - self._fraction) * before
+        elif before is None:
+            return None
         else:
-            rate = self._rates.measured(stage)
-            if rate is None:
-                return None
-            total = rate * self._units.get(stage, 1.0)
+            total = before
         left = max(0.0, total - (now - self._began))
         for later in self.stages[self.index + 1 :]:
             rate = self._rates.measured(later)

@@ -57,6 +57,7 @@ from skelfuse.server.errors import (
     InvalidRequest,
     NotFound,
     ServerError,
+    SolverCrashed,
 )
 from skelfuse.server.solver_pool import ProcessSolvers, Solvers
 
@@ -86,6 +87,7 @@ class CalibrationService:
         self._solvers = solvers or ProcessSolvers()
         self._tasks: set[asyncio.Task[None]] = set()
         self._rates = StageRates()  # how long each stage took here last time (time left)
+        self._solver_ready = False  # a solve has returned: the worker process is up
         self._store_lock = asyncio.Lock()  # one store write at a time (each awaits a thread)
 
     # --- starting ---------------------------------------------------------------------------
@@ -187,11 +189,12 @@ class CalibrationService:
             if spec.method in ("skeleton", "auto"):
                 samples = await self._capture(run, spec.sensors)
                 run.state = RunState.SOLVING
-                run.tracker.enter(stages.SKELETONS)
+                run.tracker.enter(stages.SKELETONS, measure=self._solver_ready)
                 floor_plane = reference_floor_plane(self.hub, spec.reference)
                 solution = await self._solvers.run(
                     solve_skeletons, spec.reference, spec.sensors, samples, floor_plane
                 )
+                self._solver_ready = True
                 poses, run.floor = solution.results, solution.floor
                 run.warnings.extend(solution.warnings)
                 run.provisional = {s: r.T_world_from_sensor for s, r in poses.items()}
@@ -200,6 +203,8 @@ class CalibrationService:
             run.results = poses
             self._finish(run)
         except (CalibrationError, ServerError) as exc:
+            if isinstance(exc, SolverCrashed):  # the next run starts a new worker: not timed
+                self._solver_ready = False
             self._fail(run, str(exc))
         except Exception as exc:  # never leave a run hanging in "capturing"
             logger.exception("calibration run %s failed", run.run_id)
@@ -215,7 +220,7 @@ class CalibrationService:
         try:
             clouds = await capture_clouds(self._agents, spec.sensors)
             run.state = RunState.SOLVING
-            run.tracker.enter(stages.ICP)
+            run.tracker.enter(stages.ICP, measure=self._solver_ready)
             start = poses or {s: self._current(s) for s in spec.sensors}
             refined = await self._solvers.run_reporting(
                 refine_with_depth,
@@ -230,6 +235,7 @@ class CalibrationService:
                 raise
             run.warnings.append(f"no ICP refinement: {exc}; kept the skeleton poses")
             return poses
+        self._solver_ready = True
         if refined.floor is not None:  # else the skeleton step's floor stands
             run.floor = refined.floor
         run.warnings.extend(refined.warnings)
@@ -243,15 +249,17 @@ class CalibrationService:
         sensors = (sensor_id, *sorted(fixed))
         samples = await self._capture(run, sensors)
         run.state = RunState.SOLVING
-        run.tracker.enter(stages.SKELETONS, f"{sensor_id} against {', '.join(sorted(fixed))}")
+        others = ", ".join(sorted(fixed))
+        run.tracker.enter(stages.SKELETONS, f"{sensor_id} against {others}", self._solver_ready)
         result = await self._solvers.run(solve_sensor, sensor_id, fixed, samples)
+        self._solver_ready = True
         run.provisional = {sensor_id: result.T_world_from_sensor}
         run.state = RunState.CAPTURING
         run.tracker.enter(stages.DEPTH)
         try:
             clouds = await capture_clouds(self._agents, sensors)
             run.state = RunState.SOLVING
-            run.tracker.enter(stages.ICP)
+            run.tracker.enter(stages.ICP)  # the worker has just solved the skeletons
             result = await self._solvers.run_reporting(
                 refine_sensor_with_depth,
                 run.tracker.advance,
