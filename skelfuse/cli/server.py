@@ -162,8 +162,10 @@ def uvicorn_config(
 ) -> uvicorn.Config:
     """How ``skelfuse server`` runs uvicorn: the WebSocket limits, pings and compression.
 
-    ``access_log``: a line per HTTP request. Off by default (issue 13): the viewer polls the
-    REST API every second or so, and those lines scroll away what the terminal says once.
+    ``access_log``: a line per HTTP request, and uvicorn's lines per WebSocket connection (its
+    error log's "WebSocket /path" [accepted], "connection open", "connection closed"). Off by
+    default (issue 13): the viewer polls the REST API every second or so, and those lines
+    scroll away what the terminal says once.
 
     ``ws_compression``: negotiate permessage-deflate with clients that offer it. Off by default
     because the deflate stream is per connection: every frame is compressed again for every
@@ -173,7 +175,7 @@ def uvicorn_config(
 
     from skelfuse.server.feed_protocol import FeedWebSocketProtocol
 
-    return uvicorn.Config(
+    config = uvicorn.Config(
         app,
         host=host,
         port=port,
@@ -190,3 +192,24 @@ def uvicorn_config(
         ws_per_message_deflate=ws_compression,
         lifespan="on",
     )
+    # After Config, which configures uvicorn's loggers; addFilter is idempotent.
+    error_log = logging.getLogger("uvicorn.error")
+    if access_log:
+        error_log.removeFilter(QUIET_WEBSOCKETS)
+    else:
+        error_log.addFilter(QUIET_WEBSOCKETS)
+    return config
+
+
+class _QuietWebSockets(logging.Filter):
+    """Drops uvicorn's lines per WebSocket connection: the feed's counterpart of the access log."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        message = str(record.msg)
+        return not (
+            message.startswith('%s - "WebSocket %s"')
+            or message in ("connection open", "connection closed")
+        )
+
+
+QUIET_WEBSOCKETS = _QuietWebSockets()

@@ -5,6 +5,8 @@ The whole demo on a terminal is tested in tests/e2e/test_demo.py; these pin the 
 
 from __future__ import annotations
 
+import logging
+
 import pytest
 
 from skelfuse.cli import build_parser
@@ -40,3 +42,21 @@ def test_the_box_holds_the_whole_address_on_a_terminal_only() -> None:
     logged = viewer_box(url, token, "the token in /d/api-token", terminal=False)
     assert token not in logged
     assert f"{url}/?token=<the token in /d/api-token>" in logged
+
+
+@pytest.mark.parametrize("access_log", [False, True])
+def test_websocket_connection_lines_follow_the_access_log(access_log: bool) -> None:
+    """uvicorn logs each WebSocket connection on its error log, whatever its access log says:
+    three lines per viewer that connects, off with the access log."""
+    uvicorn_config(object(), "127.0.0.1", 8000, "info", False, access_log=access_log)
+    error_log = logging.getLogger("uvicorn.error")
+
+    def kept(message: str, *args: object) -> bool:
+        record = error_log.makeRecord("uvicorn.error", logging.INFO, "", 0, message, args, None)
+        return bool(error_log.filter(record))
+
+    assert kept('%s - "WebSocket %s" [accepted]', "127.0.0.1:5", "/ws/skeletons") is access_log
+    assert kept('%s - "WebSocket %s" 403', "127.0.0.1:5", "/ws/skeletons") is access_log
+    assert kept("connection open") is access_log
+    assert kept("connection closed") is access_log
+    assert kept("Application startup complete.")  # everything else stays
