@@ -56,6 +56,7 @@ ALL_POLICIES: dict[str, FusionSettings] = {
     "horizon 10 ms": replace(HORIZON, alignment_deadline_s=0.010),
     "horizon 15 ms": replace(HORIZON, alignment_deadline_s=0.015),
     "horizon 20 ms": replace(HORIZON, alignment_deadline_s=0.020),
+    "horizon no skip 10 ms": replace(HORIZON, alignment_skip_expected_late=False),
     "horizon own 10 ms": replace(HORIZON, alignment_predictor="own"),
     "horizon own 15 ms": replace(HORIZON, alignment_predictor="own", alignment_deadline_s=0.015),
     "horizon own 20 ms": replace(HORIZON, alignment_predictor="own", alignment_deadline_s=0.020),

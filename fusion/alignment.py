@@ -58,6 +58,9 @@ PHASE_SAMPLES = 60
 PHASE_MIN_SAMPLES = 30
 """Frames every sensor must have before the phase is first chosen: the first few frames' clock
 mapping is still settling (a grid chosen from them measured worse than phase 0)."""
+EXPECTED_LATE_SHARE = 0.5
+"""``skip_expected_late``: a sensor late in more than this share of the replayed frames is not
+waited for."""
 HORIZON_TIE_S = 1e-4
 """``grid = "horizon"``: the replayed wait (seconds) counts this much (seconds², per second of
 wait) beside the squared horizons, so that among grids as good for extrapolation (every sensor
@@ -378,5 +381,5 @@ class Alignment:
             self.expected_late = frozenset(
                 sensor.sensor_id
                 for sensor, share in zip(sensors, shares[0].tolist(), strict=True)
-                if share > 0.5
+                if share > EXPECTED_LATE_SHARE
             )

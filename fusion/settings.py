@@ -213,7 +213,8 @@ class FusionSettings:
     follows the sensors' capture phases: 4–7 ms less wait on average in the accuracy scenarios
     (up to 12 ms for a rig), MPJPE within 0.25 mm of ``aligned`` (docs/benchmarks.md "Alignment
     policies"); ``deadline`` as ``phased``, but at the latest ``alignment_deadline_s`` after the
-    instant, late sensors extrapolated (+0.5 to +3.0 mm at 10 ms in those scenarios)."""
+    instant, late sensors carried forward (+0.5 to +2.6 mm at 10 ms, +0.1 to +1.0 mm at 15 ms in
+    those scenarios, with the ``alignment_*`` defaults below)."""
     alignment_deadline_s: float = 0.010
     """``deadline``: an instant is fused at the latest this long after it (server clock,
     seconds); it must cover the agents' usual delivery delay (capture to the server)."""
