@@ -78,23 +78,18 @@ def canonical_frame(buf: bytes) -> BulkFrame | None:
     floor = checked_floor(frame.floor)
     if isinstance(floor, bool):
         return None
-    ids: list[int] = []
-    joint_blobs: list[bytes] = []
-    state_blobs: list[bytes] = []
-    hands: list[Hands | None] = []
-    for body in frame.bodies:
-        tracking_id = body.id
-        if not 0 <= tracking_id <= UINT64_MAX:
-            return None
-        hand_states = None
+    bodies = frame.bodies
+    ids: list[int] = [body.id for body in bodies]
+    if ids and not (min(ids) >= 0 and max(ids) <= UINT64_MAX):
+        return None
+    hands: list[Hands | None] = [None] * len(bodies)
+    for index, body in enumerate(bodies):
         if body.hands is not None:
-            hand_states = hands_quickly(body.hands)
-            if hand_states is None:
+            hands[index] = hands_quickly(body.hands)
+            if hands[index] is None:
                 return None
-        ids.append(tracking_id)
-        joint_blobs.append(body.joints)
-        state_blobs.append(body.states)
-        hands.append(hand_states)
+    joint_blobs: list[bytes] = [body.joints for body in bodies]
+    state_blobs: list[bytes] = [body.states for body in bodies]
     return frame_of_blobs(
         frame.seq, frame.t_capture_ns, ids, joint_blobs, state_blobs, hands, floor
     )
