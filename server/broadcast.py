@@ -35,6 +35,7 @@ from typing import Any, Protocol
 import msgpack
 import numpy as np
 import orjson
+from pydantic import BaseModel, ConfigDict
 from websockets.frames import Frame, Opcode
 
 from skelfuse.fusion.hub import FusedFrame
@@ -57,6 +58,14 @@ class Variant:
     binary: bool  # msgpack instead of JSON
     raw: bool  # include every sensor's raw bodies
     rotations: bool = False  # include the persons' joint rotations (docs/api.md, "Rotations")
+
+
+class PersonsQuery(BaseModel):
+    """``GET /api/persons``'s query: ``?rotations=1`` adds the joint rotations, as on the feed.
+    Any other parameter is refused (422), so the OpenAPI document says what is taken."""
+
+    model_config = ConfigDict(extra="forbid")
+    rotations: bool = False
 
 
 def persons_orientations(persons: Sequence[FusedPerson]) -> Orientations | None:
