@@ -8,7 +8,7 @@ import time
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import zmq
 import zmq.asyncio
@@ -20,6 +20,7 @@ from prometheus_client import CollectorRegistry, make_asgi_app
 
 from skelfuse import __version__
 from skelfuse.calibration.store import CalibrationStore
+from skelfuse.fusion import kernels
 from skelfuse.fusion.hub import FusionHub
 from skelfuse.protocol.feed import persons_json
 from skelfuse.protocol.skeleton import skeleton_definition
@@ -37,6 +38,7 @@ from skelfuse.server.broadcast import (
     PREFRAMED,
     Broadcaster,
     Outgoing,
+    PersonsQuery,
     Variant,
     encode_message,
     persons_orientations,
@@ -79,6 +81,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 ", ".join(sorted(calibration.sensors)) or "no sensors",
             )
         hub = FusionHub(settings, calibration)
+        # The fusion kernels compile (or load numba's cache) now, not in the first fusion step
+        # on the event loop (fusion/kernels.py; 0 s without numba or with SKELFUSE_KERNELS=numpy).
+        warm_up_s = await asyncio.to_thread(kernels.warm_up)
+        if warm_up_s:
+            logger.info("fusion kernels ready in %.2f s", warm_up_s)
         broadcaster = Broadcaster(settings.ws_send_timeout_s)
         context = zmq.asyncio.Context()
         authenticator = None
@@ -176,11 +183,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         }
 
     @app.get("/api/persons", tags=["status"])
-    async def persons(rotations: bool = Query(False)) -> dict[str, object]:
+    async def persons(query: Annotated[PersonsQuery, Query()]) -> dict[str, object]:
         latest = hub_of(app).latest
         if latest is None:
             return {"seq": 0, "t": None, "persons": []}
-        joint_rotations = persons_orientations(latest.persons) if rotations else None
+        joint_rotations = persons_orientations(latest.persons) if query.rotations else None
         return {
             "seq": latest.seq,
             "t": round(latest.t_s, 6),
