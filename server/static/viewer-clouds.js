@@ -6,9 +6,13 @@
 // t_capture, pose, points: [[x, y, z], ...] metres} and GET /api/sensors/{id}/bodies ->
 // {pose, bodies: [{joints, joints_world, states}]}. The server places both with the sensor's
 // pose: the active calibration's, or mid-calibration the run's provisional one (pose
-// "provisional"). Asked on request only (the "depth clouds" box): an agent renders each cloud on
-// its CPU, so a round (every sensor at once) is repeated REFRESH_MS after the previous one ended;
-// the bodies (the newest frame the server holds: cheap) every BODIES_MS.
+// "provisional"). Asked on request only (the "depth clouds" box). An agent renders a cloud on
+// its CPU and skips frames meanwhile (a simulated one takes 0.3-1 s), and one the server gave up
+// on (503 after 5 s) still renders it: asked again at once, a loaded agent would render clouds
+// back to back and starve the feed (1 frame/s seen at load 15). So the sensors are asked one
+// after the other, the next round waits twice as long as the last one took (REFRESH_MS at the
+// least), or BACKOFF_MS after a refusal. The bodies (the newest frame the
+// server holds: cheap) every BODIES_MS.
 //
 // A sensor without any pose yet ("sensor" frame) is drawn in a row beside the others
 // (UNPLACED_*), each seen from its own sensor looking along +z.
@@ -18,6 +22,7 @@ import * as THREE from 'three';
 export const MAX_POINTS = 3000;
 export const POINT_SIZE_PX = 3;
 const REFRESH_MS = 2000;
+const BACKOFF_MS = 10000;
 const BODIES_MS = 300;
 const REQUEST_TIMEOUT_MS = 15000; // an agent renders the cloud: slow under load
 const UNPLACED_SPACING_M = 4.5;
@@ -176,15 +181,18 @@ export class CloudLayer {
   async round(gen) {
     if (this.running) return;
     this.running = true;
+    const started = performance.now();
+    let delay = REFRESH_MS;
     try {
-      // All sensors at once: each agent renders its own cloud (separate processes or PCs).
-      const ids = this.sensorIds;
-      const texts = await Promise.all(ids.map((id) => this.fetchCloud(id)));
-      if (gen !== this.generation) return;
       const errors = {};
-      ids.forEach((id, k) => {
-        if (texts[k]) errors[id] = texts[k];
-      });
+      for (const id of this.sensorIds) {
+        if (gen !== this.generation) return;
+        const text = await this.fetchCloud(id);
+        if (text) errors[id] = text;
+      }
+      if (gen !== this.generation) return;
+      const took = performance.now() - started;
+      delay = Object.keys(errors).length ? BACKOFF_MS : Math.max(REFRESH_MS, 2 * took);
       this.hook.cloudErrors = errors;
       this.hook.cloudRounds++;
       const failed = Object.entries(errors);
@@ -192,7 +200,7 @@ export class CloudLayer {
     } finally {
       this.running = false;
       if (gen === this.generation && this.enabled) {
-        this.timer = setTimeout(() => this.round(gen), REFRESH_MS);
+        this.timer = setTimeout(() => this.round(gen), delay);
       }
     }
   }
