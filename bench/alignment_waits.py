@@ -56,7 +56,9 @@ def simulate(
     events.sort()
     policy = Alignment(output_hz=30.0, **options)  # type: ignore[arg-type]
     newest: dict[int, float] = {}
-    waits, horizons, carried = [], [], 0
+    waits: list[float] = []
+    horizons: list[float] = []
+    carried = 0
 
     def step(now: float) -> None:
         nonlocal carried
