@@ -84,12 +84,31 @@ _progress_queue: Any = None
 """In the worker process: where progress reports go (:func:`_init_worker`)."""
 
 
-def _init_worker(nice: int, progress_queue: Any = None) -> None:
+PARENT_CHECK_S = 0.5
+"""How often the worker checks that the server that started it is still alive."""
+
+
+def _init_worker(nice: int, progress_queue: Any = None, parent_pid: int | None = None) -> None:
     """Runs first in the worker process."""
     global _progress_queue
     _progress_queue = progress_queue
     if nice and hasattr(os, "nice"):
         os.nice(nice)
+    if parent_pid is not None:
+        threading.Thread(
+            target=_exit_with_parent, args=(parent_pid,), name="solver-parent", daemon=True
+        ).start()
+
+
+def _exit_with_parent(parent_pid: int) -> None:
+    """In the worker: end the process once the server is gone. A server killed outright (SIGKILL,
+    a crash, a CI timeout) never shuts its pool down, and the worker would otherwise wait on its
+    call queue for ever, an orphan holding memory (seen here as workers re-parented to init).
+    Polling ``getppid`` rather than ``PR_SET_PDEATHSIG``: the latter fires when the *thread* that
+    started the worker ends, and :meth:`ProcessSolvers.warm` starts it from a short-lived thread."""
+    while os.getppid() == parent_pid:
+        threading.Event().wait(PARENT_CHECK_S)
+    os._exit(0)
 
 
 def _call_reporting(
@@ -164,6 +183,7 @@ class ProcessSolvers:
         self._reader: _ProgressReader | None = None
         self._listeners: dict[int, tuple[asyncio.AbstractEventLoop, Progress]] = {}
         self._call_ids = itertools.count(1)
+        self._closed = False
 
     def _new_pool(self) -> ProcessPoolExecutor:
         # A queue per worker: one that died mid-report may leave its queue unreadable.
@@ -175,11 +195,13 @@ class ProcessSolvers:
             max_workers=1,  # one run at a time, its solves one after another
             mp_context=self._context,
             initializer=_init_worker,
-            initargs=(self._nice, queue),
+            initargs=(self._nice, queue, os.getpid()),
         )
 
     def _submit(self, call: Callable[[], T]) -> tuple[ProcessPoolExecutor, Future[T]]:
         with self._lock:
+            if self._closed:  # e.g. warm()'s thread starting after the server shut down
+                raise SolverCrashed("the solver pool is closed (the server is shutting down)")
             if self._pool is None:
                 self._pool = self._new_pool()
             try:
@@ -192,7 +214,11 @@ class ProcessSolvers:
     def warm(self) -> None:
         # Starting the process costs the calling thread 10–25 ms (fork and exec of a big
         # process): not the event loop's. Nobody waits for it; the first solve queues behind it.
-        threading.Thread(target=self._submit, args=(_preload,), name="solver-warm").start()
+        threading.Thread(target=self._warm, name="solver-warm").start()
+
+    def _warm(self) -> None:
+        with contextlib.suppress(SolverCrashed):  # closed before this thread ran: nothing to do
+            self._submit(_preload)
 
     async def run(self, fn: Callable[P, T], /, *args: P.args, **kwargs: P.kwargs) -> T:
         return await self._run(functools.partial(fn, *args, **kwargs), fn)
@@ -228,6 +254,7 @@ class ProcessSolvers:
 
     async def aclose(self) -> None:
         with self._lock:
+            self._closed = True
             pool, self._pool = self._pool, None
             reader, self._reader = self._reader, None
         if pool is not None:
