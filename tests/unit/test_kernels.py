@@ -9,6 +9,7 @@ golden replay (test_golden_replay.py) is run with the kernels on and off in the 
 from __future__ import annotations
 
 import os
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -134,3 +135,21 @@ def test_bone_projection_kernel_gives_the_numpy_bits(
     with kernels.forced("numpy"):
         expected = bones.project_bone_lengths(skeletons[0], references[0], iterations=iterations)
     assert _same_bits(one, expected)  # one skeleton, (25, 3)
+
+
+def test_without_numba_everything_runs_on_numpy(monkeypatch: pytest.MonkeyPatch) -> None:
+    """As the server's wheel and Docker image run: numba not importable."""
+    from skelfuse.fusion import kernels_jit
+
+    monkeypatch.setitem(sys.modules, "numba", None)  # import numba raises ImportError
+    monkeypatch.setattr(kernels_jit, "_found", {})
+    assert kernels_jit.numba_module() is None
+    assert not kernels.enabled() and kernels.warm_up() == 0.0
+
+    def loop(x: float) -> float:
+        return x
+
+    assert kernels_jit.jit(loop) is loop
+    views = _views(1)[:6]
+    factors, _ = anatomy.rom_factors_and_forward(views, 15.0)
+    assert factors.shape == (6, 25)
