@@ -125,6 +125,8 @@ export class CloudLayer {
    * @param {() => void} o.requestRender
    * @param {object} o.hook the viewer's test hook (cloud* fields are written)
    * @param {(text: string) => void} o.onNote a line for the HUD ('' clears it)
+   * @param {(poses: Map<string, number[][]>) => void} o.onProvisional the sensors placed by a
+   *   running calibration's provisional pose (T_world_from_sensor, 4×4), from their bodies answers
    */
   constructor(o) {
     Object.assign(this, o);
@@ -138,6 +140,7 @@ export class CloudLayer {
     this.bodiesTimer = null;
     this.running = false;
     this.generation = 0;
+    this.provisional = new Map(); // id -> T_world_from_sensor of a provisional pose
     Object.assign(this.hook, {
       cloudsEnabled: false, // state of the "depth clouds" box
       cloudsDrawn: 0, // sensors whose cloud is in the scene
@@ -174,6 +177,8 @@ export class CloudLayer {
       this.pollBodies(this.generation);
     } else {
       this.onNote('');
+      this.provisional.clear();
+      this.onProvisional(this.provisional);
     }
     this.placeAll();
   }
@@ -212,8 +217,15 @@ export class CloudLayer {
         if (!cloud || gen !== this.generation) continue; // bodies follow their cloud's frame
         const r = await this.api.json('GET', `/api/sensors/${encodeURIComponent(id)}/bodies`);
         if (gen !== this.generation) return;
-        if (r.ok && r.data && typeof r.data === 'object') cloud.setBodies(r.data, this.bones());
+        if (r.ok && r.data && typeof r.data === 'object') {
+          cloud.setBodies(r.data, this.bones());
+          const T = r.data.T_world_from_sensor;
+          if (r.data.pose === 'provisional' && Array.isArray(T)) this.provisional.set(id, T);
+          else this.provisional.delete(id);
+        }
       }
+      for (const id of this.provisional.keys()) if (!this.sensorIds.includes(id)) this.provisional.delete(id);
+      this.onProvisional(this.provisional);
       this.placeAll();
     } catch (e) {
       // transient: the next poll retries

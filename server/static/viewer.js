@@ -50,6 +50,7 @@ const HOOK = {
   calibrationRunCommitted: null, // its committed_version, or null
   calibrationError: null, // the last error shown in the panel (a 4xx detail), or null
   ghostSensorsDrawn: 0, // dashed frustums of a done, uncommitted run's proposed poses
+  provisionalSensorsDrawn: 0, // dashed frustums of a running run's provisional poses (clouds on)
   calibrationStage: null, // the run's current stage (its name), or null
   calibrationStages: [], // the run's stages, in order
   calibrationStageIndex: 0, // index of the current stage in calibrationStages
@@ -815,6 +816,35 @@ function updateGhosts(run) {
   }
   for (const [id, g] of ghostViews) if (!seen.has(id)) g.visible = false;
   HOOK.ghostSensorsDrawn = drawn;
+  requestRender();
+}
+
+// Sensors a running calibration has placed (its provisional poses, known from the depth clouds'
+// bodies answers): dashed frustums, so during a first calibration the sensors appear with their
+// clouds instead of only once the run is committed.
+const provisionalViews = new Map(); // sensor id -> LineSegments
+
+function showProvisionalSensors(poses) {
+  let drawn = 0;
+  for (const [id, T] of poses) {
+    if (!isMatrix4x4(T)) continue;
+    let g = provisionalViews.get(id);
+    if (!g) {
+      g = new THREE.LineSegments(
+        ghostFrustumGeometry(),
+        new THREE.LineDashedMaterial({ color: sensorColor(id), dashSize: 0.035, gapSize: 0.025 }),
+      );
+      g.matrixAutoUpdate = false;
+      scene.add(g);
+      provisionalViews.set(id, g);
+    }
+    g.matrix.set(...T.flat());
+    g.matrixWorldNeedsUpdate = true;
+    g.visible = true;
+    drawn++;
+  }
+  for (const [id, g] of provisionalViews) if (!poses.has(id)) g.visible = false;
+  HOOK.provisionalSensorsDrawn = drawn;
   requestRender();
 }
 
@@ -1759,6 +1789,7 @@ const clouds = new CloudLayer({
   onNote: (text) => {
     cloudNote.textContent = text;
   },
+  onProvisional: showProvisionalSensors,
 });
 const cloudNote = document.getElementById('cloud-note');
 const cloudsToggle = document.getElementById('clouds-toggle');
