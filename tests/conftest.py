@@ -18,6 +18,7 @@ import pytest
 
 from skelfuse.cli.values import parse_pose
 from skelfuse.demo import sensor_layout
+from skelfuse.fusion import kernels
 from skelfuse.protocol.transform import invert, pose_from_position_yaw_pitch
 from tests.support import free_port, wait_until
 from tests.support_terminal import popen_in_terminal
@@ -25,6 +26,14 @@ from tests.support_terminal import popen_in_terminal
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = PROJECT_ROOT.parent / "shared" / "data"
 CMU_DIR = SHARED_DATA / "cmu-mocap"
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _fusion_kernels_compiled() -> None:
+    """Compile the fusion kernels (or load numba's cache) once before any test, as the server
+    and replay do at start (fusion/kernels.py): a test that times a fusion loop it built itself
+    must not pay that inside its first fusion step. Nothing to do without numba."""
+    kernels.warm_up()
 
 
 @pytest.fixture
