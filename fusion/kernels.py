@@ -143,6 +143,23 @@ def project_bone_lengths(
     return result
 
 
+def weighted_mean(joints: FloatArray, weights: FloatArray) -> FloatArray:
+    """The compiled :func:`skelfuse.fusion.weighted.weighted_mean` (same bits).
+
+    Args:
+        joints: (P, S, J, 3) positions, NaN where a view has none; weights: (P, S, J).
+
+    Returns:
+        (P, J, 3) float64, NaN where no view has a position with a positive weight.
+    """
+    from skelfuse.fusion import kernels_weighted  # imports numba: only when used
+
+    points = _plain(joints)
+    out = np.empty((points.shape[0], points.shape[2], 3))
+    kernels_weighted.weighted_loop(points, _plain(weights), out)
+    return out
+
+
 def warm_up() -> float:
     """Compile (or load from numba's cache) every kernel now; returns the seconds it took
     (0.0 when the kernels are off). Call at start, off any latency-bound loop."""
@@ -155,4 +172,5 @@ def warm_up() -> float:
     index = np.zeros(25, dtype=np.intp)  # the index tables' types, any content
     tables = (index, index, index, index, index, np.full(25, -1, dtype=np.intp))
     project_bone_lengths(views, np.ones((2, 24)), np.ones((2, 25)), 1, tables)
+    weighted_mean(views[None], np.ones((1, 2, 25)))
     return time.perf_counter() - start

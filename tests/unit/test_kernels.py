@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from skelfuse.agent.sim.performer import ProceduralPerformer
-from skelfuse.fusion import anatomy, bones, kernels
+from skelfuse.fusion import anatomy, bones, kernels, weighted
 from skelfuse.fusion.kernels_jit import numba_module
 from skelfuse.protocol.skeleton import JointId as J
 from tests.unit import test_golden_replay as golden
@@ -153,3 +153,20 @@ def test_without_numba_everything_runs_on_numpy(monkeypatch: pytest.MonkeyPatch)
     views = _views(1)[:6]
     factors, _ = anatomy.rom_factors_and_forward(views, 15.0)
     assert factors.shape == (6, 25)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_weighted_mean_kernel_gives_the_numpy_bits(numba_kernels: None, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    joints = _views(seed)[:48].reshape(6, 8, 25, 3)
+    joints[0, :, 3] = -0.0  # a sum of negative zeros is +0 in numpy's reduction
+    weights = rng.uniform(-0.2, 1.0, joints.shape[:3])  # some negative: they count as 0
+    weights[rng.random(weights.shape) < 0.2] = 0.0
+    weights[1, :, :5] = 0.0  # joints no view carries: NaN
+    weights[2, 0, 7] = np.nan
+    for size in (8, 3, 1):
+        fused = weighted.weighted_mean(joints[:, :size], weights[:, :size])
+        with kernels.forced("numpy"):
+            expected = weighted.weighted_mean(joints[:, :size], weights[:, :size])
+        assert _same_bits(fused, expected)
+        assert np.isnan(fused).any()
