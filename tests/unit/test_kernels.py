@@ -8,6 +8,7 @@ golden replay (test_golden_replay.py) is run with the kernels on and off in the 
 
 from __future__ import annotations
 
+import importlib
 import os
 import sys
 from collections.abc import Iterator
@@ -60,6 +61,16 @@ def _same_bits(a: FloatArray, b: FloatArray) -> bool:
     return a.shape == b.shape and a.dtype == b.dtype and a.tobytes() == b.tobytes()
 
 
+def _numpy_uses_svml() -> bool:
+    """Whether numpy's arcsin / arccos / arctan2 run Intel's SVML (AVX-512 machines): they are
+    then a few ulp from the C library's, which the kernel calls, so bit equality cannot hold."""
+    try:
+        umath = importlib.import_module("numpy._core._multiarray_umath")
+    except ImportError:  # numpy < 2
+        umath = importlib.import_module("numpy.core._multiarray_umath")
+    return bool(getattr(umath, "__cpu_features__", {}).get("AVX512_SKX", False))
+
+
 @pytest.mark.parametrize("seed", range(5))
 @pytest.mark.parametrize("scale_deg", [15.0, 7.5])
 def test_rom_kernel_gives_the_numpy_bits(numba_kernels: None, seed: int, scale_deg: float) -> None:
@@ -68,8 +79,11 @@ def test_rom_kernel_gives_the_numpy_bits(numba_kernels: None, seed: int, scale_d
     with kernels.forced("numpy"):
         assert not kernels.enabled()
         expected_factors, expected_forward = anatomy.rom_factors_and_forward(views, scale_deg)
-    assert _same_bits(factors, expected_factors)
-    assert _same_bits(forward, expected_forward)
+    if _numpy_uses_svml():  # angles from trigonometry: a few ulp apart, never more
+        np.testing.assert_allclose(factors, expected_factors, rtol=1e-12, atol=0.0)
+    else:
+        assert _same_bits(factors, expected_factors)
+    assert _same_bits(forward, expected_forward)  # sums, products and sqrt only: exact anywhere
     assert (factors < 1.0).any() and np.isnan(forward).any()  # the inputs reach every branch
 
 
