@@ -275,6 +275,8 @@ def test_ctrl_c_in_a_terminal_stops_the_demo_cleanly(tmp_path: Path) -> None:
             url = f"http://127.0.0.1:{http_port}/api/persons?token={CTRL_C_TOKEN}"
             bearer = {"Authorization": f"Bearer {CTRL_C_TOKEN}"}
             assert httpx.get(url, headers=bearer, timeout=30).status_code == 200
+            # The box comes once people are fused, which may be after the sensors are online.
+            assert wait_until(lambda: boxed_lines(log_path.read_text()), timeout_s=60)
             children = _children(process.pid)
             assert len(children) == 3, (children, log_path.read_text())  # server + 2 agents
             os.killpg(process.pid, signal.SIGINT)  # what the terminal does
