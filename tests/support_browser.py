@@ -33,7 +33,8 @@ CHROMIUM_ARGS = [
 LOOPBACK = frozenset({"127.0.0.1", "localhost", "[::1]", "::1"})
 
 
-def _unavailable(reason: str, ci_hint: str) -> NoReturn:
+def unavailable(reason: str, ci_hint: str) -> NoReturn:
+    """Skip with ``reason``; under CI (which installs every tool) fail with ``ci_hint``."""
     if os.environ.get("CI"):
         pytest.fail(f"{reason}: {ci_hint}", pytrace=False)
     pytest.skip(reason)
@@ -45,7 +46,7 @@ def chromium_executable() -> str:
         return "/usr/bin/chromium"
     found = shutil.which("chromium")
     if found is None:
-        _unavailable(
+        unavailable(
             "Chromium not found (/usr/bin/chromium or `chromium` on PATH)",
             "CI must install Debian's `chromium` package (apt-get install chromium)",
         )
@@ -80,7 +81,7 @@ def offline_page(width: int = 1280, height: int = 800) -> Iterator[OfflinePage]:
     try:
         from playwright.sync_api import sync_playwright
     except ImportError:
-        _unavailable(
+        unavailable(
             "the playwright Python package is not installed",
             "CI must install the dev extras (pip install -e '.[dev]')",
         )

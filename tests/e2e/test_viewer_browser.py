@@ -14,9 +14,7 @@ either is missing, and fail when the ``CI`` environment variable is set (CI must
 from __future__ import annotations
 
 import json
-import os
 import re
-import shutil
 import struct
 import time
 import urllib.request
@@ -24,11 +22,13 @@ import warnings
 import zlib
 from collections.abc import Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NoReturn
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
 import pytest
+
+from tests.support_browser import chromium_executable, unavailable
 
 if TYPE_CHECKING:
     from playwright.sync_api import Browser, Page
@@ -68,32 +68,14 @@ def assert_shows_mm(text: str, value: float, near: str | None = None) -> None:
     assert abs(float(shown.group(1)) - value) <= 0.051, (value, text)
 
 
-def _unavailable(reason: str, ci_hint: str) -> NoReturn:
-    if os.environ.get("CI"):
-        pytest.fail(f"{reason}: {ci_hint}", pytrace=False)
-    pytest.skip(reason)
-
-
-def _chromium_executable() -> str:
-    if Path("/usr/bin/chromium").is_file():
-        return "/usr/bin/chromium"
-    found = shutil.which("chromium")
-    if found is None:
-        _unavailable(
-            "Chromium not found (/usr/bin/chromium or `chromium` on PATH)",
-            "CI must install Debian's `chromium` package (apt-get install chromium)",
-        )
-    return found
-
-
 @pytest.fixture(scope="module")
 def browser() -> Iterator[Browser]:
     """Headless Debian Chromium driven by Playwright; closed at the end of the module."""
-    executable = _chromium_executable()
+    executable = chromium_executable()
     try:
         from playwright.sync_api import sync_playwright
     except ImportError:
-        _unavailable(
+        unavailable(
             "the playwright Python package is not installed",
             "CI must install the dev extras (pip install -e '.[dev]')",
         )
