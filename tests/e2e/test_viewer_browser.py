@@ -28,7 +28,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from tests.support_browser import chromium_executable, unavailable
+from tests.support_browser import CHROMIUM_ARGS, chromium_executable, unavailable
 
 if TYPE_CHECKING:
     from playwright.sync_api import Browser, Page
@@ -43,16 +43,6 @@ ARTIFACTS = PROJECT_ROOT / "artifacts"
 # bounds its own waits well below this.
 pytestmark = [pytest.mark.e2e, pytest.mark.browser, pytest.mark.timeout(180)]
 
-CHROMIUM_ARGS = [
-    "--no-sandbox",
-    "--disable-gpu",
-    "--use-gl=swiftshader",
-    "--enable-unsafe-swiftshader",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-]
 VIEWPORT = {"width": 1280, "height": 800}  # issue 13: nothing clipped at 1280×800
 DEMO_SENSORS = 3
 DEMO_PERSONS = 2
