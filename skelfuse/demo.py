@@ -30,6 +30,7 @@ import urllib.request
 from pathlib import Path
 from typing import Any
 
+from skelfuse.parent_watch import child_environment
 from skelfuse.server.auth import KeysMissing, create_agent_keys, create_server_keys, key_paths
 
 logger = logging.getLogger("skelfuse.demo")
@@ -274,13 +275,16 @@ def run_demo(
     # foreground group, and a server signalled twice (by the terminal, then by the demo's own
     # orderly stop) aborts its shutdown with a traceback. The demo alone stops them.
     own_group: dict[str, Any] = {"process_group": 0} if os.name == "posix" else {}
+    # A demo killed outright (SIGKILL) runs no cleanup: each child watches this process and
+    # stops itself once it is gone (skelfuse.parent_watch), instead of running on for hours.
+    children_env = child_environment()
     server = subprocess.Popen(
         [
             *python, "server", "--http", f"{host}:{port}", "--zmq", zmq_bind,
             "--data", str(data_dir), "--curve", *(["--access-log"] if access_log else []),
         ],
         # The token goes in the environment: a command line is readable by every local user.
-        env={**os.environ, "SKELFUSE_TOKEN": token},
+        env={**children_env, "SKELFUSE_TOKEN": token},
         **own_group,
     )  # fmt: skip
     processes: list[subprocess.Popen[bytes]] = [server]
@@ -327,6 +331,7 @@ def run_demo(
                         f"--key={agent_keys[sensor_id]}",
                         f"--server-key={keys.server_public}",
                     ],
+                    env=children_env,
                     **own_group,
                 )
             )

@@ -3,7 +3,8 @@
 ``values`` parses command-line values for all of them; the command modules import only it, never
 each other. Each command imports the server, recording and fusion inside its ``run``, so an
 agent-only install (numpy, pyzmq, msgpack, threadpoolctl) never touches the server's
-dependencies. Every command runs with BLAS pinned to one thread (:mod:`skelfuse.blas`).
+dependencies. Every command runs with BLAS pinned to one thread (:mod:`skelfuse.blas`), and
+ends with the process that started it when that one asks so (:mod:`skelfuse.parent_watch`).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from collections.abc import Sequence
 from skelfuse.blas import pin_blas_threads
 from skelfuse.cli import agent, demo, doctor, keys, recordings, server
 from skelfuse.cli.values import UsageError
+from skelfuse.parent_watch import watch_parent_from_environment
 
 __all__ = ["build_parser", "main"]
 
@@ -43,6 +45,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     _configure_logging(args.log_level)
     pin_blas_threads()  # before any command: no busy-waiting BLAS worker takes a core
+    watch_parent_from_environment()  # started by the demo: end with it, even if it is killed
     try:
         result: int = args.func(args)
     except UsageError as exc:
