@@ -8,8 +8,10 @@
     ├── DegenerateGeometry           the pairs do not pin down a pose (collinear, coincident,
     │                                a person who did not move)
     ├── NoOverlap                    two point clouds do not see the same surfaces
-    └── IcpUnavailable               open3d (ICP) does not import: not installed, or a system
-                                     library it links is missing
+    ├── IcpUnavailable               open3d (ICP) does not import: not installed, or a system
+    │                                library it links is missing
+    └── CameraFileError              a camera calibration file (Qualisys, Pose2Sim, OpenCV)
+                                     cannot be read: malformed, missing a field, not rigid
 
 Every message says what was received and what to do about it, so the REST layer can pass it
 through to the user unchanged.
@@ -40,3 +42,7 @@ class NoOverlap(CalibrationError):
 
 class IcpUnavailable(CalibrationError):
     """open3d, which ICP refinement needs, does not import; the message names what is missing."""
+
+
+class CameraFileError(CalibrationError):
+    """A camera calibration file cannot be imported; the message names the file and the field."""
