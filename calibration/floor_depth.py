@@ -34,6 +34,10 @@ from skelfuse.calibration.floor import FloorFit
 
 FloatArray = npt.NDArray[np.float64]
 
+DEFAULT_CONTACT_HEIGHT_M = 0.03
+"""A planted foot's heel and toe landmarks above the floor: they sit on the shoe, not under the
+sole (a typical sole and heel counter; a guess, not fitted to the test clip)."""
+
 MEDIAPIPE_FEET: tuple[int, ...] = (29, 30, 31, 32)
 """Heels and foot tips of MediaPipe's 33 landmarks: the points that touch the floor (the ankles,
 27 and 28, are a hand's width above it)."""
@@ -50,7 +54,7 @@ class FloorDepthSettings:
     (odd; 1 = none).
     """
 
-    contact_height_m: float = 0.03
+    contact_height_m: float = DEFAULT_CONTACT_HEIGHT_M
     min_visibility: float = 0.5
     scale_range: tuple[float, float] = (0.6, 1.6)
     window_frames: int = 9
@@ -178,3 +182,33 @@ def place_on_floor(
     scales = smooth_scales(raw, settings.window_frames)
     placed: FloatArray = pts * scales[:, None, None]
     return placed, scales
+
+
+def level_camera_height(
+    joints_cv: npt.ArrayLike,
+    *,
+    feet: Sequence[int] = MEDIAPIPE_FEET,
+    contact_height_m: float = DEFAULT_CONTACT_HEIGHT_M,
+) -> float:
+    """A level camera's height above the floor, from a placed body's feet (no calibration).
+
+    For one uncalibrated camera assumed level (optical axis horizontal, no roll): per frame the
+    lowest foot point is on the floor, so the camera's height is how far below it that point
+    is, plus ``contact_height_m``; the median over frames is returned.
+
+    Args:
+        joints_cv: (F, J, 3) placed joints, metres, OpenCV camera frame (+Y down); NaN rows
+            where no body.
+
+    Raises:
+        InvalidInput: no frame with a finite foot point.
+    """
+    pts = np.asarray(joints_cv, dtype=np.float64)
+    if pts.ndim != 3 or pts.shape[2] != 3:
+        raise InvalidInput(f"joints_cv must be (frames, joints, 3), got {pts.shape}")
+    below = pts[:, list(feet), 1]  # +Y down: the largest y is the lowest point
+    known = np.isfinite(below).any(axis=1)
+    if not known.any():
+        raise InvalidInput("no frame has a foot point: the camera's height is unknown")
+    lowest = np.nanmax(below[known], axis=1)
+    return float(np.median(lowest)) + contact_height_m

@@ -13,6 +13,7 @@ from skelfuse.calibration.floor_depth import (
     contact_points,
     floor_in_camera,
     floor_scales,
+    level_camera_height,
     place_on_floor,
     smooth_scales,
 )
@@ -116,3 +117,16 @@ def test_bad_shapes_are_refused() -> None:
         floor_scales(np.zeros((2, 4, 3)), floor, visibility=np.ones(4), feet=FEET)
     with pytest.raises(InvalidInput):
         floor_in_camera(np.eye(3), FLOOR_Y_UP)
+
+
+def test_a_level_cameras_height_comes_from_the_lowest_feet() -> None:
+    # Level camera 1.4 m up (OpenCV frame: +Y down), heel on the floor, the other foot lifted.
+    pose = np.eye(4)
+    pose[:3, :3] = np.diag([-1.0, -1.0, 1.0])  # world +Y up from the camera's +Y down
+    pose[1, 3] = 1.4
+    body = _to_camera(pose, _body_world(5) + np.array([0.0, 0.0, 3.0]))
+    body[2] = np.nan  # a frame without a body is ignored
+    assert level_camera_height(body, feet=FEET, contact_height_m=0.0) == pytest.approx(1.4)
+    assert level_camera_height(body, feet=FEET, contact_height_m=0.03) == pytest.approx(1.43)
+    with pytest.raises(InvalidInput):
+        level_camera_height(np.full((2, 4, 3), np.nan), feet=FEET)
