@@ -22,13 +22,14 @@ msgspec is optional (the ``server`` extra): without it, :func:`canonical_frame` 
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Any, Literal
 
 from skelfuse.protocol.constants import MAX_BODIES
-from skelfuse.protocol.hands import Hands, hands_quickly
+from skelfuse.protocol.hands import hands_quickly
 from skelfuse.protocol.skeleton import JOINT_COUNT
-from skelfuse.protocol.wire_bulk import BulkFrame, checked_floor, frame_of_blobs
-from skelfuse.protocol.wire_checks import INT64_MAX, UINT64_MAX
+from skelfuse.protocol.wire_bulk import BulkFrame, frame_of_blobs
+from skelfuse.protocol.wire_checks import INT64_MAX
 
 try:
     import msgspec
@@ -43,7 +44,8 @@ if msgspec is not None:
     _JOINT_BYTES = JOINT_COUNT * 3 * 4
 
     class _Body(msgspec.Struct, forbid_unknown_fields=True, omit_defaults=True):
-        id: int  # msgspec bounds stop at int64; 0..2^64-1 is checked below
+        # ge=0 and msgpack's own limit (msgspec reads integers up to 2^64-1): the id's range.
+        id: Annotated[int, msgspec.Meta(ge=0)]
         joints: Annotated[bytes, msgspec.Meta(min_length=_JOINT_BYTES, max_length=_JOINT_BYTES)]
         states: Annotated[bytes, msgspec.Meta(min_length=JOINT_COUNT, max_length=JOINT_COUNT)]
         hands: list[int] | None = None
@@ -75,21 +77,30 @@ def canonical_frame(buf: bytes) -> BulkFrame | None:
         return None
     if _encode(frame) != buf:  # not the canonical bytes of what was parsed
         return None
-    floor = checked_floor(frame.floor)
-    if isinstance(floor, bool):
-        return None
+    floor = frame.floor
+    if floor is not None:
+        a, b, c, d = floor
+        # A NaN or infinity makes the sum so (a finite sum that overflows is only "not sure");
+        # the norm is summed as the precise check sums it, for the same verdict to the bit.
+        if (
+            not math.isfinite(a + b + c + d)
+            or abs(math.sqrt(sum((a * a, b * b, c * c))) - 1.0) > 1e-3
+        ):
+            return None
     bodies = frame.bodies
-    ids: list[int] = [body.id for body in bodies]
-    if ids and not (min(ids) >= 0 and max(ids) <= UINT64_MAX):
-        return None
-    hands: list[Hands | None] = [None] * len(bodies)
-    for index, body in enumerate(bodies):
-        if body.hands is not None:
-            hands[index] = hands_quickly(body.hands)
-            if hands[index] is None:
-                return None
-    joint_blobs: list[bytes] = [body.joints for body in bodies]
-    state_blobs: list[bytes] = [body.states for body in bodies]
+    hands: list[Any] = [body.hands for body in bodies]
+    if hands.count(None) != len(hands):  # some bodies carry hand states: check and convert
+        for index, wire_hands in enumerate(hands):
+            if wire_hands is not None:
+                hands[index] = hands_quickly(wire_hands)
+                if hands[index] is None:
+                    return None
     return frame_of_blobs(
-        frame.seq, frame.t_capture_ns, ids, joint_blobs, state_blobs, hands, floor
+        frame.seq,
+        frame.t_capture_ns,
+        [body.id for body in bodies],
+        [body.joints for body in bodies],
+        [body.states for body in bodies],
+        hands,
+        floor,
     )
