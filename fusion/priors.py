@@ -13,8 +13,8 @@ settings (a deployment's TOML file keeps tuning it) and its numbers are today's 
 What is measured and what is not: the Kinect v2 values are the ones the simulator benchmarks
 (docs/benchmarks.md), and the simulator models a Kinect v2 only. No Azure Kinect or Femto was
 available: their entries rest on the SDK's documentation and on public multi-view recordings
-(``shared/conventions.md`` §1.2, §1.6, §5), not on a benchmark. ``rgb_mono`` is a placeholder
-for a monocular RGB keypoint source; it is not a wire sensor type yet.
+(``shared/conventions.md`` §1.2, §1.6, §5), not on a benchmark. ``rgb`` (one ordinary camera
+through MediaPipe Pose, agent/sources/mono.py) rests on the four-camera clip's figures of issue 14.
 """
 
 from __future__ import annotations
@@ -49,6 +49,10 @@ class SensorPrior:
     fixed_bone_lengths: the sensor fits a body model whose bone lengths are fixed per person,
         so a length that differs from the person's reference is a systematic offset of that
         model, not noise: the bone-length term leaves such views alone (factor 1).
+    depth_noise_ratio: the noise along the sensor's viewing ray relative to the noise across
+        it (1: the same in every direction). A camera that guesses depth from the body's
+        apparent size has > 1: its variance along the ray from the sensor to the joint is
+        ``ratio²`` times that across it (the weighted mean does not use it yet).
     """
 
     name: str
@@ -60,6 +64,7 @@ class SensorPrior:
     may_mirror: bool = True
     rom_scale: float = 1.0
     fixed_bone_lengths: bool = False
+    depth_noise_ratio: float = 1.0
 
     def table(self, settings: FusionSettings) -> tuple[float, float, float]:
         """The state weights in force: this prior's, else the settings'."""
@@ -97,19 +102,26 @@ AZURE_BODY_TRACKING: Final = SensorPrior(
 """Azure Kinect Body Tracking (k4abt 1.x): Azure Kinect DK and Orbbec Femto via the K4A wrapper."""
 
 RGB_MONO: Final = SensorPrior(
-    "rgb_mono",
-    state_weights=(0.0, 0.2, 0.5),
-    noise_scale=3.0,
+    "rgb",
+    # Visibility predicts MediaPipe's error poorly (issue 14: 23 % of joints at visibility
+    # >= 0.95 were more than 0.2 torso off in 2-D), so Inferred is not far below Tracked.
+    state_weights=(0.0, 0.3, 0.5),
+    # Across the image a landmark is good to a few pixels (millimetres at 2-3 m), but the
+    # 3-D shape MediaPipe guesses is 80-90 mm off after Procrustes alignment on the clip:
+    # about twice a Kinect v2's joint noise, a quarter of its weight.
+    noise_scale=2.0,
+    # Along the ray the body's distance comes from its apparent size (PnP, protocol/pnp.py):
+    # 131-317 mm absolute against 80-90 mm aligned on the clip: about 3 times the noise across.
+    depth_noise_ratio=3.0,
+    # Seen from behind MediaPipe can swap sides like a Kinect: the mirror step checks it.
     may_mirror=True,
     rom_scale=1.0,
+    # BlazePose regresses points, not a fixed-length body model.
     fixed_bone_lengths=False,
 )
-"""Placeholder for a monocular RGB keypoint source (not in ``SENSOR_TYPES`` yet): guesses, not
-measurements. Depth from one RGB camera is far noisier than a depth sensor's (hence
-``noise_scale`` 3: a ninth of a Kinect v2 view's weight), and its scores
-are mapped to states by its agent (conventions.md §1.6: calibrate the thresholds on real
-video). A source that fits a body model with fixed bone lengths (SMPL-like) should set
-``fixed_bone_lengths``."""
+"""One ordinary camera through MediaPipe Pose (``sensor_type`` ``rgb``, agent/sources/mono.py).
+The figures are the issue-14 measurements on the four-camera clip (one person, one scene); the
+split of the noise between across and along the ray is an estimate from them, not a fit."""
 
 PRIORS: Final[Mapping[str, SensorPrior]] = MappingProxyType(
     {
@@ -127,7 +139,7 @@ PRIORS: Final[Mapping[str, SensorPrior]] = MappingProxyType(
             rom_scale=AZURE_BODY_TRACKING.rom_scale,
             fixed_bone_lengths=AZURE_BODY_TRACKING.fixed_bone_lengths,
         ),  # the same Body Tracking SDK on an Orbbec Femto (conventions.md §1.3)
-        "rgb_mono": RGB_MONO,
+        "rgb": RGB_MONO,
     }
 )
 """The prior of each sensor type; unknown types get :data:`KINECT_V2` (:func:`prior_for`)."""

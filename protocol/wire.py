@@ -50,7 +50,8 @@ from skelfuse.protocol.wire_checks import (
 )
 
 SENSOR_ID_PATTERN: Final = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
-SENSOR_TYPES: Final = frozenset({"kinect_v2", "azure_kinect", "femto", "sim", "replay"})
+# "rgb": one ordinary camera through a 2-D/3-D keypoint model (agent/sources/mono.py).
+SENSOR_TYPES: Final = frozenset({"kinect_v2", "azure_kinect", "femto", "rgb", "sim", "replay"})
 POSE_HINT_SOURCES: Final = frozenset({"sim_truth", "manual"})
 
 __all__ = [

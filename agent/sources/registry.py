@@ -21,7 +21,7 @@ import numpy as np
 from skelfuse.agent.sources.base import SensorError, SkeletonSource
 from skelfuse.protocol.transform import Matrix4
 
-SOURCE_KINDS: Final = ("sim", "replay", "ntu", "kinect_v2", "azure_kinect", "femto")
+SOURCE_KINDS: Final = ("sim", "replay", "ntu", "kinect_v2", "azure_kinect", "femto", "mono")
 
 _K4A_DEFAULT_DIRS: Final = (
     r"C:\Program Files\Azure Kinect SDK v1.4.1\sdk\windows-desktop\amd64\release\bin",
@@ -115,8 +115,18 @@ def check_sources() -> list[SourceCheck]:
         check_kinect_v2(),
         check_k4a("azure_kinect"),
         check_k4a("femto"),
+        check_mono_source(),
     ]
     return checks
+
+
+def check_mono_source() -> SourceCheck:
+    """One ordinary camera through MediaPipe Pose (agent/sources/mono.py): mediapipe 0.10.21
+    with the models in its wheel, numpy<2 and OpenCV, looked up without importing them."""
+    from skelfuse.agent.sources.mono_camera import check_mono
+
+    available, reason = check_mono()
+    return SourceCheck("mono", available, reason)
 
 
 def _pose(options: dict[str, Any]) -> Matrix4 | None:
@@ -133,7 +143,9 @@ def make_source(kind: str, options: dict[str, Any]) -> SkeletonSource:
         ntu: ``file``, ``pose``, ``loop``, ``start_unix_s``;
         kinect_v2: ``pose``;
         azure_kinect / femto: ``device_index``, ``k4a_path``, ``k4abt_path``, ``depth_mode``,
-        ``pose``.
+        ``pose``;
+        mono: ``camera`` or ``video``, ``intrinsics`` (``"fx,fy,cx,cy"``), ``fov_deg``, ``pose``,
+        ``loop``, ``speed``.
 
     Raises:
         SensorError: unknown kind, missing option, or the source cannot start.
@@ -189,4 +201,28 @@ def make_source(kind: str, options: dict[str, Any]) -> SkeletonSource:
             depth_mode=str(options.get("depth_mode", "NFOV_UNBINNED")),
             pose=_pose(options),
         )
+    if kind == "mono":
+        return _mono_source(options)
     raise SensorError(f"unknown source {kind!r}: choose one of {', '.join(SOURCE_KINDS)}")
+
+
+def _mono_source(options: dict[str, Any]) -> SkeletonSource:
+    from skelfuse.agent.sources.mono import DEFAULT_FOV_DEG, MonoSource
+    from skelfuse.protocol.pinhole import Intrinsics
+
+    text = options.get("intrinsics")
+    try:
+        intrinsics = None if not text else Intrinsics.parse(str(text))
+    except ValueError as exc:
+        raise SensorError(f"--intrinsics: {exc}") from exc
+    camera, video = options.get("camera"), options.get("video")
+    fov = options.get("fov_deg")
+    return MonoSource(
+        camera=None if camera is None else int(camera),
+        video=video or None,
+        intrinsics=intrinsics,
+        fov_deg=DEFAULT_FOV_DEG if fov is None else float(fov),
+        pose=_pose(options),
+        loop=bool(options.get("loop", False)),
+        speed=float(options.get("speed", 1.0)),
+    )

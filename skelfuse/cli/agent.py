@@ -78,8 +78,12 @@ def _add_source_options(parser: argparse.ArgumentParser) -> None:
     """Options of the non-sim sources (``--source`` itself is defined with the agent's)."""
     parser.add_argument("--file", default=None, help="replay: a .sfrec recording; ntu: a .skeleton")
     parser.add_argument("--sensor", default=None, help="replay: which recorded sensor to play")
-    parser.add_argument("--loop", action="store_true", help="replay/ntu: start again at the end")
-    parser.add_argument("--speed", type=float, default=1.0, help="replay: playback speed factor")
+    parser.add_argument(
+        "--loop", action="store_true", help="replay/ntu/mono --video: start again at the end"
+    )
+    parser.add_argument(
+        "--speed", type=float, default=1.0, help="replay/mono --video: playback speed factor"
+    )
     parser.add_argument(
         "--start-at",
         type=float,
@@ -97,6 +101,20 @@ def _add_source_options(parser: argparse.ArgumentParser) -> None:
         "--depth-mode",
         default="NFOV_UNBINNED",
         help="azure_kinect/femto: NFOV_UNBINNED, WFOV_2X2BINNED, ...",
+    )
+    parser.add_argument("--camera", type=int, default=None, help="mono: webcam index (0, 1, ...)")
+    parser.add_argument("--video", default=None, help="mono: a video file, played at its pace")
+    parser.add_argument(
+        "--intrinsics",
+        default=None,
+        help="mono: the camera's fx,fy,cx,cy in pixels (without it: a guess from --fov)",
+    )
+    parser.add_argument(
+        "--fov",
+        type=float,
+        default=None,
+        help="mono: horizontal field of view in degrees for a guessed focal length (default 60; "
+        "distances scale with it, so prefer --intrinsics)",
     )
 
 
@@ -157,6 +175,10 @@ def source_from_args(args: argparse.Namespace) -> SkeletonSource:
         "k4a_path": args.k4a_path,
         "k4abt_path": args.k4abt_path,
         "depth_mode": args.depth_mode,
+        "camera": args.camera,
+        "video": args.video,
+        "intrinsics": args.intrinsics,
+        "fov_deg": args.fov,
         "pose": pose_matrix(args.pose) if args.pose is not None else None,
     }
     if kind == "sim":

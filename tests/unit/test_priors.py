@@ -43,7 +43,7 @@ def noisy_views(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarr
 
 def test_every_wire_type_has_a_prior_and_the_v2_like_ones_are_the_settings() -> None:
     assert set(SENSOR_TYPES) <= set(PRIORS)
-    assert "rgb_mono" in PRIORS and "rgb_mono" not in SENSOR_TYPES  # ready, not on the wire
+    assert PRIORS["rgb"] is RGB_MONO and RGB_MONO.depth_noise_ratio > 1  # depth along the ray
     for name in ("kinect_v2", "sim", "replay"):
         prior = PRIORS[name]
         assert dataclasses.replace(prior, name="kinect_v2") == KINECT_V2

@@ -1,0 +1,235 @@
+"""The ``mono`` source: one ordinary camera (a webcam or a video file) as a skeleton sensor.
+
+Per frame: MediaPipe Pose finds the person's 33 landmarks (:mod:`.mono_camera`), and
+:func:`skelfuse.protocol.mediapipe_pose.body_from_landmarks` places them in the camera frame
+with the camera's intrinsics and maps them onto the 25 joints with tracking states. One body
+per frame at most (MediaPipe's pose solution follows one person); its tracking id changes when
+the person is lost for a frame and found again, as a Kinect's does. ``sensor_type`` ``rgb``: its
+fusion prior knows that the depth of such a body is far less certain than its place across the
+image (fusion/priors.py).
+
+Timestamps:
+
+- ``--video FILE``: frame i of the file is due at ``anchor + i / fps / speed`` (the file's
+  frame rate), the anchor being this PC's clock when the first frame is read, which happens
+  once the server has registered the agent (as the replay source does). A frame the detector
+  finishes after it was due keeps its due time: the capture stamp is the video's own timeline.
+- ``--camera N``: the PC clock when OpenCV returns the frame (exposure and USB latency are not
+  subtracted: a fixed lag the server's clock alignment does not see).
+
+Intrinsics: ``--intrinsics fx,fy,cx,cy`` (pixels), else a guess from ``--fov`` (horizontal,
+degrees; default 60) with a warning, since every distance scales with the focal length.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+
+from skelfuse.agent.sources.base import Capture, SensorError
+from skelfuse.agent.sources.mono_camera import (
+    Detector,
+    FrameReader,
+    Landmarks,
+    PoseDetector,
+    VideoFrames,
+)
+from skelfuse.protocol.mediapipe_pose import (
+    MonoBody,
+    PlacementMode,
+    StatePolicy,
+    body_from_landmarks,
+)
+from skelfuse.protocol.pinhole import Intrinsics
+from skelfuse.protocol.pnp import Placement, PnPError
+from skelfuse.protocol.transform import Matrix4
+from skelfuse.protocol.wire import Body
+
+_log = logging.getLogger(__name__)
+
+DEFAULT_FOV_DEG: Final = 60.0
+"""Horizontal field of view assumed without ``--intrinsics`` (a typical webcam's 55-70°)."""
+DEFAULT_FPS: Final = 30.0
+
+
+class MonoSource:
+    """One camera through MediaPipe Pose, as a ``rgb`` sensor.
+
+    Args:
+        camera: a webcam index (``--camera``), or None.
+        video: a video file (``--video``), or None. Exactly one of camera and video.
+        intrinsics: the camera's, or None to guess from ``fov_deg`` and the first frame's size.
+        fov_deg: horizontal field of view for that guess.
+        pose: ``T_world_from_sensor`` announced as a manual pose hint, or None.
+        loop: a video starts again after its last frame.
+        speed: a video's playback speed factor.
+        policy: visibility → tracking state thresholds.
+        placement: ``"pose"`` (rotation and translation, default) or ``"translation"``.
+        frames, detector: what reads images and finds landmarks (default: OpenCV and
+            MediaPipe; tests pass their own).
+        wall_clock_ns, sleep: the clock and the wait (tests pass fakes).
+
+    Raises:
+        SensorError: neither or both of camera and video, a video that does not open, OpenCV or
+            mediapipe missing, a bad field of view or speed.
+    """
+
+    def __init__(
+        self,
+        *,
+        camera: int | None = None,
+        video: str | Path | None = None,
+        intrinsics: Intrinsics | None = None,
+        fov_deg: float = DEFAULT_FOV_DEG,
+        pose: Matrix4 | None = None,
+        loop: bool = False,
+        speed: float = 1.0,
+        policy: StatePolicy | None = None,
+        placement: PlacementMode = "pose",
+        frames: FrameReader | None = None,
+        detector: Detector | None = None,
+        wall_clock_ns: Callable[[], int] = time.time_ns,
+        sleep: Callable[[float], None] = time.sleep,
+    ) -> None:
+        if (camera is None) == (video is None):
+            raise SensorError("the mono source needs exactly one of --camera N and --video FILE")
+        if speed <= 0:
+            raise SensorError(f"speed must be positive, got {speed}")
+        if not 0.0 < fov_deg < 180.0:
+            raise SensorError(f"--fov must be in (0, 180) degrees, got {fov_deg}")
+        self._is_video = video is not None
+        if frames is None:
+            frames = VideoFrames(video) if video is not None else VideoFrames(int(camera or 0))
+        self._frames = frames
+        try:
+            self._detector = detector or PoseDetector()
+        except SensorError:
+            self._frames.close()
+            raise
+        self._intrinsics = intrinsics
+        self._fov_deg = fov_deg
+        self._pose = pose
+        self._loop = loop
+        self._speed = speed
+        self._policy = policy or StatePolicy()
+        self._placement_mode: PlacementMode = placement
+        self._clock = wall_clock_ns
+        self._sleep = sleep
+        self._fps = self._frames.fps or DEFAULT_FPS
+        self._period_ns = 1e9 / self._fps / speed
+        self._anchor_ns: int | None = None
+        self._index = 0  # frames read since the anchor
+        self._previous: Placement | None = None
+        self._tracking_id = 0
+        self._finished = False
+        self.frames_read = 0
+        """Frames read so far (all loops)."""
+        self.frames_with_body = 0
+        """Frames in which a body was found and placed."""
+        self.last_body: MonoBody | None = None
+        """The latest frame's body with its placement (diagnostics), None when none."""
+
+    @property
+    def waits_for_server(self) -> bool:
+        """A video starts once the server has registered the agent; a camera streams at once."""
+        return self._is_video
+
+    @property
+    def finished(self) -> bool:
+        """A video (not looping) has sent its last frame."""
+        return self._finished
+
+    @property
+    def sensor_type(self) -> str:
+        return "rgb"
+
+    @property
+    def fps(self) -> float:
+        return self._fps
+
+    def pose_hint(self) -> tuple[Matrix4, str] | None:
+        return None if self._pose is None else (self._pose.copy(), "manual")
+
+    def next_capture(self, timeout_s: float) -> Capture | None:
+        """The next frame's body (or none), paced to the video's timeline for files."""
+        if self._finished:
+            self._sleep(timeout_s)
+            return None
+        due = 0
+        if self._is_video:
+            now = self._clock()
+            if self._anchor_ns is None:
+                self._anchor_ns = now
+            due = self._anchor_ns + round(self._index * self._period_ns)
+            wait_s = (due - now) / 1e9
+            if wait_s > timeout_s:
+                self._sleep(timeout_s)
+                return None
+            if wait_s > 0:
+                self._sleep(wait_s)
+        image = self._frames.read()
+        if image is None and self._is_video and self._loop and self._frames.rewind():
+            assert self._anchor_ns is not None
+            self._anchor_ns += round(self._index * self._period_ns)
+            self._index = 0
+            due = self._anchor_ns
+            image = self._frames.read()
+        if image is None:
+            if self._is_video:
+                self._finished = True
+                return None
+            raise SensorError("the camera stopped delivering frames")
+        t_capture_ns = due if self._is_video else self._clock()
+        self._index += 1
+        self.frames_read += 1
+        return Capture(t_capture_ns=t_capture_ns, bodies=self._bodies(image))
+
+    def _bodies(self, frame: npt.NDArray[np.uint8]) -> tuple[Body, ...]:
+        found: Landmarks | None = self._detector.detect(frame)
+        if found is None:
+            self._lost()
+            return ()
+        height, width = frame.shape[:2]
+        if self._intrinsics is None:
+            self._intrinsics = Intrinsics.from_fov(width, height, self._fov_deg)
+            _log.warning(
+                "mono: no --intrinsics: guessing fx=fy=%.0f px from a %.0f° field of view; "
+                "every distance scales with the focal length, so measure the intrinsics",
+                self._intrinsics.fx,
+                self._fov_deg,
+            )
+        try:
+            body = body_from_landmarks(
+                found.image_px,
+                found.world_m,
+                found.visibility,
+                (width, height),
+                self._intrinsics,
+                self._policy,
+                self._placement_mode,
+                self._previous,
+            )
+        except PnPError as exc:
+            _log.debug("mono: landmarks found but not placed: %s", exc)
+            self._lost()
+            return ()
+        if self._previous is None:
+            self._tracking_id += 1
+        self._previous = body.placement
+        self.last_body = body
+        self.frames_with_body += 1
+        return (Body(self._tracking_id, body.joints_m, body.states),)
+
+    def _lost(self) -> None:
+        self._previous = None
+        self.last_body = None
+
+    def close(self) -> None:
+        self._detector.close()
+        self._frames.close()
