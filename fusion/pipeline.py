@@ -4,7 +4,8 @@
 
 1. **align in time**: each sensor's body frames interpolated to the instant
    (:func:`skelfuse.fusion.sensors.body_arrays_at`);
-2. **world frame**: each body moved by its sensor's ``T_world_from_sensor`` (:func:`views_at`);
+2. **world frame**: each body moved by its sensor's ``T_world_from_sensor``
+   (:func:`skelfuse.fusion.world_views.views_at`, all sensors in one pass);
 3. **associate**: views grouped into persons with stable ids (:mod:`skelfuse.fusion.identity`);
 4. **mirror labels**: views whose left and right are swapped are swapped back
    (:mod:`skelfuse.fusion.labels`, :mod:`skelfuse.fusion.mirror`);
@@ -29,7 +30,7 @@ clock.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -50,50 +51,15 @@ from skelfuse.fusion.labels import LabelDoubt, Labels, label_views, walking_back
 from skelfuse.fusion.mirror_labellings import MAX_VIEWS
 from skelfuse.fusion.priors import priors_of
 from skelfuse.fusion.reliability import reliability_factors
-from skelfuse.fusion.sensors import SensorState, body_arrays_at
+from skelfuse.fusion.sensors import SensorState
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.views import FusedPerson, View, fused_persons
 from skelfuse.fusion.weighted import carriers, cauchy_reweight
-from skelfuse.protocol.transform import Matrix4, apply
+from skelfuse.fusion.world_views import PoseLookup, views_at
+
+__all__ = ["FusionPipeline", "PersonMemory", "PoseLookup", "views_at"]
 
 FloatArray = npt.NDArray[np.float64]
-PoseLookup = Callable[[str], Matrix4 | None]
-"""A sensor's ``T_world_from_sensor`` (4×4, metres), or None while it is uncalibrated."""
-
-
-def views_at(
-    sensors: Iterable[SensorState], pose_of: PoseLookup, t_s: float, gap_s: float
-) -> list[View]:
-    """Steps 1–2: every connected, calibrated sensor's bodies at ``t_s``, in the world frame.
-
-    Args:
-        sensors: the sensors' frame buffers (times on the server clock).
-        pose_of: each sensor's pose; sensors without one are left out.
-        t_s: the instant, server clock, seconds.
-        gap_s: frames further apart than this are not interpolated between.
-    """
-    views: list[View] = []
-    for sensor in sensors:
-        if not sensor.connected:
-            continue
-        pose = pose_of(sensor.sensor_id)
-        if pose is None:
-            continue
-        max_age = 1.5 / max(sensor.nominal_fps, 1.0)
-        bodies = body_arrays_at(sensor.frames, t_s, gap_s, max_age)
-        if bodies is None or not bodies.tracking_ids:
-            continue
-        # All of the sensor's bodies in one product: the same floats as body by body.
-        joints_world = apply(pose, bodies.joints_m)
-        position, sensor_id, sensor_type = pose[:3, 3], sensor.sensor_id, sensor.sensor_type
-        hands = bodies.hands or [None] * len(bodies.tracking_ids)
-        views.extend(
-            View(sensor_id, tracking_id, joints, states, position, sensor_type, hand)
-            for tracking_id, joints, states, hand in zip(
-                bodies.tracking_ids, joints_world, bodies.states, hands, strict=True
-            )
-        )
-    return views
 
 
 @dataclass(slots=True)
