@@ -19,8 +19,9 @@ API::
 ``image_px``: (V, T, J, 2) pixels as detected, NaN where not seen, V cameras at the same
 nominal rate ``rate_hz``; ``weights`` (V, T, J) ≥ 0: a landmark of weight 0 (e.g. below a
 visibility the caller trusts) is left out; the cost is a median, so other weights do not scale
-it. The first camera is the reference (lag 0). Lags are found to sub-frame precision: the frames are interpolated
-linearly at quarter-frame steps and the best step refined with a parabola.
+it. The first camera is the reference (lag 0). Lags are found to sub-frame precision: the
+frames are interpolated linearly at quarter-frame steps and the best step refined with a
+parabola.
 
 The epipolar method alternates: each camera's lag against all the others at their current
 lags, then again, so one lagging camera does not pull the others' estimates. The cost is the
