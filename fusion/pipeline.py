@@ -46,7 +46,7 @@ from skelfuse.fusion.confidence import (
     view_factors,
 )
 from skelfuse.fusion.filters import JointFilter, filter_all, make_filter
-from skelfuse.fusion.identity import PersonTracker
+from skelfuse.fusion.identity import PersonTracker, Track
 from skelfuse.fusion.labels import LabelDoubt, Labels, label_views, walking_backwards
 from skelfuse.fusion.mirror_labellings import MAX_VIEWS
 from skelfuse.fusion.priors import priors_of
@@ -84,6 +84,9 @@ class FusionPipeline:
         self.tracker = PersonTracker(settings)
         self.memories: dict[int, PersonMemory] = {}
         self._default_bone_lengths: FloatArray | None = None
+        self._facings: dict[int, tuple[FloatArray, FloatArray]] = {}
+        """Per person, the track joints (the array object) the walking check last took the
+        facing of, and that facing: the next step's mirror labels start from the same one."""
 
     def step(
         self, sensors: Iterable[SensorState], pose_of: PoseLookup, t_s: float, gap_s: float
@@ -105,7 +108,7 @@ class FusionPipeline:
         outputs: dict[int, FusedPerson] = {}
         if ids:
             batch = ViewBatch.of([clusters[pid][:MAX_VIEWS] for pid in ids])
-            track_facing = facing_directions(np.stack([t.joints for t in tracks]))
+            track_facing = self._track_facings(ids, tracks)
 
             # 4. Mirror labels: swap mirrored views back before anything looks at left or right.
             mirrored = np.zeros(len(batch.views), dtype=bool)
@@ -274,8 +277,13 @@ class FusionPipeline:
         s = self.settings
         tracks = [self.tracker.tracks[person_id] for person_id in ids]
         facings: list[FloatArray | None] = [None] * len(ids)
+        self._facings = {}
         if tracks and s.mirror_walk_check_s > 0 and s.use_mirror_correction:
-            facings = list(facing_directions(np.stack([track.joints for track in tracks])))
+            joints = [track.joints for track in tracks]
+            facings = list(facing_directions(np.stack(joints)))
+            self._facings = {
+                pid: (row, facing) for pid, row, facing in zip(ids, joints, facings, strict=True)
+            }
         for person_id, track, facing in zip(ids, tracks, facings, strict=True):
             memory = self.memories[person_id]
             swap, memory.backward_since_s = walking_backwards(
@@ -284,6 +292,15 @@ class FusionPipeline:
             if swap:
                 self._swap_person(person_id, relabel=True)
                 memory.walk_swaps += 1
+
+    def _track_facings(self, ids: list[int], tracks: list[Track]) -> FloatArray:
+        """(P, 3) each person's facing from its track's skeleton (:func:`facing_directions`,
+        row by row the same bits): the walking check's at the end of the last step when no
+        track has moved or turned over since (the usual case), else computed now."""
+        cached = [self._facings.get(person_id) for person_id in ids]
+        if all(c is not None and c[0] is t.joints for c, t in zip(cached, tracks, strict=True)):
+            return np.array([c[1] for c in cached if c is not None])
+        return facing_directions(np.stack([t.joints for t in tracks]))
 
     def _swap_person(self, person_id: int, relabel: bool) -> None:
         """Swap a whole person's sides: its track, its filter (which would otherwise sweep the
