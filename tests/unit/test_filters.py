@@ -185,3 +185,19 @@ def test_speed_raises_the_damped_acceleration_kalman_gain() -> None:
         x = np.array([np.sin(2 * math.pi * t)])
         lag_still, lag_adaptive = x[0] - still(x, t)[0], x[0] - adaptive(x, t)[0]
     assert abs(lag_adaptive) < 0.7 * abs(lag_still)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_the_covariance_prediction_gives_the_bits_of_the_stacked_products(seed: int) -> None:
+    # _sandwich runs f @ p @ f.T as two products over all rows at once: the same floats.
+    from skelfuse.fusion.filters_ca import _sandwich
+
+    rng = np.random.default_rng(seed)
+    h = rng.uniform(0.01, 0.05)
+    f = np.array([[[1.0, h, h * h / 2], [0.0, 1.0, h], [0.0, 0.0, math.exp(-h / 0.1)]]])
+    p = rng.normal(size=(int(rng.integers(1, 9)), 25, 3, 3, 3)) * 10.0 ** rng.uniform(-4, 2)
+    p[0, 0, 0] = np.nan  # a coordinate never seen
+    want = f @ p @ np.swapaxes(f, -1, -2)
+    assert _sandwich(f, p).tobytes() == want.tobytes()
+    each = rng.normal(size=p.shape)  # one f per coordinate: the stacked products themselves
+    assert _sandwich(each, p).tobytes() == (each @ p @ np.swapaxes(each, -1, -2)).tobytes()
