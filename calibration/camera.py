@@ -8,6 +8,7 @@ mocap path and the accuracy benchmarks)::
     camera.project(points_world (..., 3) m) -> (..., 2) px       NaN behind the camera
     camera.normalized(image_px (..., 2) px) -> (..., 2)           undistorted x/z, y/z
     camera.T_opencv_from_world                                    (4, 4) for DLT rows
+    pose_from_opencv_extrinsics(R or rvec, t) -> T_world_from_sensor  (x_cam = R·X + t)
 
 Frames. Pixels follow OpenCV: +u right, +v down, the centre of the top-left pixel at (0, 0).
 ``T_world_from_sensor`` places the **sensor frame**, the one every skelfuse sensor reports joints
@@ -22,6 +23,7 @@ k6]])``; the rational denominator uses k4..k6. An empty tuple means no distortio
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, Final
 
@@ -192,3 +194,41 @@ class Camera:
         k = self.intrinsics
         xy = k.distort(xy)
         return np.stack([k.fx * xy[..., 0] + k.cx, k.fy * xy[..., 1] + k.cy], axis=-1)
+
+
+def pose_from_opencv_extrinsics(rotation: npt.ArrayLike, translation_m: npt.ArrayLike) -> Matrix4:
+    """``T_world_from_sensor`` from OpenCV's world → camera ``R`` (3×3, or a Rodrigues 3-vector)
+    and ``t`` (metres): ``x_cam = R·X + t``.
+
+    Raises:
+        InvalidInput: a rotation of another shape, not orthonormal, or NaN.
+    """
+    rot = np.asarray(rotation, dtype=np.float64)
+    if rot.size == 3:
+        rot = rodrigues(rot.reshape(3))
+    if rot.shape != (3, 3) or not np.isfinite(rot).all():
+        raise InvalidInput(f"rotation: expected 3×3 or a Rodrigues 3-vector, got {rot.shape}")
+    if not np.allclose(rot @ rot.T, np.eye(3), atol=1e-5) or np.linalg.det(rot) < 0:
+        raise InvalidInput("rotation is not a proper rotation (orthonormal, determinant +1)")
+    t = np.asarray(translation_m, dtype=np.float64).reshape(-1)
+    if t.shape != (3,) or not np.isfinite(t).all():
+        raise InvalidInput(f"translation: expected 3 finite numbers, got {t.shape}")
+    opencv_from_world = np.eye(4)
+    opencv_from_world[:3, :3] = rot
+    opencv_from_world[:3, 3] = t
+    world_from_opencv = np.linalg.inv(opencv_from_world)
+    return np.asarray(world_from_opencv @ SENSOR_FROM_OPENCV, dtype=np.float64)
+
+
+def rodrigues(vector: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """Rotation matrix of a Rodrigues (axis × angle in radians) 3-vector, like ``cv2.Rodrigues``."""
+    v = np.asarray(vector, dtype=np.float64).reshape(3)
+    angle = float(np.linalg.norm(v))
+    if angle < 1e-12:
+        return np.eye(3)
+    k = v / angle
+    cross = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    rotation: npt.NDArray[np.float64] = (
+        np.eye(3) + math.sin(angle) * cross + (1 - math.cos(angle)) * (cross @ cross)
+    )
+    return rotation

@@ -7,6 +7,7 @@ API::
                          world: +Y up, metres; sensor frame as in calibration.camera)
     CameraFile.residual_mm  {name: the file's own residual} where it states one
     CameraFile.warnings  list[str]  what was assumed (an image size guessed from the centre)
+    as_sensor_calibrations(found, fmt, rename={}) -> {sensor id: SensorCalibration}  to store
 
 Formats:
 
@@ -24,7 +25,7 @@ Formats:
   [w, h], ``matrix`` (3×3), ``distortions`` [k1, k2, p1, p2], ``rotation`` (Rodrigues vector)
   and ``translation`` (metres) of the world → OpenCV camera transform, ``fisheye`` (only
   false is supported). World Z up.
-- **OpenCV** FileStorage YAML or XML (next).
+- **OpenCV** FileStorage YAML or XML (:mod:`calibration.opencv_storage`).
 
 ``up``: the file's world up axis, ``"z"`` (default for Qualisys and Pose2Sim: the world is then
 turned −90° about X, ``(x, y, z) → (x, z, −y)``) or ``"y"`` (kept as is; OpenCV's default).
@@ -44,8 +45,9 @@ from typing import Any, Final, Literal
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.calibration.camera import SENSOR_FROM_OPENCV, Camera, CameraIntrinsics
+from skelfuse.calibration.camera import Camera, CameraIntrinsics, pose_from_opencv_extrinsics
 from skelfuse.calibration.errors import CameraFileError, InvalidInput
+from skelfuse.calibration.store import SensorCalibration
 from skelfuse.protocol.transform import Matrix4
 
 Format = Literal["qualisys", "pose2sim", "opencv"]
@@ -91,7 +93,10 @@ def read_camera_file(path: Path, fmt: Format, *, up: Up | None = None) -> Camera
         elif fmt == "pose2sim":
             result = _read_pose2sim(data, origin, up or "z")
         else:
-            raise CameraFileError(f"{origin}: the {fmt} reader is not available yet")
+            from skelfuse.calibration.opencv_storage import read_opencv_cameras
+
+            cameras, warnings = read_opencv_cameras(data, origin, Path(path).stem)
+            result = CameraFile([_in_world(c, up or "y") for c in cameras], warnings=warnings)
     except InvalidInput as exc:  # a value the Camera / CameraIntrinsics constructors refused
         raise CameraFileError(f"{origin}: {exc}") from exc
     if not result.cameras:
@@ -102,42 +107,36 @@ def read_camera_file(path: Path, fmt: Format, *, up: Up | None = None) -> Camera
     return result
 
 
-def pose_from_opencv_extrinsics(rotation: npt.ArrayLike, translation_m: npt.ArrayLike) -> Matrix4:
-    """``T_world_from_sensor`` from OpenCV's world → camera ``R`` (3×3, or a Rodrigues 3-vector)
-    and ``t`` (metres): ``x_cam = R·X + t``.
+def as_sensor_calibrations(
+    found: CameraFile, fmt: Format, *, rename: dict[str, str] | None = None
+) -> dict[str, SensorCalibration]:
+    """The cameras as entries of the project's calibration (``method`` ``"import:<fmt>"``),
+    keyed by camera name or by ``rename[name]`` (the agent's sensor id).
 
     Raises:
-        InvalidInput: a rotation of another shape, not orthonormal, or NaN.
+        CameraFileError: ``rename`` names a camera the file does not have, or two cameras
+            would get the same sensor id.
     """
-    rot = np.asarray(rotation, dtype=np.float64)
-    if rot.size == 3:
-        rot = rodrigues(rot.reshape(3))
-    if rot.shape != (3, 3) or not np.isfinite(rot).all():
-        raise InvalidInput(f"rotation: expected 3×3 or a Rodrigues 3-vector, got {rot.shape}")
-    if not np.allclose(rot @ rot.T, np.eye(3), atol=1e-5) or np.linalg.det(rot) < 0:
-        raise InvalidInput("rotation is not a proper rotation (orthonormal, determinant +1)")
-    t = np.asarray(translation_m, dtype=np.float64).reshape(-1)
-    if t.shape != (3,) or not np.isfinite(t).all():
-        raise InvalidInput(f"translation: expected 3 finite numbers, got {t.shape}")
-    opencv_from_world = np.eye(4)
-    opencv_from_world[:3, :3] = rot
-    opencv_from_world[:3, 3] = t
-    world_from_opencv = np.linalg.inv(opencv_from_world)
-    return np.asarray(world_from_opencv @ SENSOR_FROM_OPENCV, dtype=np.float64)
-
-
-def rodrigues(vector: npt.ArrayLike) -> npt.NDArray[np.float64]:
-    """Rotation matrix of a Rodrigues (axis × angle in radians) 3-vector, like ``cv2.Rodrigues``."""
-    v = np.asarray(vector, dtype=np.float64).reshape(3)
-    angle = float(np.linalg.norm(v))
-    if angle < 1e-12:
-        return np.eye(3)
-    k = v / angle
-    cross = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    rotation: npt.NDArray[np.float64] = (
-        np.eye(3) + math.sin(angle) * cross + (1 - math.cos(angle)) * (cross @ cross)
-    )
-    return rotation
+    rename = rename or {}
+    names = [c.name for c in found.cameras]
+    unknown = sorted(set(rename) - set(names))
+    if unknown:
+        raise CameraFileError(
+            f"no camera named {', '.join(unknown)} in the file (it has {', '.join(names)})"
+        )
+    ids = [rename.get(name, name) for name in names]
+    if len(set(ids)) != len(ids):
+        raise CameraFileError(f"two cameras would share a sensor id: {', '.join(ids)}")
+    return {
+        sensor_id: SensorCalibration(
+            camera.T_world_from_sensor,
+            f"import:{fmt}",
+            found.residual_mm.get(camera.name),
+            {"camera": camera.name},
+            camera.intrinsics,
+        )
+        for sensor_id, camera in zip(ids, found.cameras, strict=True)
+    }
 
 
 def _in_world(camera: Camera, up: Up) -> Camera:

@@ -9,6 +9,11 @@ Every save writes a new version. Each file is written to a temporary name, fsync
 over its target and the folder fsync'ed, and the history copy is written before the active
 file, so a crash leaves either the old or the new version active, never half of one.
 Rolling back re-saves an old version as a new one: history only grows.
+
+A sensor's entry may carry ``intrinsics`` (an RGB camera's, :class:`CameraIntrinsics` 's JSON:
+width, height, fx, fy, cx, cy, distortion) and ``lag_s`` (how late its clock shows events,
+seconds, from :mod:`calibration.motion_sync`; readers subtract it from the sensor's times).
+Both are written only when set, so files without them read and write as before (format 1).
 """
 
 from __future__ import annotations
@@ -24,7 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from skelfuse.calibration.errors import CalibrationError
+from skelfuse.calibration.camera import CameraIntrinsics
+from skelfuse.calibration.errors import CalibrationError, InvalidInput
 from skelfuse.protocol.transform import Matrix4, is_rigid
 
 FILE_NAME = "calibration.json"
@@ -43,12 +49,28 @@ class UnknownVersion(CalibrationError):
 
 @dataclass(frozen=True, slots=True)
 class SensorCalibration:
-    """One sensor's pose in the world (4×4 float64, metres) and how it was obtained."""
+    """One sensor's pose in the world (4×4 float64, metres) and how it was obtained; an RGB
+    camera's intrinsics and a clock lag (seconds) where known."""
 
     T_world_from_sensor: Matrix4
     method: str
     residual_mm: float | None = None
     details: dict[str, Any] = field(default_factory=dict)
+    intrinsics: CameraIntrinsics | None = None
+    lag_s: float | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        entry: dict[str, Any] = {
+            "T_world_from_sensor": self.T_world_from_sensor.tolist(),
+            "method": self.method,
+            "residual_mm": self.residual_mm,
+            "details": self.details,
+        }
+        if self.intrinsics is not None:
+            entry["intrinsics"] = self.intrinsics.to_json()
+        if self.lag_s is not None:
+            entry["lag_s"] = self.lag_s
+        return entry
 
 
 @dataclass(frozen=True, slots=True)
@@ -64,15 +86,7 @@ class Calibration:
             "version": self.version,
             "created_unix_s": self.created_unix_s,
             "note": self.note,
-            "sensors": {
-                sensor_id: {
-                    "T_world_from_sensor": s.T_world_from_sensor.tolist(),
-                    "method": s.method,
-                    "residual_mm": s.residual_mm,
-                    "details": s.details,
-                }
-                for sensor_id, s in sorted(self.sensors.items())
-            },
+            "sensors": {sensor_id: s.to_json() for sensor_id, s in sorted(self.sensors.items())},
         }
 
     @staticmethod
@@ -105,11 +119,24 @@ class Calibration:
             if residual is not None and not isinstance(residual, int | float):
                 raise CalibrationFileError(f"{origin}: sensor {sensor_id!r}: bad residual_mm")
             details = entry.get("details", {})
+            intrinsics = None
+            if entry.get("intrinsics") is not None:
+                try:
+                    intrinsics = CameraIntrinsics.from_json(
+                        entry["intrinsics"], f"{origin}: sensor {sensor_id!r}"
+                    )
+                except InvalidInput as exc:
+                    raise CalibrationFileError(str(exc)) from exc
+            lag = entry.get("lag_s")
+            if lag is not None and (not isinstance(lag, int | float) or not np.isfinite(lag)):
+                raise CalibrationFileError(f"{origin}: sensor {sensor_id!r}: bad lag_s")
             sensors[str(sensor_id)] = SensorCalibration(
                 matrix,
                 str(entry.get("method", "unknown")),
                 None if residual is None else float(residual),
                 details if isinstance(details, dict) else {},
+                intrinsics,
+                None if lag is None else float(lag),
             )
         version = data.get("version", 0)
         created = data.get("created_unix_s", 0.0)

@@ -12,12 +12,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from skelfuse.calibration.camera import SENSOR_FROM_OPENCV, Camera, CameraIntrinsics
-from skelfuse.calibration.camera_files import (
+from skelfuse.calibration.camera import (
+    SENSOR_FROM_OPENCV,
+    Camera,
+    CameraIntrinsics,
     pose_from_opencv_extrinsics,
-    read_camera_file,
     rodrigues,
 )
+from skelfuse.calibration.camera_files import read_camera_file
 from skelfuse.calibration.errors import CameraFileError, InvalidInput
 from skelfuse.calibration.triangulation import triangulate
 from skelfuse.protocol.transform import look_at_pose
