@@ -14,6 +14,11 @@ feed as fast as it comes. Over the measured window (after ``--warmup``) it repor
 - age at receipt, p50 / p99 over every frame of every client: receive time minus ``t_sent``
   (the server's publish time: what fan-out and the network add) and minus ``t`` (the fused
   instant: what alignment, fusion and fan-out add);
+- the server's own share of that age, from its ``send`` stage (``server/stage_timing.py``):
+  ``t_sent`` to the frame's write into each client's socket, p50 / p99 over client-frames, and
+  its ``publish`` stage (the whole fan-out of one frame to the clients ready for it). What the
+  clients measure above that is the kernel's delivery and the clients' own scheduling: on one
+  machine they share its cores with the server, which ``--processes`` spreads over;
 - the server's CPU (% of one core), how long its event loop waited for a CPU while it had work
   (% of the window: a starved server on a shared machine), RSS (start, max, end), the clients'
   CPU, the server's ``conflated`` and ``evicted`` counts, and the load average before and after.
@@ -51,6 +56,7 @@ from bench.load_server import (
     start_server,
     wait_for,
 )
+from bench.load_stages import scrape_stages, window_quantile
 
 HEAD = re.compile(r'"seq":(\d+),"t":([0-9.eE+-]+),"t_sent":([0-9.eE+-]+)')
 
@@ -124,6 +130,10 @@ def runqueue_wait_s(pid: int) -> float:
     runnable (Linux ``/proc/<pid>/schedstat``): on a shared machine, the share of the window
     it was starved."""
     return int(Path(f"/proc/{pid}/schedstat").read_text().split()[1]) / 1e9
+
+
+def _rounded(value_ms: float) -> float | None:
+    return None if value_ms != value_ms else round(value_ms, 2)
 
 
 def _pct(values: list[float], q: float) -> float:
@@ -202,6 +212,7 @@ def run_once(args: argparse.Namespace, seed: int, log_dir: Path) -> dict[str, An
         fused0 = http_json(base + "/api/health")["fused_frames"]
         rss_start = proc_rss_mb(server.pid)
         rss_max = rss_start
+        stages0 = scrape_stages(base)
         t0, cpu0, wait0 = time.time(), proc_cpu_s(server.pid), runqueue_wait_s(server.pid)
         start.set()
         while time.time() < t0 + args.duration:
@@ -209,6 +220,7 @@ def run_once(args: argparse.Namespace, seed: int, log_dir: Path) -> dict[str, An
             rss_max = max(rss_max, proc_rss_mb(server.pid))
         stop.set()
         t1, cpu1, wait1 = time.time(), proc_cpu_s(server.pid), runqueue_wait_s(server.pid)
+        stages1 = scrape_stages(base)
         fused1 = http_json(base + "/api/health")["fused_frames"]
         rss_end = proc_rss_mb(server.pid)
         clients_now = http_json(base + "/api/clients")
@@ -255,6 +267,14 @@ def run_once(args: argparse.Namespace, seed: int, log_dir: Path) -> dict[str, An
         "age_sent_p99_ms": round(1000 * _pct(ages_sent, 99), 1),
         "age_t_p50_ms": round(1000 * _pct(ages_t, 50), 1),
         "age_t_p99_ms": round(1000 * _pct(ages_t, 99), 1),
+        # NaN (a server without the stage): JSON null.
+        **{
+            f"server_{stage}_p{q}_ms": _rounded(
+                window_quantile(stages0.get(stage), stages1.get(stage), q / 100)
+            )
+            for stage in ("send", "publish")
+            for q in (50, 99)
+        },
         "server_cpu_pct": round(100 * (cpu1 - cpu0) / window, 1),
         "server_loop_runqueue_wait_pct": round(100 * (wait1 - wait0) / window, 1),
         "clients_cpu_pct": round(100 * clients_cpu / window, 1),
@@ -273,7 +293,7 @@ def main(argv: list[str] | None = None) -> int:
     """Run the benchmark ``--runs`` times; print each run's figures as one JSON line."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--clients", type=int, default=500)
-    parser.add_argument("--processes", type=int, default=2, help="client processes (1-2)")
+    parser.add_argument("--processes", type=int, default=2, help="client processes")
     parser.add_argument("--agents", type=int, default=4)
     parser.add_argument("--bodies", type=int, default=6)
     parser.add_argument("--duration", type=float, default=30.0, help="measured seconds")

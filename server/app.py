@@ -110,6 +110,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         registry.register(LoopLagCollector(loop_lag))
         app.state.loop_lag = loop_lag
         stages = StageTimes()  # where the live path's time goes (bench/load.py reads it)
+        broadcaster.send_times = stages.send
         registry.register(StageTimesCollector(stages))
         app.state.broadcaster = broadcaster
         app.state.zmq_endpoint = socket.getsockopt_string(zmq.LAST_ENDPOINT)
@@ -248,8 +249,14 @@ class _WebSocketFeed:
 
     def __init__(self, websocket: WebSocket) -> None:
         self._websocket = websocket
-        # skelfuse server's uvicorn protocol writes the broadcaster's shared framing as is
-        self._preframed = PREFRAMED in (websocket.scope.get("extensions") or {})
+        # skelfuse server's uvicorn protocol writes the broadcaster's shared framing as is, and
+        # offers the broadcaster's cheap path (server/feed_protocol.py)
+        extension = (websocket.scope.get("extensions") or {}).get(PREFRAMED)
+        self._preframed = extension is not None
+        if isinstance(extension, dict) and "write_now" in extension:
+            write_now = extension["write_now"]
+            self.write_now = lambda message: bool(write_now(message.framed))
+            self.ready = extension["ready"]
 
     async def send(self, message: Outgoing) -> None:
         if self._preframed:

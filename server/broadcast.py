@@ -27,6 +27,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import time
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
 from itertools import count
@@ -42,6 +43,7 @@ from skelfuse.fusion.hub import FusedFrame
 from skelfuse.fusion.views import FusedPerson
 from skelfuse.protocol.feed import frame_json
 from skelfuse.recording.joint_orientations import Orientations, orientations
+from skelfuse.server.histogram import Histogram
 
 logger = logging.getLogger(__name__)
 
@@ -84,19 +86,30 @@ class Outgoing:
     framed: bytes
     """The unmasked WebSocket message (header and payload) a server without extensions sends:
     framed once per frame and variant, not once per client."""
+    published_s: float | None = None
+    """``time.perf_counter()`` when its frame's publishing began (None: not a frame)."""
 
 
-def outgoing(payload: bytes | str) -> Outgoing:
-    """``payload`` with its WebSocket framing (binary for bytes, text for str)."""
+def outgoing(payload: bytes | str, published_s: float | None = None) -> Outgoing:
+    """``payload`` with its WebSocket framing (binary for bytes, text for str); ``published_s``:
+    :attr:`Outgoing.published_s`."""
     if isinstance(payload, bytes):
         frame = Frame(Opcode.BINARY, payload)
     else:
         frame = Frame(Opcode.TEXT, payload.encode())
-    return Outgoing(payload, frame.serialize(mask=False))
+    return Outgoing(payload, frame.serialize(mask=False), published_s)
 
 
 class FeedSocket(Protocol):
-    """One client's connection, as the broadcaster uses it."""
+    """One client's connection, as the broadcaster uses it.
+
+    A socket may also have ``write_now(message: Outgoing) -> bool`` and ``async ready()``
+    (the app's, on ``skelfuse server``'s uvicorn protocol): ``write_now`` writes the message
+    at once if the connection can take it without queueing, else says False and writes
+    nothing; ``ready`` returns once it could. With them, :meth:`Broadcaster.publish` writes
+    each frame straight into every client that is ready, in one loop, and only the others
+    go through their mailbox and sender task.
+    """
 
     async def send(self, message: Outgoing) -> None:
         """Send one message (a bytes payload: a binary message; str: a text message)."""
@@ -145,6 +158,11 @@ class Client:
     sent: int = 0
     conflated: int = 0
     """Frames replaced in the mailbox by a newer one before the client could take them."""
+    busy: bool = True
+    """The sender task is sending (the greeting, from the start) or about to send: a frame
+    written past it could overtake the one it sends."""
+    write_now: Callable[[Outgoing], bool] | None = None
+    """The socket's ``write_now`` (:class:`FeedSocket`), or None."""
     ready: asyncio.Event = field(default_factory=asyncio.Event)
     stalled: asyncio.Event = field(default_factory=asyncio.Event)
     """Set when a frame has waited for the client over ``stall_limit_s``: it is to be closed."""
@@ -183,6 +201,10 @@ class Broadcaster:
     clients: dict[int, Client] = field(default_factory=dict)
     evicted: int = 0
     published: int = 0
+    send_times: Histogram | None = None
+    """Where each frame's age is counted as it is written into a client's socket (seconds from
+    the start of :meth:`publish`, as the message's ``t_sent``): the server's share of what a
+    client measures, without the client's own (``server/stage_timing.py``, stage ``send``)."""
     _ids: count[int] = field(default_factory=lambda: count(1))
 
     def add(self, variant: Variant, remote: str, now_s: float) -> Client:
@@ -206,7 +228,9 @@ class Broadcaster:
         ``now_s``: Unix seconds, the message's ``t_sent``; ``now_mono``: monotonic seconds, for
         the stall check.
         """
+        started = time.perf_counter()
         self.published += 1
+        send_times = self.send_times
         cache: dict[Variant, Outgoing] = {}
         rotations: list[Orientations | None] = []  # computed once, for the first that asks
         for client in list(self.clients.values()):
@@ -218,8 +242,23 @@ class Broadcaster:
                 built = frame_json(
                     frame, variant.raw, now_s, rotations[0] if variant.rotations else None
                 )
-                message = outgoing(encode_message(built, variant.binary))
+                message = outgoing(encode_message(built, variant.binary), started)
                 cache[variant] = message
+            # The cheap path, for every client that keeps up: the frame goes into its socket
+            # here, with no task to wake. Otherwise (a send in progress, a full socket, a paced
+            # client waiting for its pong) the mailbox, and the client's sender takes it.
+            write_now = client.write_now
+            if write_now is not None and client.pending is None and not client.busy:
+                try:
+                    written = write_now(message)
+                except Exception:  # a connection in a state not foreseen: the usual path
+                    logger.debug("direct write to %s failed", client.remote, exc_info=True)
+                    written = False
+                if written:
+                    client.sent += 1
+                    if send_times is not None:
+                        send_times.record(time.perf_counter() - started)
+                    continue
             client.offer(message, now_mono)
 
     async def serve(self, client: Client, socket: FeedSocket, greeting: bytes | str) -> None:
@@ -229,9 +268,14 @@ class Broadcaster:
         greeting taking that long) is counted in :attr:`evicted` and closed with code
         1008 "client too slow". The client is removed however this ends.
         """
+        ready: Callable[[], Awaitable[None]] | None = getattr(socket, "ready", None)
         sender = asyncio.create_task(
-            pump(client, socket.send, self.send_timeout_s, outgoing(greeting))
-        )
+            pump(
+                client, socket.send, self.send_timeout_s, outgoing(greeting), ready,
+                self.send_times,
+            )
+        )  # fmt: skip
+        client.write_now = getattr(socket, "write_now", None)
         receiver = asyncio.create_task(socket.closed())
         stalled = asyncio.create_task(client.stalled.wait())
         try:
@@ -274,9 +318,16 @@ async def pump(
     send: Callable[[Outgoing], Awaitable[None]],
     timeout_s: float,
     greeting: Outgoing | None = None,
+    ready: Callable[[], Awaitable[None]] | None = None,
+    send_times: Histogram | None = None,
 ) -> None:
     """Send ``greeting`` (if any; it fails after ``timeout_s``), then the newest frame each time
     the previous send is done, until a send fails.
+
+    ``ready`` (the socket's, :class:`FeedSocket`) is awaited before a frame is taken from the
+    mailbox, so that the frame taken is the newest when the socket can take it. The client is
+    :attr:`Client.busy` from the start until the greeting is sent, and from a wake-up until
+    the frame is sent. Each frame's age as its send begins goes into ``send_times``.
 
     ``send`` should return once its message has drained from the server's buffers (as
     ``server/feed_protocol.py`` makes uvicorn's do): the frame taken next is then the newest at
@@ -287,15 +338,22 @@ async def pump(
     Raises:
         TimeoutError: the greeting took ``timeout_s``.
     """
+    client.busy = True
     if greeting is not None:
         # asyncio.timeout, not wait_for: on 3.11 wait_for swallows a cancellation that arrives
         # as the send completes, and the pump would then outlive its client.
         async with asyncio.timeout(timeout_s):
             await send(greeting)
     while True:
+        client.busy = False
         await client.ready.wait()
+        client.busy = True
+        if ready is not None:
+            await ready()
         message = client.take()
         if message is None:
             continue
+        if send_times is not None and message.published_s is not None:
+            send_times.record(time.perf_counter() - message.published_s)
         await send(message)
         client.sent += 1

@@ -11,7 +11,10 @@ as one histogram family, ``skelfuse_live_stage_seconds{stage=...}``:
 - ``publish``: that frame built and encoded once per feed variant and queued for every client
   (``Broadcaster.publish``);
 - ``lag``: server time when the fusion step began minus the fused instant ``t``: the alignment
-  wait plus the completing frame's transit, ingest and the fusion task's wake-up.
+  wait plus the completing frame's transit, ingest and the fusion task's wake-up;
+- ``send``: per client and frame, the start of ``publish`` (the message's ``t_sent``) to the
+  frame's write into that client's socket (``Broadcaster.send_times``): the server's share of
+  the age a client measures after ``t_sent``, without the client's own scheduling.
 
 ``bench/load.py`` reads them before and after its window (the difference of the cumulative
 buckets is the window's histogram).
@@ -34,7 +37,7 @@ STAGE_BUCKETS_S: tuple[float, ...] = (
 """Histogram upper bounds, seconds: tens of µs (a frame's ingest) to a second (a stall); close
 enough together that a quantile interpolated within a bucket is within about 25 % of the truth."""
 
-STAGES = ("ingest", "fusion", "publish", "lag")
+STAGES = ("ingest", "fusion", "publish", "lag", "send")
 
 
 class StageTimes:
@@ -45,11 +48,12 @@ class StageTimes:
         self.fusion = Histogram(buckets)
         self.publish = Histogram(buckets)
         self.lag = Histogram(buckets)
+        self.send = Histogram(buckets)
 
     def by_stage(self) -> dict[str, Histogram]:
         """Every stage's histogram by its name in :data:`STAGES`."""
         return {"ingest": self.ingest, "fusion": self.fusion, "publish": self.publish,
-                "lag": self.lag}  # fmt: skip
+                "lag": self.lag, "send": self.send}  # fmt: skip
 
 
 class StageTimesCollector(Collector):
@@ -62,7 +66,8 @@ class StageTimesCollector(Collector):
         family = HistogramMetricFamily(
             "skelfuse_live_stage_seconds",
             "Time per stage of the live path: ingest (per agent message), fusion, publish "
-            "(per fused frame), lag (fusion start minus the fused instant)",
+            "(per fused frame), lag (fusion start minus the fused instant), send (publish to the "
+            "write into each client's socket)",
             labels=["stage"],
         )
         for name, histogram in self.stages.by_stage().items():
