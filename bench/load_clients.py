@@ -1,5 +1,6 @@
-"""The load benchmark's WebSocket clients: healthy readers that log every frame, and one that
-completes the handshake and then never reads."""
+"""The load benchmark's WebSocket clients: healthy readers that log every frame, one that
+completes the handshake and then never reads, and a raw reader that does the least work a
+client can per message (``bench/many_clients.py --client raw``)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,9 @@ import asyncio
 import json
 import socket
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import cast
 
 
 @dataclass
@@ -60,3 +63,96 @@ def open_stalled_client(port: int) -> tuple[socket.socket, int]:
         raise RuntimeError(f"stalled client's handshake failed: {head[:80]!r}")
     local_port: int = sock.getsockname()[1]
     return sock, local_port
+
+
+HANDSHAKE = (
+    "GET {path} HTTP/1.1\r\nHost: {host}:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+    "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n"
+)
+
+
+class RawFeedReader(asyncio.Protocol):
+    """A WebSocket feed client with as little work per message as a client can do: the frames
+    parsed from the byte stream, pings answered (the server paces clients by them), and each
+    data message's first ``head_bytes`` handed to ``on_message(head, received_s)``, nothing else
+    (no UTF-8 check, no message object). For measuring the server with many clients on the same
+    machine, where a full client library's cost per message is the clients' own share of what
+    they measure.
+
+    ``done`` is set when the connection ends; ``error`` says why, if not by a close.
+    """
+
+    def __init__(
+        self,
+        path: str,
+        host: str,
+        port: int,
+        on_message: Callable[[bytes, float], None],
+        head_bytes: int = 200,
+    ) -> None:
+        self.request = HANDSHAKE.format(path=path, host=host, port=port).encode()
+        self.on_message = on_message
+        self.head_bytes = head_bytes
+        self.buffer = bytearray()
+        self.upgraded = False
+        self.transport: asyncio.Transport | None = None
+        self.done = asyncio.Event()
+        self.error: str | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = cast(asyncio.Transport, transport)
+        self.transport.write(self.request)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if exc is not None and self.error is None:
+            self.error = f"{type(exc).__name__}: {exc}"
+        self.done.set()
+
+    def data_received(self, data: bytes) -> None:
+        received = time.time()
+        buffer = self.buffer
+        buffer += data
+        start = 0
+        if not self.upgraded:
+            end = buffer.find(b"\r\n\r\n")
+            if end < 0:
+                return
+            if b" 101 " not in buffer[: buffer.find(b"\r\n")]:
+                self.error = f"handshake refused: {bytes(buffer[:60])!r}"
+                self._close()
+                return
+            self.upgraded = True
+            start = end + 4
+        size = len(buffer)
+        while size - start >= 2:
+            opcode = buffer[start] & 0x0F
+            length = buffer[start + 1] & 0x7F
+            offset = start + 2
+            if length == 126:
+                if size - offset < 2:
+                    break
+                length = int.from_bytes(buffer[offset : offset + 2], "big")
+                offset += 2
+            elif length == 127:
+                if size - offset < 8:
+                    break
+                length = int.from_bytes(buffer[offset : offset + 8], "big")
+                offset += 8
+            if size - offset < length:
+                break
+            if opcode in (1, 2):
+                self.on_message(
+                    bytes(buffer[offset : offset + min(length, self.head_bytes)]), received
+                )
+            elif opcode == 9 and self.transport is not None:  # ping: a pong, masked by zeros
+                payload = bytes(buffer[offset : offset + length])
+                self.transport.write(bytes([0x8A, 0x80 | length]) + bytes(4) + payload)
+            elif opcode == 8:
+                self._close()
+                return
+            start = offset + length
+        del buffer[:start]
+
+    def _close(self) -> None:
+        if self.transport is not None:
+            self.transport.close()

@@ -1,12 +1,14 @@
 """Many WebSocket viewers on one server: fused frames received, frames lost, age at receipt.
 
-    python bench/many_clients.py [--clients 500] [--processes 2] [--duration 30] [--runs 1]
+    python bench/many_clients.py [--clients 500] [--processes 2] [--client websockets|raw]
+                                 [--duration 30] [--runs 1]
 
 Starts ``python -m skelfuse server`` on loopback (bench/load_server.py) with the load
 benchmark's fake agents (bench/load_agents.py: ``--agents`` ZeroMQ agents at 30 fps seeing
 ``--bodies`` people, in a child process), then ``--clients`` WebSocket clients spread over
-``--processes`` child processes, each an asyncio loop of ``websockets`` clients reading the JSON
-feed as fast as it comes. Over the measured window (after ``--warmup``) it reports:
+``--processes`` child processes, each an asyncio loop of ``websockets`` clients (or, with
+``--client raw``, bench/load_clients.py's raw readers) reading the JSON feed as fast as it
+comes. Over the measured window (after ``--warmup``) it reports:
 
 - fused frames per second received per client (median and lowest over clients);
 - frames lost per client: gaps in ``seq`` between consecutive frames a client received (the
@@ -40,6 +42,7 @@ import statistics
 import sys
 import time
 from array import array
+from collections.abc import Callable
 from multiprocessing.synchronize import Event as MpEvent
 from pathlib import Path
 from typing import Any
@@ -48,6 +51,7 @@ if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.load_agents import agents_process, sensor_layout
+from bench.load_clients import RawFeedReader
 from bench.load_server import (
     free_port,
     http_json,
@@ -59,6 +63,65 @@ from bench.load_server import (
 from bench.load_stages import scrape_stages, window_quantile
 
 HEAD = re.compile(r'"seq":(\d+),"t":([0-9.eE+-]+),"t_sent":([0-9.eE+-]+)')
+HEAD_BYTES = re.compile(rb'"seq":(\d+),"t":([0-9.eE+-]+),"t_sent":([0-9.eE+-]+)')
+
+
+def _factory(reader: RawFeedReader) -> Callable[[], RawFeedReader]:
+    return lambda: reader
+
+
+async def _raw_client(
+    url: str, measuring: asyncio.Event, stopping: asyncio.Event
+) -> dict[str, Any]:
+    """:func:`_client` with :class:`bench.load_clients.RawFeedReader` instead of ``websockets``:
+    the same counts, for a fraction of the clients' CPU."""
+    ages_sent, ages_t = array("d"), array("d")
+    out: dict[str, Any] = {"frames": 0, "lost": 0, "error": None, "retries": 0}
+    last_seq = -1
+
+    def on_message(head: bytes, received: float) -> None:
+        nonlocal last_seq
+        match = HEAD_BYTES.search(head)
+        if match is None or not measuring.is_set():
+            return
+        seq = int(match.group(1))
+        if last_seq >= 0 and seq > last_seq + 1:
+            out["lost"] += seq - last_seq - 1
+        last_seq = seq
+        out["frames"] += 1
+        ages_t.append(received - float(match.group(2)))
+        ages_sent.append(received - float(match.group(3)))
+
+    host_port, path = url.removeprefix("ws://").split("/", 1)
+    host, port = host_port.rsplit(":", 1)
+    loop = asyncio.get_running_loop()
+    while not stopping.is_set():
+        reader = RawFeedReader("/" + path, host, int(port), on_message)
+        try:
+            transport, _ = await asyncio.wait_for(
+                loop.create_connection(_factory(reader), host, int(port)), 30
+            )
+        except (OSError, TimeoutError) as exc:
+            out["error"] = f"{type(exc).__name__}: {exc}"
+            if measuring.is_set():
+                break
+            out["retries"] += 1
+            await asyncio.sleep(1.0)
+            continue
+        stop_task = asyncio.create_task(stopping.wait())
+        done_task = asyncio.create_task(reader.done.wait())
+        await asyncio.wait({stop_task, done_task}, return_when=asyncio.FIRST_COMPLETED)
+        stop_task.cancel()
+        done_task.cancel()
+        transport.close()
+        if not stopping.is_set():
+            out["error"] = reader.error or "closed by the server"
+            if measuring.is_set() or out["frames"]:
+                break
+            out["retries"] += 1
+            await asyncio.sleep(1.0)
+    out["ages_sent"], out["ages_t"] = ages_sent.tobytes(), ages_t.tobytes()
+    return out
 
 
 async def _client(url: str, measuring: asyncio.Event, stopping: asyncio.Event) -> dict[str, Any]:
@@ -100,15 +163,22 @@ async def _client(url: str, measuring: asyncio.Event, stopping: asyncio.Event) -
 
 
 def clients_process(
-    url: str, count: int, start: MpEvent, stop: MpEvent, results: mp.Queue[Any]
+    url: str,
+    count: int,
+    start: MpEvent,
+    stop: MpEvent,
+    results: mp.Queue[Any],
+    kind: str = "websockets",
 ) -> None:
-    """Run ``count`` clients in one asyncio loop; measure between ``start`` and ``stop``."""
+    """Run ``count`` clients (``kind``: ``websockets`` or ``raw``) in one asyncio loop; measure
+    between ``start`` and ``stop``."""
+    client = _raw_client if kind == "raw" else _client
 
     async def main() -> list[dict[str, Any]]:
         measuring, stopping = asyncio.Event(), asyncio.Event()
         tasks = []
         for _ in range(count):  # connect gradually: 500 handshakes at once time out
-            tasks.append(asyncio.create_task(_client(url, measuring, stopping)))
+            tasks.append(asyncio.create_task(client(url, measuring, stopping)))
             await asyncio.sleep(0.005)
         await asyncio.to_thread(start.wait)
         measuring.set()
@@ -181,7 +251,8 @@ def run_once(args: argparse.Namespace, seed: int, log_dir: Path) -> dict[str, An
     client_results: mp.Queue[Any] = ctx.Queue()
     children: list[mp.process.BaseProcess] = []
     try:
-        wait_for(lambda: http_json(base + "/api/health"), 20, "the server to start")
+        # 60 s: on a busy machine, numba's cache load alone has taken 20 s
+        wait_for(lambda: http_json(base + "/api/health"), 60, "the server to start")
         agents = ctx.Process(
             target=agents_process,
             args=(
@@ -201,7 +272,7 @@ def run_once(args: argparse.Namespace, seed: int, log_dir: Path) -> dict[str, An
         for share in shares:
             child = ctx.Process(
                 target=clients_process,
-                args=(url, share, start, stop, client_results),
+                args=(url, share, start, stop, client_results, args.client),
                 daemon=True,
             )
             child.start()
@@ -294,6 +365,13 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--clients", type=int, default=500)
     parser.add_argument("--processes", type=int, default=2, help="client processes")
+    parser.add_argument(
+        "--client",
+        choices=("websockets", "raw"),
+        default="websockets",
+        help="websockets: the library's client; raw: bench/load_clients.py's RawFeedReader, "
+        "the least work per message (the clients' own share of the ages, compared)",
+    )
     parser.add_argument("--agents", type=int, default=4)
     parser.add_argument("--bodies", type=int, default=6)
     parser.add_argument("--duration", type=float, default=30.0, help="measured seconds")
