@@ -1,0 +1,197 @@
+"""Cameras of the real clip streamed live to a real server, and the fused joints it publishes.
+
+Each camera is one agent (the real :func:`skelfuse.agent.runner.run_agent`, ZeroMQ on loopback)
+whose source replays the landmark fixture: per frame, the camera's world landmarks placed in its
+camera frame by PnP (:func:`bench.mono_accuracy_single.in_camera`), mapped to the 25-joint model
+and sent in the sensor frame, at 60 fps in real time. This replays precomputed landmarks: the
+``mono`` source's model stage is measured elsewhere; everything after it (wire, ingest, clock
+offsets, interpolation, association, mirror labels, confidence, fusion, filter) is the product's.
+
+The server is ``python -m skelfuse server`` (``bench/load_server.py``) with the clip's
+calibration stored for the streamed cameras. Every agent holds the clip's first frame for
+``hold_s`` before the clip plays, so fusion has its person when the motion starts. A camera
+with a lag of L frames stamps its frame i at (i − L) / 60 s: the clock offset the motion sync
+found, applied where a source's timestamps are made.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from bench.load_server import free_port, http_json, start_server, wait_for
+from bench.mono_accuracy_geometry import CV_FROM_KINECT, Camera, FloatArray
+from bench.mono_accuracy_joints import to_kinect25
+from bench.mono_accuracy_single import FPS, Clip, in_camera
+from skelfuse.agent.runner import run_agent
+from skelfuse.agent.sources.base import Capture
+from skelfuse.client.sync import SyncFeedClient
+from skelfuse.protocol.transform import Matrix4
+from skelfuse.protocol.wire import SENSOR_TYPES, Body
+
+SENSOR_TYPE = "rgb" if "rgb" in SENSOR_TYPES else "replay"
+"""The wire type the replayed cameras register with: ``rgb`` once the protocol has it."""
+
+
+@dataclass
+class LiveRun:
+    """What the server published while the clip played.
+
+    times: (F,) clip frame index (fractional, the reference cameras' timeline) of each fused
+    frame; joints: (F, 25, 3) world metres of the person fused from most sources (NaN where
+    none); persons: (F,) persons published; mirrored: sensors the mirror step swapped, counted.
+    """
+
+    times: FloatArray
+    joints: FloatArray
+    persons: FloatArray
+    mirrored: dict[str, int] = field(default_factory=dict)
+    sources: dict[str, int] = field(default_factory=dict)
+
+
+class LandmarkSource:
+    """One camera's precomputed bodies, played on a shared schedule (a ``SkeletonSource``).
+
+    ``start``: set by the bench to the clip's start (Unix ns) once every agent is registered;
+    until then no frame goes out.
+    """
+
+    sensor_type = SENSOR_TYPE
+    fps = FPS
+    waits_for_server = True
+
+    def __init__(
+        self,
+        bodies: list[tuple[FloatArray, np.ndarray]],
+        lag_frames: float,
+        hold_frames: int,
+        start: list[int],
+    ) -> None:
+        self._bodies = bodies
+        self._lag = lag_frames
+        self._hold = hold_frames
+        self._start = start
+        self._next = 0
+
+    def pose_hint(self) -> tuple[Matrix4, str] | None:
+        return None
+
+    def next_capture(self, timeout_s: float) -> Capture | None:
+        """The next scheduled frame, once its instant has come (None before or after the clip)."""
+        if not self._start or self._next >= self._hold + len(self._bodies):
+            time.sleep(timeout_s)
+            return None
+        stamp = self._start[0] + int((self._next - self._lag) / FPS * 1e9)
+        wait = (stamp - time.time_ns()) / 1e9
+        if wait > timeout_s:
+            time.sleep(timeout_s)
+            return None
+        if wait > 0:
+            time.sleep(wait)
+        joints, states = self._bodies[max(0, self._next - self._hold)]
+        self._next += 1
+        if not np.isfinite(joints[states > 0]).all():
+            return Capture(stamp, ())
+        return Capture(stamp, (Body(1, joints.astype(np.float32), states),))
+
+    def close(self) -> None:
+        pass
+
+
+def camera_bodies(clip: Clip, cam: Camera, name: str) -> list[tuple[FloatArray, np.ndarray]]:
+    """Per frame, the camera's body in the Kinect sensor frame: ((25, 3) m, (25,) states)."""
+    placed = in_camera(clip, cam, name) @ CV_FROM_KINECT
+    return [
+        to_kinect25(points, vis) for points, vis in zip(placed, clip.visibility[name], strict=True)
+    ]
+
+
+def run_live(
+    clip: Clip,
+    cameras: dict[str, Camera],
+    streamed: tuple[str, ...],
+    lags: dict[str, float],
+    hold_s: float = 1.0,
+    tail_s: float = 3.0,
+    log_dir: Path | None = None,
+) -> LiveRun:
+    """Stream ``streamed`` cameras to a fresh server and collect its fused frames.
+
+    Raises:
+        RuntimeError: the server or the agents did not come up in time.
+    """
+    http_port, zmq_port = free_port(), free_port()
+    log_dir = log_dir or Path(tempfile.mkdtemp(prefix="skelfuse-mono-"))
+    poses = {name: cameras[name].world_from_kinect() for name in streamed}
+    server, log_file = start_server(poses, http_port, zmq_port, log_dir / "server.log")
+    stop = threading.Event()
+    start: list[int] = []
+    hold = round(hold_s * FPS)
+    threads: list[threading.Thread] = []
+    try:
+        base = f"http://127.0.0.1:{http_port}"
+        wait_for(lambda: http_json(base + "/api/health"), 60.0, "the server")
+        for name in streamed:
+            source = LandmarkSource(
+                camera_bodies(clip, cameras[name], name), lags.get(name, 0.0), hold, start
+            )
+            thread = threading.Thread(
+                target=run_agent, args=(name, source, f"tcp://127.0.0.1:{zmq_port}"),
+                kwargs={"stop": stop}, daemon=True,
+            )  # fmt: skip
+            thread.start()
+            threads.append(thread)
+
+        def registered() -> bool:
+            rows = http_json(base + "/api/sensors")["sensors"]
+            return {r["id"] for r in rows if r["connected"]} >= set(streamed)
+
+        wait_for(registered, 30.0, "the agents")
+        frames = len(next(iter(clip.image_px.values())))
+        t0_ns = time.time_ns() + 500_000_000
+        clip_start_s = t0_ns / 1e9 + hold / FPS
+        last_s = clip_start_s + (frames - 1) / FPS
+        times: list[float] = []
+        joints: list[FloatArray] = []
+        persons: list[float] = []
+        run = LiveRun(np.zeros(0), np.zeros((0, 25, 3)), np.zeros(0))
+        with SyncFeedClient(base) as feed:
+            start.append(t0_ns)
+            # The server publishes only while frames come: once the clip has played, a
+            # watchdog closes the feed, which ends the loop below.
+            watchdog = threading.Timer(last_s + tail_s - time.time(), feed.close)
+            watchdog.start()
+            for frame in feed:
+                if frame.t >= last_s - 1e-3:
+                    break
+                if frame.t < clip_start_s - 0.2:
+                    continue
+                times.append((frame.t - clip_start_s) * FPS)
+                persons.append(float(len(frame.persons)))
+                if not frame.persons:
+                    joints.append(np.full((25, 3), np.nan))
+                    continue
+                best = max(frame.persons, key=lambda p: len(p.sources))
+                joints.append(np.asarray(best.joints, dtype=np.float64))
+                for name in best.mirrored:
+                    run.mirrored[name] = run.mirrored.get(name, 0) + 1
+                key = "+".join(sorted(best.sources))
+                run.sources[key] = run.sources.get(key, 0) + 1
+        watchdog.cancel()
+        run.times, run.joints, run.persons = np.array(times), np.array(joints), np.array(persons)
+        return run
+    finally:
+        stop.set()
+        for thread in threads:
+            thread.join(timeout=5.0)
+        server.terminate()
+        try:
+            server.wait(timeout=10.0)
+        except Exception:
+            server.kill()
+        log_file.close()
