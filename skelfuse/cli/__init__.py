@@ -15,7 +15,7 @@ import sys
 from collections.abc import Sequence
 
 from skelfuse.blas import pin_blas_threads
-from skelfuse.cli import agent, demo, doctor, keys, recordings, server
+from skelfuse.cli import agent, calibration, demo, doctor, keys, mocap, recordings, server
 from skelfuse.cli.values import UsageError
 from skelfuse.parent_watch import watch_parent_from_environment
 
@@ -35,6 +35,8 @@ def build_parser() -> argparse.ArgumentParser:
     keys.add_parser(sub)
     demo.add_parser(sub)
     recordings.add_parsers(sub)
+    calibration.add_parser(sub)
+    mocap.add_parser(sub)
     doctor.add_parser(sub)
     return parser
 
