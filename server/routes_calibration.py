@@ -116,6 +116,21 @@ class RunRequest(BaseModel):
 Row = Annotated[list[StrictFloat], Field(min_length=4, max_length=4)]
 
 
+class ImportedIntrinsics(BaseModel):
+    """An RGB camera's intrinsics (calibration.camera.CameraIntrinsics), pixels."""
+
+    model_config = ConfigDict(allow_inf_nan=False)
+    width: JsonInt = Field(gt=0)
+    height: JsonInt = Field(gt=0)
+    fx: StrictFloat = Field(gt=0)
+    fy: StrictFloat = Field(gt=0)
+    cx: StrictFloat
+    cy: StrictFloat
+    distortion: list[StrictFloat] = Field(
+        default_factory=list, description="OpenCV's k1 k2 p1 p2 [k3 [k4 k5 k6]]: 0, 4, 5 or 8"
+    )
+
+
 class ImportedSensor(BaseModel):
     """One sensor of an exported calibration file."""
 
@@ -126,6 +141,12 @@ class ImportedSensor(BaseModel):
     method: StrictStr = "unknown"
     residual_mm: StrictFloat | None = None
     details: dict[str, Any] = Field(default_factory=dict)
+    intrinsics: ImportedIntrinsics | None = Field(
+        None, description="an RGB camera's intrinsics (a principal point outside the image: 400)"
+    )
+    lag_s: StrictFloat | None = Field(
+        None, description="how late the sensor's clock shows events, seconds"
+    )
 
     @field_validator("details")
     @classmethod

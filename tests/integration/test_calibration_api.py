@@ -320,3 +320,30 @@ def test_auto_without_depth_keeps_the_skeleton_poses_and_says_so(
     assert run["results"]["cam-b"]["method"] == "skeleton"
     icp = httpx.post(live_server.http_url + "/api/calibration/runs", json={"method": "icp"})
     assert icp.status_code == 409  # nothing committed yet: icp has no poses to refine
+
+
+def test_import_keeps_an_rgb_cameras_intrinsics_and_lag(live_server: LiveServer) -> None:
+    """A file from ``skelfuse calibration import`` (intrinsics and lag per sensor) goes through
+    the REST import and export unchanged; impossible intrinsics are refused with 400."""
+    url = live_server.http_url
+    intrinsics = {
+        "width": 1088,
+        "height": 1920,
+        "fx": 1681.2,
+        "fy": 1681.1,
+        "cx": 533.0,
+        "cy": 948.1,
+        "distortion": [-0.046, 0.14, 0.0006, 0.0007, 0.0],
+    }
+    sensor = {"T_world_from_sensor": np.eye(4).tolist(), "method": "import:qualisys"}
+    body = {"format": 1, "sensors": {"cam03": {**sensor, "intrinsics": intrinsics, "lag_s": 0.039}}}
+    imported = httpx.post(url + "/api/calibration/import", json=body)
+    assert imported.status_code == 200, imported.text
+    active = httpx.get(url + "/api/calibration").json()["sensors"]["cam03"]
+    assert active["intrinsics"] == intrinsics and active["lag_s"] == 0.039
+    exported = httpx.get(url + "/api/calibration/export").json()["sensors"]["cam03"]
+    assert exported["intrinsics"] == intrinsics
+    landscape = {**intrinsics, "width": 1920, "height": 900}  # the centre falls outside
+    bad = {"format": 1, "sensors": {"cam03": {**sensor, "intrinsics": landscape}}}
+    refused = httpx.post(url + "/api/calibration/import", json=bad)
+    assert refused.status_code == 400 and "outside" in refused.json()["detail"]
