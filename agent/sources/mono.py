@@ -12,8 +12,14 @@ Timestamps:
 
 - ``--video FILE``: frame i of the file is due at ``anchor + i / fps / speed`` (the file's
   frame rate), the anchor being this PC's clock when the first frame is read, which happens
-  once the server has registered the agent (as the replay source does). A frame the detector
-  finishes after it was due keeps its due time: the capture stamp is the video's own timeline.
+  once the server has registered the agent (as the replay source does), or ``--start-at``
+  (Unix seconds: give several videos of one take the same value so their timelines line up).
+  The capture stamp is the due time: the video's own timeline. MediaPipe needs ~30 ms of CPU
+  per frame, more than a 60 fps video's 16.7 ms: when a frame's body is ready more than
+  :data:`MAX_LAG_S` after its due time (the server drops frames stamped 0.5 s before they
+  arrive), the anchor moves forward by that lag (the frame is stamped when it leaves), and a
+  warning says once that the timeline is being stretched; a ``--speed`` the detector keeps up
+  with (0.5 for 60 fps on such a CPU) avoids that.
 - ``--camera N``: the PC clock when OpenCV returns the frame (exposure and USB latency are not
   subtracted: a fixed lag the server's clock alignment does not see).
 
@@ -56,6 +62,9 @@ _log = logging.getLogger(__name__)
 DEFAULT_FOV_DEG: Final = 60.0
 """Horizontal field of view assumed without ``--intrinsics`` (a typical webcam's 55-70°)."""
 DEFAULT_FPS: Final = 30.0
+MAX_LAG_S: Final = 0.25
+"""A video frame read this late after its due time moves the anchor (half the server's 0.5 s
+staleness limit, fusion/sensors.py: the frame must still arrive in time)."""
 
 
 class MonoSource:
@@ -69,6 +78,7 @@ class MonoSource:
         pose: ``T_world_from_sensor`` announced as a manual pose hint, or None.
         loop: a video starts again after its last frame.
         speed: a video's playback speed factor.
+        start_unix_s: a video's frame 0 at this wall-clock instant (default: when first read).
         policy: visibility → tracking state thresholds.
         placement: ``"pose"`` (rotation and translation, default) or ``"translation"``.
         frames, detector: what reads images and finds landmarks (default: OpenCV and
@@ -90,6 +100,7 @@ class MonoSource:
         pose: Matrix4 | None = None,
         loop: bool = False,
         speed: float = 1.0,
+        start_unix_s: float | None = None,
         policy: StatePolicy | None = None,
         placement: PlacementMode = "pose",
         frames: FrameReader | None = None,
@@ -123,7 +134,7 @@ class MonoSource:
         self._sleep = sleep
         self._fps = self._frames.fps or DEFAULT_FPS
         self._period_ns = 1e9 / self._fps / speed
-        self._anchor_ns: int | None = None
+        self._anchor_ns: int | None = None if start_unix_s is None else round(start_unix_s * 1e9)
         self._index = 0  # frames read since the anchor
         self._previous: Placement | None = None
         self._tracking_id = 0
@@ -132,6 +143,8 @@ class MonoSource:
         """Frames read so far (all loops)."""
         self.frames_with_body = 0
         """Frames in which a body was found and placed."""
+        self.reanchors = 0
+        """Times a video's timeline was moved forward because detection fell behind."""
         self.last_body: MonoBody | None = None
         """The latest frame's body with its placement (diagnostics), None when none."""
 
@@ -185,10 +198,29 @@ class MonoSource:
                 self._finished = True
                 return None
             raise SensorError("the camera stopped delivering frames")
-        t_capture_ns = due if self._is_video else self._clock()
         self._index += 1
         self.frames_read += 1
-        return Capture(t_capture_ns=t_capture_ns, bodies=self._bodies(image))
+        if not self._is_video:
+            t_capture_ns = self._clock()
+            return Capture(t_capture_ns=t_capture_ns, bodies=self._bodies(image))
+        bodies = self._bodies(image)
+        late_ns = self._clock() - due  # the frame leaves now: its stamp must not be stale
+        if late_ns > MAX_LAG_S * 1e9:
+            self._fall_behind(late_ns)
+            due += late_ns
+        return Capture(t_capture_ns=due, bodies=bodies)
+
+    def _fall_behind(self, lag_ns: int) -> None:
+        assert self._anchor_ns is not None
+        self._anchor_ns += lag_ns
+        self.reanchors += 1
+        if self.reanchors == 1:
+            _log.warning(
+                "mono: detection is %.0f ms behind the video at speed %g: moving its timeline "
+                "forward (motion looks faster there); a lower --speed keeps the timeline",
+                lag_ns / 1e6,
+                self._speed,
+            )
 
     def _bodies(self, frame: npt.NDArray[np.uint8]) -> tuple[Body, ...]:
         found: Landmarks | None = self._detector.detect(frame)

@@ -145,7 +145,7 @@ def make_source(kind: str, options: dict[str, Any]) -> SkeletonSource:
         azure_kinect / femto: ``device_index``, ``k4a_path``, ``k4abt_path``, ``depth_mode``,
         ``pose``;
         mono: ``camera`` or ``video``, ``intrinsics`` (``"fx,fy,cx,cy"``), ``fov_deg``, ``pose``,
-        ``loop``, ``speed``.
+        ``loop``, ``speed``, ``start_unix_s``.
 
     Raises:
         SensorError: unknown kind, missing option, or the source cannot start.
@@ -225,4 +225,5 @@ def _mono_source(options: dict[str, Any]) -> SkeletonSource:
         pose=_pose(options),
         loop=bool(options.get("loop", False)),
         speed=float(options.get("speed", 1.0)),
+        start_unix_s=options.get("start_unix_s"),
     )

@@ -88,7 +88,7 @@ def _add_source_options(parser: argparse.ArgumentParser) -> None:
         "--start-at",
         type=float,
         default=None,
-        help="ntu: Unix time of frame 0 (same value for the 3 cameras)",
+        help="ntu, mono --video: Unix time of frame 0 (the same value for the cameras of a take)",
     )
     parser.add_argument("--device-index", type=int, default=0, help="azure_kinect/femto: device")
     parser.add_argument(

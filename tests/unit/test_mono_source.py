@@ -12,7 +12,7 @@ import numpy.typing as npt
 import pytest
 
 from skelfuse.agent.sources.base import SensorError
-from skelfuse.agent.sources.mono import MonoSource
+from skelfuse.agent.sources.mono import MAX_LAG_S, MonoSource
 from skelfuse.agent.sources.mono_camera import Landmarks, check_mono
 from skelfuse.agent.sources.registry import SOURCE_KINDS, check_sources, make_source
 from skelfuse.cli import agent as agent_cli
@@ -181,3 +181,48 @@ def test_registry_doctor_and_command_line_know_mono() -> None:
     )  # fmt: skip
     with pytest.raises(UsageError, match=r"missing\.mp4|mediapipe|cv2|OpenCV"):
         agent_cli.source_from_args(args)
+
+
+class SlowDetector(StoredLandmarks):
+    """Takes ``cost_s`` of the injected clock per image, as MediaPipe takes CPU time."""
+
+    def __init__(self, clock: Clock, cost_s: float) -> None:
+        super().__init__()
+        self.clock, self.cost_s = clock, cost_s
+
+    def detect(self, bgr: npt.NDArray[np.uint8]) -> Landmarks | None:
+        self.clock.sleep(self.cost_s)
+        return super().detect(bgr)
+
+
+def test_a_detector_slower_than_the_video_moves_the_timeline_not_past_staleness(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    clock = Clock()
+    source = _source(BlankFrames(60), SlowDetector(clock, 0.030), clock)  # 30 ms vs 16.7 ms
+    stamps, lags = [], []
+    for _ in range(60):
+        capture = source.next_capture(timeout_s=0.1)
+        assert capture is not None
+        stamps.append(capture.t_capture_ns)
+        lags.append((clock.now - capture.t_capture_ns) / 1e9)  # when it would be sent
+    assert source.reanchors >= 2 and "behind the video" in caplog.text
+    assert max(lags) < MAX_LAG_S + 0.031  # the server's limit is 0.5 s
+    assert (np.diff(stamps) > 0).all()
+    # Fast enough (speed 0.5: 33 ms per frame): the timeline is the video's, no moves.
+    clock = Clock()
+    start = clock.now
+    source = _source(BlankFrames(20), SlowDetector(clock, 0.030), clock, speed=0.5)
+    captures = _drain(source)
+    assert source.reanchors == 0
+    stamps_ns = np.array([c.t_capture_ns for c in captures]) - start
+    np.testing.assert_array_equal(stamps_ns, np.round(np.arange(20) * 2e9 / 60.0))
+
+
+def test_start_at_anchors_a_video_to_a_shared_instant() -> None:
+    clock = Clock()
+    start_s = clock.now / 1e9 + 2.0
+    source = _source(BlankFrames(3), StoredLandmarks(), clock, start_unix_s=start_s)
+    captures = _drain(source)
+    assert captures[0].t_capture_ns == round(start_s * 1e9)
+    assert clock.now >= captures[0].t_capture_ns  # it waited for the instant
