@@ -10,9 +10,9 @@ camera; ``scripts/mono`` made it) and the clip's Qualisys calibration
    real server on loopback, projected into the camera left out: median pixel error and PCK at
    0.2 torso, against every single camera judged the same way.
 
-cam03 lags the others: its lag (frames) comes from ``--lag cam03=L`` or, by default, from the
-four views' agreement (the shift that minimises the triangulation's reprojection error, searched
-in 0.25-frame steps over 0–5 frames).
+cam03 lags the others: every camera's lag (frames) comes from the product's motion sync
+(``calibration/motion_sync.py``, epipolar distances; ``--lag cam03=L`` overrides one), checked
+against the shift that minimises the four-view triangulation's reprojection error.
 
 Run: ``python bench/mono_accuracy.py`` (``--single`` or ``--loo`` for one part, ``--json FILE``
 raw results, ``--hold-s`` the still lead-in before the clip plays).
@@ -32,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np
 
-from bench.mono_accuracy_geometry import Camera, load_qca
+from bench.mono_accuracy_geometry import load_cameras
 from bench.mono_accuracy_loo import leave_one_out
 from bench.mono_accuracy_single import (
     CALIBRATION,
@@ -41,10 +41,12 @@ from bench.mono_accuracy_single import (
     Clip,
     lag_by_reprojection,
     load_clip,
+    motion_sync_lags,
     reference,
     reprojection_px,
     single_vs_reference,
 )
+from skelfuse.calibration.camera import Camera
 
 ROOT_TARGET_MM = 150.0
 PROCRUSTES_TARGET_MM = 80.0
@@ -80,13 +82,14 @@ def main(argv: list[str] | None = None) -> int:
     if not args.calibration.is_file():
         print(f"calibration not found: {args.calibration}", file=sys.stderr)
         return 2
-    clip, cameras = load_clip(args.fixture), load_qca(args.calibration)
-    lags = parse_lags(args.lag)
-    if "cam03" not in lags:
-        lags["cam03"] = lag_by_reprojection(clip, cameras, "cam03", np.arange(0.0, 5.01, 0.25))
-        print(f"cam03 lag from the four views' agreement: {lags['cam03']:.2f} frames")
-    else:
-        print(f"cam03 lag given: {lags['cam03']:.2f} frames")
+    clip, cameras = load_clip(args.fixture), load_cameras(args.calibration)
+    found = motion_sync_lags(clip, cameras)
+    check = lag_by_reprojection(clip, cameras, "cam03", np.arange(0.0, 5.01, 0.25))
+    print("lags behind cam01 from the motion sync (frames): "
+          + ", ".join(f"{c} {v:+.2f}" for c, v in found.items())
+          + f"; cam03 by the triangulation's reprojection error: {check:+.2f}")  # fmt: skip
+    lags = {**found, **parse_lags(args.lag)}
+    print("lags used: " + ", ".join(f"{c} {v:+.2f}" for c, v in lags.items()))
     print(f"load average {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
     out: dict[str, object] = {"lags": lags}
     if not args.loo:

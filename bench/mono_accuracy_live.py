@@ -1,11 +1,12 @@
 """Cameras of the real clip streamed live to a real server, and the fused joints it publishes.
 
 Each camera is one agent (the real :func:`skelfuse.agent.runner.run_agent`, ZeroMQ on loopback)
-whose source replays the landmark fixture: per frame, the camera's world landmarks placed in its
-camera frame by PnP (:func:`bench.mono_accuracy_single.in_camera`), mapped to the 25-joint model
-and sent in the sensor frame, at 60 fps in real time. This replays precomputed landmarks: the
-``mono`` source's model stage is measured elsewhere; everything after it (wire, ingest, clock
-offsets, interpolation, association, mirror labels, confidence, fusion, filter) is the product's.
+whose source replays the landmark fixture: per frame, the ``mono`` source's own steps
+(:func:`skelfuse.protocol.mediapipe_pose.body_from_landmarks`: PnP placement, visibility →
+states, the 25-joint model in the sensor frame) on the stored landmarks, sent at 60 fps in real
+time. This replays precomputed landmarks: the ``mono`` source's model stage is measured
+elsewhere; everything after it (wire, ingest, clock offsets, interpolation, association, mirror
+labels, confidence, fusion, filter) is the product's.
 
 The server is ``python -m skelfuse server`` (``bench/load_server.py``) with the clip's
 calibration stored for the streamed cameras. Every agent holds the clip's first frame for
@@ -25,12 +26,14 @@ from pathlib import Path
 import numpy as np
 
 from bench.load_server import free_port, http_json, start_server, wait_for
-from bench.mono_accuracy_geometry import CV_FROM_KINECT, Camera, FloatArray
-from bench.mono_accuracy_joints import to_kinect25
-from bench.mono_accuracy_single import FPS, Clip, in_camera
+from bench.mono_accuracy_geometry import FloatArray, pinhole, undistorted_px
+from bench.mono_accuracy_single import FPS, Clip
 from skelfuse.agent.runner import run_agent
 from skelfuse.agent.sources.base import Capture
+from skelfuse.calibration.camera import Camera
 from skelfuse.client.sync import SyncFeedClient
+from skelfuse.protocol.mediapipe_pose import body_from_landmarks
+from skelfuse.protocol.pnp import Placement
 from skelfuse.protocol.transform import Matrix4
 from skelfuse.protocol.wire import SENSOR_TYPES, Body
 
@@ -104,11 +107,24 @@ class LandmarkSource:
 
 
 def camera_bodies(clip: Clip, cam: Camera, name: str) -> list[tuple[FloatArray, np.ndarray]]:
-    """Per frame, the camera's body in the Kinect sensor frame: ((25, 3) m, (25,) states)."""
-    placed = in_camera(clip, cam, name) @ CV_FROM_KINECT
-    return [
-        to_kinect25(points, vis) for points, vis in zip(placed, clip.visibility[name], strict=True)
-    ]
+    """Per frame, the camera's body as the ``mono`` source sends it: ((25, 3) m in the sensor
+    frame, (25,) states); NaN joints where MediaPipe found nobody."""
+    intrinsics = pinhole(cam)
+    size = (cam.intrinsics.width, cam.intrinsics.height)
+    last: Placement | None = None
+    bodies: list[tuple[FloatArray, np.ndarray]] = []
+    for px, world, vis in zip(
+        clip.image_px[name], clip.world_m[name], clip.visibility[name], strict=True
+    ):
+        if not np.isfinite(world).all():
+            bodies.append((np.full((25, 3), np.nan), np.zeros(25, dtype=np.uint8)))
+            continue
+        body = body_from_landmarks(
+            undistorted_px(cam, px), world, vis, size, intrinsics, initial=last
+        )
+        last = body.placement
+        bodies.append((body.joints_m.astype(np.float64), body.states))
+    return bodies
 
 
 def run_live(
@@ -127,7 +143,7 @@ def run_live(
     """
     http_port, zmq_port = free_port(), free_port()
     log_dir = log_dir or Path(tempfile.mkdtemp(prefix="skelfuse-mono-"))
-    poses = {name: cameras[name].world_from_kinect() for name in streamed}
+    poses = {name: cameras[name].T_world_from_sensor for name in streamed}
     server, log_file = start_server(poses, http_port, zmq_port, log_dir / "server.log")
     stop = threading.Event()
     start: list[int] = []

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench.mono_accuracy_geometry import Camera, FloatArray, project
+from bench.mono_accuracy_geometry import FloatArray
 from bench.mono_accuracy_live import LiveRun, run_live
 from bench.mono_accuracy_metrics import (
     LIMB_JOINTS,
@@ -30,6 +30,7 @@ from bench.mono_accuracy_metrics import (
     torso_px,
 )
 from bench.mono_accuracy_single import CAMERAS, Clip, single_camera
+from skelfuse.calibration.camera import Camera
 
 PCK_FRACTION = 0.2
 
@@ -52,7 +53,7 @@ def judge(points_world: FloatArray, positions: FloatArray, clip: Clip, cam: Came
         ValueError: no frame with both the prediction and the camera's landmarks.
     """
     own = sample(clip.image_px[name][:, list(LIMB_LANDMARKS)], positions + lag)
-    predicted = project(points_world, cam)
+    predicted = cam.project(points_world)
     errors = pixel_errors(predicted, own)
     ok = np.isfinite(errors).all(axis=1)
     if not ok.any():

@@ -1,9 +1,11 @@
 """Single camera against the four-view reference (issue 14, "Tests and figures").
 
 The reference: MediaPipe's image landmarks of all four cameras triangulated (visibility-weighted
-DLT, :func:`bench.mono_accuracy_geometry.triangulate`), cam03 shifted by its lag first. A single
-camera: its world landmarks (metres, hip-centred, camera-like axes) placed in its camera frame by
-PnP against its own image landmarks, then moved into the room by its extrinsics. Compared on the
+DLT, :func:`skelfuse.calibration.triangulation.triangulate`), cam03 shifted by its lag first. A
+single camera: its world landmarks (metres, hip-centred, camera axes) placed in its camera frame
+by the ``mono`` source's PnP (:func:`skelfuse.protocol.mediapipe_pose.place_landmarks`, rotation
+and translation, each frame starting from the last), then moved into the room by its extrinsics.
+Compared on the
 twelve limb landmarks (:data:`bench.mono_accuracy_metrics.LIMB_LANDMARKS`): MPJPE absolute,
 root-aligned and Procrustes-aligned (targets: root-aligned ≤ 150 mm, Procrustes ≤ 80 mm).
 
@@ -19,7 +21,7 @@ from typing import Final
 
 import numpy as np
 
-from bench.mono_accuracy_geometry import Camera, FloatArray, pnp, project, triangulate
+from bench.mono_accuracy_geometry import FloatArray, opencv_to_world, pinhole, undistorted_px
 from bench.mono_accuracy_metrics import (
     LIMB_LANDMARKS,
     median,
@@ -28,6 +30,11 @@ from bench.mono_accuracy_metrics import (
     root_aligned,
     shifted,
 )
+from skelfuse.calibration.camera import Camera
+from skelfuse.calibration.motion_sync import lags_from_epipolar
+from skelfuse.calibration.triangulation import triangulate
+from skelfuse.protocol.mediapipe_pose import place_landmarks
+from skelfuse.protocol.pnp import Placement
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURE: Final = ROOT / "tests" / "data" / "mono_landmarks.npz"
@@ -78,12 +85,17 @@ def reference(
 ) -> FloatArray:
     """Triangulated landmarks (T, 33, 3), world metres, from the named cameras' views."""
     px = np.stack([clip.image_px[c] for c in names])  # (V, T, 33, 2)
-    vis = np.stack([clip.visibility[c] for c in names])
-    v, t, j, _ = px.shape
-    points = triangulate(
-        px.reshape(v, t * j, 2), vis.reshape(v, t * j), [cameras[c] for c in names]
-    )
-    return points.reshape(t, j, 3)
+    vis = np.nan_to_num(np.stack([clip.visibility[c] for c in names]))  # NaN: shifted off the clip
+    return triangulate([cameras[c] for c in names], px, vis).points_world
+
+
+def motion_sync_lags(clip: Clip, cameras: dict[str, Camera]) -> dict[str, float]:
+    """Each camera's lag behind cam01 (frames) from the product's motion sync
+    (:func:`skelfuse.calibration.motion_sync.lags_from_epipolar`), visibility as weights."""
+    px = np.stack([clip.image_px[c] for c in CAMERAS])
+    vis = np.nan_to_num(np.stack([clip.visibility[c] for c in CAMERAS]))
+    sync = lags_from_epipolar([cameras[c] for c in CAMERAS], px, vis, rate_hz=FPS)
+    return dict(sync.lag_frames)
 
 
 def reprojection_px(points: FloatArray, clip: Clip, cameras: dict[str, Camera]) -> float:
@@ -91,7 +103,7 @@ def reprojection_px(points: FloatArray, clip: Clip, cameras: dict[str, Camera]) 
     that camera's landmarks, over the limb landmarks."""
     limbs = list(LIMB_LANDMARKS)
     errors = [
-        np.linalg.norm(project(points[:, limbs], cam) - clip.image_px[c][:, limbs], axis=-1)
+        np.linalg.norm(cam.project(points[:, limbs]) - clip.image_px[c][:, limbs], axis=-1)
         for c, cam in cameras.items()
     ]
     return median(np.concatenate([e.ravel() for e in errors]))
@@ -101,8 +113,8 @@ def lag_by_reprojection(
     clip: Clip, cameras: dict[str, Camera], camera: str, candidates: FloatArray
 ) -> float:
     """The shift of ``camera`` (frames) that makes the four views agree best (lowest median
-    reprojection error of their triangulation): a cross-check of the motion sync, which
-    needs no calibration."""
+    reprojection error of their triangulation): a cross-check of the motion sync by another
+    criterion than its epipolar distance."""
     scores = [
         reprojection_px(
             reference(clip.shifted({camera: float(s)}), cameras),
@@ -115,20 +127,25 @@ def lag_by_reprojection(
 
 
 def in_camera(clip: Clip, cam: Camera, name: str) -> FloatArray:
-    """One camera's landmarks in its OpenCV camera frame (T, 33, 3) metres: per frame, PnP of
-    its world landmarks against its image landmarks (all 33)."""
+    """One camera's landmarks in its OpenCV camera frame (T, 33, 3) metres: per frame, the
+    ``mono`` source's PnP of its world landmarks against its (undistorted) image landmarks."""
     out = np.full(clip.world_m[name].shape, np.nan)
-    for i, (px, local) in enumerate(zip(clip.image_px[name], clip.world_m[name], strict=True)):
+    intrinsics = pinhole(cam)
+    last: Placement | None = None
+    for i, (px, local, vis) in enumerate(
+        zip(clip.image_px[name], clip.world_m[name], clip.visibility[name], strict=True)
+    ):
         if not np.isfinite(local).all():
             continue
-        R, t = pnp(px, local, cam)
-        out[i] = local @ R.T + t
+        out[i], last = place_landmarks(
+            undistorted_px(cam, px), local, vis, intrinsics, initial=last
+        )
     return out
 
 
 def single_camera(clip: Clip, cam: Camera, name: str) -> FloatArray:
     """One camera's landmarks in the room (T, 33, 3): :func:`in_camera`, then its extrinsics."""
-    return (in_camera(clip, cam, name) - cam.t) @ cam.R  # R^T (p - t), row vectors
+    return opencv_to_world(cam, in_camera(clip, cam, name))
 
 
 def single_vs_reference(
