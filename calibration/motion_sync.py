@@ -15,6 +15,7 @@ API::
                                      1 − speed correlation for lags_from_speed
 
     sync = lags_from_speed(tracks, *, rate_hz, max_lag_frames=8)    no calibration needed
+    shifted(track (T, ...), sync.lag_frames[name]) -> the track on the reference's timeline
 
 ``image_px``: (V, T, J, 2) pixels as detected, NaN where not seen, V cameras at the same
 nominal rate ``rate_hz``; ``weights`` (V, T, J) ≥ 0: a landmark of weight 0 (e.g. below a
@@ -110,11 +111,11 @@ def lags_from_epipolar(
     curves = np.full((len(cameras), len(grid)), np.nan)
     for _ in range(ROUNDS):
         for v in range(len(cameras)):
-            others = [(u, _shift(rays[u], lags[u])) for u in range(len(cameras)) if u != v]
+            others = [(u, shifted(rays[u], lags[u])) for u in range(len(cameras)) if u != v]
             for k, lag in enumerate(grid):
-                shifted = _shift(rays[v], lag)
+                moved = shifted(rays[v], lag)
                 costs = [
-                    _epipolar_cost(ray_u, shifted, essentials[(u, v)], focal[u], focal[v])
+                    _epipolar_cost(ray_u, moved, essentials[(u, v)], focal[u], focal[v])
                     for u, ray_u in others
                 ]
                 curves[v, k] = np.nanmean(costs) if np.isfinite(costs).any() else np.nan
@@ -166,7 +167,7 @@ def lags_from_speed(
     lags = np.zeros(len(names))
     for v in range(1, len(names)):
         for k, lag in enumerate(grid):
-            curves[v, k] = 1.0 - _correlation(speed[0], _shift(speed[v], lag))
+            curves[v, k] = 1.0 - _correlation(speed[0], shifted(speed[v], lag))
         if not np.isfinite(curves[v]).any():
             raise NotEnoughCorrespondences(
                 f"source {names[v]!r} has too few frames in common with {names[0]!r}"
@@ -214,16 +215,17 @@ def _essential(a: Camera, b: Camera) -> FloatArray:
     return essential
 
 
-def _shift(track: FloatArray, lag: float) -> FloatArray:
-    """``track`` resampled at frames ``t + lag`` (linear), NaN outside the recording."""
+def shifted(track: FloatArray, lag: float) -> FloatArray:
+    """``track`` (T, ...) resampled at frames ``t + lag`` (linear interpolation), NaN outside
+    the recording: a camera's frames put on the reference's timeline with its lag."""
     frames = track.shape[0]
     t = np.arange(frames) + lag
     i0 = np.clip(np.floor(t).astype(int), 0, frames - 2)
     f = (t - i0).reshape((-1,) + (1,) * (track.ndim - 1))
     out = track[i0] * (1 - f) + track[i0 + 1] * f
     out[(t < 0) | (t > frames - 1)] = np.nan
-    shifted: FloatArray = out
-    return shifted
+    resampled: FloatArray = out
+    return resampled
 
 
 def _epipolar_cost(

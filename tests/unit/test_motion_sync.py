@@ -9,7 +9,7 @@ import pytest
 from skelfuse.agent.sim.performer import ProceduralPerformer
 from skelfuse.calibration.camera_files import read_camera_file
 from skelfuse.calibration.errors import InvalidInput, NotEnoughCorrespondences
-from skelfuse.calibration.motion_sync import lags_from_epipolar, lags_from_speed
+from skelfuse.calibration.motion_sync import lags_from_epipolar, lags_from_speed, shifted
 from tests.unit.test_camera_triangulation import LANDMARKS, QCA, rig
 
 RATE_HZ = 60.0
@@ -118,3 +118,14 @@ def test_lags_need_the_motion_not_the_frame_index() -> None:
     image[2, -2:] = np.nan  # the rolled-over frames
     sync = lags_from_epipolar(cameras, image, rate_hz=RATE_HZ, max_lag_frames=5.0)
     assert abs(sync.lag_frames["cam03"]) < 1.0, sync.lag_frames
+
+
+def test_shifted_puts_a_lagging_track_on_the_reference_timeline() -> None:
+    frames = 120
+    reference = performer_joints(0.0, frames, start_s=5.0)
+    lagging = performer_joints(2.5, frames, start_s=5.0)
+    aligned = shifted(lagging, 2.5)
+    assert np.isnan(aligned[-2:]).all() and np.isfinite(aligned[:-3]).all()
+    error = np.linalg.norm(aligned[:-3] - reference[:-3], axis=-1)
+    assert np.max(error) < 0.01  # metres: linear interpolation between 60 Hz frames
+    assert np.max(np.linalg.norm(lagging[:-3] - reference[:-3], axis=-1)) > 0.03
