@@ -8,8 +8,9 @@ spends its time on:
 
 - the usual interpolation (every body in both frames, in the same order) of all sensors is one
   element-wise pass: ``(1 − α)·a + α·b`` with each sensor's own ``α`` per row, the same IEEE
-  operations as one sensor alone; a sensor whose frames differ (bodies came or went, or a
-  joint is missing) takes :func:`~skelfuse.fusion.sensors.body_arrays_at` as before;
+  operations as one sensor alone, and the same rule where a frame misses a joint; a sensor
+  whose bodies came, went or changed order takes
+  :func:`~skelfuse.fusion.sensors.body_arrays_at` as before;
 - the move to the world frame is one stacked product, ``(S, B·25, 3) @ (S, 3, 3)``: BLAS
   computes each output row from that row and the rotation alone, so the rows come out as
   ``apply`` gives them body by body (tests/unit/test_world_views.py checks the bits).
@@ -17,6 +18,7 @@ spends its time on:
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from collections.abc import Callable, Iterable
 from typing import NamedTuple
@@ -24,9 +26,10 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.sensors import BodyArrays, SensorState, TimedFrame, _lerp, body_arrays_at
+from skelfuse.fusion.points import finite_points
+from skelfuse.fusion.sensors import BodyArrays, SensorState, TimedFrame, body_arrays_at
 from skelfuse.fusion.views import View
-from skelfuse.protocol.skeleton import JOINT_COUNT
+from skelfuse.protocol.skeleton import JOINT_COUNT, TrackingState
 from skelfuse.protocol.transform import Matrix4
 
 FloatArray = npt.NDArray[np.float64]
@@ -116,39 +119,42 @@ def _bodies_or_pending(
 
 
 def _interpolate_pending(items: list[BodyArrays | _Pending]) -> list[BodyArrays]:
-    """Every pending interpolation done, all sensors' rows in one pass (:func:`_lerp`'s
-    arithmetic element by element); a sensor with a missing joint goes through :func:`_lerp`."""
+    """Every pending interpolation done, all sensors' rows in one pass: :func:`_lerp`'s rule
+    and arithmetic element by element, with each row's own ``α`` (its sensor's)."""
     pending = [item for item in items if isinstance(item, _Pending)]
     if not pending:
         return [item for item in items if isinstance(item, BodyArrays)]
     counts = [len(item.nearer.tracking_ids) for item in pending]
     a = np.concatenate([item.first.joints_m for item in pending], dtype=np.float64)
     b = np.concatenate([item.second.joints_m for item in pending], dtype=np.float64)
+    first_states = np.concatenate([item.first.states for item in pending])
+    second_states = np.concatenate([item.second.states for item in pending])
     alpha = np.repeat(np.array([item.alpha for item in pending]), counts)[:, None, None]
     joints = (1.0 - alpha) * a + alpha * b
-    states = np.minimum(
-        np.concatenate([item.first.states for item in pending]),
-        np.concatenate([item.second.states for item in pending]),
-    )
-    # A row's sum is finite only if all its positions are (NaN and inf propagate), as in _lerp.
-    finite = np.isfinite(joints.reshape(len(joints), -1).sum(axis=1)).tolist()
+    states = np.minimum(first_states, second_states)
+    # Finite only if every position of both frames is (NaN and inf propagate): the usual case
+    # needs nothing more. Otherwise _lerp's rule for the rows that need it, which leaves every
+    # row whose positions are all known as it is: where only one frame has a joint, the
+    # nearer frame decides, position and state.
+    if not math.isfinite(joints.sum()):
+        missing = ~(finite_points(a) & finite_points(b))  # (N, 25)
+        later = alpha[:, :, 0] >= 0.5  # (N, 1): the later frame is the nearer
+        joints = np.where(missing[..., None], np.where(later[..., None], b, a), joints)
+        states = np.where(missing, np.where(later, second_states, first_states), states)
+        states[~finite_points(joints)] = TrackingState.NOT_TRACKED
     joints32 = joints.astype(np.float32)
     done: list[BodyArrays] = []
     lo = 0
     for item in items:
-        if not isinstance(item, _Pending):
-            done.append(item)
-            continue
-        hi = lo + len(item.nearer.tracking_ids)
-        if all(finite[lo:hi]):
-            rows, row_states = joints32[lo:hi], states[lo:hi]
-        else:  # a joint missing in a frame: the nearer frame decides, as _lerp does
-            first, second = item.first, item.second
-            rows, row_states = _lerp(
-                first.joints_m, first.states, second.joints_m, second.states, item.alpha
+        if isinstance(item, _Pending):
+            hi = lo + len(item.nearer.tracking_ids)
+            nearer = item.nearer
+            done.append(
+                BodyArrays(nearer.tracking_ids, joints32[lo:hi], states[lo:hi], nearer.hands)
             )
-        done.append(BodyArrays(item.nearer.tracking_ids, rows, row_states, item.nearer.hands))
-        lo = hi
+            lo = hi
+        else:
+            done.append(item)
     return done
 
 

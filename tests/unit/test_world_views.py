@@ -51,7 +51,8 @@ def frame(rng: np.random.Generator, t_s: float, ids: list[int], lost: float) -> 
         states = rng.integers(0, 3, JOINT_COUNT).astype(np.uint8)
         missing = rng.random(JOINT_COUNT) < lost
         joints[missing] = np.nan
-        states[missing] = TrackingState.NOT_TRACKED
+        if rng.random() < 0.5:  # else a sensor's NaN with a state: fusion says NOT_TRACKED
+            states[missing] = TrackingState.NOT_TRACKED
         bodies.append(Body(tracking_id, joints, states))
     return TimedFrame(t_s, Frame(1, int(t_s * 1e9), tuple(bodies)))
 
