@@ -314,7 +314,11 @@ def facing_direction(joints: npt.ArrayLike) -> FloatArray:
 
 
 def facing_directions(skeletons: npt.ArrayLike) -> FloatArray:
-    """:func:`facing_direction` of each of P skeletons (P, 25, 3) at once: (P, 3)."""
+    """:func:`facing_direction` of each of P skeletons (P, 25, 3) at once: (P, 3).
+
+    Runs the compiled kernel when :func:`skelfuse.fusion.kernels.enabled` (the same bits)."""
+    if kernels.enabled():
+        return kernels.facing_directions(np.asarray(skeletons, dtype=np.float64))
     _, _, forward = body_frame(skeletons)
     return facings_of_forward(forward)
 

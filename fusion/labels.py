@@ -21,6 +21,7 @@ from itertools import pairwise
 import numpy as np
 import numpy.typing as npt
 
+from skelfuse.fusion import kernels
 from skelfuse.fusion.anatomy import facing_direction, facing_directions, facings_of_forward
 from skelfuse.fusion.mirror import PERMUTATION, choose_labellings_and_forward
 from skelfuse.fusion.mirror_labellings import slots
@@ -144,12 +145,19 @@ def label_views(
         assert doubts is not None
         # Each view's facing as labelled: the forward axis of its chosen labelling, already
         # computed for the range of motion (the same bits as from the swapped joints).
-        own = None
-        if forward is not None:
-            own = facings_of_forward(forward[np.arange(len(joints)), mirrored.view(np.uint8)])
-        facings = unbiased_facings(
-            joints, sensor_positions, mirrored, counts, s.view_lean_fraction, own
-        )
+        if forward is not None and kernels.enabled() and 0.0 <= s.view_lean_fraction < 1.0:
+            facings = kernels.unbiased_facings(
+                joints[:, 0], sensor_positions, forward, mirrored, places.starts,
+                s.view_lean_fraction,
+            )  # fmt: skip
+        else:
+            own = None
+            if forward is not None:
+                chosen = forward[np.arange(len(joints)), mirrored.view(np.uint8)]
+                own = facings_of_forward(chosen)
+            facings = unbiased_facings(
+                joints, sensor_positions, mirrored, counts, s.view_lean_fraction, own
+            )
         for doubt, facing in zip(doubts, facings, strict=True):
             doubt.facing = facing
     rom = None

@@ -39,14 +39,16 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
+from skelfuse.fusion import kernels
 from skelfuse.fusion.anatomy import facing_direction, rom_factors_and_forward
-from skelfuse.fusion.mirror_distances import lateral_terms
+from skelfuse.fusion.mirror_distances import LATERAL_JOINTS, LATERAL_SWAP, lateral_terms
 from skelfuse.fusion.mirror_labellings import (
     COMBOS,
     MAX_VIEWS,
     PAIR_TAKE,
     ROWS,
     SCREEN_FROM_VIEWS,
+    SCREEN_MARGIN_M,
     SWAPS,
     VIEW_TAKE,
     layout,
@@ -219,6 +221,24 @@ def choose_labellings_and_forward(
         if anatomy_weight_m > 0:
             anatomy = (1.0 - flat_factors).sum(axis=1).reshape(total, 2)
 
+    prev = None if previous is None else np.asarray(previous)
+    if kernels.enabled() and len(counts) and geometric.all():  # every facing known: compiled
+        assert reference_facings is not None  # (geometric: every person has a facing)
+        mirrored = kernels.mirror_scores(
+            views,
+            sensor_positions,
+            lay.starts,
+            reference_facings,
+            np.stack([ref for ref in references if ref is not None]),
+            factors if anatomy is not None else None,
+            prev,
+            (track_weight, geometry_weight_m, anatomy_weight_m, SWAP_PRIOR_M, hysteresis_m),
+            (lay.first, lay.second),
+            (LATERAL_JOINTS, LATERAL_SWAP),
+            (SCREEN_FROM_VIEWS, SCREEN_MARGIN_M),
+        )
+        return mirrored, factors, forward
+
     # Agreement between views (K, 2, 2), one row per pair i < j, and with the track (N, 2).
     stacked_refs = None
     if any(has_ref):
@@ -240,7 +260,6 @@ def choose_labellings_and_forward(
         to_sensor = (sensor_positions - body[person_of]) * _HORIZONTAL
         to_sensor /= np.sqrt((to_sensor * to_sensor).sum(-1, keepdims=True))
 
-    prev = None if previous is None else np.asarray(previous)
     known = None if prev is None else prev >= 0
 
     # The geometry term per view, (N, 2) for labels 0, 1: facing · direction to the sensor, in

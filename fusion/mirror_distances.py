@@ -19,7 +19,7 @@ IntArray = npt.NDArray[np.intp]
 
 LATERAL_JOINTS: Final = np.array([j for j in range(JOINT_COUNT) if MIRROR_PERMUTATION[j] != j])
 """The 20 joints that have a left or right side."""
-_LATERAL_SWAP: Final = np.array(
+LATERAL_SWAP: Final = np.array(
     [LATERAL_JOINTS.tolist().index(MIRROR_PERMUTATION[j]) for j in LATERAL_JOINTS]
 )
 """Where each lateral joint's other side is in :data:`LATERAL_JOINTS`."""
@@ -57,7 +57,7 @@ def lateral_terms(
 ) -> tuple[FloatArray, FloatArray]:
     """Mean lateral distances of each pair of views and of each view to its reference.
 
-    The swapped labelling only reorders a view's lateral joints (:data:`_LATERAL_SWAP`, an
+    The swapped labelling only reorders a view's lateral joints (:data:`LATERAL_SWAP`, an
     involution), so of a pair's four label combinations two are computed and the other two are
     the same per-joint distances reordered: (1, 1) is (0, 0) and (1, 0) is (0, 1), each read
     through the swap.
@@ -73,13 +73,13 @@ def lateral_terms(
     # (3, N, 2, 20): component-major, each view's lateral joints as reported and swapped.
     lateral = np.empty((3, len(views), 2, len(LATERAL_JOINTS)))
     lateral[:, :, 0] = views[:, LATERAL_JOINTS].transpose(2, 0, 1)
-    lateral[:, :, 1] = lateral[:, :, 0][:, :, _LATERAL_SWAP]
+    lateral[:, :, 1] = lateral[:, :, 0][:, :, LATERAL_SWAP]
     size = len(first)
     distances = np.empty((size * 4 + 2 * len(views), len(LATERAL_JOINTS)))
     pairs = distances[: size * 4].reshape(size, 2, 2, len(LATERAL_JOINTS))
     # The first view as reported against the second as reported and swapped: (0, 0), (0, 1).
     _joint_distances(lateral[:, first, :1], lateral[:, second], pairs[:, 0])
-    pairs[:, 1] = pairs[:, 0, ::-1][:, :, _LATERAL_SWAP]  # (1, 0), (1, 1) read through the swap
+    pairs[:, 1] = pairs[:, 0, ::-1][:, :, LATERAL_SWAP]  # (1, 0), (1, 1) read through the swap
     if references is None:
         return _mean_of_finite(pairs), np.zeros((len(views), 2))
     ref = references[:, LATERAL_JOINTS].transpose(2, 0, 1)[:, :, None]  # (3, N, 1, 20)

@@ -1,0 +1,144 @@
+"""Facings as loops, for a compiled kernel: each person's, with the sensors' yaw bias taken out.
+
+:func:`facing_loop` is :func:`skelfuse.fusion.anatomy.facing_directions` and
+:func:`unbiased_loop` is :func:`skelfuse.fusion.labels.unbiased_facings` (with the views' own
+facings from :func:`skelfuse.fusion.anatomy.facings_of_forward`) written as scalar code:
+:mod:`skelfuse.fusion.kernels` compiles it with numba. The same IEEE operations in the same
+order, so the same bits: dot products as (a₀b₀ + a₁b₁) + a₂b₂ (``np.vecdot`` on three
+components), ``%`` as numpy's floating remainder (the divisor's sign, as Python's), ``np.sign``
+0 at 0, sums over a person's views from 0 view after view, ``atan2``/``sin``/``cos`` from the C
+library as numpy's loops call them (the tests compare both paths on the machine they run on).
+
+Imported only by :mod:`skelfuse.fusion.kernels` when the kernels run; without numba
+:func:`~skelfuse.fusion.kernels_jit.jit` leaves the functions plain Python (slow, same results).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+
+from skelfuse.fusion.kernels_jit import jit
+from skelfuse.protocol.skeleton import JointId as J
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.intp]
+BoolArray = npt.NDArray[np.bool_]
+
+_PI = math.pi
+
+# Joint indices as plain ints (numba types globals of these as integer constants).
+_SB, _SS = int(J.SPINE_BASE), int(J.SPINE_SHOULDER)
+_HL, _HR, _SL, _SR = int(J.HIP_LEFT), int(J.HIP_RIGHT), int(J.SHOULDER_LEFT), int(J.SHOULDER_RIGHT)
+
+
+@jit
+def _wrap(angle: float) -> float:
+    """``labels._wrap``: (angle + π) mod 2π − π."""
+    return (angle + _PI) % (2 * _PI) - _PI
+
+
+@jit
+def _sign(x: float) -> float:
+    """``np.sign``: ±1, 0 at ±0, NaN stays NaN."""
+    if x > 0:
+        return 1.0
+    if x < 0:
+        return -1.0
+    if x == 0:
+        return 0.0
+    return x
+
+
+@jit
+def _unturn(phi: float, lean: float) -> float:
+    """``labels._unturn`` of one angle."""
+    knee = (1.0 - lean) * (_PI / 2)
+    if abs(phi) <= knee:
+        return phi / (1.0 - lean)
+    return phi + lean * (_PI / 2) * _sign(phi)
+
+
+@jit
+def unbiased_loop(
+    origins: FloatArray,
+    sensor_positions: FloatArray,
+    forward: FloatArray,
+    mirrored: BoolArray,
+    starts: IntArray,
+    lean: float,
+    out: FloatArray,
+) -> None:
+    """Fill ``out`` (P, 3) with each person's unbiased facing (NaN rows where unknown).
+
+    origins: (N, 3) each view's SpineBase; sensor_positions: (N, 3); forward: (N, 2, 3) each
+    view's forward axis as reported and swapped; mirrored: (N,) the labelling chosen;
+    starts: (P + 1,) each person's first view, then N; lean: in [0, 1).
+    """
+    for p in range(len(starts) - 1):
+        m0 = m1 = m2 = 0.0
+        for v in range(starts[p], starts[p + 1]):
+            flipped = mirrored[v]
+            axis = forward[v, 1 if flipped else 0]
+            h0, h1, h2 = axis[0] * 1.0, axis[1] * 0.0, axis[2] * 1.0
+            norm = math.sqrt(h0 * h0 + h1 * h1 + h2 * h2)
+            ok = math.isfinite(h0) and math.isfinite(h1) and math.isfinite(h2)
+            if ok and not norm < 1e-6:
+                own0, own2 = h0 / norm, h2 / norm
+            else:
+                own0 = own2 = math.nan
+            sensor_angle = math.atan2(
+                sensor_positions[v, 0] - origins[v, 0], sensor_positions[v, 2] - origins[v, 2]
+            )
+            phi = _wrap(sensor_angle - math.atan2(own0, own2))
+            if flipped:  # turned at its apparent yaw (facing reversed): invert there, turn back
+                phi = _wrap(phi - _PI)
+            theta = _unturn(phi, lean)
+            if flipped:
+                theta = _wrap(theta + _PI)
+            angle = sensor_angle - theta
+            if math.isfinite(angle):
+                m0 += math.sin(angle)
+                m1 += 0.0
+                m2 += math.cos(angle)
+        norm = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+        if norm > 1e-6:
+            out[p, 0], out[p, 1], out[p, 2] = m0 / norm, m1 / norm, m2 / norm
+        else:
+            out[p, 0] = out[p, 1] = out[p, 2] = math.nan
+
+
+@jit
+def facing_loop(skeletons: FloatArray, out: FloatArray) -> None:
+    """Fill ``out`` (P, 3) with ``anatomy.facing_directions`` of ``skeletons`` (P, 25, 3): the
+    body frame's forward axis as in ``anatomy._body_frame`` (``kernels_rom.rom_loop`` computes
+    it the same way), made horizontal and unit as ``anatomy.facings_of_forward``."""
+    for m in range(skeletons.shape[0]):
+        v = skeletons[m]
+        u0, u1, u2 = v[_SS, 0] - v[_SB, 0], v[_SS, 1] - v[_SB, 1], v[_SS, 2] - v[_SB, 2]
+        norm = math.sqrt((u0 * u0 + u1 * u1) + u2 * u2)
+        u0, u1, u2 = u0 / norm, u1 / norm, u2 / norm
+        h0, h1, h2 = v[_HL, 0] - v[_HR, 0], v[_HL, 1] - v[_HR, 1], v[_HL, 2] - v[_HR, 2]
+        s0, s1, s2 = v[_SL, 0] - v[_SR, 0], v[_SL, 1] - v[_SR, 1], v[_SL, 2] - v[_SR, 2]
+        hips = math.isfinite(h0) and math.isfinite(h1) and math.isfinite(h2)
+        shoulders = math.isfinite(s0) and math.isfinite(s1) and math.isfinite(s2)
+        if hips or shoulders:
+            l0 = (h0 if math.isfinite(h0) else 0.0) + (s0 if math.isfinite(s0) else 0.0)
+            l1 = (h1 if math.isfinite(h1) else 0.0) + (s1 if math.isfinite(s1) else 0.0)
+            l2 = (h2 if math.isfinite(h2) else 0.0) + (s2 if math.isfinite(s2) else 0.0)
+        else:
+            l0 = l1 = l2 = math.nan
+        d = (l0 * u0 + l1 * u1) + l2 * u2
+        l0, l1, l2 = l0 - d * u0, l1 - d * u1, l2 - d * u2
+        norm = math.sqrt((l0 * l0 + l1 * l1) + l2 * l2)
+        l0, l1, l2 = l0 / norm, l1 / norm, l2 / norm
+        f0, f1, f2 = l1 * u2 - l2 * u1, l2 * u0 - l0 * u2, l0 * u1 - l1 * u0
+        h0, h1, h2 = f0 * 1.0, f1 * 0.0, f2 * 1.0
+        norm = math.sqrt((h0 * h0 + h1 * h1) + h2 * h2)
+        ok = math.isfinite(h0) and math.isfinite(h1) and math.isfinite(h2)
+        if ok and not norm < 1e-6:
+            out[m, 0], out[m, 1], out[m, 2] = h0 / norm, h1 / norm, h2 / norm
+        else:
+            out[m, 0] = out[m, 1] = out[m, 2] = math.nan

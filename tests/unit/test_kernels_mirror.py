@@ -1,0 +1,179 @@
+"""The mirror step's compiled kernels give the numpy path's bits and choices.
+
+skelfuse.fusion.kernels_mirror (the agreement terms and the scoring of every labelling) and
+skelfuse.fusion.kernels_facing (facings, unbiased facings) against the numpy code they replace,
+on simulated views with noise, unknown joints and random points, persons of 1 … 10 views (from
+6 views on the labellings are screened), and exact ties (copies of one view), where the first
+minimum in numpy's summation order decides.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, replace
+
+import numpy as np
+import pytest
+
+from skelfuse.fusion import anatomy, kernels, labels, mirror
+from skelfuse.fusion.kernels_jit import numba_module
+from skelfuse.fusion.mirror_distances import LATERAL_JOINTS, LATERAL_SWAP, lateral_terms
+from skelfuse.fusion.mirror_labellings import layout
+from tests.unit.test_kernels import _same_bits, _views
+
+FloatArray = np.ndarray
+COUNTS = (1, 2, 3, 4, 5, 6, 7, 8, 10)
+
+
+@pytest.fixture
+def numba_kernels() -> Iterator[None]:
+    """The kernels on; skips (fails under CI, where the dev extra installs numba) without numba."""
+    if numba_module() is None:
+        import os
+
+        if os.environ.get("CI"):
+            pytest.fail("CI installs the dev extra, which has numba: the kernels must be tested")
+        pytest.skip("numba is not installed (pip install -e .[fast])")
+    with kernels.forced("numba"):
+        yield
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One frame's inputs to mirror.choose_labellings_and_forward."""
+
+    views: FloatArray
+    sensor_positions: FloatArray
+    counts: tuple[int, ...]
+    references: list[FloatArray]
+    reference_facings: FloatArray
+    previous: FloatArray | None
+
+
+def _frame(seed: int, counts: tuple[int, ...] = COUNTS) -> Frame:
+    """One frame's inputs to choose_labellings: persons of ``counts`` views each, some views
+    copies of another (exact ties), sensors around, references with a known facing."""
+    rng = np.random.default_rng(seed)
+    pool = _views(seed)
+    total = sum(counts)
+    views = pool[rng.integers(0, len(pool), total)].copy()
+    views[rng.integers(0, total, 6)] = views[0]  # copies: ties between labellings
+    views[3] = views[3][mirror.PERMUTATION]  # a view and its mirror image
+    views[-1] = np.nan  # a view that sees nothing
+    views[-2, 4:] = np.nan  # and one that sees the spine only
+    poses = pool[:36]  # the simulator's poses (with noise): a facing each
+    references = [poses[rng.integers(0, len(poses))] + rng.normal(0, 0.05, (25, 3)) for _ in counts]
+    facings = anatomy.facing_directions(np.stack(references))
+    assert np.isfinite(facings).all()
+    angles = rng.uniform(0, 2 * np.pi, total)
+    sensors = np.stack([3 * np.sin(angles), np.full(total, 1.0), 3 * np.cos(angles)], axis=1)
+    sensors[5] = views[5, 0]  # a sensor where the body stands: direction 0 / 0
+    return Frame(views, sensors, counts, references, facings, rng.integers(-1, 2, total))
+
+
+def _choose(
+    frame: Frame, **weights: float
+) -> tuple[np.ndarray, FloatArray | None, FloatArray | None]:
+    settings = {
+        "geometry_weight_m": 0.15,
+        "hysteresis_m": 0.05,
+        "track_weight": 1.0,
+        "anatomy_weight_m": 0.1,
+        "rom_scale_deg": 15.0,
+    }
+    settings.update(weights)
+    return mirror.choose_labellings_and_forward(
+        frame.views,
+        frame.sensor_positions,
+        frame.counts,
+        frame.references,
+        frame.reference_facings,
+        frame.previous,
+        need_rom=bool(settings.pop("need_rom", True)),
+        **settings,
+    )
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_lateral_kernel_gives_the_numpy_bits(numba_kernels: None, seed: int) -> None:
+    from skelfuse.fusion import kernels_mirror
+
+    frame = _frame(seed)
+    views = frame.views
+    lay = layout(COUNTS, tuple((True, True) for _ in COUNTS))
+    references = np.stack(frame.references)[lay.person_of]
+    references[:4, 7] = np.nan  # joints the reference lacks
+    pair, to_ref = np.empty((len(lay.first), 2, 2)), np.empty((len(views), 2))
+    kernels_mirror.lateral_loop(
+        views, LATERAL_JOINTS, LATERAL_SWAP, lay.first, lay.second, references,
+        np.ones(len(views), dtype=bool), pair, to_ref,
+    )  # fmt: skip
+    expected_pair, expected_to_ref = lateral_terms(views, lay.first, lay.second, references)
+    assert _same_bits(pair, expected_pair) and _same_bits(to_ref, expected_to_ref)
+    assert np.isnan(views).any() and (pair == 0).any()  # unknown joints, rows with none known
+
+
+@pytest.mark.parametrize("seed", range(8))
+@pytest.mark.parametrize(
+    "weights",
+    [{}, {"anatomy_weight_m": 0.0, "need_rom": False}, {"hysteresis_m": 0.0, "track_weight": 0.5}],
+)
+def test_scoring_kernel_chooses_as_numpy(
+    numba_kernels: None, seed: int, weights: dict[str, float]
+) -> None:
+    frame = _frame(seed)
+    mirrored, factors, forward = _choose(frame, **weights)
+    with kernels.forced("numpy"):
+        expected = _choose(frame, **weights)
+    assert mirrored.tolist() == expected[0].tolist()
+    for got, want in ((factors, expected[1]), (forward, expected[2])):
+        assert got is want is None or (got is not None and want is not None)
+        assert got is None or want is None or _same_bits(got, want)
+    frame = replace(frame, previous=None)
+    with kernels.forced("numpy"):
+        expected = _choose(frame, **weights)
+    assert _choose(frame, **weights)[0].tolist() == expected[0].tolist()
+
+
+def test_scoring_kernel_takes_the_first_of_tied_labellings(numba_kernels: None) -> None:
+    """A view and its mirror image, then three of each: swapping either side agrees as well, at
+    the same prior. With the other terms 0 those labellings tie exactly and numpy's first
+    minimum wins (the lower labelling index: the first views swapped), also after the screen."""
+    view = _views(3)[2]
+    image = view[mirror.PERMUTATION]
+    views = np.stack([view, image, view, view, view, image, image, image])
+    frame = replace(_frame(3, (2, 6)), views=views, previous=None)
+    zero = {"geometry_weight_m": 0.0, "anatomy_weight_m": 0.0, "track_weight": 0.0}
+    with kernels.forced("numpy"):
+        expected = _choose(frame, **zero)[0]
+    assert _choose(frame, **zero)[0].tolist() == expected.tolist()
+    assert expected.tolist() == [True, False, True, True, True, False, False, False]
+
+
+@pytest.mark.parametrize("seed", range(5))
+@pytest.mark.parametrize("lean", [0.0, 0.5, 0.9])
+def test_unbiased_facing_kernel_gives_the_numpy_bits(
+    numba_kernels: None, seed: int, lean: float
+) -> None:
+    frame = _frame(seed)
+    views, sensors = frame.views, frame.sensor_positions
+    mirrored, _, forward = _choose(frame)
+    assert forward is not None
+    mirrored[::3] = ~mirrored[::3]  # both labellings, whatever was chosen
+    starts = layout(COUNTS, tuple((True, True) for _ in COUNTS)).starts
+    got = kernels.unbiased_facings(views[:, 0], sensors, forward, mirrored, starts, lean)
+    chosen = forward[np.arange(len(views)), mirrored.view(np.uint8)]
+    own = anatomy.facings_of_forward(chosen)
+    expected = labels.unbiased_facings(views, sensors, mirrored, COUNTS, lean, own)
+    assert _same_bits(got, expected)
+    assert np.isnan(own).any() and mirrored.any() and not mirrored.all()
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_facing_kernel_gives_the_numpy_bits(numba_kernels: None, seed: int) -> None:
+    views = _views(seed)
+    facings = anatomy.facing_directions(views)
+    with kernels.forced("numpy"):
+        expected = anatomy.facing_directions(views)
+    assert _same_bits(facings, expected)
+    assert np.isnan(facings).any() and np.isfinite(facings).any()
