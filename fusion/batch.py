@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from skelfuse.fusion.ray_weighting import depth_noise_ratios, ray_weighted_mean
 from skelfuse.fusion.views import View
 from skelfuse.fusion.weighted import weighted_mean
 
@@ -25,6 +26,8 @@ class ViewBatch:
 
     joints: (N, 25, 3) float64 metres, world; states: (N, 25) uint8; sensors: (N, 3) metres.
     Per-person sums use (P, widest, ...) blocks padded after the real views (:meth:`pad`).
+    depth_ratios: (N,) each view's noise along its sensor's ray over across it, None when all
+    are 1 (fusion/ray_weighting.py: only ``rgb`` views have more).
     """
 
     views: list[View]
@@ -35,6 +38,7 @@ class ViewBatch:
     person_of: npt.NDArray[np.intp]
     slot_of: npt.NDArray[np.intp]
     starts: npt.NDArray[np.intp]
+    depth_ratios: FloatArray | None = None
 
     @classmethod
     def of(cls, clusters: list[list[View]]) -> ViewBatch:
@@ -55,6 +59,7 @@ class ViewBatch:
             person_of,
             np.arange(len(views)) - starts[person_of],
             starts,
+            depth_noise_ratios([v.sensor_type for v in views]),
         )
 
     @property
@@ -76,8 +81,14 @@ class ViewBatch:
         return padded
 
     def fuse(self, weights: FloatArray) -> FloatArray:
-        """Step 6 on the batch: (P, 25, 3) each person's weighted mean."""
-        return weighted_mean(self.pad(self.joints, np.nan), self.pad(weights, 0.0))
+        """Step 6 on the batch: (P, 25, 3) each person's weighted mean (with each view's noise
+        stretched along its sensor's ray for persons seen by a camera that guesses depth)."""
+        joints, padded = self.pad(self.joints, np.nan), self.pad(weights, 0.0)
+        fused = weighted_mean(joints, padded)
+        if self.depth_ratios is None:
+            return fused
+        sensors, ratios = self.pad(self.sensors, np.nan), self.pad(self.depth_ratios, 1.0)
+        return ray_weighted_mean(joints, padded, sensors, ratios, fused)
 
     def body_positions(self, fused: FloatArray) -> FloatArray:
         """(P, 3) where each person stands: fused SpineBase, else the mean of the views'."""
