@@ -29,7 +29,11 @@ MAX_PAIRS_PER_INSTANT: Final = 9
 
 
 def solve_with_body_pairing(
-    ref_samples: Sequence[tuple[Body, ...]], other_samples: Sequence[tuple[Body, ...]]
+    ref_samples: Sequence[tuple[Body, ...]],
+    other_samples: Sequence[tuple[Body, ...]],
+    *,
+    ransac_threshold_m: float = 0.10,
+    min_scale_m: float = 0.015,
 ) -> tuple[SkeletonFit, str | None]:
     """Relative pose of two sensors from their bodies, not knowing which body is which person.
 
@@ -42,6 +46,8 @@ def solve_with_body_pairing(
         ref_samples: per instant, the reference sensor's bodies (joints (25, 3), metres, the
             reference's sensor frame); ``()`` where it saw nobody.
         other_samples: the other sensor's bodies at the same instants (its own sensor frame).
+        ransac_threshold_m, min_scale_m: as :func:`solve_from_skeletons`; with an ``rgb``
+            sensor in the pair, ``skeleton_pose.RGB_RANSAC_THRESHOLD_M`` and ``RGB_MIN_SCALE_M``.
 
     Returns:
         The fit (``T_ref_from_other``, (4, 4), metres) and a note for the user when some
@@ -70,7 +76,7 @@ def solve_with_body_pairing(
     errors: list[str] = []
     for key, pairs in candidates.items():
         try:
-            fits[key] = _fit_pairs(pairs)
+            fits[key] = _fit_pairs(pairs, ransac_threshold_m, min_scale_m)
         except CalibrationError as exc:
             errors.append(str(exc))
     if not fits:
@@ -87,7 +93,7 @@ def solve_with_body_pairing(
     if len(agreeing) == 1:
         return best, note
     pooled = [pair for k in agreeing for pair in candidates[k]]
-    return _fit_pairs(pooled), note
+    return _fit_pairs(pooled, ransac_threshold_m, min_scale_m), note
 
 
 def _agrees(fit: SkeletonFit, best: SkeletonFit) -> bool:
@@ -95,11 +101,19 @@ def _agrees(fit: SkeletonFit, best: SkeletonFit) -> bool:
     return rotation_deg < AGREE_DEG and translation_mm < AGREE_MM
 
 
-def _fit_pairs(pairs: list[tuple[Body, Body]]) -> SkeletonFit:
+def _fit_pairs(
+    pairs: list[tuple[Body, Body]], ransac_threshold_m: float, min_scale_m: float
+) -> SkeletonFit:
     ref_joints = np.stack([a.joints_m for a, _ in pairs]).astype(np.float64)
     ref_states = np.stack([a.states for a, _ in pairs])
     other_joints = np.stack([b.joints_m for _, b in pairs]).astype(np.float64)
     other_states = np.stack([b.states for _, b in pairs])
     return solve_from_skeletons(
-        ref_joints, ref_states, other_joints, other_states, rng=np.random.default_rng(0)
+        ref_joints,
+        ref_states,
+        other_joints,
+        other_states,
+        ransac_threshold_m=ransac_threshold_m,
+        min_scale_m=min_scale_m,
+        rng=np.random.default_rng(0),
     )

@@ -72,6 +72,13 @@ FEATURES: Final[tuple[tuple[int, int, float], ...]] = (
 )
 MIN_FRAMES: Final = 30
 MIN_SPREAD_M: Final = 0.25
+RGB_RANSAC_THRESHOLD_M: Final = 0.20
+RGB_MIN_SCALE_M: Final = 0.05
+"""``ransac_threshold_m`` and ``min_scale_m`` for pairs with an ``rgb`` (mono) sensor: its depth
+rests on MediaPipe's guess of the body's size (4-9 % of the distance, per frame and as a bias),
+so the Kinect's 10 cm / 15 mm keep too few frames and RANSAC can lock onto a wrong pose
+(simulated 8 % depth noise and ±5 % size bias: 81° off with the defaults, 1.1° and 180 mm
+with these; ``tests/unit/test_skeleton_mono.py``)."""
 
 
 SKELETON_ERROR_BOUND: Final = (2.5, 75.0)
