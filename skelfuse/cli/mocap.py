@@ -100,6 +100,12 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="the videos' frame rate when the landmarks file does not say (default 30)",
     )
     mocap.add_argument(
+        "--fusion-config",
+        default=None,
+        metavar="FILE",
+        help="fuse with this TOML [fusion] table's settings (docs/fusion.md §9)",
+    )
+    mocap.add_argument(
         "--bvh-stretch",
         action="store_true",
         help="per-frame bone lengths (exact joints) instead of rigid bones",

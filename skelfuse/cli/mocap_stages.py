@@ -136,6 +136,7 @@ def fuse_and_export(
     from skelfuse.cli.values import fusion_settings
     from skelfuse.protocol.recording_file import write_recording
     from skelfuse.recording.video_take import MocapSettings, place_video, video_recording
+    from skelfuse.server.settings import Settings
 
     settings = MocapSettings(floor=None) if args.no_floor else MocapSettings()
     rates = {v.name: v.fps or args.video_fps or 30.0 for v in landmarks}
@@ -160,13 +161,13 @@ def fuse_and_export(
     offsets = _sync(landmarks, cameras, rates) if len(landmarks) > 1 and not args.no_sync else {}
     header, records = video_recording(tracks, cameras, rates, offsets, name=output.stem)
     fps = args.fps or max(rates.values())
-    from skelfuse.server.settings import Settings
-
-    replay_settings = dataclasses.replace(Settings(fusion=fusion_settings(None)), output_hz=fps)
+    fusion = fusion_settings(args.fusion_config)  # UsageError on a bad file
+    replay_settings = dataclasses.replace(Settings(fusion=fusion), output_hz=fps)
     with tempfile.TemporaryDirectory(prefix="skelfuse-mocap-") as tmp:
         path = Path(tmp) / "take.sfrec"
         write_recording(path, header, records)
-        take = _fuse(path, replay_settings, len(records))
+        frames = sum(record.kind == "frame" for record in records)
+        take = _fuse(path, replay_settings, frames)
     _export(take, output, fps, args.bvh_stretch)
 
 
@@ -262,7 +263,7 @@ def _uncalibrated(
     return Camera(video.name, intrinsics, pose), track
 
 
-def _fuse(path: Path, settings: HubSettings, records: int) -> Take:
+def _fuse(path: Path, settings: HubSettings, frames_in: int) -> Take:
     """The recording fused offline, with progress; the take."""
     from skelfuse.cli.mocap_progress import Progress
     from skelfuse.recording.replay import ReplayStats, replay
@@ -270,12 +271,12 @@ def _fuse(path: Path, settings: HubSettings, records: int) -> Take:
 
     stats = ReplayStats()
     progress = Progress("fusing", sys.stderr)
-    progress.set_total(0, records)
+    progress.set_total(0, frames_in)
     frames = []
     for frame in replay(path, settings, stats=stats):
         frames.append(frame)
-        progress.update(0, stats.records)
-    progress.update(0, records)
+        progress.update(0, stats.frames_in)
+    progress.update(0, frames_in)
     progress.finish()
     take = take_from_frames(frames)
     if not take.persons:
