@@ -14,8 +14,12 @@ cam03 lags the others: every camera's lag (frames) comes from the product's moti
 (``calibration/motion_sync.py``, epipolar distances; ``--lag cam03=L`` overrides one), checked
 against the shift that minimises the four-view triangulation's reprojection error.
 
-Run: ``python bench/mono_accuracy.py`` (``--single`` or ``--loo`` for one part, ``--json FILE``
-raw results, ``--hold-s`` the still lead-in before the clip plays).
+3. why (``bench/mono_accuracy_diagnose.py``): the same judgement of fusions made offline from
+   the same single-camera placements (plain mean, the product's ray weighting at several depth
+   noise ratios, the three views triangulated), and the angles between the cameras' axes.
+
+Run: ``python bench/mono_accuracy.py`` (``--single``, ``--diagnose`` or ``--loo`` for one part,
+``--json FILE`` raw results, ``--hold-s`` the still lead-in before the clip plays).
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np
 
+from bench.mono_accuracy_diagnose import diagnose, print_diagnosis
 from bench.mono_accuracy_geometry import load_cameras
 from bench.mono_accuracy_loo import leave_one_out
 from bench.mono_accuracy_single import (
@@ -73,6 +78,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
     parser.add_argument("--single", action="store_true", help="only the single-camera part")
     parser.add_argument("--loo", action="store_true", help="only the leave-one-out part")
+    parser.add_argument("--diagnose", action="store_true",
+                        help="only the offline fusions (mono_accuracy_diagnose.py)")  # fmt: skip
     parser.add_argument("--lag", action="append", default=[], help="CAMERA=FRAMES, e.g. cam03=2.5")
     parser.add_argument("--hold-s", type=float, default=1.0, help="still lead-in, seconds")
     parser.add_argument("--json", type=Path, default=None, help="write raw results here")
@@ -92,9 +99,13 @@ def main(argv: list[str] | None = None) -> int:
     print("lags used: " + ", ".join(f"{c} {v:+.2f}" for c, v in lags.items()))
     print(f"load average {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
     out: dict[str, object] = {"lags": lags}
-    if not args.loo:
+    everything = not (args.single or args.loo or args.diagnose)
+    if args.single or everything:
         out["single"] = print_single(clip, cameras, lags)
-    if not args.single:
+    if args.diagnose or everything:
+        out["diagnose"] = diagnosis = diagnose(clip, cameras, lags)
+        print_diagnosis(diagnosis)
+    if args.loo or everything:
         out["loo"] = print_loo(clip, cameras, lags, args.hold_s)
     if args.json:
         args.json.write_text(json.dumps(out, indent=1))

@@ -17,6 +17,7 @@ found, applied where a source's timestamps are made.
 
 from __future__ import annotations
 
+import os
 import tempfile
 import threading
 import time
@@ -32,6 +33,7 @@ from skelfuse.agent.runner import run_agent
 from skelfuse.agent.sources.base import Capture
 from skelfuse.calibration.camera import Camera
 from skelfuse.client.sync import SyncFeedClient
+from skelfuse.parent_watch import PARENT_PID_VARIABLE
 from skelfuse.protocol.mediapipe_pose import body_from_landmarks
 from skelfuse.protocol.pnp import Placement
 from skelfuse.protocol.transform import Matrix4
@@ -144,6 +146,8 @@ def run_live(
     http_port, zmq_port = free_port(), free_port()
     log_dir = log_dir or Path(tempfile.mkdtemp(prefix="skelfuse-mono-"))
     poses = {name: cameras[name].T_world_from_sensor for name in streamed}
+    # The server ends with this process even when it is killed outright (no finally runs then).
+    os.environ[PARENT_PID_VARIABLE] = str(os.getpid())
     server, log_file = start_server(poses, http_port, zmq_port, log_dir / "server.log")
     stop = threading.Event()
     start: list[int] = []
