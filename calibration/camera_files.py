@@ -61,6 +61,12 @@ YUP_FROM_ZUP: Final[Matrix4] = np.array(
 
 _QUALISYS_VIDEO_MODELS: Final = frozenset({"Miqus Video", "Miqus Video UnderWater", "none"})
 _QUALISYS_TO_OPENCV_AXES: Final = np.diag([1.0, -1.0, -1.0])  # 180° about the camera's X
+_QUALISYS_DISTORTION: Final = (
+    "radialDistortion1",
+    "radialDistortion2",
+    "tangentalDistortion1",  # sic: Qualisys' spelling
+    "tangentalDistortion2",
+)
 
 
 @dataclass(frozen=True, slots=True)
@@ -168,17 +174,11 @@ def _read_qualisys(data: bytes, origin: str, up: Up) -> CameraFile:
         left, top = _number(fov, "left", where), _number(fov, "top", where)
         width = (_number(fov, "right", where) - left + 1) * scale
         height = (_number(fov, "bottom", where) - top + 1) * scale
-        distortion = tuple(
-            _number(intrinsic, key, where)
-            for key in (
-                "radialDistortion1",
-                "radialDistortion2",
-                "tangentalDistortion1",
-                "tangentalDistortion2",
-                "radialDistortion3",
-            )
-            if key in intrinsic.attrib or key != "radialDistortion3"
-        )
+        keys = [
+            *_QUALISYS_DISTORTION,
+            *(["radialDistortion3"] if "radialDistortion3" in intrinsic.attrib else []),
+        ]  # k3 is optional
+        distortion = tuple(_number(intrinsic, key, where) for key in keys)
         try:
             intrinsics = CameraIntrinsics(
                 round(width),

@@ -204,3 +204,24 @@ def test_qualisys_broken_attribute(tmp_path: Path) -> None:
             read_camera_file(path, "qualisys")
     with pytest.raises(CameraFileError, match="cannot read"):
         read_camera_file(tmp_path / "absent.qca.txt", "qualisys")
+
+
+def test_qualisys_optional_k3_and_video_resolution(tmp_path: Path) -> None:
+    """A camera filming at 540p has its calibration at 1080 lines: everything halves; k3 is
+    optional; a resolution that is not like '1080p' is refused."""
+    text = QCA.read_text().replace(' radialDistortion3="0.000000"', "")
+    text = text.replace('serial="cam01"', 'serial="cam01" video_resolution="540p"')
+    path = tmp_path / "binned.qca.txt"
+    path.write_text(text)
+    cameras = {c.name: c for c in read_camera_file(path, "qualisys").cameras}
+    full = {c.name: c for c in read_camera_file(QCA, "qualisys").cameras}
+    half, whole = cameras["cam01"].intrinsics, full["cam01"].intrinsics
+    assert (half.width, half.height) == (544, 960)
+    assert half.fx == pytest.approx(whole.fx / 2) and half.cy == pytest.approx(whole.cy / 2)
+    assert half.distortion == whole.distortion[:4]
+    np.testing.assert_allclose(
+        cameras["cam01"].T_world_from_sensor, full["cam01"].T_world_from_sensor
+    )
+    path.write_text(text.replace('video_resolution="540p"', 'video_resolution="big"'))
+    with pytest.raises(CameraFileError, match=r"cam01.*not like '1080p'"):
+        read_camera_file(path, "qualisys")
