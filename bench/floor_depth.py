@@ -18,6 +18,9 @@ place_video`: undistortion, PnP rotation + translation from the previous frame),
 - ``floor, no median``: the same, frame by frame;
 - ``blend``: the mean of the two distances (scale (1 + s) / 2).
 
+Then the feet hidden (visibility 0) for 40 frames mid-clip: PnP's distance in those frames, or
+the floor's scale carried across them from the frames around (the product's default).
+
 Errors on MediaPipe's twelve limb landmarks (shoulders, elbows, wrists, hips, knees, ankles),
 in mm: absolute (mean and median), root-aligned (mean; root = mid-hip: the body's shape and
 size once its position is forgiven), and the root's own position error (median). Pure
@@ -57,6 +60,8 @@ RATE_HZ = 60.0
 LIMBS = (11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28)
 HIPS = (6, 7)  # positions of the hips in LIMBS
 METHODS = ("pnp", "floor", "floor, no median", "blend")
+HIDDEN = slice(30, 70)
+"""Frames whose feet :func:`hidden_feet` hides (0.67 s mid-clip)."""
 
 
 def reference(
@@ -119,6 +124,25 @@ def variants(
     return {method: out[method] for method in methods}
 
 
+def hidden_feet(
+    video: VideoLandmarks, camera: Camera, truth: FloatArray, gap: slice = HIDDEN
+) -> dict[str, float]:
+    """Absolute mean error (mm) over ``gap`` with the feet's visibility set to 0 there: PnP,
+    the floor with PnP's distance in the gap, the floor carried across it (the default)."""
+    visibility = video.visibility.copy()
+    visibility[gap, 29:33] = 0.0
+    hidden = replace(video, visibility=visibility)
+    out = {}
+    for method, floor in (
+        ("pnp", None),
+        ("floor, pnp in the gap", FloorDepthSettings(fill="pnp")),
+        ("floor, carried across", FloorDepthSettings()),
+    ):
+        track = place_video(hidden, camera, settings=MocapSettings(floor=floor))
+        out[method] = errors_mm(world(track, camera)[gap], truth[gap])["abs_mean"]
+    return out
+
+
 def main() -> None:
     videos = read_landmarks(DATA / "mono_landmarks.npz", CAMERAS)
     found = read_camera_file(DATA / "pose2sim_single_calib.qca.txt", "qualisys")
@@ -128,6 +152,7 @@ def main() -> None:
     print("| camera | method | abs mean | abs median | root-aligned | root |")
     print("|---|---|---:|---:|---:|---:|")
     totals: dict[str, list[float]] = {}
+    gaps: list[dict[str, float]] = []
     for video in videos:
         lag = lags[video.name]
         # camera frame s shows the reference's instant s - lag
@@ -141,9 +166,14 @@ def main() -> None:
             totals.setdefault(method, []).append(e["abs_mean"])
             print(f"| {video.name} | {method} | {e['abs_mean']:.0f} | {e['abs_median']:.0f} | "
                   f"{e['root_aligned']:.0f} | {e['root']:.0f} |")  # fmt: skip
+        gaps.append(hidden_feet(video, cameras[video.name], shifted))
     print()
     for method, values in totals.items():
         print(f"{method}: mean over cameras of the absolute mean {np.mean(values):.0f} mm")
+    print(f"\nfeet hidden in frames {HIDDEN.start}-{HIDDEN.stop - 1}: absolute mean there, mm")
+    for method in gaps[0]:
+        row = " | ".join(f"{gap[method]:.0f}" for gap in gaps)
+        print(f"{method}: {row} (mean {np.mean([gap[method] for gap in gaps]):.0f})")
 
 
 if __name__ == "__main__":

@@ -99,12 +99,16 @@ def test_a_foot_above_the_cameras_horizon_fixes_nothing() -> None:
     assert np.isnan(floor_scales(placed, floor, feet=FEET, settings=EXACT)).all()
 
 
-def test_smoothing_is_a_running_median_that_falls_back_to_the_placement() -> None:
+def test_smoothing_is_a_running_median_carried_across_frames_without_a_foot() -> None:
     raw = np.array([np.nan, 0.9, 0.8, 5.0, 0.85, np.nan, np.nan, np.nan, np.nan])
     smooth = smooth_scales(raw, 3)
-    np.testing.assert_allclose(smooth[:5], [0.9, 0.85, 0.9, 0.85, 2.925])
-    np.testing.assert_allclose(smooth[5:], [0.85, 1.0, 1.0, 1.0])  # nothing near: PnP as it was
-    np.testing.assert_allclose(smooth_scales(raw, 1), np.nan_to_num(raw, nan=1.0))
+    np.testing.assert_allclose(smooth, [0.9, 0.85, 0.9, 0.85, 2.925, 0.85, 0.85, 0.85, 0.85])
+    np.testing.assert_allclose(smooth_scales(raw, 1)[[0, 5, 8]], [0.9, 0.85, 0.85])  # held
+    gap = np.array([0.8, np.nan, np.nan, np.nan, 1.2])
+    np.testing.assert_allclose(smooth_scales(gap, 1), [0.8, 0.9, 1.0, 1.1, 1.2])  # linear
+    # "pnp": frames with no scale nearby keep the placement's distance
+    np.testing.assert_allclose(smooth_scales(raw, 3, "pnp")[5:], [0.85, 1.0, 1.0, 1.0])
+    np.testing.assert_allclose(smooth_scales(np.full(4, np.nan), 3), 1.0)  # no foot ever
     with pytest.raises(InvalidInput):
         smooth_scales(raw, 4)
 
