@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from skelfuse.calibration.store import CalibrationStore, SensorCalibration
+from skelfuse.parent_watch import child_environment
 from skelfuse.protocol.transform import Matrix4
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -69,6 +70,7 @@ def start_server(
          "--data", str(data_dir),
          *(["--fusion-config", fusion_config] if fusion_config else [])],
         stdout=log_file, stderr=subprocess.STDOUT, cwd=ROOT,
+        env=child_environment(),  # a benchmark killed outright takes its server with it
     )  # fmt: skip
     return server, log_file
 

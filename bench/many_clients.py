@@ -284,17 +284,21 @@ def run_once(args: argparse.Namespace, seed: int, log_dir: Path) -> dict[str, An
         rss_start = proc_rss_mb(server.pid)
         rss_max = rss_start
         stages0 = scrape_stages(base)
+        conflated0 = {
+            c["id"]: int(c["conflated"]) for c in http_json(base + "/api/clients")["clients"]
+        }
         t0, cpu0, wait0 = time.time(), proc_cpu_s(server.pid), runqueue_wait_s(server.pid)
         start.set()
         while time.time() < t0 + args.duration:
             time.sleep(1.0)
             rss_max = max(rss_max, proc_rss_mb(server.pid))
-        stop.set()
+        # The server's figures before the clients stop (then they leave, with their counts).
         t1, cpu1, wait1 = time.time(), proc_cpu_s(server.pid), runqueue_wait_s(server.pid)
         stages1 = scrape_stages(base)
         fused1 = http_json(base + "/api/health")["fused_frames"]
-        rss_end = proc_rss_mb(server.pid)
         clients_now = http_json(base + "/api/clients")
+        stop.set()
+        rss_end = proc_rss_mb(server.pid)
         load_after = os.getloadavg()
         logs: list[dict[str, Any]] = []
         clients_cpu = 0.0
@@ -350,7 +354,9 @@ def run_once(args: argparse.Namespace, seed: int, log_dir: Path) -> dict[str, An
         "server_loop_runqueue_wait_pct": round(100 * (wait1 - wait0) / window, 1),
         "clients_cpu_pct": round(100 * clients_cpu / window, 1),
         "server_rss_mb": [round(rss_start, 1), round(rss_max, 1), round(rss_end, 1)],
-        "conflated_total": sum(int(c["conflated"]) for c in clients_now["clients"]),
+        "conflated_total": sum(  # in the window
+            int(c["conflated"]) - conflated0.get(c["id"], 0) for c in clients_now["clients"]
+        ),
         "evicted": int(clients_now["evicted"]),
         "client_errors": errors[:5],
         "client_error_count": len(errors),
