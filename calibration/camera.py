@@ -4,6 +4,7 @@ API (used by :mod:`calibration.triangulation`, :mod:`calibration.camera_files`, 
 mocap path and the accuracy benchmarks)::
 
     CameraIntrinsics(width, height, fx, fy, cx, cy, distortion)   validated at construction
+    intrinsics.for_frames(width, height) -> (intrinsics, warning)  resized/cropped videos
     Camera(name, intrinsics, T_world_from_sensor)
     camera.project(points_world (..., 3) m) -> (..., 2) px       NaN behind the camera
     camera.normalized(image_px (..., 2) px) -> (..., 2)           undistorted x/z, y/z
@@ -41,6 +42,8 @@ inverse)."""
 
 _DISTORTION_LENGTHS: Final = (0, 4, 5, 8)
 _UNDISTORT_ITERATIONS: Final = 20
+_MAX_CROP: Final = 0.02
+"""Frames up to 2 % narrower or wider than the calibrated image are taken as a centred crop."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -78,6 +81,54 @@ class CameraIntrinsics:
                 f"distortion must hold 0, 4, 5 or 8 OpenCV coefficients (k1 k2 p1 p2 [k3 [k4 k5 "
                 f"k6]]), got {len(self.distortion)}"
             )
+
+    def for_frames(self, width: int, height: int) -> tuple[CameraIntrinsics, str | None]:
+        """These intrinsics for frames of ``width`` × ``height`` pixels, and a warning when
+        that took an assumption.
+
+        The same size: unchanged. The same aspect ratio: scaled (a resized video). Up to 2 %
+        off per axis: a centred crop or pad, the principal point shifted by half the
+        difference (a warning says so: check it if the reprojection is poor).
+
+        Raises:
+            InvalidInput: the frames are turned against the calibration (portrait frames,
+                landscape calibration or the reverse), or differ in any other way.
+        """
+        if (width, height) == (self.width, self.height):
+            return self, None
+        if width <= 0 or height <= 0:
+            raise InvalidInput(f"frame size must be positive, got {width}×{height}")
+        if (width > height) != (self.width > self.height) and width != height:
+            raise InvalidInput(
+                f"the frames are {width}×{height} but the calibration is {self.width}×"
+                f"{self.height}: one is portrait, the other landscape; rotate the video or "
+                "use the calibration of this orientation"
+            )
+        sx, sy = width / self.width, height / self.height
+        if abs(sx / sy - 1) < 1e-3:
+            scaled = CameraIntrinsics(
+                width,
+                height,
+                self.fx * sx,
+                self.fy * sy,
+                (self.cx + 0.5) * sx - 0.5,  # pixel centres scale about the image corner
+                (self.cy + 0.5) * sy - 0.5,
+                self.distortion,
+            )
+            return scaled, None
+        if abs(sx - 1) <= _MAX_CROP and abs(sy - 1) <= _MAX_CROP:
+            dx, dy = (width - self.width) / 2, (height - self.height) / 2
+            cropped = CameraIntrinsics(
+                width, height, self.fx, self.fy, self.cx + dx, self.cy + dy, self.distortion
+            )
+            return cropped, (
+                f"frames {width}×{height}, calibration {self.width}×{self.height}: taken as a "
+                f"centred crop (principal point moved by {dx:+.1f}, {dy:+.1f} px)"
+            )
+        raise InvalidInput(
+            f"the frames are {width}×{height} but the calibration is {self.width}×{self.height}: "
+            "not a resize and not a small crop; calibrate at this resolution"
+        )
 
     @property
     def matrix(self) -> FloatArray:

@@ -225,3 +225,16 @@ def test_qualisys_optional_k3_and_video_resolution(tmp_path: Path) -> None:
     path.write_text(text.replace('video_resolution="540p"', 'video_resolution="big"'))
     with pytest.raises(CameraFileError, match=r"cam01.*not like '1080p'"):
         read_camera_file(path, "qualisys")
+
+
+def test_intrinsics_for_other_frame_sizes() -> None:
+    k = CameraIntrinsics(1088, 1920, 1680.0, 1679.0, 533.0, 950.0, LENS)
+    assert k.for_frames(1088, 1920) == (k, None)
+    half, warning = k.for_frames(544, 960)
+    assert warning is None and half.fx == 840.0 and half.cx == pytest.approx(266.25)
+    cropped, warning = k.for_frames(1080, 1920)  # the clip's cam01 and cam02
+    assert cropped.cx == 529.0 and cropped.fx == k.fx and warning and "centred crop" in warning
+    with pytest.raises(InvalidInput, match="portrait, the other landscape"):
+        k.for_frames(1920, 1088)
+    with pytest.raises(InvalidInput, match="not a resize"):
+        k.for_frames(1000, 1920)
