@@ -154,6 +154,8 @@ def _run(args: argparse.Namespace) -> None:
         raise UsageError(f"{output.parent}: no such directory for the output")
     if args.calibration is None and len(videos) > 1:
         raise UsageError("several videos need --calibration FILE: their cameras' poses")
+    if args.calibration is not None and (args.intrinsics or args.fov is not None):
+        raise UsageError("--intrinsics and --fov are for one video without --calibration")
     if args.calibration is not None and not Path(args.calibration).is_file():
         raise UsageError(f"{args.calibration}: no such calibration file")
     calibrated = _calibration(args, names) if args.calibration else None

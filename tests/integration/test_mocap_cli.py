@@ -157,6 +157,16 @@ def test_several_videos_need_a_calibration(
     assert "need --calibration" in capsys.readouterr().err
 
 
+def test_intrinsics_with_a_calibration_are_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    args = ["mocap", "cam01.mp4", "--calibration", str(CALIBRATION), "--fov", "50"]
+    assert main([*args, "--landmarks", str(LANDMARKS), "-o", str(tmp_path / "t.bvh")]) == 2
+    assert "--intrinsics and --fov are for one video without --calibration" in (
+        capsys.readouterr().err
+    )
+
+
 def test_no_person_found_is_said(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     with np.load(LANDMARKS) as data:
         arrays = {k: data[k] for k in data.files if k.startswith("cam01_")}
