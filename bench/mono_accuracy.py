@@ -1,8 +1,8 @@
 """Accuracy of one ordinary camera, and of three fused, on the real four-camera clip (issue 14).
 
-Data: the MediaPipe landmark fixture ``tests/data/mono_landmarks.npz`` (100 frames at 60 fps per
-camera; ``scripts/mono`` made it) and the clip's Qualisys calibration
-(``../shared/data/pose2sim-single/Calib.qca.txt``). Two figures:
+Data, all in the repository: the MediaPipe landmark fixture ``tests/data/mono_landmarks.npz``
+(100 frames at 60 fps per camera of ``../shared/data/pose2sim-single``) and the clip's Qualisys
+calibration ``tests/data/pose2sim_single_calib.qca.txt``. Figures:
 
 1. single camera against the four-view reference (``bench/mono_accuracy_single.py``): MPJPE
    absolute, root-aligned, Procrustes-aligned on the twelve limb joints, in mm;

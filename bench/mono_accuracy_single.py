@@ -38,7 +38,8 @@ from skelfuse.protocol.pnp import Placement
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURE: Final = ROOT / "tests" / "data" / "mono_landmarks.npz"
-CALIBRATION: Final = ROOT.parent / "shared" / "data" / "pose2sim-single" / "Calib.qca.txt"
+CALIBRATION: Final = ROOT / "tests" / "data" / "pose2sim_single_calib.qca.txt"
+"""The clip's Qualisys calibration (a copy of ``../shared/data/pose2sim-single/Calib.qca.txt``)."""
 CAMERAS: Final = ("cam01", "cam02", "cam03", "cam04")
 FPS: Final = 60.0
 
