@@ -13,7 +13,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion import kernels
+from skelfuse.fusion import kernels, kernels_stages
 from skelfuse.protocol.skeleton import JOINT_COUNT, PARENTS, JointId
 
 FloatArray = npt.NDArray[np.float64]
@@ -318,7 +318,7 @@ def facing_directions(skeletons: npt.ArrayLike) -> FloatArray:
 
     Runs the compiled kernel when :func:`skelfuse.fusion.kernels.enabled` (the same bits)."""
     if kernels.enabled():
-        return kernels.facing_directions(np.asarray(skeletons, dtype=np.float64))
+        return kernels_stages.facing_directions(np.asarray(skeletons, dtype=np.float64))
     _, _, forward = body_frame(skeletons)
     return facings_of_forward(forward)
 

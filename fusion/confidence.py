@@ -73,11 +73,18 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.anatomy import CHAIN_LEVELS, HORIZONTAL, rom_factors_and_forward, unit
+from skelfuse.fusion import kernels, kernels_stages
+from skelfuse.fusion.anatomy import (
+    CHAIN_LEVELS,
+    CHAIN_ORDER,
+    HORIZONTAL,
+    rom_factors_and_forward,
+    unit,
+)
 from skelfuse.fusion.points import finite_points
 from skelfuse.fusion.priors import SensorPrior
 from skelfuse.fusion.settings import FusionSettings
-from skelfuse.protocol.skeleton import BONES, JointId
+from skelfuse.protocol.skeleton import BONES, PARENTS, JointId
 
 FloatArray = npt.NDArray[np.float64]
 J = JointId
@@ -85,6 +92,8 @@ J = JointId
 
 _BONE_CHILD: Final = np.array([child for _, child in BONES])
 _BONE_PARENT: Final = np.array([parent for parent, _ in BONES])
+_CHAIN: Final = (np.array(CHAIN_ORDER[1:]), np.array([PARENTS[j] for j in CHAIN_ORDER[1:]]))
+"""The joints below SpineBase, parents first, and their parents (the compiled propagate)."""
 
 
 def propagate(local: npt.ArrayLike) -> FloatArray:
@@ -227,6 +236,8 @@ def joint_confidence(joints: FloatArray, weights: FloatArray) -> FloatArray:
     Returns:
         (P, J) float64 in [0, 1].
     """
+    if kernels.enabled():  # the same bits in one compiled loop; the code below is the reference
+        return kernels_stages.confidence_and_carriers(joints, weights, 0.0)[0]
     usable = finite_points(joints) & (weights > 0)
     w = np.where(usable, weights, 0.0)
     confidence: FloatArray = 1.0 - np.prod(1.0 - np.clip(w, 0.0, 1.0), axis=1)
@@ -267,6 +278,20 @@ def body_weights(
     distinct, of_view = _distinct(priors) if priors is not None else ([], None)
     if all(_as_settings(p, s) for p in distinct):  # Kinect v2 alike: the shared table's floats
         of_view = None
+    if of_view is None and kernels.enabled():  # the same bits in one compiled loop
+        with_rom = s.use_range_of_motion
+        return kernels_stages.body_weights(
+            joints,
+            states,
+            s.state_weights,
+            references if s.use_bone_length else None,
+            (rom if rom is not None else range_of_motion_factors(joints, s.rom_scale_deg))
+            if with_rom
+            else None,
+            s.bone_length_scale_m,
+            (_BONE_PARENT, _BONE_CHILD),
+            _CHAIN,
+        )
     if of_view is None:
         weights = state_weights(states, s.state_weights)
     else:  # each view's own table, gathered (the same floats as the shared table for v2)

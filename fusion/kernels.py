@@ -72,7 +72,7 @@ def forced(chosen: str) -> Iterator[None]:
         _state["mode"] = saved
 
 
-def _plain(array: npt.ArrayLike, dtype: type = np.float64) -> Any:
+def plain(array: npt.ArrayLike, dtype: type = np.float64) -> Any:
     """``array`` as a writable C-contiguous array of ``dtype`` (copied only when it is not):
     every call then has the argument types the warm-up compiled for, so no frame waits for a
     second compilation (a read-only or strided array is another numba signature)."""
@@ -99,12 +99,12 @@ def rom_factors_and_forward(
     Returns:
         factors (M, 25), forward (M, 3), as the numpy version.
     """
-    joints = _plain(views)
+    joints = plain(views)
     factors = np.ones(joints.shape[:2])
     forward = np.empty((joints.shape[0], 3))
     from skelfuse.fusion.kernels_rom import rom_loop  # imports numba: only when used
 
-    rom_loop(joints, float(scale_deg), _plain(low), _plain(high), factors, forward)
+    rom_loop(joints, float(scale_deg), plain(low), plain(high), factors, forward)
     return factors, forward
 
 
@@ -128,11 +128,11 @@ def project_bone_lengths(
     from skelfuse.fusion import kernels_bones  # imports numba: only when used
 
     shape = joints.shape
-    flat = _plain(joints.reshape(-1, 25, 3))
-    ref = _plain(reference.reshape(-1, reference.shape[-1]))
-    mobility = _plain(np.broadcast_to(move, shape[:-1]).reshape(-1, 25))
+    flat = plain(joints.reshape(-1, 25, 3))
+    ref = plain(reference.reshape(-1, reference.shape[-1]))
+    mobility = plain(np.broadcast_to(move, shape[:-1]).reshape(-1, 25))
     out = np.empty_like(flat)
-    grouped, parents, children, order, parent_of, bone_to = (_plain(t, np.intp) for t in tables)
+    grouped, parents, children, order, parent_of, bone_to = (plain(t, np.intp) for t in tables)
     kernels_bones.project_loop(
         flat,
         ref,
@@ -161,132 +161,9 @@ def weighted_mean(joints: FloatArray, weights: FloatArray) -> FloatArray:
     """
     from skelfuse.fusion import kernels_weighted  # imports numba: only when used
 
-    points = _plain(joints)
+    points = plain(joints)
     out = np.empty((points.shape[0], points.shape[2], 3))
-    kernels_weighted.weighted_loop(points, _plain(weights), out)
-    return out
-
-
-def mirror_scores(
-    views: FloatArray,
-    sensor_positions: FloatArray,
-    starts: IntArray,
-    facings: FloatArray,
-    references: FloatArray,
-    anatomy_factors: FloatArray | None,
-    previous: IntArray | None,
-    terms: tuple[float, float, float, float, float],
-    pairs: tuple[IntArray, IntArray],
-    lateral: tuple[IntArray, IntArray],
-    screen: tuple[int, float],
-) -> npt.NDArray[np.bool_]:
-    """The compiled scoring of :func:`skelfuse.fusion.mirror.choose_labellings` for persons
-    whose facing is known (the same choices, from the same bits of every term).
-
-    Args:
-        views: (N, 25, 3) metres, world; sensor_positions: (N, 3); starts: (P + 1,) each
-            person's first view, then N; facings: (P, 3) each person's facing (finite);
-            references: (P, 25, 3) each person's last skeleton; anatomy_factors: (N, 2, 25)
-            range-of-motion factors as reported and swapped, or None (no anatomy term);
-            previous: (N,) last decisions (1, 0, −1 unknown) or None; terms: the track,
-            geometry and anatomy weights, the swap prior and the hysteresis (metres);
-            pairs: each pair's (first, second) views, person by person in ``PAIRS`` order;
-            lateral: the lateral joints and where each one's other side is among them;
-            screen: the view count from which labellings are screened, and the margin.
-
-    Returns:
-        (N,) bool, True where a view is mirrored.
-    """
-    from skelfuse.fusion import kernels_mirror  # imports numba: only when used
-
-    points = _plain(views)
-    total = points.shape[0]
-    index = _plain(starts, np.intp)
-    person_of = np.repeat(np.arange(len(index) - 1), np.diff(index))
-    pair = np.empty((len(pairs[0]), 2, 2))
-    to_ref = np.empty((total, 2))
-    kernels_mirror.lateral_loop(
-        points,
-        _plain(lateral[0], np.intp),
-        _plain(lateral[1], np.intp),
-        _plain(pairs[0], np.intp),
-        _plain(pairs[1], np.intp),
-        _plain(references[person_of]),
-        np.ones(total, dtype=np.bool_),
-        pair,
-        to_ref,
-    )
-    track, geometry, anatomy, prior, hysteresis = terms
-    weights = np.array(
-        [track, geometry, anatomy if anatomy_factors is not None else 0.0, prior, hysteresis,
-         0.0 if previous is None else 1.0]
-    )  # fmt: skip
-    mirrored = np.zeros(total, dtype=np.bool_)
-    kernels_mirror.score_loop(
-        points,
-        _plain(sensor_positions),
-        index,
-        _plain(facings),
-        pair,
-        to_ref,
-        _plain(np.ones((total, 2, 1)) if anatomy_factors is None else anatomy_factors),
-        _plain(np.full(total, -1) if previous is None else previous, np.intp),
-        weights,
-        int(screen[0]),
-        float(screen[1]),
-        mirrored,
-    )
-    return mirrored
-
-
-def unbiased_facings(
-    origins: FloatArray,
-    sensor_positions: FloatArray,
-    forward: FloatArray,
-    mirrored: npt.NDArray[np.bool_],
-    starts: IntArray,
-    lean: float,
-) -> FloatArray:
-    """The compiled :func:`skelfuse.fusion.labels.unbiased_facings` (same bits), each view's own
-    facing taken from the forward axis of its chosen labelling.
-
-    Args:
-        origins: (N, 3) each view's SpineBase, metres, world; sensor_positions: (N, 3);
-        forward: (N, 2, 3) each view's forward axis as reported and swapped; mirrored: (N,)
-        the labelling chosen; starts: (P + 1,) each person's first view, then N; lean: the
-        share of its yaw a sensor turns a body towards itself, in [0, 1).
-
-    Returns:
-        (P, 3) horizontal unit vectors, NaN rows where unknown.
-    """
-    from skelfuse.fusion import kernels_facing  # imports numba: only when used
-
-    out = np.empty((len(starts) - 1, 3))
-    kernels_facing.unbiased_loop(
-        _plain(origins),
-        _plain(sensor_positions),
-        _plain(forward),
-        _plain(mirrored, np.bool_),
-        _plain(starts, np.intp),
-        float(lean),
-        out,
-    )
-    return out
-
-
-def facing_directions(skeletons: FloatArray) -> FloatArray:
-    """The compiled :func:`skelfuse.fusion.anatomy.facing_directions` (same bits).
-
-    Args:
-        skeletons: (P, 25, 3) joints, metres, world frame (+Y up), NaN where unknown.
-
-    Returns:
-        (P, 3) horizontal unit vectors, NaN rows where unknown.
-    """
-    from skelfuse.fusion import kernels_facing  # imports numba: only when used
-
-    out = np.empty((skeletons.shape[0], 3))
-    kernels_facing.facing_loop(_plain(skeletons), out)
+    kernels_weighted.weighted_loop(points, plain(weights), out)
     return out
 
 
@@ -303,15 +180,7 @@ def warm_up() -> float:
     tables = (index, index, index, index, index, np.full(25, -1, dtype=np.intp))
     project_bone_lengths(views, np.ones((2, 24)), np.ones((2, 25)), 1, tables)
     weighted_mean(views[None], np.ones((1, 2, 25)))
-    pairs = (np.zeros(1, dtype=np.intp), np.ones(1, dtype=np.intp))
-    lateral = (np.arange(20, dtype=np.intp), np.arange(20, dtype=np.intp))
-    for anatomy in (None, np.ones((2, 2, 25))):
-        mirror_scores(
-            views, np.ones((2, 3)), np.array([0, 2]), np.ones((1, 3)), views[:1], anatomy,
-            np.zeros(2, dtype=np.intp), (1.0, 0.1, 0.1, 0.01, 0.05), pairs, lateral, (6, 1e-9),
-        )  # fmt: skip
-    facing_directions(views)
-    unbiased_facings(
-        views[:, 0], np.ones((2, 3)), np.ones((2, 2, 3)), np.zeros(2, bool), np.array([0, 2]), 0.5
-    )
+    from skelfuse.fusion import kernels_stages  # the mirror and confidence stages' kernels
+
+    kernels_stages.warm_up()
     return time.perf_counter() - start

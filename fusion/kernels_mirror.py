@@ -29,8 +29,8 @@ BoolArray = npt.NDArray[np.bool_]
 def pairwise(values: FloatArray, n: int) -> float:
     """numpy's sum of the first ``n`` (≤ 128) ``values`` along a contiguous last axis: one by one
     below 8, else eight running sums, added as a tree, then the rest one by one; from 0."""
+    total: float = 0.0
     if n < 8:
-        total = 0.0
         for i in range(n):
             total += values[i]
         return 0.0 + total
@@ -47,7 +47,7 @@ def pairwise(values: FloatArray, n: int) -> float:
         r6 += values[i + 6]
         r7 += values[i + 7]
         i += 8
-    total: float = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    total = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
     while i < n:
         total += values[i]
         i += 1

@@ -21,7 +21,7 @@ from itertools import pairwise
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion import kernels
+from skelfuse.fusion import kernels, kernels_stages
 from skelfuse.fusion.anatomy import facing_direction, facing_directions, facings_of_forward
 from skelfuse.fusion.mirror import PERMUTATION, choose_labellings_and_forward
 from skelfuse.fusion.mirror_labellings import slots
@@ -146,7 +146,7 @@ def label_views(
         # Each view's facing as labelled: the forward axis of its chosen labelling, already
         # computed for the range of motion (the same bits as from the swapped joints).
         if forward is not None and kernels.enabled() and 0.0 <= s.view_lean_fraction < 1.0:
-            facings = kernels.unbiased_facings(
+            facings = kernels_stages.unbiased_facings(
                 joints[:, 0], sensor_positions, forward, mirrored, places.starts,
                 s.view_lean_fraction,
             )  # fmt: skip

@@ -39,7 +39,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion import kernels
+from skelfuse.fusion import kernels, kernels_stages
 from skelfuse.fusion.anatomy import facing_direction, rom_factors_and_forward
 from skelfuse.fusion.mirror_distances import LATERAL_JOINTS, LATERAL_SWAP, lateral_terms
 from skelfuse.fusion.mirror_labellings import (
@@ -224,7 +224,7 @@ def choose_labellings_and_forward(
     prev = None if previous is None else np.asarray(previous)
     if kernels.enabled() and len(counts) and geometric.all():  # every facing known: compiled
         assert reference_facings is not None  # (geometric: every person has a facing)
-        mirrored = kernels.mirror_scores(
+        mirrored = kernels_stages.mirror_scores(
             views,
             sensor_positions,
             lay.starts,

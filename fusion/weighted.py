@@ -16,7 +16,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion import kernels
+from skelfuse.fusion import kernels, kernels_stages
 from skelfuse.fusion.confidence import joint_confidence
 from skelfuse.fusion.points import finite_points
 
@@ -100,6 +100,8 @@ def carriers(joints: FloatArray, weights: FloatArray) -> npt.NDArray[np.bool_]:
     Returns:
         (P, S, J) bool.
     """
+    if kernels.enabled():  # the same bits in one compiled loop; the code below is the reference
+        return kernels_stages.confidence_and_carriers(joints, weights, MIN_SHARE)[1]
     final = np.where(finite_points(joints), weights, 0.0)
     total = final.sum(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):

@@ -15,7 +15,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pytest
 
-from skelfuse.fusion import anatomy, kernels, labels, mirror
+from skelfuse.fusion import anatomy, kernels, kernels_stages, labels, mirror
 from skelfuse.fusion.kernels_jit import numba_module
 from skelfuse.fusion.mirror_distances import LATERAL_JOINTS, LATERAL_SWAP, lateral_terms
 from skelfuse.fusion.mirror_labellings import layout
@@ -161,7 +161,7 @@ def test_unbiased_facing_kernel_gives_the_numpy_bits(
     assert forward is not None
     mirrored[::3] = ~mirrored[::3]  # both labellings, whatever was chosen
     starts = layout(COUNTS, tuple((True, True) for _ in COUNTS)).starts
-    got = kernels.unbiased_facings(views[:, 0], sensors, forward, mirrored, starts, lean)
+    got = kernels_stages.unbiased_facings(views[:, 0], sensors, forward, mirrored, starts, lean)
     chosen = forward[np.arange(len(views)), mirrored.view(np.uint8)]
     own = anatomy.facings_of_forward(chosen)
     expected = labels.unbiased_facings(views, sensors, mirrored, COUNTS, lean, own)

@@ -1,0 +1,83 @@
+"""The confidence stage's compiled kernels give the numpy path's bits.
+
+skelfuse.fusion.kernels_confidence (each joint's weight from its view alone, the confidence apps
+receive and the views that carried each joint) against the numpy code it replaces, on simulated
+views with noise, unknown joints and random points, with and without each term.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+from skelfuse.fusion import anatomy, confidence, kernels, weighted
+from skelfuse.fusion.kernels_jit import numba_module
+from skelfuse.fusion.settings import FusionSettings
+from skelfuse.protocol.skeleton import BONES
+from tests.unit.test_kernels import _same_bits, _views
+
+
+@pytest.fixture
+def numba_kernels() -> Iterator[None]:
+    """The kernels on; skips (fails under CI, where the dev extra installs numba) without numba."""
+    if numba_module() is None:
+        import os
+
+        if os.environ.get("CI"):
+            pytest.fail("CI installs the dev extra, which has numba: the kernels must be tested")
+        pytest.skip("numba is not installed (pip install -e .[fast])")
+    with kernels.forced("numba"):
+        yield
+
+
+def _inputs(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Views, their tracking states, reference bone lengths (some unknown), rom factors."""
+    rng = np.random.default_rng(seed)
+    views = _views(seed)
+    states = rng.integers(0, 3, views.shape[:2]).astype(np.uint8)
+    parent, child = np.array(BONES).T
+    lengths = np.linalg.norm(views[:36, child] - views[:36, parent], axis=-1)
+    references = np.nanmedian(lengths, axis=0) * rng.uniform(0.8, 1.2, (len(views), len(BONES)))
+    references[rng.random(references.shape) < 0.1] = np.nan
+    rom = anatomy.rom_factors_and_forward(views, 15.0)[0]
+    return views, states, references, rom
+
+
+@pytest.mark.parametrize("seed", range(5))
+@pytest.mark.parametrize(
+    "change",
+    [{}, {"use_bone_length": False}, {"use_range_of_motion": False}, {"bone_length_scale_m": 0.2}],
+)
+def test_body_weights_kernel_gives_the_numpy_bits(
+    numba_kernels: None, seed: int, change: dict[str, object]
+) -> None:
+    views, states, references, rom = _inputs(seed)
+    settings = FusionSettings(**change)  # type: ignore[arg-type]
+    for refs, factors in ((references, rom), (None, None), (references, None)):
+        got = confidence.body_weights(views, states, refs, factors, settings)
+        with kernels.forced("numpy"):
+            expected = confidence.body_weights(views, states, refs, factors, settings)
+        assert _same_bits(got, expected)
+    assert ((got > 0.0) & (got < 0.1)).any()  # the terms reach the weights
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_confidence_and_carriers_kernel_gives_the_numpy_bits(
+    numba_kernels: None, seed: int
+) -> None:
+    rng = np.random.default_rng(seed)
+    joints = _views(seed)[:120].reshape(6, 20, 25, 3)[:, :5].copy()
+    weights = rng.uniform(-0.3, 1.4, joints.shape[:3])  # some negative, some above 1
+    weights[rng.random(weights.shape) < 0.2] = 0.0
+    weights[1, :, :4] = 0.0  # joints no view carries
+    weights[2, 1, 6] = np.nan
+    joints[3, :, 8] = np.nan  # joints no view sees
+    for size in (5, 2, 1):
+        points, w = joints[:, :size], weights[:, :size]
+        got = (confidence.joint_confidence(points, w), weighted.carriers(points, w))
+        with kernels.forced("numpy"):
+            expected = (confidence.joint_confidence(points, w), weighted.carriers(points, w))
+        assert _same_bits(got[0], expected[0]) and _same_bits(got[1], expected[1])
+    assert (got[0] == 0).any() and got[1].any() and not got[1].all()
