@@ -46,6 +46,20 @@ def nanmedian_axis(data: FloatArray, axis: int) -> FloatArray:
     return median.reshape(moved.shape[:-1])
 
 
+def nanmedian_last(data: FloatArray) -> FloatArray:
+    """:func:`nanmedian_axis` along the last axis (the same values), on its contiguous rows
+    without moving axes: (..., n) → (...), n ≥ 1."""
+    n = data.shape[-1]
+    rows = np.sort(data, axis=-1).reshape(-1, n)  # NaN last
+    count = np.isfinite(rows).sum(axis=1)
+    first = np.arange(0, rows.size, n)
+    flat = rows.reshape(-1)
+    low = flat[first + np.maximum((count - 1) // 2, 0)]
+    high = flat[first + count // 2]
+    median: FloatArray = np.where(count > 0, (low + high) / 2.0, np.nan)
+    return median.reshape(data.shape[:-1])
+
+
 class SampleWindow:
     """The last ``window`` (24,) observations (module docstring)."""
 

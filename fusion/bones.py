@@ -13,7 +13,7 @@ import numpy.typing as npt
 
 from skelfuse.fusion import kernels
 from skelfuse.fusion.anatomy import CHAIN_LEVELS, CHAIN_ORDER
-from skelfuse.fusion.bone_window import SampleWindow, nanmedian_axis
+from skelfuse.fusion.bone_window import SampleWindow, nanmedian_last
 from skelfuse.protocol.skeleton import BONE_MIRROR_PERMUTATION, BONES, PARENTS, TrackingState
 
 FloatArray = npt.NDArray[np.float64]
@@ -318,28 +318,26 @@ def observe_bone_lengths(
         person_of, slot_of: (N,) each view's person and its index among that person's views.
         widest: the most views any person has.
     """
-    estimating = np.array([model.set_lengths is None for model in models])
-    if not estimating.any():
+    estimating = [model.set_lengths is None for model in models]
+    if not any(estimating):
         return
     good_view = np.isfinite(cosines) & (cosines >= GOOD_VIEW_COS)
     tracked = states == _TRACKED
-    both_tracked = np.take(tracked, _BONE_PARENT, axis=1) & np.take(tracked, _BONE_CHILD, axis=1)
-    bones = np.take(joints, _BONE_CHILD, axis=1) - np.take(joints, _BONE_PARENT, axis=1)
+    both_tracked = tracked[:, _BONE_PARENT] & tracked[:, _BONE_CHILD]
+    bones = joints[:, _BONE_CHILD] - joints[:, _BONE_PARENT]
     # What np.linalg.norm(bones, axis=-1) computes, without its checks and copies.
     lengths = np.sqrt(np.add.reduce(bones * bones, axis=-1))
-    usable = both_tracked & np.isfinite(lengths)
-    # (persons, views, bones, 2): good views only, then any view.
-    padded = np.full((len(models), widest, BONE_COUNT, 2), np.nan)
-    padded[person_of, slot_of, :, 0] = np.where(usable & good_view[:, None], lengths, np.nan)
-    padded[person_of, slot_of, :, 1] = np.where(usable, lengths, np.nan)
-    observed = np.isfinite(padded[..., 1]).any(axis=(1, 2)) & estimating
-    if not observed.any():
-        return
-    per_bone = nanmedian_axis(padded, axis=1)  # (persons, bones, 2)
-    seen = np.asarray(np.isfinite(per_bone).any(axis=1)).tolist()  # (persons, 2) any good, any
-    for p in np.flatnonzero(observed).tolist():
-        good, spare = seen[p]
-        models[p]._add(per_bone[p, :, 0] if good else None, per_bone[p, :, 1] if spare else None)
+    any_view = np.where(both_tracked & np.isfinite(lengths), lengths, np.nan)
+    # (persons, 2, bones, views): good views only, then any view; views last, so that the
+    # median sorts contiguous rows.
+    padded = np.full((len(models), 2, BONE_COUNT, widest), np.nan)
+    padded[person_of, 0, :, slot_of] = np.where(good_view[:, None], any_view, np.nan)
+    padded[person_of, 1, :, slot_of] = any_view
+    per_bone = nanmedian_last(padded)  # (persons, 2, bones)
+    seen = np.isfinite(per_bone).any(axis=2).tolist()  # (persons, 2): any good, any at all
+    for p, ((good, spare), wanted) in enumerate(zip(seen, estimating, strict=True)):
+        if spare and wanted:  # a person with no usable view at all adds nothing
+            models[p]._add(per_bone[p, 0] if good else None, per_bone[p, 1])
 
 
 def fit_bone_lengths(

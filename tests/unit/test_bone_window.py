@@ -74,3 +74,15 @@ def test_nanmedian_axis_is_nanmedian() -> None:
     data[0, :, 0] = np.nan  # an all-NaN slice
     for axis in range(3):
         np.testing.assert_array_equal(nanmedian_axis(data, axis), quiet_nanmedian(data, axis))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_median_along_the_last_axis_is_the_median_along_any_axis(seed: int) -> None:
+    from skelfuse.fusion.bone_window import nanmedian_last
+
+    rng = np.random.default_rng(seed)
+    data = rng.normal(size=(3, 2, 24, int(rng.integers(1, 9))))
+    data[rng.random(data.shape) < 0.4] = np.nan
+    data[0, 0, 0] = np.nan  # a row with nothing
+    want = nanmedian_axis(np.moveaxis(data, -1, 1), axis=1)
+    assert nanmedian_last(data).tobytes() == want.tobytes()
