@@ -262,3 +262,15 @@ def test_cli_import(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(UsageError, match="CAMERA=SENSOR_ID"):
         _run(str(QCA), "--format", "qualisys", "--data", str(data), "--sensor", "cam01")
     assert store.load().version == 2  # type: ignore[union-attr]  # nothing saved by failures
+
+
+def test_skelfuse_command_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Through ``skelfuse``'s own parser: registered, and a broken file exits 2 naming it."""
+    from skelfuse.cli import main
+
+    assert main(["calibration", "import", str(QCA), "--format", "qualisys", "--dry-run"]) == 0
+    assert "cam04: at x" in capsys.readouterr().out
+    broken = tmp_path / "broken.toml"
+    broken.write_text("[cam_1]\nname = 'a'\n")
+    assert main(["calibration", "import", str(broken), "--format", "pose2sim"]) == 2
+    assert "missing size" in capsys.readouterr().err
