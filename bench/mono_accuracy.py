@@ -19,7 +19,8 @@ against the shift that minimises the four-view triangulation's reprojection erro
    noise ratios, the three views triangulated), and the angles between the cameras' axes.
 
 Run: ``python bench/mono_accuracy.py`` (``--single``, ``--diagnose`` or ``--loo`` for one part,
-``--json FILE`` raw results, ``--hold-s`` the still lead-in before the clip plays).
+``--json FILE`` raw results, ``--hold-s`` the still lead-in before the clip plays,
+``--fusion-config FILE`` other fusion settings for the live servers).
 """
 
 from __future__ import annotations
@@ -83,12 +84,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--lag", action="append", default=[], help="CAMERA=FRAMES, e.g. cam03=2.5")
     parser.add_argument("--hold-s", type=float, default=1.0, help="still lead-in, seconds")
     parser.add_argument("--json", type=Path, default=None, help="write raw results here")
+    parser.add_argument("--fusion-config", type=Path, default=None,
+                        help="TOML [fusion] table for the live servers, e.g. "
+                             "use_mirror_correction = false")  # fmt: skip
     parser.add_argument("--fixture", type=Path, default=FIXTURE)
     parser.add_argument("--calibration", type=Path, default=CALIBRATION)
     args = parser.parse_args(argv)
     if not args.calibration.is_file():
         print(f"calibration not found: {args.calibration}", file=sys.stderr)
         return 2
+    if args.fusion_config:  # bench/load_server.py hands it to every server it starts
+        os.environ["SKELFUSE_LOAD_FUSION_CONFIG"] = str(args.fusion_config.resolve())
     clip, cameras = load_clip(args.fixture), load_cameras(args.calibration)
     found = motion_sync_lags(clip, cameras)
     check = lag_by_reprojection(clip, cameras, "cam03", np.arange(0.0, 5.01, 0.25))
