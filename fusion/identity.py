@@ -23,7 +23,6 @@ bodies are theirs); what fusion remembers per person (filter, bone lengths, mirr
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Final
 
@@ -151,31 +150,35 @@ class PersonTracker:
     def move_all(self, person_ids: list[int], fused: FloatArray, t_s: float) -> None:
         """:meth:`move` for many persons at once: ``fused`` (P, 25, 3), row p is ``person_ids[p]``.
 
-        Element by element the arithmetic of one person alone (the speed clip uses each
-        person's own ``np.linalg.norm``), so the same floats.
+        Element by element the arithmetic of one person alone (the speed clip's norm is the
+        dot product ``np.linalg.norm`` takes), so the same floats.
         """
         tracks = [self.tracks[person_id] for person_id in person_ids]
         if not tracks:
             return
         joints = np.array([t.joints for t in tracks], dtype=np.float64)
-        moving = [
-            p
-            for p, track in enumerate(tracks)
-            if track.fused_once
-            and 0 < t_s - track.last_seen_s < 0.5
-            and all(map(math.isfinite, fused[p, 0].tolist()))
-            and all(map(math.isfinite, joints[p, 0].tolist()))
-        ]
+        # t_s − last_seen_s as each person's own Python float subtraction gives it.
+        dts = t_s - np.array([t.last_seen_s for t in tracks])
+        moving = np.flatnonzero(
+            np.array([t.fused_once for t in tracks])
+            & (dts > 0)
+            & (dts < 0.5)
+            & finite_points(fused[:, 0])
+            & finite_points(joints[:, 0])
+        ).tolist()
         if moving:
-            dts = np.array([t_s - tracks[p].last_seen_s for p in moving])
-            velocity = (fused[moving, 0] - joints[moving, 0]) / dts[:, None]
+            velocity = (fused[moving, 0] - joints[moving, 0]) / dts[moving, None]
             velocity[:, 1] = 0.0
             old = np.array([tracks[p].velocity for p in moving], dtype=np.float64)
             smoothed = 0.6 * old + 0.4 * velocity
+            # np.vecdot is the dot product np.linalg.norm takes of one vector (the same bits).
+            speeds = np.sqrt(np.vecdot(smoothed, smoothed))
+            fast = speeds > MAX_SPEED_MPS
+            if fast.any():
+                with np.errstate(divide="ignore"):
+                    scale = MAX_SPEED_MPS / speeds
+                smoothed = np.where(fast[:, None], smoothed * scale[:, None], smoothed)
             for p, row in zip(moving, smoothed, strict=True):
-                speed = float(np.linalg.norm(row))
-                if speed > MAX_SPEED_MPS:
-                    row *= MAX_SPEED_MPS / speed
                 tracks[p].velocity = row
         kept = np.where(np.isfinite(fused), fused, joints)
         for track, row in zip(tracks, kept, strict=True):
