@@ -181,7 +181,11 @@ def _refine(
         p = x @ rot.T + tr
         if (p[:, 2] <= MIN_DEPTH_M).any():
             return np.inf, p, np.zeros(0)
-        r = (k.project(p) - u).ravel() * scale
+        inv_z = 1.0 / p[:, 2]
+        r = np.empty(2 * len(p))
+        r[0::2] = k.fx * p[:, 0] * inv_z + k.cx - u[:, 0]
+        r[1::2] = k.fy * p[:, 1] * inv_z + k.cy - u[:, 1]
+        r *= scale
         return float(r @ r), p, r
 
     cost, p, r = cost_of(rotation, t)
@@ -209,7 +213,8 @@ def _refine(
             damping *= 10.0
         if not improved:
             break
-        done = cost - new_cost <= 1e-12 * max(cost, 1e-12) or np.abs(delta).max() < 1e-10
+        # Converged: the cost fell by less than 1e-10 of itself, or the step is under 10 nm / rad.
+        done = cost - new_cost <= 1e-10 * max(cost, 1e-12) or np.abs(delta).max() < 1e-8
         rotation, t, cost, p, r = new_rotation, new_t, new_cost, new_p, new_r
         damping = max(damping / 10.0, 1e-9)
         if done:
@@ -220,29 +225,24 @@ def _refine(
 
 def _jacobian(p: FloatArray, turned: FloatArray, k: Intrinsics, rotate: bool) -> FloatArray:
     """d(pixels)/d(δω, δt) (2N, 6), or d/dt (2N, 3), at camera-frame points p = R·X + t (N, 3);
-    turned: R·X (N, 3)."""
+    turned: R·X (N, 3). Rows interleave each point's x and y residuals."""
     inv_z = 1.0 / p[:, 2]
+    ax, az = k.fx * inv_z, -k.fx * p[:, 0] * inv_z**2  # du/dp = (ax, 0, az)
+    by, bz = k.fy * inv_z, -k.fy * p[:, 1] * inv_z**2  # dv/dp = (0, by, bz)
     n = len(p)
-    d_proj = np.zeros((n, 2, 3))  # d(u, v)/d(point)
-    d_proj[:, 0, 0] = k.fx * inv_z
-    d_proj[:, 0, 2] = -k.fx * p[:, 0] * inv_z**2
-    d_proj[:, 1, 1] = k.fy * inv_z
-    d_proj[:, 1, 2] = -k.fy * p[:, 1] * inv_z**2
-    if not rotate:
-        return d_proj.reshape(2 * n, 3)
-    # exp(δω)·R·X + t ≈ p + δω × R·X = p − [R·X]× δω: d(point)/d(δω) = −[R·X]×.
-    d_omega = -np.einsum("nij,njk->nik", d_proj, _skew_batch(turned))
-    jac: FloatArray = np.concatenate([d_omega, d_proj], axis=2).reshape(2 * n, 6)
-    return jac
+    jac = np.zeros((n, 2, 6 if rotate else 3))
+    t0 = 3 if rotate else 0
+    jac[:, 0, t0], jac[:, 0, t0 + 2] = ax, az
+    jac[:, 1, t0 + 1], jac[:, 1, t0 + 2] = by, bz
+    if rotate:
+        # exp(δω)·R·X + t ≈ p + δω × q (q = R·X): d(point)/d(δω) = −[q]×, so
+        # du/dδω = (az·q1, ax·q2 − az·q0, −ax·q1), dv/dδω = (−by·q2 + bz·q1, −bz·q0, by·q0).
+        q0, q1, q2 = turned[:, 0], turned[:, 1], turned[:, 2]
+        jac[:, 0, 0], jac[:, 0, 1], jac[:, 0, 2] = az * q1, ax * q2 - az * q0, -ax * q1
+        jac[:, 1, 0], jac[:, 1, 1], jac[:, 1, 2] = bz * q1 - by * q2, -bz * q0, by * q0
+    out: FloatArray = jac.reshape(2 * n, -1)
+    return out
 
 
 def _skew(v: FloatArray) -> FloatArray:
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
-def _skew_batch(v: FloatArray) -> FloatArray:
-    out = np.zeros((len(v), 3, 3))
-    out[:, 0, 1], out[:, 0, 2] = -v[:, 2], v[:, 1]
-    out[:, 1, 0], out[:, 1, 2] = v[:, 2], -v[:, 0]
-    out[:, 2, 0], out[:, 2, 1] = -v[:, 1], v[:, 0]
-    return out
