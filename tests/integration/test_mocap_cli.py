@@ -216,6 +216,10 @@ def test_mocap_on_the_real_clip_detects_and_blender_imports_every_frame(
     assert "detecting: 400/400 frames (100 %)" in err
     assert (tmp_path / "four.landmarks.npz").is_file()
     one = _mocap(tmp_path / "one.bvh", videos[0], "--fov", "36")
+    for take in (four, one):  # the C3D beside each BVH: the same frames in ezc3d
+        markers = ezc3d_world_m(take.c3d, [f"P1_{n}" for n in JOINT_NAMES])
+        assert markers.shape == (take.frames, len(JOINT_NAMES), 3)
+        assert np.isfinite(markers).all()
     results = blender_bvh_positions(_blender(), [four.bvh, one.bvh], tmp_path / "b.json")
     for take, result in zip((four, one), results, strict=True):
         assert result["frame_end"] - result["frame_start"] + 1 == take.frames >= 95
