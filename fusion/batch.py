@@ -41,7 +41,9 @@ class ViewBatch:
     depth_ratios: FloatArray | None = None
 
     @classmethod
-    def of(cls, clusters: list[list[View]]) -> ViewBatch:
+    def of(cls, clusters: list[list[View]], depth_noise: bool = True) -> ViewBatch:
+        """The views of each person stacked; ``depth_noise``: look up each view's depth noise
+        ratio (``FusionSettings.use_sensor_priors``), else treat every view as isotropic."""
         counts = [len(cluster) for cluster in clusters]
         views = [view for cluster in clusters for view in cluster]
         person_of = np.repeat(np.arange(len(clusters)), counts)
@@ -59,7 +61,7 @@ class ViewBatch:
             person_of,
             np.arange(len(views)) - starts[person_of],
             starts,
-            depth_noise_ratios([v.sensor_type for v in views]),
+            depth_noise_ratios([v.sensor_type for v in views]) if depth_noise else None,
         )
 
     @property

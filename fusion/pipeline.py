@@ -107,7 +107,7 @@ class FusionPipeline:
         memories = [self.memories[pid] for pid in ids]
         outputs: dict[int, FusedPerson] = {}
         if ids:
-            batch = ViewBatch.of([clusters[pid][:MAX_VIEWS] for pid in ids])
+            batch = ViewBatch.of([clusters[pid][:MAX_VIEWS] for pid in ids], s.use_sensor_priors)
             track_facing = self._track_facings(ids, tracks)
 
             # 4. Mirror labels: swap mirrored views back before anything looks at left or right.

@@ -89,3 +89,16 @@ def test_the_view_batch_stretches_rgb_views_only() -> None:
     assert np.array_equal(
         kinects.fuse(weights), weighted_mean(kinects.pad(kinects.joints, np.nan), weights[None])
     )
+
+
+def test_without_sensor_priors_rgb_views_are_isotropic() -> None:
+    states = np.full(JOINT_COUNT, 2, np.uint8)
+    body = np.tile(TRUTH, (JOINT_COUNT, 1))
+    camera = View("cam", 1, body + [0.0, 0.0, 0.3], states, CAMERA, sensor_type="rgb")
+    kinect = View("k", 1, body + [0.05, 0.0, 0.0], states, KINECT)
+    batch = ViewBatch.of([[camera, kinect]], depth_noise=False)
+    assert batch.depth_ratios is None
+    np.testing.assert_allclose(batch.fuse(np.ones((2, JOINT_COUNT)))[0, 0], TRUE_MEAN)
+
+
+TRUE_MEAN = TRUTH + [0.025, 0.0, 0.15]
