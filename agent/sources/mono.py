@@ -139,6 +139,7 @@ class MonoSource:
         self._previous: Placement | None = None
         self._tracking_id = 0
         self._finished = False
+        self._checked_size = False
         self.frames_read = 0
         """Frames read so far (all loops)."""
         self.frames_with_body = 0
@@ -236,6 +237,20 @@ class MonoSource:
                 self._intrinsics.fx,
                 self._fov_deg,
             )
+        elif not self._checked_size:
+            k = self._intrinsics
+            if abs(k.cx - width / 2) > 0.2 * width or abs(k.cy - height / 2) > 0.2 * height:
+                # Intrinsics of another resolution or orientation (a portrait phone video with
+                # a landscape calibration): every placement would be off, so say it once.
+                _log.warning(
+                    "mono: the principal point (%.0f, %.0f) px of --intrinsics is far from the "
+                    "centre of the %dx%d frames: intrinsics of another size or orientation?",
+                    k.cx,
+                    k.cy,
+                    width,
+                    height,
+                )
+        self._checked_size = True
         try:
             body = body_from_landmarks(
                 found.image_px,

@@ -226,3 +226,19 @@ def test_start_at_anchors_a_video_to_a_shared_instant() -> None:
     captures = _drain(source)
     assert captures[0].t_capture_ns == round(start_s * 1e9)
     assert clock.now >= captures[0].t_capture_ns  # it waited for the instant
+
+
+def test_intrinsics_of_another_frame_size_are_warned_about(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    clock = Clock()
+    landscape = Intrinsics(1400.0, 1400.0, 960.0, 540.0)  # a 1920x1080 calibration
+    source = MonoSource(
+        video="clip.mp4", intrinsics=landscape, frames=BlankFrames(2), detector=StoredLandmarks(),
+        wall_clock_ns=clock, sleep=clock.sleep,
+    )  # fmt: skip
+    _drain(source)
+    assert caplog.text.count("centre of the 1080x1920 frames") == 1
+    caplog.clear()
+    _drain(_source(BlankFrames(2), StoredLandmarks(), Clock()))
+    assert "centre of the" not in caplog.text
