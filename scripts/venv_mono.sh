@@ -43,6 +43,8 @@ fi
 pip_install() { "$MONO_VENV/bin/pip" install --quiet --disable-pip-version-check "$@"; }
 echo "==> installing mediapipe 0.10.21 (without its optional heavy dependencies) into $MONO_VENV"
 pip_install --no-deps "mediapipe==0.10.21"
+# pip then reports mediapipe's declared but unneeded dependencies (jax, jaxlib,
+# opencv-contrib-python, sentencepiece, sounddevice) as "not installed": expected, on purpose.
 pip_install "${MONO_PACKAGES[@]}"
 # skelfuse itself, editable so the tests see this tree, without its dependencies: the base ones
 # are above (numpy<2 must stay; pip would not downgrade, but it would resolve them again).
