@@ -29,7 +29,7 @@ from skelfuse.fusion.pipeline import FusionPipeline
 from skelfuse.fusion.registration import PeerProbe, registration_refusal
 from skelfuse.fusion.rejection_budget import RejectionBudget
 from skelfuse.fusion.sensor_rows import sensor_rows
-from skelfuse.fusion.sensors import SensorState, new_sensor
+from skelfuse.fusion.sensors import SensorState, calibrated_lag_s, new_sensor
 from skelfuse.fusion.settings import HubSettings
 from skelfuse.fusion.stats import RollingStats
 from skelfuse.fusion.views import FusedPerson, View
@@ -109,6 +109,8 @@ class FusionHub:
     def use_calibration(self, calibration: Calibration) -> None:
         """Fuse with ``calibration`` from the next step on (a commit, rollback or import)."""
         self._calibration = calibration
+        for sensor in self.sensors.values():  # poses are read per step; lags are kept
+            sensor.use_lag(calibrated_lag_s(calibration, sensor.sensor_id))
         if self.drift is not None:  # its windows hold points placed with the old poses
             self.drift.reset()
 
@@ -293,6 +295,7 @@ class FusionHub:
         if existing is not None:
             self._by_routing.pop(existing.routing_id, None)
         sensor = new_sensor(hello, routing_id, now_mono)
+        sensor.use_lag(calibrated_lag_s(self._calibration, hello.sensor_id))
         if existing is not None:
             # Keep the counters across reconnects: they describe the sensor, not the session.
             sensor.frames_received = existing.frames_received

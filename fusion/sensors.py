@@ -13,6 +13,10 @@ and drift. The server maps stamps onto its own clock with an offset it measures 
 - **One way, until the first echo.** The minimum over the window of (receive time − capture
   stamp): it assumes the fastest frame's delay is small and alike across agents.
 
+A sensor may also show events late on its own clock (a camera whose stamps are taken after
+exposure, a video's start guessed): the calibration's ``lag_s`` (:mod:`calibration.motion_sync`)
+is subtracted from its mapped times (:meth:`SensorState.use_lag`; 0 when none is stored).
+
 Frames whose mapped capture time is more than :data:`STALE_S` old on arrival (a backlog after an
 outage) or :data:`FUTURE_S` in the future (a clock jump, a replayed recording) are rejected.
 """
@@ -28,6 +32,7 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
+from skelfuse.calibration.store import Calibration
 from skelfuse.fusion.points import finite_points
 from skelfuse.protocol.hands import Hands
 from skelfuse.protocol.skeleton import JOINT_COUNT, TrackingState
@@ -160,6 +165,7 @@ class SensorState:
     bodies_last: int = 0
     clock_offset_s: float | None = None
     clock_source: str = "none"
+    lag_s: float = 0.0
     round_trip: RoundTripOffset = field(default_factory=RoundTripOffset)
     frames: deque[TimedFrame] = field(default_factory=deque)
     _arrivals: deque[float] = field(default_factory=deque)
@@ -172,7 +178,7 @@ class SensorState:
             offset = self.clock_offset_s
         if offset is None:
             return None
-        capture_server_s = frame.t_capture_ns / 1e9 + offset
+        capture_server_s = frame.t_capture_ns / 1e9 + offset - self.lag_s
         if capture_server_s < received_s - STALE_S:
             return "stale"
         if capture_server_s > received_s + FUTURE_S:
@@ -187,6 +193,17 @@ class SensorState:
         self.clock_offset_s = previous.clock_offset_s
         self.clock_source = previous.clock_source
 
+    def use_lag(self, lag_s: float) -> None:
+        """Place this sensor's frames ``lag_s`` seconds before their mapped stamps (its clock
+        lag) from now on, and move the frames already buffered by the change, so a new
+        calibration shifts the sensor's whole timeline at once instead of leaving a jump (or a
+        reversal) inside its buffer."""
+        shift = self.lag_s - lag_s
+        if shift:
+            for timed in self.frames:
+                timed.t_server_s += shift
+        self.lag_s = lag_s
+
     def add_frame(self, frame: Frame, received_s: float, received_mono: float) -> TimedFrame:
         """Record a frame received at ``received_s`` (server wall clock, Unix seconds)."""
         capture_s = frame.t_capture_ns / 1e9
@@ -198,7 +215,7 @@ class SensorState:
             self.clock_offset_s, self.clock_source = self.round_trip.offset_s, "round_trip"
         else:
             self.clock_offset_s, self.clock_source = one_way, "one_way"
-        timed = TimedFrame(capture_s + self.clock_offset_s, frame)
+        timed = TimedFrame(capture_s + self.clock_offset_s - self.lag_s, frame)
         # Frames arrive in capture order on one connection; keep the buffer sorted anyway.
         if self.frames and timed.t_server_s < self.frames[-1].t_server_s:
             items = list(self.frames)
@@ -225,6 +242,12 @@ class SensorState:
 
     def latest_time(self) -> float | None:
         return self.frames[-1].t_server_s if self.frames else None
+
+
+def calibrated_lag_s(calibration: Calibration | None, sensor_id: str) -> float:
+    """The clock lag ``calibration`` stores for ``sensor_id`` (seconds; 0 when it has none)."""
+    entry = None if calibration is None else calibration.sensors.get(sensor_id)
+    return 0.0 if entry is None or entry.lag_s is None else entry.lag_s
 
 
 def new_sensor(hello: Hello, routing_id: bytes, now_mono: float) -> SensorState:
