@@ -7,8 +7,9 @@ pins numpy<2, so it cannot live in the main one)::
 
 The clip is Pose2Sim's single-person demo (four portrait cameras, 100 frames at 60 fps,
 ``../shared/data/pose2sim-single/README.md``). Every frame of ``cam01.mp4`` … ``cam04.mp4`` goes
-through ``mediapipe.solutions.pose.Pose(static_image_mode=False, model_complexity=1)`` (the one
-complexity whose model ships in the wheel), in video order, as the ``mono`` source runs it.
+through the ``mono`` source's own reader and detector (``VideoFrames``, ``PoseDetector``:
+``mediapipe.solutions.pose.Pose(static_image_mode=False, model_complexity=1)``, the one
+complexity whose model ships in the wheel), in video order, as the source runs it.
 
 Keys, per camera ``<cam>`` in cam01..cam04 (float32 unless said):
 
@@ -30,38 +31,35 @@ import argparse
 import time
 from pathlib import Path
 
-import cv2  # type: ignore[import-not-found]  # the mono environment only
-import mediapipe as mp  # type: ignore[import-not-found]  # the mono environment only
 import numpy as np
+
+from skelfuse.agent.sources.mono_camera import PoseDetector, VideoFrames
 
 ROOT = Path(__file__).resolve().parents[1]
 CAMERAS = ("cam01", "cam02", "cam03", "cam04")
 
 
 def landmarks_of(video: Path) -> dict[str, np.ndarray]:
-    """The landmark arrays of one video, keyed without the camera prefix."""
-    capture = cv2.VideoCapture(str(video))
+    """The landmark arrays of one video, keyed without the camera prefix, through the ``mono``
+    source's own reader and detector (agent/sources/mono_camera.py)."""
+    frames, detector = VideoFrames(video), PoseDetector()
     image, world, visibility, detected = [], [], [], []
     width = height = 0
-    with mp.solutions.pose.Pose(static_image_mode=False, model_complexity=1) as pose:
-        while True:
-            ok, frame = capture.read()
-            if not ok:
-                break
-            height, width = frame.shape[:2]
-            result = pose.process(cv2.cvtColor(frame, cv2.COLOR_BGR2RGB))
-            if result.pose_landmarks is None:
-                image.append(np.full((33, 3), np.nan))
-                world.append(np.full((33, 3), np.nan))
-                visibility.append(np.zeros(33))
-                detected.append(False)
-                continue
-            marks = result.pose_landmarks.landmark
-            image.append([[p.x * width, p.y * height, p.z * width] for p in marks])
-            world.append([[p.x, p.y, p.z] for p in result.pose_world_landmarks.landmark])
-            visibility.append([p.visibility for p in marks])
-            detected.append(True)
-    capture.release()
+    while (bgr := frames.read()) is not None:
+        height, width = bgr.shape[:2]
+        found = detector.detect(bgr)
+        if found is None:
+            image.append(np.full((33, 3), np.nan, np.float32))
+            world.append(np.full((33, 3), np.nan, np.float32))
+            visibility.append(np.zeros(33, np.float32))
+            detected.append(False)
+            continue
+        image.append(found.image_px)
+        world.append(found.world_m)
+        visibility.append(found.visibility)
+        detected.append(True)
+    detector.close()
+    frames.close()
     return {
         "image_px": np.asarray(image, np.float32),
         "world_m": np.asarray(world, np.float32),
