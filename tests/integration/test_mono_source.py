@@ -15,8 +15,11 @@ import subprocess
 from pathlib import Path
 from typing import Any, NoReturn
 
+import numpy as np
 import pytest
 
+from skelfuse.protocol.mediapipe_pose import body_from_landmarks
+from skelfuse.protocol.pinhole import Intrinsics
 from tests.integration.conftest import LiveServer
 from tests.support import wait_until
 
@@ -24,6 +27,7 @@ ROOT = Path(__file__).resolve().parents[2]
 MONO_PYTHON = ROOT / ".venv-mono" / "bin" / "python"
 CLIP = ROOT.parent / "shared" / "data" / "pose2sim-single" / "cam01.mp4"
 CHILD = Path(__file__).with_name("mono_agent_child.py")
+FIXTURE = ROOT / "tests" / "data" / "mono_landmarks.npz"
 CLIP_FRAMES = 100
 
 
@@ -42,7 +46,7 @@ def _sensor(live: LiveServer, sensor_id: str) -> dict[str, Any] | None:
 
 @pytest.mark.timeout(300)
 def test_mono_source_streams_every_frame_of_the_real_clip_without_network(
-    server_factory: Any,
+    server_factory: Any, tmp_path: Path
 ) -> None:
     if not MONO_PYTHON.is_file():
         _unavailable(
@@ -52,8 +56,9 @@ def test_mono_source_streams_every_frame_of_the_real_clip_without_network(
     if not CLIP.is_file():
         _unavailable(f"the real clip is not at {CLIP}", "CI must provide ../shared/data")
     live = server_factory()
+    sent_path = tmp_path / "sent.npz"
     done = subprocess.run(
-        [str(MONO_PYTHON), str(CHILD), str(CLIP), live.zmq_url, "cam01-mono"],
+        [str(MONO_PYTHON), str(CHILD), str(CLIP), live.zmq_url, "cam01-mono", str(sent_path)],
         cwd=ROOT, capture_output=True, text=True, timeout=240, check=False,
     )  # fmt: skip
     assert done.returncode == 0, done.stderr[-3000:]
@@ -68,3 +73,20 @@ def test_mono_source_streams_every_frame_of_the_real_clip_without_network(
     ), json.dumps(_sensor(live, "cam01-mono"))
     row = _sensor(live, "cam01-mono")
     assert row is not None and row["type"] == "rgb" and not row["frames_rejected"], row
+    # The live model saw what the stored landmarks say (tests/data/mono_landmarks.npz, which the
+    # unit tests use): the same bodies through the same mapping (bit for bit on the machine
+    # that made the file; within 2 mm and 1 % of states where another CPU's kernels round
+    # differently).
+    with np.load(sent_path) as sent, np.load(FIXTURE) as stored:
+        width, height = (int(v) for v in stored["cam01_size_wh"])
+        k = Intrinsics.from_fov(width, height, 50.0)
+        previous, same_states = None, []
+        for f in range(CLIP_FRAMES):
+            body = body_from_landmarks(
+                stored["cam01_image_px"][f], stored["cam01_world_m"][f],
+                stored["cam01_visibility"][f], (width, height), k, initial=previous,
+            )  # fmt: skip
+            previous = body.placement
+            np.testing.assert_allclose(sent["joints_m"][f], body.joints_m, atol=0.002)
+            same_states.append(sent["states"][f] == body.states)
+    assert np.mean(same_states) >= 0.99
