@@ -19,7 +19,8 @@ reads the wall clock: the same landmarks give the same file.
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping, Sequence
+import re
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -203,6 +204,20 @@ def place_video(
     return CameraTrack(video.name, points, joints, states, placed, scales)
 
 
+def sensor_id_for(name: str, taken: Iterable[str] = ()) -> str:
+    """A valid, unused sensor id for a video's name (the protocol allows letters, digits and
+    ``._-``, 64 at most, a letter or digit first): others become ``-``; ``-2``, ``-3`` ... make
+    it unique among ``taken``."""
+    base = re.sub(r"[^A-Za-z0-9._-]", "-", name)[:60]
+    base = base if base[:1].isalnum() else f"v{base}"[:60]
+    used = set(taken)
+    candidate, n = base, 1
+    while candidate in used:
+        n += 1
+        candidate = f"{base}-{n}"
+    return candidate
+
+
 def video_recording(
     tracks: Sequence[CameraTrack],
     cameras: Mapping[str, Camera],
@@ -214,7 +229,7 @@ def video_recording(
     """The tracks as one recording: a hello and a frame per video frame per sensor, in time order.
 
     Args:
-        tracks: from :func:`place_video`, one per video (sensor id = track name).
+        tracks: from :func:`place_video`, one per video (its sensor id: :func:`sensor_id_for`).
         cameras: each track's camera (its pose is the recording's calibration).
         fps: each track's frame rate.
         offsets_s: each track's clock offset in seconds (its frame i was captured at
@@ -234,11 +249,12 @@ def video_recording(
         if track.name not in cameras or fps.get(track.name, 0.0) <= 0:
             raise ValueError(f"{track.name}: needs a camera and a positive frame rate")
         rate = fps[track.name]
+        sensor_id = sensor_id_for(track.name, taken=sensors.keys())
         pose = np.asarray(cameras[track.name].T_world_from_sensor, dtype=np.float64)
-        calibration[track.name] = SensorPose(pose, "manual", "stored")
-        sensors[track.name] = {"type": SENSOR_TYPE, "pose_state": "stored", "source": track.name}
-        hello = Hello(track.name, SENSOR_TYPE, "skelfuse-mocap", rate, _T0_NS)
-        stamped.append((_T0_NS, k, Record(_T0_NS, track.name, "hello", encode(hello))))
+        calibration[sensor_id] = SensorPose(pose, "manual", "stored")
+        sensors[sensor_id] = {"type": SENSOR_TYPE, "pose_state": "stored", "source": track.name}
+        hello = Hello(sensor_id, SENSOR_TYPE, "skelfuse-mocap", rate, _T0_NS)
+        stamped.append((_T0_NS, k, Record(_T0_NS, sensor_id, "hello", encode(hello))))
         shift_ns = round(offsets.get(track.name, 0.0) * 1e9)
         for i in range(track.placed.shape[0]):
             t_ns = start_ns + round(i * 1e9 / rate) - shift_ns + k  # +k: unique, stable order
@@ -247,7 +263,7 @@ def video_recording(
                 bodies = (Body(1, track.joints_m[i], track.states[i]),)
             payload = encode(Frame(i + 1, t_ns, bodies))
             t_arrival = t_ns + _NETWORK_DELAY_NS
-            stamped.append((t_arrival, k, Record(t_arrival, track.name, "frame", payload)))
+            stamped.append((t_arrival, k, Record(t_arrival, sensor_id, "frame", payload)))
     stamped.sort(key=lambda r: (r[0], r[1]))
     header = Header(_T0_NS / 1e9, "skelfuse-mocap", name, calibration, sensors)
     return header, [r[2] for r in stamped]

@@ -201,15 +201,17 @@ def _sync(
         logger.warning("clocks not synchronised from the motion (%s): offsets 0", exc)
         return {}
     offsets = {}
-    for name, lag in sync.lag_s.items():
-        trusted = sync.confidence[name] >= MIN_SYNC_CONFIDENCE
-        offsets[name] = lag if trusted else 0.0
+    for video in landmarks:  # the estimate names cameras; the recording, videos
+        camera = cameras[video.name].name
+        lag = sync.lag_s[camera]
+        trusted = sync.confidence[camera] >= MIN_SYNC_CONFIDENCE
+        offsets[video.name] = lag if trusted else 0.0
         logger.info(
             "%s: clock %+.1f ms (%+.2f frames, confidence %.2f)%s",
-            name,
+            video.name,
             lag * 1000,
-            sync.lag_frames[name],
-            sync.confidence[name],
+            sync.lag_frames[camera],
+            sync.confidence[camera],
             "" if trusted else ": not trusted, 0 used",
         )
     return offsets

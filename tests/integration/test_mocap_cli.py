@@ -178,6 +178,22 @@ def test_no_person_found_is_said(tmp_path: Path, capsys: pytest.CaptureFixture[s
     assert "cam01.mp4: no person found in any of its 100 frames" in capsys.readouterr().err
 
 
+def test_videos_named_otherwise_go_with_the_cameras_in_order(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    renamed = {"cam01": "front", "cam02": "left", "cam03": "back", "cam04": "right"}
+    with np.load(LANDMARKS) as data:
+        arrays = {renamed[k[:5]] + k[5:]: data[k] for k in data.files}
+    landmarks = tmp_path / "renamed.npz"
+    np.savez(landmarks, **arrays)
+    videos = [f"{name}.mp4" for name in renamed.values()]
+    args = ["mocap", *videos, "--calibration", str(CALIBRATION), "--video-fps", "60"]
+    caplog.set_level("INFO", logger="skelfuse")
+    assert main([*args, "--landmarks", str(landmarks), "-o", str(tmp_path / "t.bvh")]) == 0
+    assert "matched by order" in caplog.text
+    assert "back: clock +39.2 ms (+2.35 frames" in caplog.text  # cam03's lag, under its video
+
+
 def test_a_video_without_its_camera_in_the_calibration_is_named(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

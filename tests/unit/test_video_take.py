@@ -5,6 +5,7 @@ Runs on ``tests/data/mono_landmarks.npz`` and the clip's Qualisys calibration: n
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +24,7 @@ from skelfuse.recording.video_take import (
     VideoLandmarks,
     place_video,
     read_landmarks,
+    sensor_id_for,
     video_recording,
 )
 
@@ -163,3 +165,20 @@ def test_the_floor_beats_pnp_against_the_four_view_reference(
         floor_total += floor["abs_mean"]
     assert better >= 3
     assert floor_total < 0.9 * pnp_total
+
+
+def test_any_video_name_becomes_a_valid_sensor_id(
+    tmp_path: Path, videos: list[VideoLandmarks], cameras: dict[str, Camera]
+) -> None:
+    assert sensor_id_for("cam01") == "cam01"
+    assert sensor_id_for("My take (1)") == "My-take--1-"
+    assert sensor_id_for("_front", taken=["v_front"]) == "v_front-2"
+    assert len(sensor_id_for("x" * 100)) == 60
+    track = replace(place_video(videos[0], cameras["cam01"]), name="My take (1)")
+    header, records = video_recording(
+        [track], {"My take (1)": cameras["cam01"]}, {"My take (1)": 60.0}
+    )
+    assert set(header.calibration) == {"My-take--1-"}
+    path = tmp_path / "named.sfrec"
+    write_recording(path, header, records)
+    assert take_from_frames(replay(path)).persons  # the hub took the sensor
