@@ -64,7 +64,8 @@ def mono_python(explicit: str | None) -> Path:
             return Path(sys.executable)
         root = Path(__file__).resolve().parents[2]
         venv = Path(os.environ.get("SKELFUSE_VENV_MONO") or root / ".venv-mono")
-        candidates.append((venv if venv.is_absolute() else root / venv) / "bin" / "python")
+        inside = Path("Scripts", "python.exe") if os.name == "nt" else Path("bin", "python")
+        candidates.append((venv if venv.is_absolute() else root / venv) / inside)
     for candidate in candidates:
         if candidate.is_file() and os.access(candidate, os.X_OK):
             return candidate

@@ -167,6 +167,16 @@ def test_intrinsics_with_a_calibration_are_refused(
     )
 
 
+def test_a_missing_mono_environment_says_how_to_make_one(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    video = tmp_path / "cam01.mp4"
+    video.write_bytes(b"")
+    args = ["mocap", str(video), "--mono-python", str(tmp_path / "nope" / "python")]
+    assert main([*args, "-o", str(tmp_path / "t.bvh")]) == 1
+    assert "bash scripts/venv_mono.sh" in capsys.readouterr().err
+
+
 def test_no_person_found_is_said(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     with np.load(LANDMARKS) as data:
         arrays = {k: data[k] for k in data.files if k.startswith("cam01_")}
