@@ -202,23 +202,25 @@ class FusionPipeline:
             self._check_walking_directions(ids, t_s)  # each only looks at its own person
 
             # 7. Filter, 8. bone-length fit.
-            alive = [p for p in range(len(ids)) if np.isfinite(fused[p]).any()]
+            alive = np.flatnonzero(np.isfinite(fused).any(axis=(1, 2))).tolist()
             filtered = filter_all([memories[p].filter for p in alive], fused[alive], t_s)
             skeletons = dict(zip(alive, filtered, strict=True))
             if s.enforce_bone_lengths and alive:
                 # The references as they are now: this step's observations are in.
-                lengths = {p: memories[p].bones.reference() for p in alive}
-                fitted = [p for p in alive if np.isfinite(lengths[p]).any()]
+                lengths = np.stack([memories[p].bones.reference() for p in alive])
+                known = np.isfinite(lengths).any(axis=1)
+                fitted = [p for p, k in zip(alive, known.tolist(), strict=True) if k]
                 if fitted:
                     fit = fit_bone_lengths(
                         np.stack([skeletons[p] for p in fitted]),
-                        np.stack([lengths[p] for p in fitted]),
+                        lengths[known],
                         s.bone_length_fit,
                         s.bone_fit_iterations,
                     )
                     skeletons.update(zip(fitted, fit, strict=True))
             flags = mirrored.tolist()
-            spans = [(batch.starts[p], batch.starts[p + 1]) for p in alive]
+            starts = batch.starts.tolist()
+            spans = [(starts[p], starts[p + 1]) for p in alive]
             persons = fused_persons(
                 [ids[p] for p in alive],
                 [skeletons[p] for p in alive],

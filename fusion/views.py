@@ -89,6 +89,8 @@ def fused_persons(
     ).reshape(carried.shape[:2])
     # Each view's bit where it carried the joint, all persons at once (padding carries none).
     joint_sources = np.bitwise_or.reduce(carried.astype(np.int64) << slots[..., None], axis=1)
+    # fuse_hands gives None when no view reports hand states: most rigs, so asked once.
+    with_hands = any(v.hands is not None for own in views for v in own)
     return [
         FusedPerson(
             person_id=person_id,
@@ -99,10 +101,14 @@ def fused_persons(
             joint_sources=joint_sources[a],
             mirrored=tuple(
                 sorted(v.sensor_id for v, m in zip(views[a], mirrored[a], strict=True) if m)
-            ),
+            )
+            if any(mirrored[a])
+            else (),
             hands=fuse_hands(
                 [(v.hands, v.states, m) for v, m in zip(views[a], mirrored[a], strict=True)]
-            ),
+            )
+            if with_hands
+            else None,
         )
         for a, (person_id, skeleton) in enumerate(zip(person_ids, joints, strict=True))
     ]
