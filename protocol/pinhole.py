@@ -1,10 +1,11 @@
 """A pinhole camera's intrinsics: what turns metres in the camera frame into pixels.
 
 The camera frame here is OpenCV's (and MediaPipe's): +X right, +Y down, +Z forward along the
-optical axis, metres; pixels have x right, y down, origin at the top-left pixel's corner (the
-convention of ``cv2.projectPoints`` with no distortion). Lens distortion is not modelled: the
-``mono`` source's landmarks come from undistorted-enough webcams and phone videos, and a
-calibration with distortion (calibration/) can undistort landmarks before they get here.
+optical axis, metres; pixels have x right, y down, as ``cv2.projectPoints`` gives them with no
+distortion (MediaPipe's landmarks scaled by the image size put the image's edge at 0, OpenCV the
+first pixel's centre: half a pixel, far below the landmarks' noise). Lens distortion is not
+modelled here: a calibration with distortion (calibration/camera.py) undistorts the landmarks
+before they get here (the ``mono`` source's ``--calibration``).
 
 The sensor frame of the wire (Kinect v2's: +X left, +Y up, +Z forward) is this frame turned
 180° about Z: :data:`CV_TO_SENSOR` (``p_sensor = CV_TO_SENSOR * p_cv``).

@@ -23,8 +23,10 @@ Timestamps:
 - ``--camera N``: the PC clock when OpenCV returns the frame (exposure and USB latency are not
   subtracted: a fixed lag the server's clock alignment does not see).
 
-Intrinsics: ``--intrinsics fx,fy,cx,cy`` (pixels), else a guess from ``--fov`` (horizontal,
-degrees; default 60) with a warning, since every distance scales with the focal length.
+Intrinsics: ``--intrinsics fx,fy,cx,cy`` (pixels); or a camera of a calibration file
+(``--calibration``: fitted to the frames' size, the landmarks undistorted with its lens model
+before the fit, its pose the pose hint); else a guess from ``--fov`` (horizontal, degrees;
+default 60) with a warning, since every distance scales with the focal length.
 """
 
 from __future__ import annotations
@@ -62,6 +64,11 @@ _log = logging.getLogger(__name__)
 DEFAULT_FOV_DEG: Final = 60.0
 """Horizontal field of view assumed without ``--intrinsics`` (a typical webcam's 55-70°)."""
 DEFAULT_FPS: Final = 30.0
+Undistort = Callable[[npt.NDArray[np.float64]], npt.NDArray[np.float64]]
+"""(N, 2) distorted pixels → the pixels an ideal pinhole camera would see."""
+LensFor = Callable[[int, int], tuple[Intrinsics, Undistort | None]]
+"""Given the frames' width and height: the intrinsics for frames of that size, and the
+undistortion of landmark pixels (None when the lens has no distortion)."""
 MAX_LAG_S: Final = 0.25
 """A video frame read this late after its due time moves the anchor (half the server's 0.5 s
 staleness limit, fusion/sensors.py: the frame must still arrive in time)."""
@@ -74,6 +81,8 @@ class MonoSource:
         camera: a webcam index (``--camera``), or None.
         video: a video file (``--video``), or None. Exactly one of camera and video.
         intrinsics: the camera's, or None to guess from ``fov_deg`` and the first frame's size.
+        lens: instead of ``intrinsics``, what gives the intrinsics (and an undistortion) for the
+            first frame's size: a calibration file's camera (``--calibration``, built by the CLI).
         fov_deg: horizontal field of view for that guess.
         pose: ``T_world_from_sensor`` announced as a manual pose hint, or None.
         loop: a video starts again after its last frame.
@@ -96,6 +105,7 @@ class MonoSource:
         camera: int | None = None,
         video: str | Path | None = None,
         intrinsics: Intrinsics | None = None,
+        lens: LensFor | None = None,
         fov_deg: float = DEFAULT_FOV_DEG,
         pose: Matrix4 | None = None,
         loop: bool = False,
@@ -123,7 +133,10 @@ class MonoSource:
         except SensorError:
             self._frames.close()
             raise
-        self._intrinsics = intrinsics
+        self._given = intrinsics
+        self._lens = lens
+        self._intrinsics: Intrinsics | None = None
+        self._undistort: Undistort | None = None
         self._fov_deg = fov_deg
         self._pose = pose
         self._loop = loop
@@ -139,7 +152,6 @@ class MonoSource:
         self._previous: Placement | None = None
         self._tracking_id = 0
         self._finished = False
-        self._checked_size = False
         self.frames_read = 0
         """Frames read so far (all loops)."""
         self.frames_with_body = 0
@@ -223,22 +235,15 @@ class MonoSource:
                 self._speed,
             )
 
-    def _bodies(self, frame: npt.NDArray[np.uint8]) -> tuple[Body, ...]:
-        found: Landmarks | None = self._detector.detect(frame)
-        if found is None:
-            self._lost()
-            return ()
-        height, width = frame.shape[:2]
-        if self._intrinsics is None:
-            self._intrinsics = Intrinsics.from_fov(width, height, self._fov_deg)
-            _log.warning(
-                "mono: no --intrinsics: guessing fx=fy=%.0f px from a %.0f° field of view; "
-                "every distance scales with the focal length, so measure the intrinsics",
-                self._intrinsics.fx,
-                self._fov_deg,
-            )
-        elif not self._checked_size:
-            k = self._intrinsics
+    def _intrinsics_for(self, width: int, height: int) -> Intrinsics:
+        """The intrinsics for frames of this size: decided on the first frame, then kept."""
+        if self._intrinsics is not None:
+            return self._intrinsics
+        if self._lens is not None:
+            self._intrinsics, self._undistort = self._lens(width, height)
+        elif self._given is not None:
+            self._intrinsics = self._given
+            k = self._given
             if abs(k.cx - width / 2) > 0.2 * width or abs(k.cy - height / 2) > 0.2 * height:
                 # Intrinsics of another resolution or orientation (a portrait phone video with
                 # a landscape calibration): every placement would be off, so say it once.
@@ -250,14 +255,33 @@ class MonoSource:
                     width,
                     height,
                 )
-        self._checked_size = True
+        else:
+            self._intrinsics = Intrinsics.from_fov(width, height, self._fov_deg)
+            _log.warning(
+                "mono: no --intrinsics: guessing fx=fy=%.0f px from a %.0f° field of view; "
+                "every distance scales with the focal length, so measure the intrinsics",
+                self._intrinsics.fx,
+                self._fov_deg,
+            )
+        return self._intrinsics
+
+    def _bodies(self, frame: npt.NDArray[np.uint8]) -> tuple[Body, ...]:
+        found: Landmarks | None = self._detector.detect(frame)
+        if found is None:
+            self._lost()
+            return ()
+        height, width = frame.shape[:2]
+        intrinsics = self._intrinsics_for(width, height)
+        image_px = found.image_px.astype(np.float64)
+        if self._undistort is not None:  # the pinhole model needs undistorted pixels
+            image_px[:, :2] = self._undistort(image_px[:, :2])
         try:
             body = body_from_landmarks(
-                found.image_px,
+                image_px,
                 found.world_m,
                 found.visibility,
                 (width, height),
-                self._intrinsics,
+                intrinsics,
                 self._policy,
                 self._placement_mode,
                 self._previous,

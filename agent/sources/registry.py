@@ -144,7 +144,8 @@ def make_source(kind: str, options: dict[str, Any]) -> SkeletonSource:
         kinect_v2: ``pose``;
         azure_kinect / femto: ``device_index``, ``k4a_path``, ``k4abt_path``, ``depth_mode``,
         ``pose``;
-        mono: ``camera`` or ``video``, ``intrinsics`` (``"fx,fy,cx,cy"``), ``fov_deg``, ``pose``,
+        mono: ``camera`` or ``video``, ``intrinsics`` (``"fx,fy,cx,cy"``) or ``lens``
+        (:data:`skelfuse.agent.sources.mono.LensFor`), ``fov_deg``, ``pose``,
         ``loop``, ``speed``, ``start_unix_s``.
 
     Raises:
@@ -221,6 +222,7 @@ def _mono_source(options: dict[str, Any]) -> SkeletonSource:
         camera=None if camera is None else int(camera),
         video=video or None,
         intrinsics=intrinsics,
+        lens=options.get("lens"),
         fov_deg=DEFAULT_FOV_DEG if fov is None else float(fov),
         pose=_pose(options),
         loop=bool(options.get("loop", False)),

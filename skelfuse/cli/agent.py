@@ -110,6 +110,23 @@ def _add_source_options(parser: argparse.ArgumentParser) -> None:
         help="mono: the camera's fx,fy,cx,cy in pixels (without it: a guess from --fov)",
     )
     parser.add_argument(
+        "--calibration",
+        default=None,
+        help="mono: a camera calibration file (Qualisys .qca.txt, Pose2Sim .toml, OpenCV "
+        ".yml/.xml): the camera's intrinsics and lens distortion, its pose as the pose hint",
+    )
+    parser.add_argument(
+        "--calibration-format",
+        default=None,
+        choices=["qualisys", "pose2sim", "opencv"],
+        help="mono: the --calibration file's format (default: from its extension)",
+    )
+    parser.add_argument(
+        "--calibration-camera",
+        default=None,
+        help="mono: which camera of --calibration (default: its only one)",
+    )
+    parser.add_argument(
         "--fov",
         type=float,
         default=None,
@@ -138,7 +155,12 @@ def run(args: argparse.Namespace) -> int:
         curve = CurveKeys(Path(args.key), Path(args.server_key))
     stop = _stop_on_signals()
     started = time.monotonic()
-    link = run_agent(args.id, source, args.server, stop=stop, duration_s=args.duration, curve=curve)
+    try:
+        link = run_agent(
+            args.id, source, args.server, stop=stop, duration_s=args.duration, curve=curve
+        )
+    except SensorError as exc:  # a camera that stops, a calibration that does not fit its frames
+        raise UsageError(f"{args.id}: {exc}") from exc
     logging.getLogger("skelfuse.agent").info(
         "%s stopped after %.0f s: %d frames sent, %d dropped",
         args.id,
@@ -181,6 +203,17 @@ def source_from_args(args: argparse.Namespace) -> SkeletonSource:
         "fov_deg": args.fov,
         "pose": pose_matrix(args.pose) if args.pose is not None else None,
     }
+    if kind == "mono" and args.calibration:
+        from skelfuse.cli.agent_lens import calibrated_lens
+
+        if args.intrinsics:
+            raise UsageError("give --intrinsics or --calibration, not both")
+        lens, pose = calibrated_lens(
+            Path(args.calibration), args.calibration_format, args.calibration_camera
+        )
+        options["lens"] = lens
+        if options["pose"] is None:
+            options["pose"] = pose
     if kind == "sim":
         if not 1 <= args.persons <= 6:
             raise UsageError("--persons must be 1..6")
