@@ -19,7 +19,8 @@ Timestamps:
   :data:`MAX_LAG_S` after its due time (the server drops frames stamped 0.5 s before they
   arrive), the anchor moves forward by that lag (the frame is stamped when it leaves), and a
   warning says once that the timeline is being stretched; a ``--speed`` the detector keeps up
-  with (0.5 for 60 fps on such a CPU) avoids that.
+  with (0.5 for 60 fps on such a CPU) avoids that. The first frame's lateness (MediaPipe sets
+  its graph up, about a second) moves the anchor without a warning: the timeline starts there.
 - ``--camera N``: the PC clock when OpenCV returns the frame (exposure and USB latency are not
   subtracted: a fixed lag the server's clock alignment does not see).
 
@@ -219,7 +220,11 @@ class MonoSource:
         bodies = self._bodies(image)
         late_ns = self._clock() - due  # the frame leaves now: its stamp must not be stale
         if late_ns > MAX_LAG_S * 1e9:
-            self._fall_behind(late_ns)
+            if self.frames_read == 1:  # the model's first run (graph set-up): start from here
+                assert self._anchor_ns is not None
+                self._anchor_ns += late_ns
+            else:
+                self._fall_behind(late_ns)
             due += late_ns
         return Capture(t_capture_ns=due, bodies=bodies)
 
