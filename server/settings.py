@@ -4,11 +4,28 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 from skelfuse.fusion.settings import FusionSettings, HubSettings
 from skelfuse.protocol.constants import DEFAULT_HTTP_PORT, DEFAULT_ZMQ_PORT
 
-__all__ = ["FusionSettings", "HubSettings", "Settings"]
+__all__ = ["FusionSettings", "HubSettings", "OutputSpec", "Settings"]
+
+
+@dataclass(frozen=True, slots=True)
+class OutputSpec:
+    """One output of fused frames besides the WebSocket feed (docs/outputs.md)."""
+
+    kind: Literal["osc", "vmc", "lsl"]
+    host: str = "127.0.0.1"
+    port: int = 0
+    """UDP port of the receiver (osc, vmc); unused by lsl."""
+    rotations: bool = False
+    """osc: add each joint's rotation (``/rot``)."""
+    slots: int = 6
+    """lsl: persons per sample."""
+    queue: int = 8
+    """Frames waiting for the output's thread; beyond them frames are dropped (counted)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -32,3 +49,5 @@ class Settings(HubSettings):
     """Larger HTTP request bodies are refused with 413 before they are read."""
     curve: bool = False
     """Authenticate agents with CurveZMQ (keys under ``<data_dir>/keys``, see docs/security.md)."""
+    outputs: tuple[OutputSpec, ...] = ()
+    """OSC, VMC and LSL outputs (``--osc``, ``--vmc``, ``--lsl``; docs/outputs.md)."""
