@@ -16,7 +16,12 @@ import numpy as np
 
 from skelfuse.calibration.errors import CalibrationError, NotEnoughCorrespondences
 from skelfuse.calibration.rigid import pose_error
-from skelfuse.calibration.skeleton_pose import SkeletonFit, solve_from_skeletons
+from skelfuse.calibration.skeleton_pose import (
+    RGB_MIN_SCALE_M,
+    RGB_RANSAC_THRESHOLD_M,
+    SkeletonFit,
+    solve_from_skeletons,
+)
 from skelfuse.protocol.wire import Body
 
 MIN_PAIR_SAMPLES: Final = 30
@@ -28,12 +33,27 @@ MAX_PAIRS_PER_INSTANT: Final = 9
 """Instants with more body pairs than this (a crowd) are left out: too ambiguous to help."""
 
 
+DEPTH_RANSAC_THRESHOLD_M: Final = 0.10
+DEPTH_MIN_SCALE_M: Final = 0.015
+"""``ransac_threshold_m`` and ``min_scale_m`` for pairs of depth sensors (Kinects, the
+simulator): :func:`solve_with_body_pairing`'s defaults."""
+
+
+def pairing_thresholds(*sensor_types: str | None) -> tuple[float, float]:
+    """``(ransac_threshold_m, min_scale_m)`` for a pair of sensors of these ``sensor_type`` s:
+    the ``rgb`` (mono) settings when either is ``rgb`` (its depth rests on a guess of the body's
+    size, skeleton_pose.RGB_RANSAC_THRESHOLD_M), else the depth sensors' (None: unknown type)."""
+    if "rgb" in sensor_types:
+        return RGB_RANSAC_THRESHOLD_M, RGB_MIN_SCALE_M
+    return DEPTH_RANSAC_THRESHOLD_M, DEPTH_MIN_SCALE_M
+
+
 def solve_with_body_pairing(
     ref_samples: Sequence[tuple[Body, ...]],
     other_samples: Sequence[tuple[Body, ...]],
     *,
-    ransac_threshold_m: float = 0.10,
-    min_scale_m: float = 0.015,
+    ransac_threshold_m: float = DEPTH_RANSAC_THRESHOLD_M,
+    min_scale_m: float = DEPTH_MIN_SCALE_M,
 ) -> tuple[SkeletonFit, str | None]:
     """Relative pose of two sensors from their bodies, not knowing which body is which person.
 
@@ -47,7 +67,8 @@ def solve_with_body_pairing(
             reference's sensor frame); ``()`` where it saw nobody.
         other_samples: the other sensor's bodies at the same instants (its own sensor frame).
         ransac_threshold_m, min_scale_m: as :func:`solve_from_skeletons`; with an ``rgb``
-            sensor in the pair, ``skeleton_pose.RGB_RANSAC_THRESHOLD_M`` and ``RGB_MIN_SCALE_M``.
+            sensor in the pair, ``skeleton_pose.RGB_RANSAC_THRESHOLD_M`` and ``RGB_MIN_SCALE_M``
+            (:func:`pairing_thresholds` picks them by the sensors' types).
 
     Returns:
         The fit (``T_ref_from_other``, (4, 4), metres) and a note for the user when some

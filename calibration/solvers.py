@@ -12,8 +12,10 @@ floor at y = 0). Poses are (4, 4) float64 with ``p_world = T_world_from_sensor @
   world levelled with the reference's floor plane (Kinect ``FloorClipPlane``);
 - :func:`refine_with_depth`: depth clouds → ICP from the current poses, then the world
   re-levelled with the floor fitted in the reference's cloud;
-- :func:`solve_sensor` / :func:`refine_sensor_with_depth`: one sensor (a bumped one) against
-  the others, whose poses stay as they are (drift repair, docs/calibration.md).
+
+One sensor (a bumped one) against the others, whose poses stay as they are (drift repair):
+:mod:`skelfuse.calibration.sensor_repair`. Pairs with an ``rgb`` (mono) sensor are fitted with
+that sensor's looser RANSAC settings (:func:`body_pairing.pairing_thresholds`).
 """
 
 from __future__ import annotations
@@ -25,20 +27,23 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.calibration.body_pairing import solve_with_body_pairing
-from skelfuse.calibration.errors import CalibrationError, InvalidInput, NotEnoughCorrespondences
+from skelfuse.calibration.body_pairing import pairing_thresholds, solve_with_body_pairing
+from skelfuse.calibration.errors import CalibrationError, NotEnoughCorrespondences
 from skelfuse.calibration.floor import fit_floor, floor_from_kinect_plane, level_to_floor
-from skelfuse.calibration.icp import Progress, refine_all, refine_icp, scaled_progress
+from skelfuse.calibration.icp import Progress, refine_all, scaled_progress
 from skelfuse.calibration.rigid import fit_rigid, pose_error
 from skelfuse.calibration.skeleton_pose import SKELETON_ERROR_BOUND
 from skelfuse.protocol.skeleton import JointId
-from skelfuse.protocol.transform import Matrix4, apply, invert
+from skelfuse.protocol.transform import Matrix4, invert
 from skelfuse.protocol.wire import Body
 
 FloatArray = npt.NDArray[np.float64]
 Samples = Mapping[str, Sequence[tuple[Body, ...]]]
 """Sensor id → per instant (the same instants for every sensor) the bodies it saw, joints in
 its own frame; ``()`` where it saw nobody."""
+SensorTypes = Mapping[str, str]
+"""Sensor id → its ``sensor_type`` (``kinect_v2``, ``rgb``, ...: the wire's); a sensor left out
+is fitted with the depth sensors' settings."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -121,6 +126,7 @@ def solve_skeletons(
     sensors: Sequence[str],
     samples: Samples,
     floor_plane: tuple[float, float, float, float] | None,
+    sensor_types: SensorTypes | None = None,
 ) -> Solution:
     """Every sensor's pose from the bodies it saw at the same instants as the reference.
 
@@ -135,12 +141,14 @@ def solve_skeletons(
         samples: see :data:`Samples`.
         floor_plane: the reference's latest Kinect ``FloorClipPlane`` (a, b, c, d): unit normal
             in its frame and its height (metres); None when it reports none.
+        sensor_types: see :data:`SensorTypes` (a pair with an ``rgb`` sensor: its settings).
 
     Raises:
         NotEnoughCorrespondences: some sensor could not be paired with the reference (every
             such sensor is named, with its reason).
         InvalidInput: a floor plane with a zero normal or NaN.
     """
+    types = sensor_types or {}
     ref_samples = samples[reference]
     T_ref_from: dict[str, Matrix4] = {reference: np.eye(4)}
     relative: dict[str, SensorResult] = {}
@@ -149,7 +157,13 @@ def solve_skeletons(
         if sensor_id == reference:
             continue
         try:
-            fit, note = solve_with_body_pairing(ref_samples, samples[sensor_id])
+            threshold_m, scale_m = pairing_thresholds(types.get(reference), types.get(sensor_id))
+            fit, note = solve_with_body_pairing(
+                ref_samples,
+                samples[sensor_id],
+                ransac_threshold_m=threshold_m,
+                min_scale_m=scale_m,
+            )
         except CalibrationError as exc:
             failures.append(f"{sensor_id}: {exc}")
             continue
@@ -165,6 +179,8 @@ def solve_skeletons(
                 "joints_used": fit.joints_used,
                 "inlier_ratio": round(fit.inlier_ratio, 3),
                 "spread_m": round(fit.spread_m, 3),
+                "ransac_threshold_m": threshold_m,
+                "min_scale_m": scale_m,
             },
         )
     if failures:
@@ -285,113 +301,3 @@ def refine_with_depth(
         for sensor_id, result in results.items()
     }
     return Solution(levelled, report)
-
-
-_TRUST_RANK = {"low": 0, "medium": 1, "high": 2}
-
-
-def solve_sensor(sensor: str, fixed: Mapping[str, Matrix4], samples: Samples) -> SensorResult:
-    """One sensor's pose from the bodies it saw with the others, whose poses stay fixed.
-
-    The sensor is paired with each fixed sensor (:func:`solve_with_body_pairing`); each pairing
-    gives ``T_world_from_sensor = T_world_from_other · T_other_from_sensor``; the most trusted
-    one (then the one with most joints) wins, and every pairing is reported in the metrics.
-
-    Args:
-        sensor: the sensor to solve (a key of ``samples``).
-        fixed: other sensor id → its (4, 4) ``T_world_from_sensor`` (metres), kept as is.
-        samples: see :data:`Samples` (``sensor`` and every key of ``fixed``).
-
-    Raises:
-        NotEnoughCorrespondences: no fixed sensor could be paired with it (each reason named).
-    """
-    candidates: list[tuple[tuple[int, int], str, Matrix4, Any]] = []
-    failures: list[str] = []
-    for other, T_world_from_other in sorted(fixed.items()):
-        try:
-            fit, _ = solve_with_body_pairing(samples[other], samples[sensor])
-        except CalibrationError as exc:
-            failures.append(f"{other}: {exc}")
-            continue
-        rank = (_TRUST_RANK[fit.trust], fit.joints_used)
-        candidates.append((rank, other, T_world_from_other @ fit.T_ref_from_other, fit))
-    if not candidates:
-        raise NotEnoughCorrespondences(
-            f"{sensor} could not be solved against any other sensor: " + "; ".join(failures)
-        )
-    _, partner, pose, fit = max(candidates, key=lambda c: c[0])
-    partners = {
-        other: {
-            "trust": f.trust,
-            "residual_mm": round(f.residual_mm, 2),
-            "joints_used": f.joints_used,
-            "disagreement_deg_mm": [round(x, 2) for x in pose_error(T, pose)],
-        }
-        for _, other, T, f in candidates
-    }
-    return SensorResult(
-        pose,
-        "sensor",
-        fit.residual_mm,
-        [*fit.warnings, *(f"not paired with {failure}" for failure in failures)],
-        {
-            "against": partner,
-            "trust": fit.trust,
-            "frames_used": fit.frames_used,
-            "joints_used": fit.joints_used,
-            "spread_m": round(fit.spread_m, 3),
-            "partners": partners,
-        },
-    )
-
-
-def refine_sensor_with_depth(
-    sensor: str,
-    clouds: Mapping[str, FloatArray],
-    initial: SensorResult,
-    fixed: Mapping[str, Matrix4],
-    min_overlap: float,
-    progress: Progress | None = None,
-) -> SensorResult:
-    """Refine one sensor's pose by ICP against the others' clouds placed with their fixed poses.
-
-    Args:
-        sensor: the sensor to refine (a key of ``clouds``).
-        clouds: sensor id → (N, 3) finite points in its own frame, metres (``sensor`` and at
-            least one key of ``fixed``).
-        initial: the pose to start from; a skeleton estimate (method ``sensor``) may move by at
-            most ``SKELETON_ERROR_BOUND``.
-        fixed: other sensor id → (4, 4) ``T_world_from_sensor``, kept as is.
-        min_overlap: below this share of overlapping points, ICP warns.
-        progress: told after each ICP level.
-
-    Raises:
-        InvalidInput: bad clouds, or no fixed sensor's cloud.
-        NoOverlap: the sensor's cloud shares no surface with the others'.
-        IcpUnavailable: open3d cannot load.
-    """
-    others = [apply(fixed[o], clouds[o]) for o in sorted(fixed) if o in clouds]
-    if not others:
-        raise InvalidInput(f"no depth cloud from another sensor to refine {sensor} against")
-    icp = refine_icp(
-        clouds[sensor],
-        np.concatenate(others),
-        initial.T_world_from_sensor,
-        min_overlap=min_overlap,
-        max_correction=SKELETON_ERROR_BOUND if initial.method == "sensor" else None,
-        progress=progress,
-    )
-    return SensorResult(
-        icp.T_target_from_source,
-        f"{initial.method}+icp" if icp.applied else initial.method,
-        icp.inlier_rmse_m * 1000.0 if icp.applied else initial.residual_mm,
-        [*initial.warnings, *icp.warnings],
-        {
-            **initial.metrics,
-            "icp_applied": icp.applied,
-            "fitness": round(icp.fitness, 4),
-            "overlap": round(icp.overlap, 4),
-            "correction_deg": round(icp.correction_deg, 3),
-            "correction_mm": round(icp.correction_mm, 1),
-        },
-    )

@@ -1,5 +1,6 @@
 """What a calibration run captures from the live hub: every sensor's bodies at common instants
-while someone walks (:func:`capture_skeletons`), and the reference's floor plane.
+while someone walks (:func:`capture_skeletons`), the reference's floor plane, and each sensor's
+type (the solvers fit pairs with an ``rgb`` sensor with its own settings).
 
 Time comes from the run's injected :class:`~skelfuse.server.clock.Clock`, so tests drive a whole
 capture with a fake clock.
@@ -9,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from skelfuse.calibration.solvers import Samples
+from skelfuse.calibration.solvers import Samples, SensorTypes
 from skelfuse.fusion.hub import FusionHub
 from skelfuse.fusion.sensors import bodies_at
 from skelfuse.protocol.wire import Body
@@ -55,3 +56,9 @@ def reference_floor_plane(
         if timed.frame.floor is not None:
             return timed.frame.floor
     return None
+
+
+def sensor_types(hub: FusionHub, sensors: Sequence[str]) -> SensorTypes:
+    """Each of ``sensors``' ``sensor_type`` as it registered (those the hub does not know are
+    left out: the solvers then use the depth sensors' settings)."""
+    return {s: hub.sensors[s].sensor_type for s in sensors if s in hub.sensors}

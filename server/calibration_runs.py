@@ -32,13 +32,12 @@ import numpy as np
 
 from skelfuse.calibration.errors import CalibrationError, IcpUnavailable
 from skelfuse.calibration.rigid import pose_error
+from skelfuse.calibration.sensor_repair import refine_sensor_with_depth, solve_sensor
 from skelfuse.calibration.solvers import (
     Samples,
     SensorResult,
-    refine_sensor_with_depth,
     refine_with_depth,
     solve_points,
-    solve_sensor,
     solve_skeletons,
 )
 from skelfuse.calibration.store import Calibration, CalibrationStore, SensorCalibration, merge
@@ -46,7 +45,11 @@ from skelfuse.fusion.hub import FusionHub
 from skelfuse.protocol.transform import Matrix4
 from skelfuse.server import calibration_run_progress as stages
 from skelfuse.server.calibration_run import CalibrationRun, RunSpec, RunState
-from skelfuse.server.calibration_run_capture import capture_skeletons, reference_floor_plane
+from skelfuse.server.calibration_run_capture import (
+    capture_skeletons,
+    reference_floor_plane,
+    sensor_types,
+)
 from skelfuse.server.calibration_run_checks import validate
 from skelfuse.server.calibration_run_progress import RunProgress, StageRates
 from skelfuse.server.clock import Clock, SystemClock
@@ -191,8 +194,9 @@ class CalibrationService:
                 run.state = RunState.SOLVING
                 run.tracker.enter(stages.SKELETONS, measure=self._solver_ready)
                 floor_plane = reference_floor_plane(self.hub, spec.reference)
+                types = sensor_types(self.hub, spec.sensors)  # rgb pairs: their RANSAC settings
                 solution = await self._solvers.run(
-                    solve_skeletons, spec.reference, spec.sensors, samples, floor_plane
+                    solve_skeletons, spec.reference, spec.sensors, samples, floor_plane, types
                 )
                 self._solver_ready = True
                 poses, run.floor = solution.results, solution.floor
@@ -251,7 +255,8 @@ class CalibrationService:
         run.state = RunState.SOLVING
         others = ", ".join(sorted(fixed))
         run.tracker.enter(stages.SKELETONS, f"{sensor_id} against {others}", self._solver_ready)
-        result = await self._solvers.run(solve_sensor, sensor_id, fixed, samples)
+        types = sensor_types(self.hub, sensors)
+        result = await self._solvers.run(solve_sensor, sensor_id, fixed, samples, types)
         self._solver_ready = True
         run.provisional = {sensor_id: result.T_world_from_sensor}
         run.state = RunState.CAPTURING
