@@ -56,6 +56,7 @@ from skelfuse.server.ingest import fusion_loop, ingest_loop, liveness_loop, open
 from skelfuse.server.log_redaction import redact_uvicorn_logs
 from skelfuse.server.loop_lag import LoopLagCollector, LoopLagMonitor
 from skelfuse.server.metrics import SkelfuseCollector
+from skelfuse.server.outputs import Fanout, OutputsCollector, build_output
 from skelfuse.server.security import HttpGuard, origin_ok, token_ok
 from skelfuse.server.settings import Settings
 from skelfuse.server.stage_timing import StageTimes, StageTimesCollector
@@ -113,6 +114,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         broadcaster.send_times = stages.send
         registry.register(StageTimesCollector(stages))
         app.state.broadcaster = broadcaster
+        # OSC, VMC, LSL: each its own queue and thread; the feed stays first (docs/outputs.md)
+        outputs = [build_output(spec, settings.output_hz) for spec in settings.outputs]
+        for output in outputs:
+            output.start()
+            logger.info("output %s started", output.name)
+        registry.register(OutputsCollector(outputs))
+        app.state.outputs = outputs
         app.state.zmq_endpoint = socket.getsockopt_string(zmq.LAST_ENDPOINT)
         logger.info("agents connect to %s", app.state.zmq_endpoint)
         tasks = [
@@ -120,7 +128,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             asyncio.create_task(
                 liveness_loop(socket, hub, settings.heartbeat_interval_s), name="liveness"
             ),
-            asyncio.create_task(fusion_loop(hub, broadcaster, stages), name="fusion"),
+            asyncio.create_task(
+                fusion_loop(hub, Fanout([broadcaster, *outputs]), stages), name="fusion"
+            ),
             asyncio.create_task(loop_lag.run(), name="loop-lag"),
         ]
         try:
@@ -133,6 +143,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             for task in tasks:
                 task.cancel()
             await asyncio.gather(*tasks, return_exceptions=True)
+            for output in outputs:  # joins its thread: off the event loop
+                await asyncio.to_thread(output.close)
             await app.state.calibration.close()  # and its solver worker process
             socket.close(linger=0)
             if authenticator is not None:

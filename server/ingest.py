@@ -22,7 +22,7 @@ from skelfuse.fusion.hub import FusionHub
 from skelfuse.protocol.constants import MAX_RESPONSE_BYTES
 from skelfuse.protocol.wire import Heartbeat, Message, encode
 from skelfuse.server.auth import secure_router
-from skelfuse.server.broadcast import Broadcaster
+from skelfuse.server.outputs import FramePublisher
 from skelfuse.server.stage_timing import StageTimes
 
 logger = logging.getLogger(__name__)
@@ -234,10 +234,10 @@ def wake_in_s(hub: FusionHub, now_s: float) -> float:
 
 
 async def fusion_loop(
-    hub: FusionHub, broadcaster: Broadcaster, stages: StageTimes | None = None
+    hub: FusionHub, broadcaster: FramePublisher, stages: StageTimes | None = None
 ) -> None:
     """Fuse each instant when the alignment policy says it is due (every live sensor has moved
-    on, or its deadline passed); publish to WebSocket clients.
+    on, or its deadline passed); publish to WebSocket clients (and the outputs: a Fanout).
     ``stages`` (optional) times each fusion step that produced a frame, and its publishing."""
     stages = StageTimes() if stages is None else stages
     while True:

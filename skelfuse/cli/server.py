@@ -68,7 +68,60 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         action="store_true",
         help="log every HTTP request (off by default: the viewer polls, one line each)",
     )
+    outputs = server.add_argument_group("outputs (docs/outputs.md)")
+    outputs.add_argument(
+        "--osc", action="append", default=None, metavar="HOST:PORT",
+        help="send fused frames as OSC bundles over UDP to HOST:PORT (repeatable)",
+    )  # fmt: skip
+    outputs.add_argument(
+        "--osc-rotations", action="store_true", help="OSC: add each joint's rotation (/rot)"
+    )
+    outputs.add_argument(
+        "--vmc", action="append", default=None, metavar="HOST[:PORT]",
+        help="send the fused skeleton as a VMC protocol avatar (port 39539 if not given)",
+    )  # fmt: skip
+    outputs.add_argument(
+        "--lsl", action="store_true", help="publish fused skeletons as Lab Streaming Layer streams"
+    )
+    outputs.add_argument(
+        "--outputs-config", default=None, metavar="FILE",
+        help="TOML file with [[outputs]] tables (kind = osc|vmc|lsl, host, port, ...)",
+    )  # fmt: skip
     server.set_defaults(func=run)
+
+
+def output_specs(args: argparse.Namespace) -> tuple[Any, ...]:
+    """The ``OutputSpec`` of ``--outputs-config``'s tables, then of ``--osc``, ``--vmc``,
+    ``--lsl``.
+
+    Raises:
+        UsageError: a bad HOST:PORT or file; ``--osc`` without a port; ``--lsl`` without pylsl.
+    """
+    from skelfuse.server.output_config import VMC_PORT, OutputConfigError, load_outputs
+    from skelfuse.server.settings import OutputSpec
+
+    specs: list[OutputSpec] = []
+    if args.outputs_config is not None:
+        try:
+            specs.extend(load_outputs(args.outputs_config))
+        except OutputConfigError as exc:
+            raise UsageError(str(exc)) from exc
+    for text in args.osc or ():
+        host, port = parse_host_port(text, 0)
+        if port == 0:
+            raise UsageError(f"--osc {text!r}: give the receiver's port, HOST:PORT")
+        specs.append(OutputSpec("osc", host, port, rotations=args.osc_rotations))
+    for text in args.vmc or ():
+        host, port = parse_host_port(text, VMC_PORT)
+        specs.append(OutputSpec("vmc", host, port))
+    if args.lsl:
+        specs.append(OutputSpec("lsl"))
+    if any(spec.kind == "lsl" for spec in specs):
+        try:
+            import pylsl  # noqa: F401
+        except ImportError as exc:
+            raise UsageError("--lsl needs pylsl: pip install 'skelfuse[lsl]'") from exc
+    return tuple(specs)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -108,6 +161,7 @@ def run(args: argparse.Namespace) -> int:
         api_token=token,
         allowed_origins=tuple(args.allow_origin or ()),
         curve=args.curve,
+        outputs=output_specs(args),
     )
     if token is None and host not in ("127.0.0.1", "localhost", "::1"):
         logging.getLogger("skelfuse").warning(
