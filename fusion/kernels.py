@@ -44,7 +44,10 @@ def mode() -> str:
     Raises:
         ValueError: when ``SKELFUSE_KERNELS`` is not one of :data:`MODES`.
     """
-    chosen = _state["mode"] or os.environ.get(ENV, "auto").strip().lower() or "auto"
+    chosen = _state["mode"]
+    if chosen is None:  # (once per kernel call: kept cheap)
+        raw = os.environ.get(ENV)
+        chosen = raw.strip().lower() or "auto" if raw else "auto"
     if chosen not in MODES:
         raise ValueError(f"{ENV} must be one of {', '.join(MODES)}, got {chosen!r}")
     return str(chosen)
@@ -76,13 +79,10 @@ def plain(array: npt.ArrayLike, dtype: type = np.float64) -> Any:
     """``array`` as a writable C-contiguous array of ``dtype`` (copied only when it is not):
     every call then has the argument types the warm-up compiled for, so no frame waits for a
     second compilation (a read-only or strided array is another numba signature)."""
-    if (
-        isinstance(array, np.ndarray)
-        and array.dtype == dtype
-        and array.flags.c_contiguous
-        and array.flags.writeable
-    ):  # the usual case, without np.require's cost (several µs a call)
-        return array
+    if isinstance(array, np.ndarray) and array.dtype == dtype and array.flags.c_contiguous:
+        # The usual cases, without np.require's cost (several µs a call): as it is, or a copy
+        # of a read-only array (shared index tables).
+        return array if array.flags.writeable else array.copy()
     return np.require(array, dtype=dtype, requirements=("C", "W"))
 
 

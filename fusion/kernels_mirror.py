@@ -23,6 +23,11 @@ from skelfuse.fusion.kernels_jit import jit
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
 BoolArray = npt.NDArray[np.bool_]
+Terms = tuple[float, float, float, float, float, float]
+"""The track, geometry and anatomy weights, the swap prior, the hysteresis, and 1.0 when the
+last decisions count (0.0: none known)."""
+_LARGEST = float(np.finfo(np.float64).max)
+"""What ``np.nan_to_num`` puts in place of +inf."""
 
 
 @jit
@@ -55,11 +60,12 @@ def pairwise(values: FloatArray, n: int) -> float:
 
 
 @jit
-def _distance(a: FloatArray, b: FloatArray) -> float:
-    """``sqrt((dx² + dy²) + dz²)`` of two (3,) points, as ``_joint_distances``."""
-    dx = a[0] - b[0]
-    dy = a[1] - b[1]
-    dz = a[2] - b[2]
+def _distance(points: FloatArray, i: int, a: int, others: FloatArray, j: int, b: int) -> float:
+    """``sqrt((dx² + dy²) + dz²)`` between ``points[i, a]`` and ``others[j, b]`` (3,), as
+    ``_joint_distances`` (scalar reads: no array views in the loops)."""
+    dx = points[i, a, 0] - others[j, b, 0]
+    dy = points[i, a, 1] - others[j, b, 1]
+    dz = points[i, a, 2] - others[j, b, 2]
     return math.sqrt(dx * dx + dy * dy + dz * dz)
 
 
@@ -104,8 +110,8 @@ def lateral_loop(
     for k in range(len(first)):
         i, j = first[k], second[k]
         for m in range(size):  # i as reported against j as reported (0, 0), swapped (0, 1)
-            d0[m] = _distance(views[i, lateral[m]], views[j, lateral[m]])
-            d1[m] = _distance(views[i, lateral[m]], views[j, lateral[swap[m]]])
+            d0[m] = _distance(views, i, lateral[m], views, j, lateral[m])
+            d1[m] = _distance(views, i, lateral[m], views, j, lateral[swap[m]])
         pair[k, 0, 0] = _mean_of_finite(d0, scratch)
         pair[k, 0, 1] = _mean_of_finite(d1, scratch)
         for m in range(size):  # (1, 0) is (0, 1) read through the swap, (1, 1) is (0, 0)
@@ -119,8 +125,8 @@ def lateral_loop(
             to_ref[v, 0] = to_ref[v, 1] = 0.0
             continue
         for m in range(size):
-            d0[m] = _distance(views[v, lateral[m]], references[v, lateral[m]])
-            d1[m] = _distance(views[v, lateral[swap[m]]], references[v, lateral[m]])
+            d0[m] = _distance(views, v, lateral[m], references, v, lateral[m])
+            d1[m] = _distance(views, v, lateral[swap[m]], references, v, lateral[m])
         to_ref[v, 0] = _mean_of_finite(d0, scratch)
         to_ref[v, 1] = _mean_of_finite(d1, scratch)
 
@@ -136,7 +142,7 @@ def _maximum(a: float, b: float) -> float:
 @jit
 def _unary(
     tables: FloatArray,
-    terms: FloatArray,
+    terms: Terms,
     lo: int,
     n: int,
     combo: int,
@@ -158,7 +164,7 @@ def _exact(
     pair: FloatArray,
     tables: FloatArray,
     previous: IntArray,
-    terms: FloatArray,
+    terms: Terms,
     lo: int,
     n: int,
     first_pair: int,
@@ -192,7 +198,7 @@ def _exact(
 
 
 @jit
-def _view_cost(tables: FloatArray, previous: IntArray, terms: FloatArray, v: int, b: int) -> float:
+def _view_cost(tables: FloatArray, previous: IntArray, terms: Terms, v: int, b: int) -> float:
     """A view's own share of a labelling's cost with label ``b`` (the screen's estimate)."""
     cost: float = terms[0] * tables[v, 0, b] + terms[1] * tables[v, 1, b] + terms[3] * b
     if terms[2] != 0.0:
@@ -207,7 +213,7 @@ def _screen(
     pair: FloatArray,
     tables: FloatArray,
     previous: IntArray,
-    terms: FloatArray,
+    terms: Terms,
     lo: int,
     n: int,
     first_pair: int,
@@ -218,39 +224,38 @@ def _screen(
 
     The estimates are added up in Gray-code order (one view changes label from one labelling
     to the next), so they differ from the exact costs by rounding only (far below ``margin``).
+    ``field[v]``: how much swapping view v adds through its pairs, given the others' labels;
+    ``coupling[w, v]``: how much ``field[w]`` changes when view v is swapped.
     """
     own = np.empty((n, 2))
-    # between[v, u, a, b]: the pair (u, v)'s term with v labelled a and u labelled b.
-    between = np.zeros((n, n, 2, 2))
+    field = np.zeros(n)
+    coupling = np.zeros((n, n))
+    cost = 0.0
     k = first_pair
     for i in range(n):
         own[i, 0] = _view_cost(tables, previous, terms, lo + i, 0)
         own[i, 1] = _view_cost(tables, previous, terms, lo + i, 1)
-        for j in range(i + 1, n):
-            for a in range(2):
-                for b in range(2):
-                    between[i, j, a, b] = pair[k, a, b]
-                    between[j, i, b, a] = pair[k, a, b]
-            k += 1
-    labels = np.zeros(n, dtype=np.intp)
-    cost = 0.0
-    for i in range(n):
         cost += own[i, 0]
         for j in range(i + 1, n):
-            cost += between[i, j, 0, 0]
+            d00, d01, d10, d11 = pair[k, 0, 0], pair[k, 0, 1], pair[k, 1, 0], pair[k, 1, 1]
+            cost += d00
+            field[i] += d10 - d00  # i swapped, j as reported
+            field[j] += d01 - d00
+            coupling[i, j] = (d11 - d01) - (d10 - d00)
+            coupling[j, i] = coupling[i, j]
+            k += 1
+    labels = np.zeros(n, dtype=np.intp)
     estimate[0] = cost
     combo = 0
     for g in range(1, 2**n):
         v = 0
         while not (g >> v) & 1:  # the label that changes from labelling g − 1 to g
             v += 1
-        old = labels[v]
-        new = 1 - old
-        delta = own[v, new] - own[v, old]
-        for u in range(n):
-            delta += between[v, u, new, labels[u]] - between[v, u, old, labels[u]]
-        labels[v] = new
-        cost += delta
+        step = 1.0 - 2.0 * labels[v]  # +1: swapped now, −1: back as reported
+        cost += own[v, labels[v] ^ 1] - own[v, labels[v]] + step * field[v]
+        for w in range(n):
+            field[w] += step * coupling[w, v]
+        labels[v] ^= 1
         combo ^= 1 << v
         estimate[combo] = cost
     best = 0
@@ -275,7 +280,7 @@ def score_loop(
     to_ref: FloatArray,
     anatomy_factors: FloatArray,
     previous: IntArray,
-    terms: FloatArray,
+    terms: Terms,
     screen_from: int,
     margin: float,
     mirrored: BoolArray,
@@ -341,3 +346,38 @@ def score_loop(
         for i in range(n):
             mirrored[lo + i] = (best >> i) & 1 == 1
         first_pair += n * (n - 1) // 2
+
+
+@jit
+def evidence_loop(
+    factors: FloatArray,
+    mirrored: BoolArray,
+    person_of: IntArray,
+    per_view: FloatArray,
+    evidence: FloatArray,
+) -> None:
+    """Fill ``per_view`` (N,) and ``evidence`` (P,) as ``labels.view_evidence`` and its sum per
+    person (``np.bincount``: view after view from 0).
+
+    factors: (N, 2, 25) range-of-motion factors as reported and swapped; mirrored: (N,) the
+    labelling chosen; person_of: (N,) each view's person.
+    """
+    column = np.empty(factors.shape[2])
+    out_of_range = np.empty(2)
+    for p in range(len(evidence)):
+        evidence[p] = 0.0
+    for v in range(factors.shape[0]):
+        for b in range(2):
+            for m in range(len(column)):
+                column[m] = 1.0 - factors[v, b, m]
+            out_of_range[b] = pairwise(column, len(column))
+        chosen = 1 if mirrored[v] else 0
+        value = out_of_range[chosen] - out_of_range[1 - chosen]
+        if value != value:  # np.nan_to_num
+            value = 0.0
+        elif value == math.inf:
+            value = _LARGEST
+        elif value == -math.inf:
+            value = -_LARGEST
+        per_view[v] = value
+        evidence[person_of[v]] += value

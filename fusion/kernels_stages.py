@@ -22,13 +22,12 @@ BoolArray = npt.NDArray[np.bool_]
 def mirror_scores(
     views: FloatArray,
     sensor_positions: FloatArray,
-    starts: IntArray,
+    places: tuple[IntArray, IntArray, IntArray, IntArray],
     facings: FloatArray,
     references: FloatArray,
     anatomy_factors: FloatArray | None,
     previous: IntArray | None,
     terms: tuple[float, float, float, float, float],
-    pairs: tuple[IntArray, IntArray],
     lateral: tuple[IntArray, IntArray],
     screen: tuple[int, float],
 ) -> npt.NDArray[np.bool_]:
@@ -36,15 +35,16 @@ def mirror_scores(
     whose facing is known (the same choices, from the same bits of every term).
 
     Args:
-        views: (N, 25, 3) metres, world; sensor_positions: (N, 3); starts: (P + 1,) each
-            person's first view, then N; facings: (P, 3) each person's facing (finite);
-            references: (P, 25, 3) each person's last skeleton; anatomy_factors: (N, 2, 25)
-            range-of-motion factors as reported and swapped, or None (no anatomy term);
-            previous: (N,) last decisions (1, 0, −1 unknown) or None; terms: the track,
-            geometry and anatomy weights, the swap prior and the hysteresis (metres);
-            pairs: each pair's (first, second) views, person by person in ``PAIRS`` order;
-            lateral: the lateral joints and where each one's other side is among them;
-            screen: the view count from which labellings are screened, and the margin.
+        views: (N, 25, 3) metres, world; sensor_positions: (N, 3); places: (P + 1,) each
+            person's first view then N, (N,) each view's person, and (K,) each pair's first
+            and second view, person by person in ``PAIRS`` order (the frame's layout);
+            facings: (P, 3) each person's facing (finite); references: (P, 25, 3) each
+            person's last skeleton; anatomy_factors: (N, 2, 25) range-of-motion factors as
+            reported and swapped, or None (no anatomy term); previous: (N,) last decisions
+            (1, 0, −1 unknown) or None; terms: the track, geometry and anatomy weights, the
+            swap prior and the hysteresis (metres); lateral: the lateral joints and where each
+            one's other side is among them; screen: the view count from which labellings are
+            screened, and the margin.
 
     Returns:
         (N,) bool, True where a view is mirrored.
@@ -53,31 +53,30 @@ def mirror_scores(
 
     points = plain(views)
     total = points.shape[0]
-    index = plain(starts, np.intp)
-    person_of = np.repeat(np.arange(len(index) - 1), np.diff(index))
-    pair = np.empty((len(pairs[0]), 2, 2))
+    starts, person_of, first, second = places
+    pair = np.empty((len(first), 2, 2))
     to_ref = np.empty((total, 2))
     kernels_mirror.lateral_loop(
         points,
         plain(lateral[0], np.intp),
         plain(lateral[1], np.intp),
-        plain(pairs[0], np.intp),
-        plain(pairs[1], np.intp),
+        plain(first, np.intp),
+        plain(second, np.intp),
         plain(references[person_of]),
         np.ones(total, dtype=np.bool_),
         pair,
         to_ref,
     )
     track, geometry, anatomy, prior, hysteresis = terms
-    weights = np.array(
-        [track, geometry, anatomy if anatomy_factors is not None else 0.0, prior, hysteresis,
-         0.0 if previous is None else 1.0]
+    weights = (
+        float(track), float(geometry), float(anatomy) if anatomy_factors is not None else 0.0,
+        float(prior), float(hysteresis), 0.0 if previous is None else 1.0,
     )  # fmt: skip
     mirrored = np.zeros(total, dtype=np.bool_)
     kernels_mirror.score_loop(
         points,
         plain(sensor_positions),
-        index,
+        plain(starts, np.intp),
         plain(facings),
         pair,
         to_ref,
@@ -89,6 +88,29 @@ def mirror_scores(
         mirrored,
     )
     return mirrored
+
+
+def view_evidence(
+    factors: FloatArray, mirrored: npt.NDArray[np.bool_], person_of: IntArray, persons: int
+) -> tuple[FloatArray, FloatArray]:
+    """The compiled :func:`skelfuse.fusion.labels.view_evidence` and its sum per person (the
+    same bits as ``np.bincount``).
+
+    Args:
+        factors: (N, 2, 25) range-of-motion factors as reported and swapped; mirrored: (N,)
+            the labelling chosen; person_of: (N,) each view's person; persons: P.
+
+    Returns:
+        per view (N,) and per person (P,), in joints.
+    """
+    from skelfuse.fusion import kernels_mirror  # imports numba: only when used
+
+    per_view = np.empty(len(mirrored))
+    evidence = np.empty(persons)
+    kernels_mirror.evidence_loop(
+        plain(factors), plain(mirrored, np.bool_), plain(person_of, np.intp), per_view, evidence
+    )
+    return per_view, evidence
 
 
 def unbiased_facings(
@@ -214,11 +236,13 @@ def warm_up() -> None:
     views = np.zeros((2, 25, 3))
     pairs = (np.zeros(1, dtype=np.intp), np.ones(1, dtype=np.intp))
     lateral = (np.arange(20, dtype=np.intp), np.arange(20, dtype=np.intp))
+    places = (np.array([0, 2]), np.zeros(2, dtype=np.intp), *pairs)
     mirror_scores(
-        views, np.ones((2, 3)), np.array([0, 2]), np.ones((1, 3)), views[:1], np.ones((2, 2, 25)),
-        np.zeros(2, dtype=np.intp), (1.0, 0.1, 0.1, 0.01, 0.05), pairs, lateral, (6, 1e-9),
+        views, np.ones((2, 3)), places, np.ones((1, 3)), views[:1], np.ones((2, 2, 25)),
+        np.zeros(2, dtype=np.intp), (1.0, 0.1, 0.1, 0.01, 0.05), lateral, (6, 1e-9),
     )  # fmt: skip
     facing_directions(views)
+    view_evidence(np.ones((2, 2, 25)), np.zeros(2, bool), np.zeros(2, dtype=np.intp), 1)
     unbiased_facings(
         views[:, 0], np.ones((2, 3)), np.ones((2, 2, 3)), np.zeros(2, bool), np.array([0, 2]), 0.5
     )

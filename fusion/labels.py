@@ -121,8 +121,14 @@ def label_views(
     swapped = np.zeros(len(counts), dtype=bool)
     if s.mirror_redecide and doubts is not None and both_rom is not None:
         sensors = [frozenset(k[0] for k in keys[lo:hi]) for lo, hi in pairwise(starts)]
-        per_view = view_evidence(both_rom, mirrored)
-        evidence = np.bincount(person_of, per_view, len(counts)).tolist()
+        if kernels.enabled():  # the same bits in one compiled loop
+            per_view, summed = kernels_stages.view_evidence(
+                both_rom, mirrored, person_of, len(counts)
+            )
+        else:
+            per_view = view_evidence(both_rom, mirrored)
+            summed = np.bincount(person_of, per_view, len(counts)).astype(np.float64)
+        evidence = summed.tolist()
         for p, doubt in enumerate(doubts):
             if not redecide(doubt, evidence[p], sensors[p], t_s, s):
                 continue
@@ -288,14 +294,17 @@ def walking_backwards(
     s = settings
     if s.mirror_walk_check_s <= 0 or not s.use_mirror_correction:
         return False, backward_since_s
-    speed = float(np.linalg.norm(velocity))
+    # On Python floats: the operations np.linalg.norm and np.dot do on three components, in
+    # their order ((a₀b₀ + a₁b₁) + a₂b₂), without a numpy call's cost.
+    v0, v1, v2 = np.asarray(velocity, dtype=np.float64).tolist()
+    speed = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
     backwards = False
     if speed >= s.mirror_walk_min_speed_mps:
         if facing is None:
             facing = facing_direction(joints)
-        backwards = bool(np.isfinite(facing).all()) and (
-            float(np.dot(facing, velocity)) < -0.5 * speed
-        )
+        f0, f1, f2 = np.asarray(facing, dtype=np.float64).tolist()
+        finite = math.isfinite(f0) and math.isfinite(f1) and math.isfinite(f2)
+        backwards = finite and f0 * v0 + f1 * v1 + f2 * v2 < -0.5 * speed
     if not backwards:
         return False, None
     if backward_since_s is None:

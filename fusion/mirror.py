@@ -218,8 +218,6 @@ def choose_labellings_and_forward(
         )
         factors = flat_factors.reshape(total, 2, JOINT_COUNT)
         forward = flat_forward.reshape(total, 2, 3)
-        if anatomy_weight_m > 0:
-            anatomy = (1.0 - flat_factors).sum(axis=1).reshape(total, 2)
 
     prev = None if previous is None else np.asarray(previous)
     if kernels.enabled() and len(counts) and geometric.all():  # every facing known: compiled
@@ -227,17 +225,18 @@ def choose_labellings_and_forward(
         mirrored = kernels_stages.mirror_scores(
             views,
             sensor_positions,
-            lay.starts,
+            (lay.starts, person_of, lay.first, lay.second),
             reference_facings,
             np.stack([ref for ref in references if ref is not None]),
-            factors if anatomy is not None else None,
+            factors if anatomy_weight_m > 0 else None,
             prev,
             (track_weight, geometry_weight_m, anatomy_weight_m, SWAP_PRIOR_M, hysteresis_m),
-            (lay.first, lay.second),
             (LATERAL_JOINTS, LATERAL_SWAP),
             (SCREEN_FROM_VIEWS, SCREEN_MARGIN_M),
         )
         return mirrored, factors, forward
+    if factors is not None and anatomy_weight_m > 0:
+        anatomy = (1.0 - factors.reshape(-1, JOINT_COUNT)).sum(axis=1).reshape(total, 2)
 
     # Agreement between views (K, 2, 2), one row per pair i < j, and with the track (N, 2).
     stacked_refs = None

@@ -177,3 +177,44 @@ def test_facing_kernel_gives_the_numpy_bits(numba_kernels: None, seed: int) -> N
         expected = anatomy.facing_directions(views)
     assert _same_bits(facings, expected)
     assert np.isnan(facings).any() and np.isfinite(facings).any()
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_evidence_kernel_gives_the_numpy_bits(numba_kernels: None, seed: int) -> None:
+    frame = _frame(seed)
+    mirrored, factors, _ = _choose(frame)
+    assert factors is not None
+    factors = factors.copy()
+    factors[1, 0, 3] = np.nan  # not finite: 0, as np.nan_to_num
+    factors[2, 1, 4] = -np.inf  # a sum of +inf against the labelling: the largest float
+    person_of = layout(COUNTS, tuple((True, True) for _ in COUNTS)).person_of
+    per_view, evidence = kernels_stages.view_evidence(factors, mirrored, person_of, len(COUNTS))
+    expected = labels.view_evidence(factors, mirrored)
+    assert _same_bits(per_view, expected)
+    assert _same_bits(evidence, np.bincount(person_of, expected, len(COUNTS)))
+    assert per_view[1] == 0.0 and abs(per_view[2]) == np.finfo(np.float64).max
+
+
+def test_walking_check_decides_as_numpy_at_the_boundary() -> None:
+    """walking_backwards on Python floats takes the decisions np.linalg.norm and np.dot would,
+    also where the velocity sits on the threshold (speed and dot product to the last bit)."""
+    from skelfuse.fusion.settings import FusionSettings
+
+    rng = np.random.default_rng(4)
+    settings = FusionSettings(mirror_walk_check_s=0.5, mirror_walk_min_speed_mps=0.5)
+    joints = _views(0)[0]
+    decided = 0
+    for _ in range(2000):
+        angle = rng.uniform(0, 2 * np.pi)
+        facing = np.array([np.sin(angle), 0.0, np.cos(angle)])
+        side = np.array([np.cos(angle), 0.0, -np.sin(angle)])
+        up = rng.uniform(-0.5, 0.5)  # cos = −0.5 to the facing: the threshold, up to rounding
+        along = -0.5 + rng.normal(0, 1e-16)
+        direction = along * facing + np.sqrt(0.75 - up**2) * side + [0.0, up, 0.0]
+        velocity = rng.uniform(0.45, 0.55) * direction
+        speed = float(np.linalg.norm(velocity))
+        expected = speed >= 0.5 and float(np.dot(facing, velocity)) < -0.5 * speed
+        got = labels.walking_backwards(joints, velocity, 1.0, 0.0, settings, facing)
+        assert got == ((True, None) if expected else (False, None))
+        decided += expected
+    assert 0 < decided < 2000
