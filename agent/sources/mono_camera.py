@@ -150,8 +150,8 @@ class PoseDetector:
 
 
 def check_mono() -> tuple[bool, str]:
-    """(can run, why): mediapipe 0.10.21 with its model files, numpy<2 and OpenCV, looked up
-    without importing them (``skelfuse doctor``)."""
+    """(can run, why): mediapipe 0.10.21 with its model files, numpy<2, protobuf<5 and OpenCV,
+    looked up without importing them (``skelfuse doctor``)."""
     try:
         spec = importlib.util.find_spec("mediapipe")
     except (ImportError, ValueError):
@@ -170,6 +170,15 @@ def check_mono() -> tuple[bool, str]:
             False,
             f"numpy {np.__version__}: mediapipe {MEDIAPIPE_VERSION} needs numpy<2; {install}",
         )
+    try:
+        protobuf = importlib.metadata.version("protobuf")
+    except importlib.metadata.PackageNotFoundError:
+        return False, f"missing protobuf (<5, for mediapipe {MEDIAPIPE_VERSION}): {install}"
+    if int(protobuf.split(".")[0]) >= 5:
+        return (
+            False,
+            f"protobuf {protobuf}: mediapipe {MEDIAPIPE_VERSION} needs protobuf<5; {install}",
+        )
     package = Path(next(iter(spec.submodule_search_locations)))
     missing = [name for name in MODEL_FILES if not (package / name).is_file()]
     if missing:
@@ -180,7 +189,10 @@ def check_mono() -> tuple[bool, str]:
         cv2_found = False
     if not cv2_found:
         return False, "missing OpenCV (cv2): pip install opencv-python-headless"
-    return True, f"mediapipe {version} with its pose models, numpy {np.__version__}, OpenCV found"
+    return True, (
+        f"mediapipe {version} with its pose models, numpy {np.__version__}, protobuf {protobuf}, "
+        "OpenCV found"
+    )
 
 
 def _import(module: str, package: str) -> Any:

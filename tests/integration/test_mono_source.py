@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 from pathlib import Path
 from typing import Any, NoReturn
@@ -55,6 +56,11 @@ def test_mono_source_streams_every_frame_of_the_real_clip_without_network(
         )
     if not CLIP.is_file():
         _unavailable(f"the real clip is not at {CLIP}", "CI must provide ../shared/data")
+    doctor = subprocess.run(
+        [str(MONO_PYTHON), "-m", "skelfuse", "doctor"],
+        cwd=ROOT, capture_output=True, text=True, timeout=60, check=True,
+    )  # fmt: skip
+    assert re.search(r"^\s*mono\s+yes\s+mediapipe 0\.10\.21", doctor.stdout, re.M), doctor.stdout
     live = server_factory()
     sent_path = tmp_path / "sent.npz"
     done = subprocess.run(
