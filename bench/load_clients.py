@@ -6,11 +6,13 @@ from __future__ import annotations
 
 import asyncio
 import json
+import re
 import socket
 import time
+from array import array
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import cast
+from typing import Any, cast
 
 
 @dataclass
@@ -156,3 +158,63 @@ class RawFeedReader(asyncio.Protocol):
     def _close(self) -> None:
         if self.transport is not None:
             self.transport.close()
+
+
+HEAD_BYTES = re.compile(rb'"seq":(\d+),"t":([0-9.eE+-]+),"t_sent":([0-9.eE+-]+)')
+
+
+def _factory(reader: RawFeedReader) -> Callable[[], RawFeedReader]:
+    return lambda: reader
+
+
+async def raw_client(url: str, measuring: asyncio.Event, stopping: asyncio.Event) -> dict[str, Any]:
+    """One viewer of ``bench/many_clients.py`` on a :class:`RawFeedReader`: frames, ``seq``
+    gaps and ages (receive time minus ``t`` and ``t_sent``) counted while ``measuring`` and not
+    ``stopping``, as its ``websockets`` client counts them, for a fraction of the CPU."""
+    ages_sent, ages_t = array("d"), array("d")
+    out: dict[str, Any] = {"frames": 0, "lost": 0, "error": None, "retries": 0}
+    last_seq = -1
+
+    def on_message(head: bytes, received: float) -> None:
+        nonlocal last_seq
+        match = HEAD_BYTES.search(head)
+        if match is None or not measuring.is_set():
+            return
+        seq = int(match.group(1))
+        if last_seq >= 0 and seq > last_seq + 1:
+            out["lost"] += seq - last_seq - 1
+        last_seq = seq
+        out["frames"] += 1
+        ages_t.append(received - float(match.group(2)))
+        ages_sent.append(received - float(match.group(3)))
+
+    host_port, path = url.removeprefix("ws://").split("/", 1)
+    host, port = host_port.rsplit(":", 1)
+    loop = asyncio.get_running_loop()
+    while not stopping.is_set():
+        reader = RawFeedReader("/" + path, host, int(port), on_message)
+        try:
+            transport, _ = await asyncio.wait_for(
+                loop.create_connection(_factory(reader), host, int(port)), 30
+            )
+        except (OSError, TimeoutError) as exc:
+            out["error"] = f"{type(exc).__name__}: {exc}"
+            if measuring.is_set():
+                break
+            out["retries"] += 1
+            await asyncio.sleep(1.0)
+            continue
+        stop_task = asyncio.create_task(stopping.wait())
+        done_task = asyncio.create_task(reader.done.wait())
+        await asyncio.wait({stop_task, done_task}, return_when=asyncio.FIRST_COMPLETED)
+        stop_task.cancel()
+        done_task.cancel()
+        transport.close()
+        if not stopping.is_set():
+            out["error"] = reader.error or "closed by the server"
+            if measuring.is_set() or out["frames"]:
+                break
+            out["retries"] += 1
+            await asyncio.sleep(1.0)
+    out["ages_sent"], out["ages_t"] = ages_sent.tobytes(), ages_t.tobytes()
+    return out

@@ -51,7 +51,7 @@ if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.load_agents import agents_process, sensor_layout
-from bench.load_clients import RawFeedReader
+from bench.load_clients import raw_client
 from bench.load_server import (
     free_port,
     http_json,
@@ -63,65 +63,6 @@ from bench.load_server import (
 from bench.load_stages import scrape_stages, window_quantile
 
 HEAD = re.compile(r'"seq":(\d+),"t":([0-9.eE+-]+),"t_sent":([0-9.eE+-]+)')
-HEAD_BYTES = re.compile(rb'"seq":(\d+),"t":([0-9.eE+-]+),"t_sent":([0-9.eE+-]+)')
-
-
-def _factory(reader: RawFeedReader) -> Callable[[], RawFeedReader]:
-    return lambda: reader
-
-
-async def _raw_client(
-    url: str, measuring: asyncio.Event, stopping: asyncio.Event
-) -> dict[str, Any]:
-    """:func:`_client` with :class:`bench.load_clients.RawFeedReader` instead of ``websockets``:
-    the same counts, for a fraction of the clients' CPU."""
-    ages_sent, ages_t = array("d"), array("d")
-    out: dict[str, Any] = {"frames": 0, "lost": 0, "error": None, "retries": 0}
-    last_seq = -1
-
-    def on_message(head: bytes, received: float) -> None:
-        nonlocal last_seq
-        match = HEAD_BYTES.search(head)
-        if match is None or not measuring.is_set():
-            return
-        seq = int(match.group(1))
-        if last_seq >= 0 and seq > last_seq + 1:
-            out["lost"] += seq - last_seq - 1
-        last_seq = seq
-        out["frames"] += 1
-        ages_t.append(received - float(match.group(2)))
-        ages_sent.append(received - float(match.group(3)))
-
-    host_port, path = url.removeprefix("ws://").split("/", 1)
-    host, port = host_port.rsplit(":", 1)
-    loop = asyncio.get_running_loop()
-    while not stopping.is_set():
-        reader = RawFeedReader("/" + path, host, int(port), on_message)
-        try:
-            transport, _ = await asyncio.wait_for(
-                loop.create_connection(_factory(reader), host, int(port)), 30
-            )
-        except (OSError, TimeoutError) as exc:
-            out["error"] = f"{type(exc).__name__}: {exc}"
-            if measuring.is_set():
-                break
-            out["retries"] += 1
-            await asyncio.sleep(1.0)
-            continue
-        stop_task = asyncio.create_task(stopping.wait())
-        done_task = asyncio.create_task(reader.done.wait())
-        await asyncio.wait({stop_task, done_task}, return_when=asyncio.FIRST_COMPLETED)
-        stop_task.cancel()
-        done_task.cancel()
-        transport.close()
-        if not stopping.is_set():
-            out["error"] = reader.error or "closed by the server"
-            if measuring.is_set() or out["frames"]:
-                break
-            out["retries"] += 1
-            await asyncio.sleep(1.0)
-    out["ages_sent"], out["ages_t"] = ages_sent.tobytes(), ages_t.tobytes()
-    return out
 
 
 async def _client(url: str, measuring: asyncio.Event, stopping: asyncio.Event) -> dict[str, Any]:
@@ -172,7 +113,7 @@ def clients_process(
 ) -> None:
     """Run ``count`` clients (``kind``: ``websockets`` or ``raw``) in one asyncio loop; measure
     between ``start`` and ``stop``."""
-    client = _raw_client if kind == "raw" else _client
+    client = raw_client if kind == "raw" else _client
 
     async def main() -> list[dict[str, Any]]:
         measuring, stopping = asyncio.Event(), asyncio.Event()
