@@ -14,6 +14,7 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from skelfuse.cli.calibration_lag import add_lag_parser
 from skelfuse.cli.values import UsageError
 
 if TYPE_CHECKING:
@@ -21,8 +22,11 @@ if TYPE_CHECKING:
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    """Add ``calibration import`` and its options to the command line."""
-    calibration = sub.add_parser("calibration", help="import camera calibration files")
+    """Add ``calibration import`` (and ``calibration lag``) and their options to the command
+    line."""
+    calibration = sub.add_parser(
+        "calibration", help="import camera calibration files, store sensors' clock lags"
+    )
     actions = calibration.add_subparsers(dest="calibration_command", required=True)
     command = actions.add_parser(
         "import",
@@ -59,6 +63,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "--dry-run", action="store_true", help="read and show the cameras, save nothing"
     )
     command.set_defaults(func=run_import)
+    add_lag_parser(actions)
 
 
 def run_import(args: argparse.Namespace) -> int:
