@@ -11,7 +11,7 @@ from typing import Final, Literal
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion import kernels
+from skelfuse.fusion import kernels, kernels_observe
 from skelfuse.fusion.anatomy import CHAIN_LEVELS, CHAIN_ORDER
 from skelfuse.fusion.bone_window import SampleWindow, nanmedian_last
 from skelfuse.protocol.skeleton import BONE_MIRROR_PERMUTATION, BONES, PARENTS, TrackingState
@@ -21,6 +21,7 @@ BONE_COUNT: Final = len(BONES)
 _BONE_PARENT: Final = np.array([parent for parent, _ in BONES])
 _BONE_CHILD: Final = np.array([child for _, child in BONES])
 _BONE_MIRROR: Final = np.array(BONE_MIRROR_PERMUTATION)
+_BONE_ENDS: Final = (_BONE_PARENT, _BONE_CHILD)
 _TRACKED: Final = int(TrackingState.TRACKED)
 BoneFit = Literal["projection", "chain"]
 GOOD_VIEW_COS: Final = 0.5
@@ -321,6 +322,35 @@ def observe_bone_lengths(
     estimating = [model.set_lengths is None for model in models]
     if not any(estimating):
         return
+    if kernels_observe.ready():  # the same bits in one compiled loop
+        per_bone = kernels_observe.bone_medians(
+            joints, states, cosines, person_of, len(models), _BONE_ENDS, _TRACKED, GOOD_VIEW_COS
+        )
+    else:
+        per_bone = per_bone_medians(
+            joints, states, cosines, person_of, slot_of, len(models), widest
+        )
+    # (persons, 2): whether any good view, and any view at all, shows some bone
+    seen: list[list[bool]] = np.asarray(np.isfinite(per_bone).any(axis=2)).tolist()
+    for p, ((good, spare), wanted) in enumerate(zip(seen, estimating, strict=True)):
+        if spare and wanted:  # a person with no usable view at all adds nothing
+            models[p]._add(per_bone[p, 0] if good else None, per_bone[p, 1])
+
+
+def per_bone_medians(
+    joints: FloatArray,
+    states: npt.NDArray[np.uint8],
+    cosines: FloatArray,
+    person_of: npt.NDArray[np.intp],
+    slot_of: npt.NDArray[np.intp],
+    persons: int,
+    widest: int,
+) -> FloatArray:
+    """(persons, 2, 24) per person and bone the median length (metres) over its good views
+    ([.., 0]) and over any view with both ends Tracked ([.., 1]); NaN where none shows it.
+
+    Args: as :func:`observe_bone_lengths`; persons: P.
+    """
     good_view = np.isfinite(cosines) & (cosines >= GOOD_VIEW_COS)
     tracked = states == _TRACKED
     both_tracked = tracked[:, _BONE_PARENT] & tracked[:, _BONE_CHILD]
@@ -330,14 +360,10 @@ def observe_bone_lengths(
     any_view = np.where(both_tracked & np.isfinite(lengths), lengths, np.nan)
     # (persons, 2, bones, views): good views only, then any view; views last, so that the
     # median sorts contiguous rows.
-    padded = np.full((len(models), 2, BONE_COUNT, widest), np.nan)
+    padded = np.full((persons, 2, BONE_COUNT, widest), np.nan)
     padded[person_of, 0, :, slot_of] = np.where(good_view[:, None], any_view, np.nan)
     padded[person_of, 1, :, slot_of] = any_view
-    per_bone = nanmedian_last(padded)  # (persons, 2, bones)
-    seen = np.isfinite(per_bone).any(axis=2).tolist()  # (persons, 2): any good, any at all
-    for p, ((good, spare), wanted) in enumerate(zip(seen, estimating, strict=True)):
-        if spare and wanted:  # a person with no usable view at all adds nothing
-            models[p]._add(per_bone[p, 0] if good else None, per_bone[p, 1])
+    return nanmedian_last(padded)
 
 
 def fit_bone_lengths(

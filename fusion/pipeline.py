@@ -209,7 +209,8 @@ class FusionPipeline:
                 # The references as they are now: this step's observations are in.
                 lengths = np.stack([memories[p].bones.reference() for p in alive])
                 known = np.isfinite(lengths).any(axis=1)
-                fitted = [p for p, k in zip(alive, known.tolist(), strict=True) if k]
+                usable: list[bool] = np.asarray(known).tolist()
+                fitted = [p for p, k in zip(alive, usable, strict=True) if k]
                 if fitted:
                     fit = fit_bone_lengths(
                         np.stack([skeletons[p] for p in fitted]),
@@ -282,9 +283,10 @@ class FusionPipeline:
         self._facings = {}
         if tracks and s.mirror_walk_check_s > 0 and s.use_mirror_correction:
             joints = [track.joints for track in tracks]
-            facings = list(facing_directions(np.stack(joints)))
+            computed = facing_directions(np.stack(joints))
+            facings = list(computed)
             self._facings = {
-                pid: (row, facing) for pid, row, facing in zip(ids, joints, facings, strict=True)
+                pid: (row, facing) for pid, row, facing in zip(ids, joints, computed, strict=True)
             }
         for person_id, track, facing in zip(ids, tracks, facings, strict=True):
             memory = self.memories[person_id]
