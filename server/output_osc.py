@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import math
 import socket
+import threading
 import time
+from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -30,6 +32,33 @@ OSC_PREFIX = "/skelfuse"
 def persons_orientations(persons: Sequence[FusedPerson]) -> Orientations | None:
     """The persons' joint rotations, as the feed computes them (None for nobody)."""
     return orientations(np.stack([p.joints for p in persons])) if persons else None
+
+
+class SharedRotations:
+    """Each frame's rotations computed once for every output that sends them (OSC and VMC in
+    their own threads): they cost milliseconds a frame, the rest of the encoding a fraction."""
+
+    def __init__(self, keep: int = 4) -> None:
+        self._lock = threading.Lock()
+        self._recent: OrderedDict[int, tuple[FusedFrame, Orientations | None]] = OrderedDict()
+        self._keep = keep
+
+    def of(self, frame: FusedFrame) -> Orientations | None:
+        """The rotations of ``frame.persons``, in their order (None for nobody)."""
+        # Computed under the lock: the second output waits for the first one's result rather
+        # than computing it again at the same moment.
+        with self._lock:
+            hit = self._recent.get(id(frame))
+            if hit is not None and hit[0] is frame:
+                return hit[1]
+            value = persons_orientations(frame.persons)
+            self._recent[id(frame)] = (frame, value)
+            while len(self._recent) > self._keep:
+                self._recent.popitem(last=False)
+            return value
+
+
+ROTATIONS = SharedRotations()
 
 
 class UdpSender:
@@ -73,9 +102,7 @@ def osc_datagrams(frame: FusedFrame, rotations: bool) -> list[bytes]:
     ``/skelfuse/person/<id>/<Joint>/rot x y z w`` (unknown joints are left out, as the feed's
     ``null``).
     """
-    people = persons_json(
-        frame.persons, orientations=persons_orientations(frame.persons) if rotations else None
-    )
+    people = persons_json(frame.persons, orientations=ROTATIONS.of(frame) if rotations else None)
     ids = [int(p["id"]) for p in people]  # type: ignore[call-overload]
     head = [_frame_message(frame.seq, frame.t_s, ids)]
     head.append(osc.message(f"{OSC_PREFIX}/persons", "i" * len(ids), ids))
@@ -119,12 +146,12 @@ def vmc_datagrams(frame: FusedFrame, t_s: float) -> list[bytes]:
     unrotated, then a ``/VMC/Ext/Bone/Pos`` per known humanoid bone (:mod:`skelfuse.server.vmc`);
     with nobody fused, OK 0 and the time only.
     """
-    people = sorted(frame.persons, key=lambda p: p.person_id)
-    head = [osc.message("/VMC/Ext/OK", "i", [1 if people else 0])]
+    head = [osc.message("/VMC/Ext/OK", "i", [1 if frame.persons else 0])]
     head.append(osc.message("/VMC/Ext/T", "f", [t_s]))
-    if not people:
+    if not frame.persons:
         return osc.pack_bundles(head)
-    person = persons_json(people[:1], orientations=persons_orientations(people[:1]))[0]
+    people = persons_json(frame.persons, orientations=ROTATIONS.of(frame))
+    person = min(people, key=lambda p: int(p["id"]))  # type: ignore[call-overload]
     joints = np.array(
         [row if row is not None else [np.nan] * 3 for row in person["joints"]],  # type: ignore[attr-defined]
         dtype=np.float64,
