@@ -10,30 +10,36 @@ labels, confidence, fusion, filter) is the product's.
 
 The server is ``python -m skelfuse server`` (``bench/load_server.py``) with the clip's
 calibration stored for the streamed cameras. Every agent holds the clip's first frame for
-``hold_s`` before the clip plays, so fusion has its person when the motion starts. A camera
-with a lag of L frames stamps its frame i at (i − L) / 60 s: the clock offset the motion sync
-found, applied where a source's timestamps are made.
+``hold_s`` before the clip plays, so fusion has its person when the motion starts. Every camera
+stamps its frame i at i / 60 s on its own clock; a camera whose frames lag by L frames (the
+motion sync's finding, ``calibration/motion_sync.py``) has ``lag_s`` = L / 60 in the stored
+calibration, and the server subtracts it from its times (``fusion/sensors.py``), as it does
+for an imported or synced calibration.
 """
 
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import IO
 
 import numpy as np
 
-from bench.load_server import free_port, http_json, start_server, wait_for
+from bench.load_server import ROOT, free_port, http_json, wait_for
 from bench.mono_accuracy_geometry import FloatArray, pinhole, undistorted_px
 from bench.mono_accuracy_single import FPS, Clip
 from skelfuse.agent.runner import run_agent
 from skelfuse.agent.sources.base import Capture
 from skelfuse.calibration.camera import Camera
+from skelfuse.calibration.store import CalibrationStore, SensorCalibration
 from skelfuse.client.sync import SyncFeedClient
-from skelfuse.parent_watch import PARENT_PID_VARIABLE
+from skelfuse.parent_watch import child_environment
 from skelfuse.protocol.mediapipe_pose import body_from_landmarks
 from skelfuse.protocol.pnp import Placement
 from skelfuse.protocol.transform import Matrix4
@@ -73,12 +79,10 @@ class LandmarkSource:
     def __init__(
         self,
         bodies: list[tuple[FloatArray, np.ndarray]],
-        lag_frames: float,
         hold_frames: int,
         start: list[int],
     ) -> None:
         self._bodies = bodies
-        self._lag = lag_frames
         self._hold = hold_frames
         self._start = start
         self._next = 0
@@ -91,7 +95,7 @@ class LandmarkSource:
         if not self._start or self._next >= self._hold + len(self._bodies):
             time.sleep(timeout_s)
             return None
-        stamp = self._start[0] + int((self._next - self._lag) / FPS * 1e9)
+        stamp = self._start[0] + int(self._next / FPS * 1e9)
         wait = (stamp - time.time_ns()) / 1e9
         if wait > timeout_s:
             time.sleep(timeout_s)
@@ -129,6 +133,25 @@ def camera_bodies(clip: Clip, cam: Camera, name: str) -> list[tuple[FloatArray, 
     return bodies
 
 
+def start_server(
+    entries: dict[str, SensorCalibration], http_port: int, zmq_port: int, log_path: Path
+) -> tuple[subprocess.Popen[bytes], IO[bytes]]:
+    """``python -m skelfuse server`` on loopback with ``entries`` as its stored calibration
+    (``bench/load_server.py``'s, with the cameras' intrinsics and lags); it ends with this
+    process even when this one is killed outright (``skelfuse/parent_watch.py``)."""
+    data_dir = Path(tempfile.mkdtemp(prefix="skelfuse-mono-data-"))
+    CalibrationStore(data_dir).save(entries, note="bench/mono_accuracy.py")
+    fusion_config = os.environ.get("SKELFUSE_LOAD_FUSION_CONFIG")
+    log_file = log_path.open("wb")
+    server = subprocess.Popen(
+        [sys.executable, "-m", "skelfuse", "--log-level", "WARNING", "server",
+         "--http", f"127.0.0.1:{http_port}", "--zmq", f"tcp://127.0.0.1:{zmq_port}",
+         "--data", str(data_dir), *(["--fusion-config", fusion_config] if fusion_config else [])],
+        stdout=log_file, stderr=subprocess.STDOUT, cwd=ROOT, env=child_environment(),
+    )  # fmt: skip
+    return server, log_file
+
+
 def run_live(
     clip: Clip,
     cameras: dict[str, Camera],
@@ -145,10 +168,16 @@ def run_live(
     """
     http_port, zmq_port = free_port(), free_port()
     log_dir = log_dir or Path(tempfile.mkdtemp(prefix="skelfuse-mono-"))
-    poses = {name: cameras[name].T_world_from_sensor for name in streamed}
-    # The server ends with this process even when it is killed outright (no finally runs then).
-    os.environ[PARENT_PID_VARIABLE] = str(os.getpid())
-    server, log_file = start_server(poses, http_port, zmq_port, log_dir / "server.log")
+    entries = {
+        name: SensorCalibration(
+            cameras[name].T_world_from_sensor,
+            "import:qualisys",
+            intrinsics=cameras[name].intrinsics,
+            lag_s=lags.get(name, 0.0) / FPS,
+        )
+        for name in streamed
+    }
+    server, log_file = start_server(entries, http_port, zmq_port, log_dir / "server.log")
     stop = threading.Event()
     start: list[int] = []
     hold = round(hold_s * FPS)
@@ -157,9 +186,7 @@ def run_live(
         base = f"http://127.0.0.1:{http_port}"
         wait_for(lambda: http_json(base + "/api/health"), 60.0, "the server")
         for name in streamed:
-            source = LandmarkSource(
-                camera_bodies(clip, cameras[name], name), lags.get(name, 0.0), hold, start
-            )
+            source = LandmarkSource(camera_bodies(clip, cameras[name], name), hold, start)
             thread = threading.Thread(
                 target=run_agent, args=(name, source, f"tcp://127.0.0.1:{zmq_port}"),
                 kwargs={"stop": stop}, daemon=True,
