@@ -4,7 +4,8 @@ Layout: a plain concatenation of msgpack objects, nothing else (no index, no foo
 
 1. a **header** map: ``format`` = ``"skelfuse-recording"``, ``version`` = 1, ``created_unix_s``,
    ``server_version``, ``name``, ``calibration`` {sensor_id: {``T_world_from_sensor``: 16
-   floats row-major, ``method``, ``state``}} and ``sensors`` {sensor_id: {``type``,
+   floats row-major, ``method``, ``state``, and ``lag_s`` only when the sensor has a clock
+   lag}} and ``sensors`` {sensor_id: {``type``,
    ``pose_state``}} as the server knew them when recording started;
 2. **records**, each an array ``[t_server_ns, sensor_id, kind, payload]``: the server's wall
    clock (int ns) when the message arrived, the sender's id, ``"hello"`` or ``"frame"``, and the
@@ -58,11 +59,13 @@ class Record:
 
 @dataclass(frozen=True, slots=True)
 class SensorPose:
-    """A sensor's ``T_world_from_sensor`` (4×4 float64, metres) and where it came from."""
+    """A sensor's ``T_world_from_sensor`` (4×4 float64, metres), where it came from, and its
+    calibrated clock lag (seconds its stamps show events late; None: none stored)."""
 
     T_world_from_sensor: Matrix4
     method: str
     state: str
+    lag_s: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -82,12 +85,7 @@ class Header:
             "server_version": self.server_version,
             "name": self.name,
             "calibration": {
-                sensor_id: {
-                    "T_world_from_sensor": [float(x) for x in pose.T_world_from_sensor.reshape(16)],
-                    "method": pose.method,
-                    "state": pose.state,
-                }
-                for sensor_id, pose in sorted(self.calibration.items())
+                sensor_id: _pose_entry(pose) for sensor_id, pose in sorted(self.calibration.items())
             },
             "sensors": {k: dict(v) for k, v in sorted(self.sensors.items())},
         }
@@ -112,8 +110,14 @@ class Header:
                 raise RecordingError(f"{origin}: bad calibration for {sensor_id!r}") from exc
             if not is_rigid(matrix, atol=1e-5):
                 raise RecordingError(f"{origin}: calibration of {sensor_id!r} is not rigid")
+            lag = entry.get("lag_s")
+            if lag is not None and (not isinstance(lag, int | float) or not np.isfinite(lag)):
+                raise RecordingError(f"{origin}: bad lag_s for {sensor_id!r}")
             calibration[str(sensor_id)] = SensorPose(
-                matrix, str(entry.get("method", "unknown")), str(entry.get("state", "stored"))
+                matrix,
+                str(entry.get("method", "unknown")),
+                str(entry.get("state", "stored")),
+                None if lag is None else float(lag),
             )
         sensors = {str(k): dict(v) for k, v in dict(raw.get("sensors") or {}).items()}
         return Header(
@@ -124,6 +128,19 @@ class Header:
             sensors=sensors,
             version=FORMAT_VERSION,
         )
+
+
+def _pose_entry(pose: SensorPose) -> dict[str, Any]:
+    """A header's calibration entry; ``lag_s`` only when set, so files without lags keep their
+    bytes."""
+    entry: dict[str, Any] = {
+        "T_world_from_sensor": [float(x) for x in pose.T_world_from_sensor.reshape(16)],
+        "method": pose.method,
+        "state": pose.state,
+    }
+    if pose.lag_s is not None:
+        entry["lag_s"] = float(pose.lag_s)
+    return entry
 
 
 def pack_record(t_server_ns: int, sensor_id: str, kind: str, payload: bytes) -> bytes:

@@ -46,7 +46,7 @@ class ReplayStats:
 def calibration_of(header: Header) -> Calibration | None:
     """The recording's calibration as the hub takes it (None when nothing was calibrated)."""
     sensors = {
-        sensor_id: SensorCalibration(pose.T_world_from_sensor, pose.method)
+        sensor_id: SensorCalibration(pose.T_world_from_sensor, pose.method, lag_s=pose.lag_s)
         for sensor_id, pose in header.calibration.items()
         if pose.state == "stored"
     }

@@ -62,8 +62,11 @@ def _header_from_hub(hub: FusionHub, name: str) -> Header:
         pose, state = hub.pose_of(sensor_id)
         sensors[sensor_id] = {"type": sensor.sensor_type, "pose_state": state}
         if pose is not None and state == "stored":
-            method = hub.calibration.sensors[sensor_id].method if hub.calibration else "stored"
-            calibration[sensor_id] = SensorPose(pose, method, state)
+            entry = hub.calibration.sensors[sensor_id] if hub.calibration else None
+            if entry is None:
+                calibration[sensor_id] = SensorPose(pose, "stored", state)
+            else:  # its clock lag too, so a replay places its frames as the live server did
+                calibration[sensor_id] = SensorPose(pose, entry.method, state, entry.lag_s)
     return Header(time.time(), __version__, name, calibration, sensors)
 
 
