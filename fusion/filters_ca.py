@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
+from skelfuse.fusion import kernels_filter
 from skelfuse.fusion.kalman_state import BoolArray, KalmanState
 
 FloatArray = npt.NDArray[np.float64]
@@ -82,8 +83,12 @@ class DampedAccelerationKalman(KalmanState):
         else:
             f, q = self._transition(h)
         x_p = np.einsum("...ij,...j->...i", f, last_x)
+        predicted_p = _sandwich(f, last_p)
+        if kernels_filter.ready():  # the same bits in one loop
+            noise = (self.jerk_std, self.jerk_per_speed, self.r)
+            return kernels_filter.correct(predicted_p, q, last_x, z, x_p, step, noise)
         jerk = self.jerk_std + self.jerk_per_speed * np.abs(last_x[..., 1])
-        p_p = _sandwich(f, last_p) + (jerk**2)[..., None, None] * q
+        p_p = predicted_p + (jerk**2)[..., None, None] * q
         # Update with the position measurement (H = [1, 0, 0]).
         s = p_p[..., 0, 0] + self.r
         gain = p_p[..., :, 0] / s[..., None]
