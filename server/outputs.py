@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import queue
+import socket
 import threading
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -191,7 +192,8 @@ def build_output(spec: OutputSpec, rate_hz: float) -> QueuedOutput:
     if spec.kind == "lsl":
         from skelfuse.server.output_lsl import LslSink
 
-        sink = LslSink(spec.slots, rate_hz)
+        # One source id per machine: LabRecorder re-finds the stream after a server restart.
+        sink = LslSink(spec.slots, rate_hz, f"skelfuse@{socket.gethostname()}")
     else:
         from skelfuse.server.output_osc import OscSink, VmcSink
 

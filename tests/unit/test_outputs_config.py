@@ -52,3 +52,21 @@ def test_a_toml_file_gives_its_outputs_and_names_what_is_wrong(tmp_path: Path) -
         path.write_text(text)
         with pytest.raises(OutputConfigError, match=problem):
             load_outputs(path)
+
+
+def test_each_kind_builds_its_output_with_its_metrics_name() -> None:
+    pytest.importorskip("pylsl", reason="pylsl is not installed (pip install 'skelfuse[lsl]')")
+    from skelfuse.server.outputs import build_output
+
+    specs = (OutputSpec("osc", port=9000), OutputSpec("vmc", port=VMC_PORT), OutputSpec("lsl"))
+    outputs = [build_output(spec, 30.0) for spec in specs]
+    try:
+        assert [o.name for o in outputs] == [
+            "osc:127.0.0.1:9000",
+            f"vmc:127.0.0.1:{VMC_PORT}",
+            "lsl",
+        ]
+        assert [type(o.sink).__name__ for o in outputs] == ["OscSink", "VmcSink", "LslSink"]
+    finally:
+        for output in outputs:
+            output.close()
