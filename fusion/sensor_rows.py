@@ -38,6 +38,7 @@ def sensor_rows(
                 "sequence_gaps": sensor.sequence_gaps,
                 "clock_offset_s": sensor.clock_offset_s,
                 "clock_source": sensor.clock_source,
+                "clock_lag_s": sensor.lag_s,
                 "round_trip_ms": None
                 if sensor.round_trip.rtt_s is None
                 else round(sensor.round_trip.rtt_s * 1000, 3),

@@ -142,6 +142,8 @@ def test_a_stored_lag_lines_a_late_sensor_up_and_a_run_time_import_reaches_it(
     assert wait_until(lambda: on_round_trip_clocks(live), timeout_s=30), httpx.get(
         live.http_url + "/api/sensors"
     ).json()
+    rows = httpx.get(live.http_url + "/api/sensors", timeout=5).json()["sensors"]
+    assert {r["id"]: r["clock_lag_s"] for r in rows} == {"cam-a": 0.0, "cam-b": LAG_S, "cam-c": 0.0}
     # A full sway period (60 frames at 30 Hz) and then some, so the bias and the speed separate.
     before = delays(live, 90)
     # Without the lag, cam-c shows the person where cam-a showed it 40 ms earlier (measured
@@ -153,6 +155,8 @@ def test_a_stored_lag_lines_a_late_sensor_up_and_a_run_time_import_reaches_it(
     exported["sensors"]["cam-c"]["lag_s"] = LAG_S
     imported = httpx.post(live.http_url + "/api/calibration/import", json=exported, timeout=10)
     assert imported.status_code == 200, imported.text
+    rows = httpx.get(live.http_url + "/api/sensors", timeout=5).json()["sensors"]
+    assert {r["id"]: r["clock_lag_s"] for r in rows}["cam-c"] == LAG_S
     # Frames fused from now on: the buffered frames move with the import, so no settling time.
     after = delays(live, 90, after_s=time.time())
     assert abs(after["cam-c"] - after["cam-a"]) < 0.012, (before, after)
