@@ -183,4 +183,9 @@ def warm_up() -> float:
     from skelfuse.fusion import kernels_stages  # the mirror and confidence stages' kernels
 
     kernels_stages.warm_up()
+    # The bone observation's medians and the Kalman correction: they run once warmed.
+    from skelfuse.fusion import kernels_filter, kernels_observe
+
+    kernels_observe.warm_up()
+    kernels_filter.warm_up()
     return time.perf_counter() - start
