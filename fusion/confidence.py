@@ -166,7 +166,15 @@ def facing_cosines(
     Returns:
         (S,) float64 in [−1, 1]; NaN where unknown.
     """
-    to_sensor = np.asarray(sensor_positions, dtype=np.float64) - np.asarray(body_position)
+    sensors = np.asarray(sensor_positions, dtype=np.float64)
+    if kernels.enabled() and sensors.ndim == 2:  # the same bits in one compiled loop
+        shape = sensors.shape
+        return kernels_stages.facing_cosines(
+            np.broadcast_to(np.asarray(facing, dtype=np.float64), shape),
+            np.broadcast_to(np.asarray(body_position, dtype=np.float64), shape),
+            sensors,
+        )
+    to_sensor = sensors - np.asarray(body_position)
     to_sensor = to_sensor * HORIZONTAL
     cos: FloatArray = (unit(to_sensor) * np.asarray(facing, dtype=np.float64)).sum(-1)
     return cos
@@ -184,6 +192,8 @@ def facing_factors(
     least trusted; a back view also hides the arms in front of the body, hence ``back_factor``.
     """
     cos = np.asarray(cosines, dtype=np.float64)
+    if kernels.enabled() and cos.ndim == 1:  # the same bits in one compiled loop
+        return kernels_stages.facing_factors(cos, power, floor, back_factor)
     value = floor + (1.0 - floor) * np.abs(np.clip(cos, -1.0, 1.0)) ** power
     value = np.where(cos < 0, value * back_factor, value)
     return np.where(np.isfinite(cos), value, 1.0)
@@ -336,12 +346,13 @@ def _distinct(
     """The distinct priors (first-seen order) and each view's index among them, (N,)."""
     # Views share a handful of prior objects: hashing each object once (a frozen dataclass
     # hashes all its fields every time) instead of once per view is most of this function.
-    objects: dict[int, SensorPrior] = {}
-    for prior in priors:
-        objects.setdefault(id(prior), prior)
+    ids = [id(prior) for prior in priors]
+    objects = dict(zip(ids, priors, strict=True))  # first-seen order; one object per id
     index: dict[SensorPrior, int] = {}
     of_object = {key: index.setdefault(prior, len(index)) for key, prior in objects.items()}
-    of_view = np.array([of_object[id(prior)] for prior in priors], dtype=np.intp)
+    if len(index) == 1:  # the usual frame: one kind of sensor
+        return list(index), np.zeros(len(ids), dtype=np.intp)
+    of_view = np.array([of_object[key] for key in ids], dtype=np.intp)
     return list(index), of_view
 
 

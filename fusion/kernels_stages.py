@@ -164,6 +164,33 @@ def facing_directions(skeletons: FloatArray) -> FloatArray:
     return out
 
 
+def facing_cosines(facings: FloatArray, bodies: FloatArray, sensors: FloatArray) -> FloatArray:
+    """The compiled :func:`skelfuse.fusion.confidence.facing_cosines`, one facing and body
+    position per view (the same bits).
+
+    Args:
+        facings: (N, 3) each view's person's facing; bodies: (N, 3) where it stands;
+        sensors: (N, 3) each view's sensor; metres, world (NaN: unknown).
+
+    Returns:
+        (N,) cosines, NaN where unknown.
+    """
+    from skelfuse.fusion import kernels_facing  # imports numba: only when used
+
+    out = np.empty(len(facings))
+    kernels_facing.cosines_loop(plain(facings), plain(bodies), plain(sensors), out)
+    return out
+
+
+def facing_factors(cosines: FloatArray, power: float, floor: float, back: float) -> FloatArray:
+    """The compiled :func:`skelfuse.fusion.confidence.facing_factors` (the same bits)."""
+    from skelfuse.fusion import kernels_facing  # imports numba: only when used
+
+    out = np.empty(len(cosines))
+    kernels_facing.facing_factors_loop(plain(cosines), float(power), float(floor), float(back), out)
+    return out
+
+
 def body_weights(
     joints: FloatArray,
     states: npt.NDArray[np.uint8],
@@ -242,6 +269,7 @@ def warm_up() -> None:
         np.zeros(2, dtype=np.intp), (1.0, 0.1, 0.1, 0.01, 0.05), lateral, (6, 1e-9),
     )  # fmt: skip
     facing_directions(views)
+    facing_factors(facing_cosines(views[0], views[1], views[0]), 2.0, 0.1, 0.5)
     view_evidence(np.ones((2, 2, 25)), np.zeros(2, bool), np.zeros(2, dtype=np.intp), 1)
     unbiased_facings(
         views[:, 0], np.ones((2, 3)), np.ones((2, 2, 3)), np.zeros(2, bool), np.array([0, 2]), 0.5

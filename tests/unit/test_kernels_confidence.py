@@ -81,3 +81,30 @@ def test_confidence_and_carriers_kernel_gives_the_numpy_bits(
             expected = (confidence.joint_confidence(points, w), weighted.carriers(points, w))
         assert _same_bits(got[0], expected[0]) and _same_bits(got[1], expected[1])
     assert (got[0] == 0).any() and got[1].any() and not got[1].all()
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_facing_kernels_give_the_numpy_bits(numba_kernels: None, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    count = 200
+    angles = rng.uniform(0, 2 * np.pi, count)
+    facings = np.stack([np.sin(angles), np.zeros(count), np.cos(angles)], axis=1)
+    facings[:5] = np.nan  # persons whose facing is unknown
+    bodies = rng.normal(0.0, 1.0, (count, 3))
+    sensors = rng.normal(0.0, 3.0, (count, 3))
+    sensors[5] = np.nan
+    sensors[6] = bodies[6] + [0.0, 1.0, 0.0]  # straight above: direction 0 / 0
+    cosines = confidence.facing_cosines(facings, bodies, sensors)
+    with kernels.forced("numpy"):
+        expected = confidence.facing_cosines(facings, bodies, sensors)
+    assert _same_bits(cosines, expected)
+    one = confidence.facing_cosines(facings[9], bodies[9], sensors[:20])  # one person
+    with kernels.forced("numpy"):
+        assert _same_bits(one, confidence.facing_cosines(facings[9], bodies[9], sensors[:20]))
+    values = np.concatenate([cosines, [-1.5, 1.5, -0.0, 0.0, np.inf], rng.uniform(-1, 1, 5000)])
+    for power, floor, back in ((2.0, 0.1, 0.5), (0.5, 0.2, 1.0), (1.7, 0.0, 0.3), (1.0, 0.4, 0.9)):
+        got = confidence.facing_factors(values, power, floor, back)
+        with kernels.forced("numpy"):
+            want = confidence.facing_factors(values, power, floor, back)
+        assert _same_bits(got, want)
+    assert np.isnan(cosines).sum() >= 6 and (cosines < 0).any()
