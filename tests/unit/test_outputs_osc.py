@@ -225,3 +225,18 @@ def test_a_stalled_output_drops_and_counts_while_fusion_and_the_others_go_on() -
     receiver.wait_for(10**6, timeout_s=2.0)
     frames_received = [m for m in receiver.messages() if m.address == "/skelfuse/frame"]
     assert len(frames_received) == FRAMES
+
+
+def test_an_output_whose_receiver_is_gone_neither_raises_nor_stops() -> None:
+    gone = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    gone.bind(("127.0.0.1", 0))
+    port = gone.getsockname()[1]
+    gone.close()  # nobody listens there now: loopback answers each datagram "port unreachable"
+    output = QueuedOutput("osc", OscSink("127.0.0.1", port), capacity=64)
+    output.start()
+    for frame in fused_frames():
+        output.publish(frame, frame.t_s, 0.0)
+    output.close(timeout_s=30)
+    # UDP has no delivery report (an unconnected socket ignores "port unreachable"): every
+    # frame counts as sent, and no send failed.
+    assert (output.sent, output.dropped, output.messages_dropped) == (FRAMES, 0, 0)
