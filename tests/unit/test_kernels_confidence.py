@@ -8,6 +8,7 @@ views with noise, unknown joints and random points, with and without each term.
 from __future__ import annotations
 
 from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -108,3 +109,20 @@ def test_facing_kernels_give_the_numpy_bits(numba_kernels: None, seed: int) -> N
             want = confidence.facing_factors(values, power, floor, back)
         assert _same_bits(got, want)
     assert np.isnan(cosines).sum() >= 6 and (cosines < 0).any()
+
+
+def test_warm_up_compiles_every_stage_kernel_once(numba_kernels: None, tmp_path: Path) -> None:
+    """After kernels.warm_up, a whole replay (every stage, every input the pipeline passes)
+    adds no compilation: each loop keeps the one signature the warm-up compiled."""
+    from skelfuse.fusion import kernels_confidence, kernels_facing, kernels_mirror
+    from tests.unit import test_golden_replay as golden
+
+    kernels.warm_up()
+    loops = [
+        kernels_mirror.lateral_loop, kernels_mirror.score_loop, kernels_mirror.evidence_loop,
+        kernels_facing.facing_loop, kernels_facing.unbiased_loop, kernels_facing.cosines_loop,
+        kernels_facing.facing_factors_loop, kernels_confidence.body_loop,
+        kernels_confidence.confidence_loop,
+    ]  # fmt: skip
+    golden.test_replay_output_is_byte_identical_to_the_golden_digest("", tmp_path)
+    assert [len(loop.signatures) for loop in loops] == [1] * len(loops)
