@@ -35,9 +35,9 @@ size in that source, so pixels and metres compare). It
 is weaker: speeds seen from different sides differ (motion towards a camera barely moves in
 its image), so use it only where the cameras are not calibrated, and check its confidence.
 
-Where the lag goes: the calibration stores it per sensor (``details["lag_s"]``), and whoever
-reads the source's frames (the offline mocap, the benchmarks, a video source's timestamps)
-subtracts it from that source's times.
+Where the lag goes: the calibration stores it per sensor (``SensorCalibration.lag_s``; ``skelfuse
+calibration lag``), the live server and the offline replay subtract it from that sensor's
+mapped times (``fusion/sensors.py``), and the offline mocap stamps each video's frames with it.
 """
 
 from __future__ import annotations
