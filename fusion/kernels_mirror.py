@@ -26,8 +26,6 @@ BoolArray = npt.NDArray[np.bool_]
 Terms = tuple[float, float, float, float, float, float]
 """The track, geometry and anatomy weights, the swap prior, the hysteresis, and 1.0 when the
 last decisions count (0.0: none known)."""
-_LARGEST = float(np.finfo(np.float64).max)
-"""What ``np.nan_to_num`` puts in place of +inf."""
 
 
 @jit
@@ -346,38 +344,3 @@ def score_loop(
         for i in range(n):
             mirrored[lo + i] = (best >> i) & 1 == 1
         first_pair += n * (n - 1) // 2
-
-
-@jit
-def evidence_loop(
-    factors: FloatArray,
-    mirrored: BoolArray,
-    person_of: IntArray,
-    per_view: FloatArray,
-    evidence: FloatArray,
-) -> None:
-    """Fill ``per_view`` (N,) and ``evidence`` (P,) as ``labels.view_evidence`` and its sum per
-    person (``np.bincount``: view after view from 0).
-
-    factors: (N, 2, 25) range-of-motion factors as reported and swapped; mirrored: (N,) the
-    labelling chosen; person_of: (N,) each view's person.
-    """
-    column = np.empty(factors.shape[2])
-    out_of_range = np.empty(2)
-    for p in range(len(evidence)):
-        evidence[p] = 0.0
-    for v in range(factors.shape[0]):
-        for b in range(2):
-            for m in range(len(column)):
-                column[m] = 1.0 - factors[v, b, m]
-            out_of_range[b] = pairwise(column, len(column))
-        chosen = 1 if mirrored[v] else 0
-        value = out_of_range[chosen] - out_of_range[1 - chosen]
-        if value != value:  # np.nan_to_num
-            value = 0.0
-        elif value == math.inf:
-            value = _LARGEST
-        elif value == -math.inf:
-            value = -_LARGEST
-        per_view[v] = value
-        evidence[person_of[v]] += value

@@ -103,14 +103,29 @@ def view_evidence(
     Returns:
         per view (N,) and per person (P,), in joints.
     """
-    from skelfuse.fusion import kernels_mirror  # imports numba: only when used
+    from skelfuse.fusion import kernels_labels  # imports numba: only when used
 
     per_view = np.empty(len(mirrored))
     evidence = np.empty(persons)
-    kernels_mirror.evidence_loop(
+    kernels_labels.evidence_loop(
         plain(factors), plain(mirrored, np.bool_), plain(person_of, np.intp), per_view, evidence
     )
     return per_view, evidence
+
+
+def swap_mirrored(
+    joints: FloatArray, states: npt.NDArray[np.uint8], mirrored: BoolArray, permutation: IntArray
+) -> bool:
+    """Swap the mirrored views' left and right in place (compiled), when ``joints`` (N, 25, 3)
+    float64 and ``states`` (N, 25) uint8 are plain writable arrays; False (nothing done) if not.
+    """
+    from skelfuse.fusion import kernels_labels  # imports numba: only when used
+
+    for array, dtype in ((joints, np.float64), (states, np.uint8)):
+        if array.dtype != dtype or not (array.flags.c_contiguous and array.flags.writeable):
+            return False
+    kernels_labels.swap_loop(joints, states, plain(mirrored, np.bool_), plain(permutation, np.intp))
+    return True
 
 
 def unbiased_facings(
@@ -269,6 +284,7 @@ def warm_up() -> None:
         np.zeros(2, dtype=np.intp), (1.0, 0.1, 0.1, 0.01, 0.05), lateral, (6, 1e-9),
     )  # fmt: skip
     facing_directions(views)
+    swap_mirrored(views, np.zeros((2, 25), np.uint8), np.ones(2, bool), np.arange(25))
     facing_factors(facing_cosines(views[0], views[1], views[0]), 2.0, 0.1, 0.5)
     view_evidence(np.ones((2, 2, 25)), np.zeros(2, bool), np.zeros(2, dtype=np.intp), 1)
     unbiased_facings(

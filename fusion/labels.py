@@ -144,7 +144,10 @@ def label_views(
     for p, (lo, hi) in enumerate(pairwise(starts)):
         memories[p].clear()
         memories[p].update(zip(keys[lo:hi], flags[lo:hi], strict=True))
-    if mirrored.any():
+    swapped_here = kernels.enabled() and kernels_stages.swap_mirrored(
+        joints, states, mirrored, PERMUTATION
+    )
+    if mirrored.any() and not swapped_here:
         joints[mirrored] = joints[mirrored][:, PERMUTATION]
         states[mirrored] = states[mirrored][:, PERMUTATION]
     if unbiased:

@@ -218,3 +218,18 @@ def test_walking_check_decides_as_numpy_at_the_boundary() -> None:
         assert got == ((True, None) if expected else (False, None))
         decided += expected
     assert 0 < decided < 2000
+
+
+def test_swap_kernel_swaps_as_numpy(numba_kernels: None) -> None:
+    rng = np.random.default_rng(2)
+    joints = _views(2)
+    states = rng.integers(0, 3, joints.shape[:2]).astype(np.uint8)
+    mirrored = rng.random(len(joints)) < 0.4
+    expected_joints, expected_states = joints.copy(), states.copy()
+    expected_joints[mirrored] = joints[mirrored][:, mirror.PERMUTATION]
+    expected_states[mirrored] = states[mirrored][:, mirror.PERMUTATION]
+    assert kernels_stages.swap_mirrored(joints, states, mirrored, mirror.PERMUTATION)
+    assert _same_bits(joints, expected_joints) and _same_bits(states, expected_states)
+    strided = joints[::2]  # not a plain array: left to the caller's numpy path
+    assert not kernels_stages.swap_mirrored(strided, states[::2], mirrored[::2], mirror.PERMUTATION)
+    assert _same_bits(joints, expected_joints)
