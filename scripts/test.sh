@@ -14,6 +14,9 @@ fi
 if ! command -v blender >/dev/null 2>&1; then
   install_debian_packages "the export tests import our BVH files into Blender headless (skipped without it)" blender
 fi
+if ! command -v nats-server >/dev/null 2>&1 && [ ! -x /usr/sbin/nats-server ]; then
+  install_debian_packages "the NATS output's tests publish to a real nats-server (skipped without it)" nats-server
+fi
 ensure_open3d_libraries
 # The mono source's environment (mediapipe pins numpy<2, so not this one): its integration test
 # runs the real model in it (skipped without it, a failure under CI).

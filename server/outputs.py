@@ -175,8 +175,12 @@ class OutputsCollector(Collector):
 
 
 def output_name(spec: OutputSpec) -> str:
-    """The output's name in logs and ``/metrics``: ``osc:HOST:PORT``, ``vmc:HOST:PORT``, ``lsl``."""
-    return spec.kind if spec.kind == "lsl" else f"{spec.kind}:{spec.host}:{spec.port}"
+    """The output's name in logs and ``/metrics``: ``osc:HOST:PORT``, ``vmc:HOST:PORT``, ``lsl``,
+    ``nats:HOST:PORT/ROOM``."""
+    if spec.kind == "lsl":
+        return "lsl"
+    name = f"{spec.kind}:{spec.host}:{spec.port}"
+    return f"{name}/{spec.room}" if spec.kind == "nats" else name
 
 
 def build_output(spec: OutputSpec, rate_hz: float) -> QueuedOutput:
@@ -187,9 +191,16 @@ def build_output(spec: OutputSpec, rate_hz: float) -> QueuedOutput:
     Raises:
         ImportError: ``lsl`` without pylsl installed (``pip install 'skelfuse[lsl]'``).
         OSError: the UDP socket cannot be opened.
+        ValueError: a nats room that is not one subject token.
     """
     sink: Sink
-    if spec.kind == "lsl":
+    if spec.kind == "nats":
+        from skelfuse.server.output_nats import History, NatsSink
+
+        history = History(spec.history_s, spec.history_msgs) if spec.jetstream else None
+        host = f"[{spec.host}]" if ":" in spec.host else spec.host
+        sink = NatsSink(f"nats://{host}:{spec.port}", spec.room, spec.rotations, history)
+    elif spec.kind == "lsl":
         from skelfuse.server.output_lsl import LslSink
 
         # One source id per machine: LabRecorder re-finds the stream after a server restart.

@@ -16,16 +16,25 @@ __all__ = ["FusionSettings", "HubSettings", "OutputSpec", "Settings"]
 class OutputSpec:
     """One output of fused frames besides the WebSocket feed (docs/outputs.md)."""
 
-    kind: Literal["osc", "vmc", "lsl"]
+    kind: Literal["osc", "vmc", "lsl", "nats"]
     host: str = "127.0.0.1"
     port: int = 0
-    """UDP port of the receiver (osc, vmc); unused by lsl."""
+    """UDP port of the receiver (osc, vmc), the NATS server's client port (nats); unused by
+    lsl."""
     rotations: bool = False
     """osc: add each joint's rotation (``/rot``)."""
     slots: int = 6
     """lsl: persons per sample."""
     queue: int = 8
     """Frames waiting for the output's thread; beyond them frames are dropped (counted)."""
+    room: str = "default"
+    """nats: the room's subject token (``skelfuse.<room>.frames``)."""
+    jetstream: bool = False
+    """nats: keep a replayable history in a JetStream stream (``history_s``, ``history_msgs``)."""
+    history_s: int = 10
+    """nats with jetstream: seconds of frames kept."""
+    history_msgs: int = 0
+    """nats with jetstream: at most this many frames kept (0: no limit but ``history_s``)."""
 
 
 @dataclass(frozen=True, slots=True)

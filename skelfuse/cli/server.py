@@ -84,20 +84,39 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "--lsl", action="store_true", help="publish fused skeletons as Lab Streaming Layer streams"
     )
     outputs.add_argument(
+        "--nats", default=None, metavar="HOST[:PORT]",
+        help="publish fused frames (msgpack) to NATS at HOST (port 4222 if not given)",
+    )  # fmt: skip
+    outputs.add_argument(
+        "--nats-room", default="default", metavar="NAME",
+        help="NATS: this server's room; frames go to skelfuse.NAME.frames (default: default)",
+    )  # fmt: skip
+    outputs.add_argument(
+        "--nats-history", type=int, default=None, metavar="SECONDS",
+        help="NATS: keep the last SECONDS of frames in a JetStream stream for late subscribers",
+    )  # fmt: skip
+    outputs.add_argument(
         "--outputs-config", default=None, metavar="FILE",
-        help="TOML file with [[outputs]] tables (kind = osc|vmc|lsl, host, port, ...)",
+        help="TOML file with [[outputs]] tables (kind = osc|vmc|lsl|nats, host, port, ...)",
     )  # fmt: skip
     server.set_defaults(func=run)
 
 
 def output_specs(args: argparse.Namespace) -> tuple[Any, ...]:
     """The ``OutputSpec`` of ``--outputs-config``'s tables, then of ``--osc``, ``--vmc``,
-    ``--lsl``.
+    ``--lsl``, ``--nats``.
 
     Raises:
-        UsageError: a bad HOST:PORT or file; ``--osc`` without a port; ``--lsl`` without pylsl.
+        UsageError: a bad HOST:PORT, file or NATS room; ``--osc`` without a port; ``--lsl``
+            without pylsl; ``--nats`` without nats-py.
     """
-    from skelfuse.server.output_config import VMC_PORT, OutputConfigError, load_outputs
+    from skelfuse.server.output_config import (
+        VMC_PORT,
+        OutputConfigError,
+        load_outputs,
+        output_from_mapping,
+    )
+    from skelfuse.server.output_nats import NATS_PORT
     from skelfuse.server.settings import OutputSpec
 
     specs: list[OutputSpec] = []
@@ -116,6 +135,21 @@ def output_specs(args: argparse.Namespace) -> tuple[Any, ...]:
         specs.append(OutputSpec("vmc", host, port))
     if args.lsl:
         specs.append(OutputSpec("lsl"))
+    if args.nats is not None:
+        host, port = parse_host_port(args.nats, NATS_PORT)
+        table: dict[str, object] = {"kind": "nats", "host": host, "port": port}
+        table["room"] = args.nats_room
+        if args.nats_history is not None:
+            table |= {"jetstream": True, "history_s": args.nats_history}
+        try:
+            specs.append(output_from_mapping(table, "--nats"))
+        except OutputConfigError as exc:
+            raise UsageError(str(exc)) from exc
+    if any(spec.kind == "nats" for spec in specs):
+        try:
+            import nats  # noqa: F401
+        except ImportError as exc:
+            raise UsageError("--nats needs nats-py: pip install 'skelfuse[nats]'") from exc
     if any(spec.kind == "lsl" for spec in specs):
         try:
             import pylsl  # noqa: F401
