@@ -25,12 +25,16 @@ import pytest
 from nats.aio.client import Client
 from websockets.sync.client import connect
 
+from skelfuse.cli import build_parser
+from skelfuse.cli.server import output_specs
+from skelfuse.cli.values import UsageError
 from skelfuse.protocol.feed import frame_json
 from skelfuse.server.output_config import OutputConfigError, output_from_mapping
 from skelfuse.server.output_nats import History, NatsSink, room_subject
 from skelfuse.server.outputs import QueuedOutput, output_name
 from skelfuse.server.settings import OutputSpec
-from tests.integration.conftest import AgentThread, LiveServer, free_port
+from tests.integration.conftest import AgentThread, LiveServer
+from tests.support import free_port
 from tests.unit.test_outputs_osc import fused_frames
 
 FRAMES = 30
@@ -287,3 +291,16 @@ def test_nats_outputs_from_toml_tables() -> None:
             output_from_mapping({"kind": "nats", "room": bad})
     with pytest.raises(OutputConfigError, match="history_s"):
         output_from_mapping({"kind": "nats", "history_s": 0})
+
+
+def test_nats_flags() -> None:
+    def specs(*argv: str) -> tuple[OutputSpec, ...]:
+        return output_specs(build_parser().parse_args(["server", *argv]))
+
+    (spec,) = specs("--nats", "10.0.0.5", "--nats-room", "hall-a", "--nats-history", "30")
+    assert (spec.kind, spec.host, spec.port, spec.room) == ("nats", "10.0.0.5", 4222, "hall-a")
+    assert (spec.jetstream, spec.history_s) == (True, 30)
+    (spec,) = specs("--nats", "127.0.0.1:4333")
+    assert (spec.port, spec.room, spec.jetstream) == (4333, "default", False)
+    with pytest.raises(UsageError, match="room"):
+        specs("--nats", "127.0.0.1", "--nats-room", "a.b")
