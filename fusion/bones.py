@@ -322,7 +322,7 @@ def observe_bone_lengths(
     estimating = [model.set_lengths is None for model in models]
     if not any(estimating):
         return
-    if kernels_observe.ready():  # the same bits in one compiled loop
+    if kernels.enabled() and kernels_observe.warmed():  # the same bits in one loop
         per_bone = kernels_observe.bone_medians(
             joints, states, cosines, person_of, len(models), _BONE_ENDS, _TRACKED, GOOD_VIEW_COS
         )

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion import kernels_filter
+from skelfuse.fusion import kernels, kernels_filter
 from skelfuse.fusion.kalman_state import BoolArray, KalmanState
 
 FloatArray = npt.NDArray[np.float64]
@@ -84,7 +84,7 @@ class DampedAccelerationKalman(KalmanState):
             f, q = self._transition(h)
         x_p = np.einsum("...ij,...j->...i", f, last_x)
         predicted_p = _sandwich(f, last_p)
-        if kernels_filter.ready():  # the same bits in one loop
+        if kernels.enabled() and kernels_filter.warmed():  # the same bits in one loop
             noise = (self.jerk_std, self.jerk_per_speed, self.r)
             return kernels_filter.correct(predicted_p, q, last_x, z, x_p, step, noise)
         jerk = self.jerk_std + self.jerk_per_speed * np.abs(last_x[..., 1])

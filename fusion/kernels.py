@@ -186,6 +186,6 @@ def warm_up() -> float:
     # The bone observation's medians and the Kalman correction: they run once warmed.
     from skelfuse.fusion import kernels_filter, kernels_observe
 
-    kernels_observe.warm_up()
+    kernels_observe.warm_up()  # callers check warmed() (and enabled())
     kernels_filter.warm_up()
     return time.perf_counter() - start

@@ -14,10 +14,11 @@ so no frame waits for a compilation; until then, and with the kernels off, numpy
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion import kernels
 from skelfuse.fusion.kernels_jit import jit
 
 FloatArray = npt.NDArray[np.float64]
@@ -26,15 +27,15 @@ BoolArray = npt.NDArray[np.bool_]
 _warm: dict[str, bool] = {"done": False}
 
 
-def ready() -> bool:
-    """Whether :func:`correct` runs compiled now (kernels on and warmed up)."""
-    return _warm["done"] and kernels.enabled()
+def warmed() -> bool:
+    """Whether :func:`warm_up` has compiled the loop: callers use it only then, and only when
+    :func:`skelfuse.fusion.kernels.enabled` (this module does not import that one, which
+    warms it up)."""
+    return _warm["done"]
 
 
 def warm_up() -> None:
     """Compile (or load from numba's cache) the loop now; a no-op with the kernels off."""
-    if not kernels.enabled():
-        return
     one = np.zeros((1, 3))
     correct(np.zeros((1, 3, 3)), np.zeros((1, 3, 3)), one, np.zeros(1), one, np.ones(1, bool),
             (1.0, 1.0, 1.0))  # fmt: skip
@@ -68,12 +69,12 @@ def correct(
     new_p = np.empty((*shape, 3, 3))
     jerk_std, jerk_per_speed, r = noise
     _correct_loop(
-        kernels.plain(predicted_p.reshape(-1, 3, 3)),
-        kernels.plain(q.reshape(-1, 3, 3)),
-        kernels.plain(last_x.reshape(-1, 3)),
-        kernels.plain(z.reshape(-1)),
-        kernels.plain(x_p.reshape(-1, 3)),
-        kernels.plain(step.reshape(-1), np.bool_),
+        _plain(predicted_p.reshape(-1, 3, 3)),
+        _plain(q.reshape(-1, 3, 3)),
+        _plain(last_x.reshape(-1, 3)),
+        _plain(z.reshape(-1)),
+        _plain(x_p.reshape(-1, 3)),
+        _plain(step.reshape(-1), np.bool_),
         float(jerk_std),
         float(jerk_per_speed),
         float(r),
@@ -115,3 +116,11 @@ def _correct_loop(
             new_x[c, a] = x_p[c, a] + gain[a] * innovation
             for b in range(3):
                 new_p[c, a, b] = p_p[a, b] - gain[a] * p_p[0, b]
+
+
+def _plain(array: npt.NDArray[Any], dtype: type = np.float64) -> Any:
+    """``array`` as a writable C-contiguous array of ``dtype``, copied only when it is not
+    (the argument types :func:`warm_up` compiled for: no second compilation)."""
+    if array.dtype == dtype and array.flags.c_contiguous and array.flags.writeable:
+        return array
+    return np.require(array, dtype=dtype, requirements=("C", "W"))

@@ -15,10 +15,11 @@ no frame ever waits for a compilation; until then, and with the kernels off
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion import kernels
 from skelfuse.fusion.kernels_jit import jit
 
 FloatArray = npt.NDArray[np.float64]
@@ -27,16 +28,16 @@ IntArray = npt.NDArray[np.intp]
 _warm: dict[str, bool] = {"done": False}
 
 
-def ready() -> bool:
-    """Whether :func:`bone_medians` runs compiled now (kernels on and warmed up)."""
-    return _warm["done"] and kernels.enabled()
+def warmed() -> bool:
+    """Whether :func:`warm_up` has compiled the loop: callers use it only then, and only when
+    :func:`skelfuse.fusion.kernels.enabled` (this module does not import that one, which
+    warms it up)."""
+    return _warm["done"]
 
 
 def warm_up() -> None:
     """Compile (or load from numba's cache) the loop now, off any latency-bound path; a no-op
     with the kernels off."""
-    if not kernels.enabled():
-        return
     index = np.zeros(1, dtype=np.intp)
     bone_medians(np.zeros((1, 25, 3)), np.zeros((1, 25), np.uint8), np.zeros(1), index, 1,
                  (index, index), 2, 0.5)  # fmt: skip
@@ -68,12 +69,12 @@ def bone_medians(
     parents, children = ends
     out = np.empty((persons, 2, len(parents)))
     _medians_loop(
-        kernels.plain(joints),
-        kernels.plain(states, np.uint8),
-        kernels.plain(cosines),
-        kernels.plain(person_of, np.intp),
-        kernels.plain(parents, np.intp),
-        kernels.plain(children, np.intp),
+        _plain(joints),
+        _plain(states, np.uint8),
+        _plain(cosines),
+        _plain(person_of, np.intp),
+        _plain(parents, np.intp),
+        _plain(children, np.intp),
         int(tracked),
         float(good_cos),
         out,
@@ -131,3 +132,11 @@ def _medians_loop(
                     out[p, kind, b] = (values[(count - 1) // 2] + values[count // 2]) / 2.0
                 else:
                     out[p, kind, b] = np.nan
+
+
+def _plain(array: npt.NDArray[Any], dtype: type = np.float64) -> Any:
+    """``array`` as a writable C-contiguous array of ``dtype``, copied only when it is not
+    (the argument types :func:`warm_up` compiled for: no second compilation)."""
+    if array.dtype == dtype and array.flags.c_contiguous and array.flags.writeable:
+        return array
+    return np.require(array, dtype=dtype, requirements=("C", "W"))

@@ -71,7 +71,7 @@ def test_both_paths_estimate_the_same_lengths(numba_kernels: None) -> None:
         models = (compiled, reference)
         for chosen, path in zip(models, ("numba", "numpy"), strict=True):
             with kernels.forced(path):
-                assert kernels_observe.ready() == (path == "numba")
+                assert (kernels.enabled() and kernels_observe.warmed()) == (path == "numba")
                 bones.observe_bone_lengths(
                     chosen[: int(persons)], joints, states, cosines, person_of, slot_of,
                     int(widest),
