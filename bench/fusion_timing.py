@@ -38,6 +38,7 @@ class FusionTiming:
 def fusion_timing(sensors: int, bodies: int, steps: int = 1000, warmup: int = 100) -> FusionTiming:
     """Median cost of one fused frame (and of ingesting one frame) on the production classes,
     and of each pipeline stage in it (bench/fusion_stages.py)."""
+    from skelfuse.fusion import kernels
     from skelfuse.fusion.hub import FusionHub
     from skelfuse.fusion.pipeline import FusionPipeline
     from skelfuse.fusion.views import FusedPerson, View
@@ -45,6 +46,7 @@ def fusion_timing(sensors: int, bodies: int, steps: int = 1000, warmup: int = 10
     from skelfuse.server.broadcast import encode_message
     from skelfuse.server.settings import Settings
 
+    kernels.warm_up()  # as the server does at start: no step compiles, every kernel runs
     tracker_times: list[float] = []
 
     class TimedPipeline(FusionPipeline):
