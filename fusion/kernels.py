@@ -22,12 +22,12 @@ import os
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Any, Final
+from typing import Final
 
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.kernels_jit import numba_module
+from skelfuse.fusion.kernels_jit import numba_module, plain
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
@@ -73,17 +73,6 @@ def forced(chosen: str) -> Iterator[None]:
         yield
     finally:
         _state["mode"] = saved
-
-
-def plain(array: npt.ArrayLike, dtype: type = np.float64) -> Any:
-    """``array`` as a writable C-contiguous array of ``dtype`` (copied only when it is not):
-    every call then has the argument types the warm-up compiled for, so no frame waits for a
-    second compilation (a read-only or strided array is another numba signature)."""
-    if isinstance(array, np.ndarray) and array.dtype == dtype and array.flags.c_contiguous:
-        # The usual cases, without np.require's cost (several µs a call): as it is, or a copy
-        # of a read-only array (shared index tables).
-        return array if array.flags.writeable else array.copy()
-    return np.require(array, dtype=dtype, requirements=("C", "W"))
 
 
 def rom_factors_and_forward(

@@ -2,7 +2,8 @@
 
 numba is optional (the ``fast`` extra): :func:`numba_module` looks it up once, and :func:`jit`
 leaves a function as it is without it. :mod:`skelfuse.fusion.kernels` decides whether the
-compiled functions run at all.
+compiled functions run at all. :func:`plain` gives the kernels' arguments the types their
+warm-up compiled for.
 """
 
 from __future__ import annotations
@@ -10,6 +11,9 @@ from __future__ import annotations
 import importlib
 from collections.abc import Callable
 from typing import Any, TypeVar
+
+import numpy as np
+import numpy.typing as npt
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -39,3 +43,14 @@ def jit(function: F) -> F:
         return function
     compiled: F = numba.njit(cache=True, nogil=True, error_model="numpy")(function)
     return compiled
+
+
+def plain(array: npt.ArrayLike, dtype: type = np.float64) -> Any:
+    """``array`` as a writable C-contiguous array of ``dtype`` (copied only when it is not):
+    every call then has the argument types the warm-up compiled for, so no frame waits for a
+    second compilation (a read-only or strided array is another numba signature)."""
+    if isinstance(array, np.ndarray) and array.dtype == dtype and array.flags.c_contiguous:
+        # The usual cases, without np.require's cost (several µs a call): as it is, or a copy
+        # of a read-only array (shared index tables).
+        return array if array.flags.writeable else array.copy()
+    return np.require(array, dtype=dtype, requirements=("C", "W"))

@@ -4,7 +4,7 @@ As :mod:`skelfuse.fusion.kernels` for the others: each function here computes wh
 code it names computes, the same bits, in a loop compiled with numba (kernels_mirror.py,
 kernels_facing.py, kernels_confidence.py); callers use it when
 :func:`skelfuse.fusion.kernels.enabled`. Each call passes arrays of the types :func:`warm_up`
-compiled for (:func:`~skelfuse.fusion.kernels.plain`), so no frame waits for a compilation.
+compiled for (:func:`~skelfuse.fusion.kernels_jit.plain`), so no frame waits for a compilation.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.kernels import plain
+from skelfuse.fusion.kernels_jit import plain
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
