@@ -55,18 +55,26 @@ def _wait(condition: Callable[[], bool], timeout_s: float, what: str) -> None:
 
 
 class NatsServer:
-    """A ``nats-server`` with JetStream on 127.0.0.1:``port``, stopped and started again on the
-    same port (its store in ``store``)."""
+    """A ``nats-server`` on 127.0.0.1:``port`` with JetStream (its store in ``store``; ``domain``:
+    its JetStream domain) and ``extra`` configuration, stopped and started again on the same
+    port."""
 
-    def __init__(self, binary: str, store: Path) -> None:
-        self.binary, self.store, self.port = binary, store, free_port()
+    def __init__(self, binary: str, store: Path, domain: str = "", extra: str = "") -> None:
+        self.binary, self.port = binary, free_port()
         self.url = f"nats://127.0.0.1:{self.port}"
+        store.mkdir(parents=True, exist_ok=True)
+        self.config = store / "nats.conf"
+        jetstream = f'store_dir: "{store}"' + (f", domain: {domain}" if domain else "")
+        self.config.write_text(
+            f"listen: 127.0.0.1:{self.port}\njetstream {{ {jetstream} }}\n{extra}\n"
+        )
         self.process: subprocess.Popen[bytes] | None = None
 
     def start(self) -> None:
-        command = [self.binary, "-a", "127.0.0.1", "-p", str(self.port), "-js", "-sd"]
         self.process = subprocess.Popen(
-            [*command, str(self.store)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+            [self.binary, "-c", str(self.config)],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
         )
         _wait(self._accepts, 10.0, f"nats-server on port {self.port}")
 
@@ -88,15 +96,20 @@ class NatsServer:
                 self.process.wait(5)
 
 
-@pytest.fixture
-def nats_server(tmp_path: Path) -> Iterator[NatsServer]:
+def nats_server_binary() -> str:
+    """The ``nats-server`` executable (skips, or fails under CI, without it)."""
     binary = shutil.which("nats-server") or shutil.which("nats-server", path="/usr/sbin")
     if binary is None:
         _unavailable(
             "nats-server not found (`nats-server` on PATH or in /usr/sbin)",
             "CI must install Debian's `nats-server` package (scripts/test.sh does)",
         )
-    server = NatsServer(binary, tmp_path / "jetstream")
+    return binary
+
+
+@pytest.fixture
+def nats_server(tmp_path: Path) -> Iterator[NatsServer]:
+    server = NatsServer(nats_server_binary(), tmp_path / "jetstream")
     server.start()
     yield server
     server.stop()
@@ -108,6 +121,7 @@ class Subscriber:
 
     def __init__(self, url: str, subject: str, jetstream: bool = False) -> None:
         self.messages: list[dict[str, Any]] = []
+        self.subjects: list[str] = []
         self.resubscribed = threading.Event()
         self.client: Client | None = None
         self._loop = asyncio.new_event_loop()
@@ -120,6 +134,7 @@ class Subscriber:
     async def _start(self, url: str, subject: str, jetstream: bool) -> None:
         async def on_message(msg: Any) -> None:
             self.messages.append(msgpack.unpackb(msg.data))
+            self.subjects.append(msg.subject)
 
         async def on_error(exc: Exception) -> None:
             pass  # NATS stopped on purpose; nats-py would log a traceback per attempt
