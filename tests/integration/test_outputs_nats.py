@@ -160,9 +160,18 @@ class Subscriber:
     def close(self) -> None:
         if self.client is not None:
             asyncio.run_coroutine_threadsafe(self.client.close(), self._loop).result(5)
+        asyncio.run_coroutine_threadsafe(_cancel_others(), self._loop).result(5)
         self._loop.call_soon_threadsafe(self._loop.stop)
         self._thread.join(5)
         self._loop.close()
+
+
+async def _cancel_others() -> None:
+    """Cancel the loop's other tasks (nats-py's JetStream flow control outlives the client)."""
+    others = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
+    for task in others:
+        task.cancel()
+    await asyncio.gather(*others, return_exceptions=True)
 
 
 def _feed_message(frame: Any) -> dict[str, Any]:
