@@ -17,7 +17,7 @@ from skelfuse.fusion import anatomy, confidence, kernels, weighted
 from skelfuse.fusion.kernels_jit import numba_module
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.protocol.skeleton import BONES
-from tests.unit.test_kernels import _same_bits, _views
+from tests.unit.test_kernels import _numpy_uses_svml, _same_bits, _views
 
 
 @pytest.fixture
@@ -60,7 +60,10 @@ def test_body_weights_kernel_gives_the_numpy_bits(
         got = confidence.body_weights(views, states, refs, factors, settings)
         with kernels.forced("numpy"):
             expected = confidence.body_weights(views, states, refs, factors, settings)
-        assert _same_bits(got, expected)
+        if _numpy_uses_svml():  # numpy's own exp on AVX-512: a few ulp from the C library's
+            np.testing.assert_allclose(got, expected, rtol=1e-12, atol=0.0)
+        else:
+            assert _same_bits(got, expected)
     assert ((got > 0.0) & (got < 0.1)).any()  # the terms reach the weights
 
 
@@ -107,7 +110,10 @@ def test_facing_kernels_give_the_numpy_bits(numba_kernels: None, seed: int) -> N
         got = confidence.facing_factors(values, power, floor, back)
         with kernels.forced("numpy"):
             want = confidence.facing_factors(values, power, floor, back)
-        assert _same_bits(got, want)
+        if _numpy_uses_svml() and power not in (2.0, 0.5, 1.0):  # SVML's pow on AVX-512
+            np.testing.assert_allclose(got, want, rtol=1e-12, atol=0.0)
+        else:
+            assert _same_bits(got, want)
     assert np.isnan(cosines).sum() >= 6 and (cosines < 0).any()
 
 
