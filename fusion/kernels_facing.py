@@ -21,17 +21,13 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.kernels_jit import jit
-from skelfuse.protocol.skeleton import JointId as J
+from skelfuse.fusion.kernels_rom import body_frame
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
 BoolArray = npt.NDArray[np.bool_]
 
 _PI = math.pi
-
-# Joint indices as plain ints (numba types globals of these as integer constants).
-_SB, _SS = int(J.SPINE_BASE), int(J.SPINE_SHOULDER)
-_HL, _HR, _SL, _SR = int(J.HIP_LEFT), int(J.HIP_RIGHT), int(J.SHOULDER_LEFT), int(J.SHOULDER_RIGHT)
 
 
 @jit
@@ -113,28 +109,11 @@ def unbiased_loop(
 @jit
 def facing_loop(skeletons: FloatArray, out: FloatArray) -> None:
     """Fill ``out`` (P, 3) with ``anatomy.facing_directions`` of ``skeletons`` (P, 25, 3): the
-    body frame's forward axis as in ``anatomy._body_frame`` (``kernels_rom.rom_loop`` computes
-    it the same way), made horizontal and unit as ``anatomy.facings_of_forward``."""
+    body frame's forward axis (``kernels_rom.body_frame``, as ``anatomy._body_frame``), made
+    horizontal and unit as ``anatomy.facings_of_forward``."""
     for m in range(skeletons.shape[0]):
         v = skeletons[m]
-        u0, u1, u2 = v[_SS, 0] - v[_SB, 0], v[_SS, 1] - v[_SB, 1], v[_SS, 2] - v[_SB, 2]
-        norm = math.sqrt((u0 * u0 + u1 * u1) + u2 * u2)
-        u0, u1, u2 = u0 / norm, u1 / norm, u2 / norm
-        h0, h1, h2 = v[_HL, 0] - v[_HR, 0], v[_HL, 1] - v[_HR, 1], v[_HL, 2] - v[_HR, 2]
-        s0, s1, s2 = v[_SL, 0] - v[_SR, 0], v[_SL, 1] - v[_SR, 1], v[_SL, 2] - v[_SR, 2]
-        hips = math.isfinite(h0) and math.isfinite(h1) and math.isfinite(h2)
-        shoulders = math.isfinite(s0) and math.isfinite(s1) and math.isfinite(s2)
-        if hips or shoulders:
-            l0 = (h0 if math.isfinite(h0) else 0.0) + (s0 if math.isfinite(s0) else 0.0)
-            l1 = (h1 if math.isfinite(h1) else 0.0) + (s1 if math.isfinite(s1) else 0.0)
-            l2 = (h2 if math.isfinite(h2) else 0.0) + (s2 if math.isfinite(s2) else 0.0)
-        else:
-            l0 = l1 = l2 = math.nan
-        d = (l0 * u0 + l1 * u1) + l2 * u2
-        l0, l1, l2 = l0 - d * u0, l1 - d * u1, l2 - d * u2
-        norm = math.sqrt((l0 * l0 + l1 * l1) + l2 * l2)
-        l0, l1, l2 = l0 / norm, l1 / norm, l2 / norm
-        f0, f1, f2 = l1 * u2 - l2 * u1, l2 * u0 - l0 * u2, l0 * u1 - l1 * u0
+        f0, f1, f2 = body_frame(v)[6:]
         h0, h1, h2 = f0 * 1.0, f1 * 0.0, f2 * 1.0
         norm = math.sqrt((h0 * h0 + h1 * h1) + h2 * h2)
         ok = math.isfinite(h0) and math.isfinite(h1) and math.isfinite(h2)

@@ -65,6 +65,37 @@ def _factor(angle: float, low: float, high: float, scale_deg: float) -> float:
 
 
 @jit
+def body_frame(
+    v: FloatArray,
+) -> tuple[float, float, float, float, float, float, float, float, float]:
+    """``anatomy._body_frame`` of one view ``v`` (25, 3): the unit up axis (SpineBase →
+    SpineShoulder), the unit left axis (hips + shoulders, each where finite, made normal to
+    up) and forward = left × up, as ``(u0, u1, u2, l0, l1, l2, f0, f1, f2)``; NaN where the
+    trunk is unknown. Numba inlines it into :func:`rom_loop` and
+    :func:`skelfuse.fusion.kernels_facing.facing_loop`: the same operations in the same order.
+    """
+    u0, u1, u2 = v[_SS, 0] - v[_SB, 0], v[_SS, 1] - v[_SB, 1], v[_SS, 2] - v[_SB, 2]
+    norm = math.sqrt((u0 * u0 + u1 * u1) + u2 * u2)
+    u0, u1, u2 = u0 / norm, u1 / norm, u2 / norm
+    h0, h1, h2 = v[_HL, 0] - v[_HR, 0], v[_HL, 1] - v[_HR, 1], v[_HL, 2] - v[_HR, 2]
+    s0, s1, s2 = v[_SL, 0] - v[_SR, 0], v[_SL, 1] - v[_SR, 1], v[_SL, 2] - v[_SR, 2]
+    hips = math.isfinite(h0) and math.isfinite(h1) and math.isfinite(h2)
+    shoulders = math.isfinite(s0) and math.isfinite(s1) and math.isfinite(s2)
+    if hips or shoulders:
+        l0 = (h0 if math.isfinite(h0) else 0.0) + (s0 if math.isfinite(s0) else 0.0)
+        l1 = (h1 if math.isfinite(h1) else 0.0) + (s1 if math.isfinite(s1) else 0.0)
+        l2 = (h2 if math.isfinite(h2) else 0.0) + (s2 if math.isfinite(s2) else 0.0)
+    else:
+        l0 = l1 = l2 = math.nan
+    d = (l0 * u0 + l1 * u1) + l2 * u2
+    l0, l1, l2 = l0 - d * u0, l1 - d * u1, l2 - d * u2
+    norm = math.sqrt((l0 * l0 + l1 * l1) + l2 * l2)
+    l0, l1, l2 = l0 / norm, l1 / norm, l2 / norm
+    f0, f1, f2 = l1 * u2 - l2 * u1, l2 * u0 - l0 * u2, l0 * u1 - l1 * u0
+    return u0, u1, u2, l0, l1, l2, f0, f1, f2
+
+
+@jit
 def rom_loop(
     views: FloatArray,
     scale_deg: float,
@@ -85,25 +116,7 @@ def rom_loop(
     proximal = (_HL, _HR, _KL, _KR, _AL, _AR, _SL, _SR, _EL, _ER, _NK)
     for m in range(views.shape[0]):
         v = views[m]
-        # Body frame (anatomy._body_frame).
-        u0, u1, u2 = v[_SS, 0] - v[_SB, 0], v[_SS, 1] - v[_SB, 1], v[_SS, 2] - v[_SB, 2]
-        norm = math.sqrt((u0 * u0 + u1 * u1) + u2 * u2)
-        u0, u1, u2 = u0 / norm, u1 / norm, u2 / norm
-        h0, h1, h2 = v[_HL, 0] - v[_HR, 0], v[_HL, 1] - v[_HR, 1], v[_HL, 2] - v[_HR, 2]
-        s0, s1, s2 = v[_SL, 0] - v[_SR, 0], v[_SL, 1] - v[_SR, 1], v[_SL, 2] - v[_SR, 2]
-        hips = math.isfinite(h0) and math.isfinite(h1) and math.isfinite(h2)
-        shoulders = math.isfinite(s0) and math.isfinite(s1) and math.isfinite(s2)
-        if hips or shoulders:
-            l0 = (h0 if math.isfinite(h0) else 0.0) + (s0 if math.isfinite(s0) else 0.0)
-            l1 = (h1 if math.isfinite(h1) else 0.0) + (s1 if math.isfinite(s1) else 0.0)
-            l2 = (h2 if math.isfinite(h2) else 0.0) + (s2 if math.isfinite(s2) else 0.0)
-        else:
-            l0 = l1 = l2 = math.nan
-        d = (l0 * u0 + l1 * u1) + l2 * u2
-        l0, l1, l2 = l0 - d * u0, l1 - d * u1, l2 - d * u2
-        norm = math.sqrt((l0 * l0 + l1 * l1) + l2 * l2)
-        l0, l1, l2 = l0 / norm, l1 / norm, l2 / norm
-        f0, f1, f2 = l1 * u2 - l2 * u1, l2 * u0 - l0 * u2, l0 * u1 - l1 * u0
+        u0, u1, u2, l0, l1, l2, f0, f1, f2 = body_frame(v)
         forward[m, 0], forward[m, 1], forward[m, 2] = f0, f1, f2
         # Segments, distal − proximal (anatomy._SEGMENT_DISTAL / _SEGMENT_PROXIMAL).
         for k in range(11):
