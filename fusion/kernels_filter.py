@@ -19,19 +19,13 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.kernels_jit import jit
+from skelfuse.fusion.kernels_jit import Warmed, jit
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
-_warm: dict[str, bool] = {"done": False}
-
-
-def warmed() -> bool:
-    """Whether :func:`warm_up` has compiled the loop: callers use it only then, and only when
-    :func:`skelfuse.fusion.kernels.enabled` (this module does not import that one, which
-    warms it up)."""
-    return _warm["done"]
+warmed = Warmed()
+"""Whether :func:`warm_up` has run: see :class:`~skelfuse.fusion.kernels_jit.Warmed`."""
 
 
 def warm_up() -> None:
@@ -39,7 +33,7 @@ def warm_up() -> None:
     one = np.zeros((1, 3))
     correct(np.zeros((1, 3, 3)), np.zeros((1, 3, 3)), one, np.zeros(1), one, np.ones(1, bool),
             (1.0, 1.0, 1.0))  # fmt: skip
-    _warm["done"] = True
+    warmed.done = True
 
 
 def correct(

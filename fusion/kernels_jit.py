@@ -3,7 +3,7 @@
 numba is optional (the ``fast`` extra): :func:`numba_module` looks it up once, and :func:`jit`
 leaves a function as it is without it. :mod:`skelfuse.fusion.kernels` decides whether the
 compiled functions run at all. :func:`plain` gives the kernels' arguments the types their
-warm-up compiled for.
+warm-up compiled for; :class:`Warmed` records that a module's warm-up has run.
 """
 
 from __future__ import annotations
@@ -43,6 +43,23 @@ def jit(function: F) -> F:
         return function
     compiled: F = numba.njit(cache=True, nogil=True, error_model="numpy")(function)
     return compiled
+
+
+class Warmed:
+    """Whether a module's ``warm_up()`` has compiled its loops (or loaded them from numba's
+    cache): call it to know. Callers use the loops only then, and only when
+    :func:`skelfuse.fusion.kernels.enabled`, so no frame waits for a compilation (the kernel
+    modules do not import that one, which warms them up)."""
+
+    __slots__ = ("done",)
+
+    def __init__(self) -> None:
+        self.done = False
+        """Set by the module's ``warm_up()`` once it has called every loop."""
+
+    def __call__(self) -> bool:
+        """Whether the warm-up has run."""
+        return self.done
 
 
 def plain(array: npt.ArrayLike, dtype: type = np.float64) -> Any:

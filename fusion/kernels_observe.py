@@ -20,19 +20,13 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.kernels_jit import jit
+from skelfuse.fusion.kernels_jit import Warmed, jit
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
 
-_warm: dict[str, bool] = {"done": False}
-
-
-def warmed() -> bool:
-    """Whether :func:`warm_up` has compiled the loop: callers use it only then, and only when
-    :func:`skelfuse.fusion.kernels.enabled` (this module does not import that one, which
-    warms it up)."""
-    return _warm["done"]
+warmed = Warmed()
+"""Whether :func:`warm_up` has run: see :class:`~skelfuse.fusion.kernels_jit.Warmed`."""
 
 
 def warm_up() -> None:
@@ -41,7 +35,7 @@ def warm_up() -> None:
     index = np.zeros(1, dtype=np.intp)
     bone_medians(np.zeros((1, 25, 3)), np.zeros((1, 25), np.uint8), np.zeros(1), index, 1,
                  (index, index), 2, 0.5)  # fmt: skip
-    _warm["done"] = True
+    warmed.done = True
 
 
 def bone_medians(
