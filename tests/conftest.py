@@ -1,4 +1,5 @@
-"""Shared fixtures: free loopback ports, the shared data folder, and a running demo stack."""
+"""Shared fixtures: free loopback ports, the shared data folder, a running demo stack, and the
+compiled fusion kernels forced on."""
 
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ from skelfuse.demo import sensor_layout
 from skelfuse.fusion import kernels
 from skelfuse.protocol.transform import invert, pose_from_position_yaw_pitch
 from tests.support import free_port, wait_until
+from tests.support_kernels import require_numba
 from tests.support_terminal import popen_in_terminal
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
@@ -34,6 +36,16 @@ def _fusion_kernels_compiled() -> None:
     and replay do at start (fusion/kernels.py): a test that times a fusion loop it built itself
     must not pay that inside its first fusion step. Nothing to do without numba."""
     kernels.warm_up()
+
+
+@pytest.fixture
+def numba_kernels() -> Iterator[None]:
+    """The compiled kernels on and every one warmed up (those that run only once warmed too);
+    skips without numba, fails under CI (tests/support_kernels.py)."""
+    require_numba()
+    with kernels.forced("numba"):
+        kernels.warm_up()
+        yield
 
 
 @pytest.fixture

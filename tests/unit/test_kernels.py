@@ -9,9 +9,7 @@ golden replay (test_golden_replay.py) is run with the kernels on and off in the 
 from __future__ import annotations
 
 import importlib
-import os
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -19,22 +17,11 @@ import pytest
 
 from skelfuse.agent.sim.performer import ProceduralPerformer
 from skelfuse.fusion import anatomy, bones, kernels, weighted
-from skelfuse.fusion.kernels_jit import numba_module
 from skelfuse.protocol.skeleton import JointId as J
+from tests.support_kernels import require_numba
 from tests.unit import test_golden_replay as golden
 
 FloatArray = np.ndarray
-
-
-@pytest.fixture
-def numba_kernels() -> Iterator[None]:
-    """The kernels on; skips (fails under CI, where the dev extra installs numba) without numba."""
-    if numba_module() is None:
-        if os.environ.get("CI"):
-            pytest.fail("CI installs the dev extra, which has numba: the kernels must be tested")
-        pytest.skip("numba is not installed (pip install -e .[fast])")
-    with kernels.forced("numba"):
-        yield
 
 
 def _views(seed: int) -> FloatArray:
@@ -119,10 +106,8 @@ def test_warm_up_compiles_every_kernel(numba_kernels: None) -> None:
 @pytest.mark.parametrize("config", sorted(golden.DIGESTS))
 def test_golden_replay_on_each_path(mode: str, config: str, tmp_path: Path) -> None:
     """test_golden_replay.py's digests, with the kernels forced on and forced off."""
-    if mode == "numba" and numba_module() is None:
-        if os.environ.get("CI"):
-            pytest.fail("CI installs the dev extra, which has numba: the kernels must be tested")
-        pytest.skip("numba is not installed (pip install -e .[fast])")
+    if mode == "numba":
+        require_numba()
     with kernels.forced(mode):
         golden.test_replay_output_is_byte_identical_to_the_golden_digest(config, tmp_path)
 

@@ -7,30 +7,15 @@ views with noise, unknown joints and random points, with and without each term.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from skelfuse.fusion import anatomy, confidence, kernels, weighted
-from skelfuse.fusion.kernels_jit import numba_module
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.protocol.skeleton import BONES
 from tests.unit.test_kernels import _numpy_uses_svml, _same_bits, _views
-
-
-@pytest.fixture
-def numba_kernels() -> Iterator[None]:
-    """The kernels on; skips (fails under CI, where the dev extra installs numba) without numba."""
-    if numba_module() is None:
-        import os
-
-        if os.environ.get("CI"):
-            pytest.fail("CI installs the dev extra, which has numba: the kernels must be tested")
-        pytest.skip("numba is not installed (pip install -e .[fast])")
-    with kernels.forced("numba"):
-        yield
 
 
 def _inputs(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -8,29 +8,12 @@ the same bits.
 
 from __future__ import annotations
 
-import os
-from collections.abc import Iterator
-
 import numpy as np
 import pytest
 
 from skelfuse.fusion import kernels, kernels_filter
 from skelfuse.fusion.filters import filter_all
 from skelfuse.fusion.filters_ca import DampedAccelerationKalman
-from skelfuse.fusion.kernels_jit import numba_module
-
-
-@pytest.fixture
-def numba_kernels() -> Iterator[None]:
-    """The kernels on and warmed; skips (fails under CI, where the dev extra installs numba)
-    without numba."""
-    if numba_module() is None:
-        if os.environ.get("CI"):
-            pytest.fail("CI installs the dev extra, which has numba: the kernels must be tested")
-        pytest.skip("numba is not installed (pip install -e .[fast])")
-    with kernels.forced("numba"):
-        kernels_filter.warm_up()
-        yield
 
 
 def _filters(count: int) -> list[DampedAccelerationKalman]:

@@ -9,33 +9,18 @@ minimum in numpy's summation order decides.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from dataclasses import dataclass, replace
 
 import numpy as np
 import pytest
 
 from skelfuse.fusion import anatomy, kernels, kernels_stages, labels, mirror
-from skelfuse.fusion.kernels_jit import numba_module
 from skelfuse.fusion.mirror_distances import LATERAL_JOINTS, LATERAL_SWAP, lateral_terms
 from skelfuse.fusion.mirror_labellings import layout
 from tests.unit.test_kernels import _numpy_uses_svml, _same_bits, _views
 
 FloatArray = np.ndarray
 COUNTS = (1, 2, 3, 4, 5, 6, 7, 8, 10)
-
-
-@pytest.fixture
-def numba_kernels() -> Iterator[None]:
-    """The kernels on; skips (fails under CI, where the dev extra installs numba) without numba."""
-    if numba_module() is None:
-        import os
-
-        if os.environ.get("CI"):
-            pytest.fail("CI installs the dev extra, which has numba: the kernels must be tested")
-        pytest.skip("numba is not installed (pip install -e .[fast])")
-    with kernels.forced("numba"):
-        yield
 
 
 @dataclass(frozen=True)

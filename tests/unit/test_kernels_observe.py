@@ -8,27 +8,10 @@ observe_bone_lengths fed the same steps through both paths ends with the same es
 
 from __future__ import annotations
 
-import os
-from collections.abc import Iterator
-
 import numpy as np
 import pytest
 
 from skelfuse.fusion import bones, kernels, kernels_observe
-from skelfuse.fusion.kernels_jit import numba_module
-
-
-@pytest.fixture
-def numba_kernels() -> Iterator[None]:
-    """The kernels on and warmed; skips (fails under CI, where the dev extra installs numba)
-    without numba."""
-    if numba_module() is None:
-        if os.environ.get("CI"):
-            pytest.fail("CI installs the dev extra, which has numba: the kernels must be tested")
-        pytest.skip("numba is not installed (pip install -e .[fast])")
-    with kernels.forced("numba"):
-        kernels_observe.warm_up()
-        yield
 
 
 def _step(seed: int) -> tuple[np.ndarray, ...]:
