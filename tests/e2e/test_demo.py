@@ -24,6 +24,7 @@ from skelfuse.protocol.transform import apply
 from tests.conftest import PROJECT_ROOT, DemoStack
 from tests.support import free_port, wait_until
 from tests.support_browser import offline_page
+from tests.support_proc import alive, children_of
 from tests.support_terminal import boxed_lines, popen_in_terminal
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(180)]
@@ -217,30 +218,6 @@ def test_demo_restarts_with_the_calibration_its_data_folder_kept(demo_stack: Dem
     assert "No such file" not in log_path.read_text(errors="replace")
 
 
-def _children(parent: int) -> list[int]:
-    """Process ids whose parent is ``parent``, from /proc (no procps needed)."""
-    found = []
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            stat = (entry / "stat").read_text()
-        except OSError:
-            continue  # gone meanwhile
-        # "pid (comm) state ppid ...": comm may hold spaces and parentheses.
-        if int(stat.rsplit(")", 1)[1].split()[1]) == parent:
-            found.append(int(entry.name))
-    return found
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    return True
-
-
 CTRL_C_TOKEN = "ctrl-c-token"
 
 
@@ -277,7 +254,7 @@ def test_ctrl_c_in_a_terminal_stops_the_demo_cleanly(tmp_path: Path) -> None:
             assert httpx.get(url, headers=bearer, timeout=30).status_code == 200
             # The box comes once people are fused, which may be after the sensors are online.
             assert wait_until(lambda: boxed_lines(log_path.read_text()), timeout_s=60)
-            children = _children(process.pid)
+            children = children_of(process.pid)
             assert len(children) == 3, (children, log_path.read_text())  # server + 2 agents
             os.killpg(process.pid, signal.SIGINT)  # what the terminal does
             assert process.wait(timeout=30) == 0
@@ -294,6 +271,6 @@ def test_ctrl_c_in_a_terminal_stops_the_demo_cleanly(tmp_path: Path) -> None:
     assert CTRL_C_TOKEN not in text
     assert "demo stopped" in text, text
     deadline = time.monotonic() + 5
-    while any(_alive(pid) for pid in children) and time.monotonic() < deadline:
+    while any(alive(pid) for pid in children) and time.monotonic() < deadline:
         time.sleep(0.1)
-    assert not any(_alive(pid) for pid in children), "a demo process outlived the demo"
+    assert not any(alive(pid) for pid in children), "a demo process outlived the demo"

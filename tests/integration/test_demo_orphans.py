@@ -13,28 +13,11 @@ from pathlib import Path
 import pytest
 
 from tests.support import free_port, wait_until
-from tests.unit.test_parent_watch import alive, gone_within
+from tests.support_proc import children_of, gone_within
 
 pytestmark = pytest.mark.skipif(
     not Path("/proc").is_dir() or os.name != "posix", reason="reads process states from /proc"
 )
-
-
-def children_of(pid: int) -> list[int]:
-    """The live processes whose parent is ``pid`` (from /proc/*/stat)."""
-    found = []
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            stat = (entry / "stat").read_text()
-        except OSError:  # ended meanwhile
-            continue
-        # The command name, in parentheses, may hold spaces: the fields after it are fixed.
-        ppid = int(stat.rsplit(")", 1)[1].split()[1])
-        if ppid == pid and alive(int(entry.name)):
-            found.append(int(entry.name))
-    return found
 
 
 @pytest.mark.timeout(180)

@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from skelfuse.parent_watch import PARENT_PID_VARIABLE, watch_parent_from_environment
+from tests.support_proc import alive, gone_within
 
 pytestmark = pytest.mark.skipif(
     not Path("/proc").is_dir() or os.name != "posix", reason="reads process states from /proc"
@@ -40,23 +41,6 @@ child = subprocess.Popen([sys.executable, "-c", sys.argv[1], sys.argv[2], sys.ar
 print(child.stdout.readline().strip(), flush=True)
 time.sleep(600)
 """
-
-
-def alive(pid: int) -> bool:
-    """Running or sleeping; a zombie (exited, not yet reaped by whoever adopted it) is gone."""
-    try:
-        status = Path(f"/proc/{pid}/status").read_text()
-    except FileNotFoundError:
-        return False
-    state = next(line for line in status.splitlines() if line.startswith("State:"))
-    return "Z" not in state.split()[1]
-
-
-def gone_within(pid: int, timeout_s: float) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while alive(pid) and time.monotonic() < deadline:
-        time.sleep(0.02)
-    return not alive(pid)
 
 
 @pytest.mark.timeout(60)

@@ -16,6 +16,7 @@ import pytest
 
 from skelfuse.server.errors import SolverCrashed
 from skelfuse.server.solver_pool import PARENT_CHECK_S, ProcessSolvers
+from tests.support_proc import alive
 
 SERVER_STAND_IN = """
 import asyncio, os, sys, time
@@ -31,16 +32,6 @@ asyncio.run(main())
 """
 
 
-def _alive(pid: int) -> bool:
-    """Running or sleeping; a zombie (exited, not yet reaped by whoever adopted it) is gone."""
-    try:
-        status = Path(f"/proc/{pid}/status").read_text()
-    except FileNotFoundError:
-        return False
-    state = next(line for line in status.splitlines() if line.startswith("State:"))
-    return "Z" not in state.split()[1]
-
-
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="reads process states from /proc")
 @pytest.mark.timeout(120)
 def test_a_killed_server_leaves_no_worker_behind() -> None:
@@ -50,16 +41,16 @@ def test_a_killed_server_leaves_no_worker_behind() -> None:
     try:
         assert server.stdout is not None
         worker_pid = int(server.stdout.readline())
-        assert worker_pid != server.pid and _alive(worker_pid)
+        assert worker_pid != server.pid and alive(worker_pid)
     finally:
         server.send_signal(signal.SIGKILL)  # no shutdown, no atexit: as a crash or a CI kill
         server.wait()
         if server.stdout is not None:
             server.stdout.close()
     deadline = time.monotonic() + 20 * PARENT_CHECK_S + 10.0
-    while _alive(worker_pid) and time.monotonic() < deadline:
+    while alive(worker_pid) and time.monotonic() < deadline:
         time.sleep(0.1)
-    still_alive = _alive(worker_pid)
+    still_alive = alive(worker_pid)
     if still_alive:
         os.kill(worker_pid, signal.SIGKILL)
     assert not still_alive, "the worker outlived its killed server"
