@@ -305,6 +305,24 @@ def test_a_live_server_publishes_what_its_feed_sends(
     assert f'skelfuse_output_dropped_total{{output="{name}"}}' in metrics
 
 
+def test_a_live_server_without_nats_fuses_on_and_counts_its_drops(
+    server_factory: Callable[..., LiveServer], agent_factory: Callable[..., AgentThread]
+) -> None:
+    spec = OutputSpec("nats", "127.0.0.1", free_port(), room="nobody")  # nothing listens
+    live = server_factory(outputs=(spec,))
+    agent_factory(live.zmq_url, "cam-a", (0.0, 1.0, 3.0), depth=False)
+    with connect(f"{live.ws_url}/ws/skeletons", open_timeout=10) as ws:
+        ws.recv(timeout=10)  # the skeleton definition
+        fused = 0
+        while fused < FRAMES:
+            fused += bool(json.loads(ws.recv(timeout=10))["persons"])
+    metrics = httpx.get(live.http_url + "/metrics/").text
+    name = output_name(spec)
+    dropped = metrics.split(f'skelfuse_output_dropped_total{{output="{name}"}} ')[1].split()[0]
+    assert float(dropped) >= FRAMES
+    assert f'skelfuse_output_sent_total{{output="{name}"}} 0.0' in metrics
+
+
 def test_nats_outputs_from_toml_tables() -> None:
     spec = output_from_mapping({"kind": "nats", "room": "hall-a", "jetstream": True})
     assert (spec.port, spec.room, spec.jetstream, spec.history_s, spec.history_msgs) == (
