@@ -163,6 +163,32 @@ class RawFeedReader(asyncio.Protocol):
 HEAD_BYTES = re.compile(rb'"seq":(\d+),"t":([0-9.eE+-]+),"t_sent":([0-9.eE+-]+)')
 
 
+class FeedTally:
+    """One viewer's counts, as ``bench/many_clients.py`` reports them: frames, ``seq`` gaps,
+    connection errors and retries, and ages (receive time minus ``t`` and ``t_sent``, seconds)."""
+
+    def __init__(self) -> None:
+        self.out: dict[str, Any] = {"frames": 0, "lost": 0, "error": None, "retries": 0}
+        self.ages_sent, self.ages_t = array("d"), array("d")
+        self.last_seq = -1
+
+    def count(self, head: re.Match[str] | re.Match[bytes], received: float) -> None:
+        """Count one frame whose head (``HEAD``'s groups: seq, t, t_sent) arrived at
+        ``received`` (epoch seconds)."""
+        seq = int(head.group(1))
+        if self.last_seq >= 0 and seq > self.last_seq + 1:
+            self.out["lost"] += seq - self.last_seq - 1
+        self.last_seq = seq
+        self.out["frames"] += 1
+        self.ages_t.append(received - float(head.group(2)))
+        self.ages_sent.append(received - float(head.group(3)))
+
+    def result(self) -> dict[str, Any]:
+        """The counts, with the ages as float64 bytes (``ages_sent``, ``ages_t``)."""
+        self.out["ages_sent"], self.out["ages_t"] = self.ages_sent.tobytes(), self.ages_t.tobytes()
+        return self.out
+
+
 def _factory(reader: RawFeedReader) -> Callable[[], RawFeedReader]:
     return lambda: reader
 
@@ -171,22 +197,13 @@ async def raw_client(url: str, measuring: asyncio.Event, stopping: asyncio.Event
     """One viewer of ``bench/many_clients.py`` on a :class:`RawFeedReader`: frames, ``seq``
     gaps and ages (receive time minus ``t`` and ``t_sent``) counted while ``measuring`` and not
     ``stopping``, as its ``websockets`` client counts them, for a fraction of the CPU."""
-    ages_sent, ages_t = array("d"), array("d")
-    out: dict[str, Any] = {"frames": 0, "lost": 0, "error": None, "retries": 0}
-    last_seq = -1
+    tally = FeedTally()
+    out = tally.out
 
     def on_message(head: bytes, received: float) -> None:
-        nonlocal last_seq
         match = HEAD_BYTES.search(head)
-        if match is None or not measuring.is_set():
-            return
-        seq = int(match.group(1))
-        if last_seq >= 0 and seq > last_seq + 1:
-            out["lost"] += seq - last_seq - 1
-        last_seq = seq
-        out["frames"] += 1
-        ages_t.append(received - float(match.group(2)))
-        ages_sent.append(received - float(match.group(3)))
+        if match is not None and measuring.is_set():
+            tally.count(match, received)
 
     host_port, path = url.removeprefix("ws://").split("/", 1)
     host, port = host_port.rsplit(":", 1)
@@ -216,5 +233,4 @@ async def raw_client(url: str, measuring: asyncio.Event, stopping: asyncio.Event
                 break
             out["retries"] += 1
             await asyncio.sleep(1.0)
-    out["ages_sent"], out["ages_t"] = ages_sent.tobytes(), ages_t.tobytes()
-    return out
+    return tally.result()

@@ -51,7 +51,7 @@ if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.load_agents import agents_process, sensor_layout
-from bench.load_clients import raw_client
+from bench.load_clients import FeedTally, raw_client
 from bench.load_server import (
     free_port,
     http_json,
@@ -72,9 +72,8 @@ async def _client(url: str, measuring: asyncio.Event, stopping: asyncio.Event) -
     """
     from websockets.asyncio.client import connect
 
-    ages_sent, ages_t = array("d"), array("d")
-    out: dict[str, Any] = {"frames": 0, "lost": 0, "error": None, "retries": 0}
-    last_seq = -1
+    tally = FeedTally()
+    out = tally.out
     while not stopping.is_set():
         try:
             async with connect(url, compression=None, max_size=2**22, open_timeout=30) as ws:
@@ -84,23 +83,15 @@ async def _client(url: str, measuring: asyncio.Event, stopping: asyncio.Event) -
                     message = await ws.recv()
                     received = time.time()
                     head = HEAD.search(message[:200] if isinstance(message, str) else "")
-                    if head is None or not measuring.is_set():
-                        continue
-                    seq = int(head.group(1))
-                    if last_seq >= 0 and seq > last_seq + 1:
-                        out["lost"] += seq - last_seq - 1
-                    last_seq = seq
-                    out["frames"] += 1
-                    ages_t.append(received - float(head.group(2)))
-                    ages_sent.append(received - float(head.group(3)))
+                    if head is not None and measuring.is_set():
+                        tally.count(head, received)
         except Exception as exc:  # reported; before the window, connect again
             out["error"] = f"{type(exc).__name__}: {exc}"
             if measuring.is_set() or out["frames"]:
                 break
             out["retries"] += 1
             await asyncio.sleep(1.0)
-    out["ages_sent"], out["ages_t"] = ages_sent.tobytes(), ages_t.tobytes()
-    return out
+    return tally.result()
 
 
 def clients_process(
