@@ -149,6 +149,9 @@ class NatsSink:
             max_reconnect_attempts=-1,
             reconnect_time_wait=self.reconnect_wait_s,
             connect_timeout=2,
+            # Nothing buffered while disconnected: a frame published in the instant NATS goes
+            # away is refused (dropped) rather than sent late after the reconnection.
+            pending_size=0,
             error_cb=on_error,
             disconnected_cb=on_disconnected,
             reconnected_cb=on_reconnected,
@@ -180,12 +183,14 @@ class NatsSink:
             logger.warning("nats %s: no JetStream stream %s", self.url, self.stream, exc_info=True)
 
     def send(self, frame: FusedFrame) -> int:
-        """Publish one frame; 1 (dropped) when not connected or the publish did not finish
-        within ``publish_timeout_s``, else 0.
+        """Publish one frame; 1 (dropped) when not connected (or disconnected meanwhile) or the
+        publish did not finish within ``publish_timeout_s``, else 0.
 
         Raises:
             nats.errors.Error: the publish failed (the output counts the frame as dropped).
         """
+        from nats.errors import OutboundBufferLimitError
+
         client = self._client
         if client is None or not client.is_connected:
             return 1
@@ -195,6 +200,8 @@ class NatsSink:
             future.result(self.publish_timeout_s)
         except TimeoutError:
             future.cancel()
+            return 1
+        except OutboundBufferLimitError:  # disconnected since the check above
             return 1
         return 0
 
