@@ -7,6 +7,7 @@ skeleton happens inside the source, so the rest of the agent and the server see 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -25,6 +26,28 @@ class Capture:
     t_capture_ns: int
     bodies: tuple[Body, ...]
     floor: tuple[float, float, float, float] | None = None
+
+
+def wait_for_due(
+    due_ns: int, now_ns: int, timeout_s: float, sleep: Callable[[float], None]
+) -> bool:
+    """Sleep until a frame is due, when that is within the caller's timeout.
+
+    Args:
+        due_ns: when the frame is due on the source's clock; now_ns: that clock now;
+        timeout_s: the longest ``next_capture`` may block; sleep: sleeps seconds (injected).
+
+    Returns:
+        True once the frame is due (at once when it already is); False after sleeping
+        ``timeout_s`` when it is due later (``next_capture`` then returns None).
+    """
+    wait_s = (due_ns - now_ns) / 1e9
+    if wait_s > timeout_s:
+        sleep(timeout_s)
+        return False
+    if wait_s > 0:
+        sleep(wait_s)
+    return True
 
 
 class SkeletonSource(Protocol):

@@ -41,7 +41,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.agent.sources.base import Capture, SensorError
+from skelfuse.agent.sources.base import Capture, SensorError, wait_for_due
 from skelfuse.agent.sources.mono_camera import (
     Detector,
     FrameReader,
@@ -194,12 +194,8 @@ class MonoSource:
             if self._anchor_ns is None:
                 self._anchor_ns = now
             due = self._anchor_ns + round(self._index * self._period_ns)
-            wait_s = (due - now) / 1e9
-            if wait_s > timeout_s:
-                self._sleep(timeout_s)
+            if not wait_for_due(due, now, timeout_s, self._sleep):
                 return None
-            if wait_s > 0:
-                self._sleep(wait_s)
         image = self._frames.read()
         if image is None and self._is_video and self._loop and self._frames.rewind():
             assert self._anchor_ns is not None

@@ -9,7 +9,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from skelfuse.agent.sources.base import Capture, SensorError
+from skelfuse.agent.sources.base import Capture, SensorError, wait_for_due
 from skelfuse.protocol.ntu import NTU_FPS, NtuFormatError, read_ntu_skeleton
 from skelfuse.protocol.transform import Matrix4
 
@@ -71,12 +71,8 @@ class NtuSource:
             self._sleep(timeout_s)
             return None
         due = self._start_ns + self._index * self._period_ns
-        wait_s = (due - now) / 1e9
-        if wait_s > timeout_s:
-            self._sleep(timeout_s)
+        if not wait_for_due(due, now, timeout_s, self._sleep):
             return None
-        if wait_s > 0:
-            self._sleep(wait_s)
         bodies = self.frames[self._index % len(self.frames)]
         self._index += 1
         return Capture(t_capture_ns=due, bodies=bodies)

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from skelfuse.agent.sources.base import Capture, SensorError
+from skelfuse.agent.sources.base import Capture, SensorError, wait_for_due
 from skelfuse.protocol.errors import DecodeError
 from skelfuse.protocol.recording_file import RecordingError, read_recording
 from skelfuse.protocol.transform import Matrix4
@@ -119,12 +119,8 @@ class ReplaySource:
         if self._anchor_ns is None:
             self._anchor_ns = now
         due = self._anchor_ns + round((frame.t_capture_ns - self._first_ns) / self._speed)
-        wait_s = (due - now) / 1e9
-        if wait_s > timeout_s:
-            self._sleep(timeout_s)
+        if not wait_for_due(due, now, timeout_s, self._sleep):
             return None
-        if wait_s > 0:
-            self._sleep(wait_s)
         self._index += 1
         return Capture(t_capture_ns=due, bodies=frame.bodies, floor=frame.floor)
 

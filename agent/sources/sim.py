@@ -13,7 +13,7 @@ from skelfuse.agent.sim.hands import simulated_hands
 from skelfuse.agent.sim.kinect_model import KinectV2Params, SimulatedKinect
 from skelfuse.agent.sim.performer import Performer
 from skelfuse.agent.sim.room import Room, capture_point_cloud, default_room
-from skelfuse.agent.sources.base import Capture
+from skelfuse.agent.sources.base import Capture, wait_for_due
 from skelfuse.protocol.depth_cloud import decode_request, encode_reply
 from skelfuse.protocol.transform import Matrix4
 from skelfuse.protocol.wire import Body
@@ -143,12 +143,8 @@ class SimSource:
         now = self._wall_clock_ns()
         if self._next_ns is None or now - self._next_ns > 5 * self._period_ns:
             self._next_ns = now  # first frame, or we fell far behind: do not catch up
-        wait_s = (self._next_ns - now) / 1e9
-        if wait_s > timeout_s:
-            self._sleep(timeout_s)
+        if not wait_for_due(self._next_ns, now, timeout_s, self._sleep):
             return None
-        if wait_s > 0:
-            self._sleep(wait_s)
         true_ns = self._next_ns
         self._next_ns += self._period_ns
         return self.capture_at(true_ns)
