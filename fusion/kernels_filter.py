@@ -14,12 +14,10 @@ so no frame waits for a compilation; until then, and with the kernels off, numpy
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.kernels_jit import Warmed, jit
+from skelfuse.fusion.kernels_jit import Warmed, jit, plain
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -63,12 +61,12 @@ def correct(
     new_p = np.empty((*shape, 3, 3))
     jerk_std, jerk_per_speed, r = noise
     _correct_loop(
-        _plain(predicted_p.reshape(-1, 3, 3)),
-        _plain(q.reshape(-1, 3, 3)),
-        _plain(last_x.reshape(-1, 3)),
-        _plain(z.reshape(-1)),
-        _plain(x_p.reshape(-1, 3)),
-        _plain(step.reshape(-1), np.bool_),
+        plain(predicted_p.reshape(-1, 3, 3)),
+        plain(q.reshape(-1, 3, 3)),
+        plain(last_x.reshape(-1, 3)),
+        plain(z.reshape(-1)),
+        plain(x_p.reshape(-1, 3)),
+        plain(step.reshape(-1), np.bool_),
         float(jerk_std),
         float(jerk_per_speed),
         float(r),
@@ -110,11 +108,3 @@ def _correct_loop(
             new_x[c, a] = x_p[c, a] + gain[a] * innovation
             for b in range(3):
                 new_p[c, a, b] = p_p[a, b] - gain[a] * p_p[0, b]
-
-
-def _plain(array: npt.NDArray[Any], dtype: type = np.float64) -> Any:
-    """``array`` as a writable C-contiguous array of ``dtype``, copied only when it is not
-    (the argument types :func:`warm_up` compiled for: no second compilation)."""
-    if array.dtype == dtype and array.flags.c_contiguous and array.flags.writeable:
-        return array
-    return np.require(array, dtype=dtype, requirements=("C", "W"))

@@ -15,12 +15,10 @@ no frame ever waits for a compilation; until then, and with the kernels off
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.kernels_jit import Warmed, jit
+from skelfuse.fusion.kernels_jit import Warmed, jit, plain
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
@@ -63,12 +61,12 @@ def bone_medians(
     parents, children = ends
     out = np.empty((persons, 2, len(parents)))
     _medians_loop(
-        _plain(joints),
-        _plain(states, np.uint8),
-        _plain(cosines),
-        _plain(person_of, np.intp),
-        _plain(parents, np.intp),
-        _plain(children, np.intp),
+        plain(joints),
+        plain(states, np.uint8),
+        plain(cosines),
+        plain(person_of, np.intp),
+        plain(parents, np.intp),
+        plain(children, np.intp),
         int(tracked),
         float(good_cos),
         out,
@@ -126,11 +124,3 @@ def _medians_loop(
                     out[p, kind, b] = (values[(count - 1) // 2] + values[count // 2]) / 2.0
                 else:
                     out[p, kind, b] = np.nan
-
-
-def _plain(array: npt.NDArray[Any], dtype: type = np.float64) -> Any:
-    """``array`` as a writable C-contiguous array of ``dtype``, copied only when it is not
-    (the argument types :func:`warm_up` compiled for: no second compilation)."""
-    if array.dtype == dtype and array.flags.c_contiguous and array.flags.writeable:
-        return array
-    return np.require(array, dtype=dtype, requirements=("C", "W"))
