@@ -10,9 +10,11 @@ of a frame period after room 0 (rooms are separate servers; ``--lockstep``: all 
 subscribe to one room each
 (subscriber ``k`` to room ``k % rooms``); each decodes every message and takes the latency as
 its arrival (wall clock) minus the message's ``t_sent``. Reported: frames published, dropped,
-expected and received at the subscribers, lost, latency p50 / p99 / max. Usage::
+expected and received at the subscribers, lost, latency p50 / p99 / max; with ``--late``,
+room 0's server keeps 10 s of frames in JetStream and a subscriber joining at the hub after
+the run replays them (frames, consecutive or not, their span, the replay's time). Usage::
 
-    .venv/bin/python -m bench.nats_fanout --rooms 10 --subscribers 200 --seconds 20
+    .venv/bin/python -m bench.nats_fanout --rooms 10 --subscribers 200 --seconds 20 [--late]
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ import numpy as np
 
 from skelfuse.fusion.hub import FusedFrame
 from skelfuse.recording.replay import replay
-from skelfuse.server.output_nats import NatsSink, frame_payload, room_subject
+from skelfuse.server.output_nats import History, NatsSink, frame_payload, room_subject
 from skelfuse.server.outputs import QueuedOutput
 
 TAKE = Path(__file__).resolve().parents[1] / "tests" / "data" / "golden" / "take.sfrec"
@@ -55,8 +57,11 @@ def free_ports(count: int) -> list[int]:
     return ports
 
 
-def start_servers(rooms: int, root: Path) -> tuple[list[subprocess.Popen[bytes]], str, list[str]]:
-    """A hub and ``rooms`` leaf NATS servers; (processes, hub url, room urls).
+def start_servers(
+    rooms: int, root: Path, history: bool
+) -> tuple[list[subprocess.Popen[bytes]], str, list[str]]:
+    """A hub and ``rooms`` leaf NATS servers (``history``: room 0's with JetStream, domain
+    ``room0``); (processes, hub url, room urls).
 
     Raises:
         RuntimeError: no ``nats-server``.
@@ -68,6 +73,8 @@ def start_servers(rooms: int, root: Path) -> tuple[list[subprocess.Popen[bytes]]
     configs = [f"listen: 127.0.0.1:{hub}\nleafnodes {{ listen: 127.0.0.1:{leaf} }}\n"]
     remote = f'leafnodes {{ remotes: [ {{ url: "nats-leaf://127.0.0.1:{leaf}" }} ] }}\n'
     configs += [f"listen: 127.0.0.1:{port}\n{remote}" for port in room_ports]
+    if history:
+        configs[1] += f'jetstream {{ store_dir: "{root / "room0"}", domain: room0 }}\n'
     processes = []
     for k, text in enumerate(configs):
         path = root / f"nats-{k}.conf"
@@ -123,7 +130,7 @@ def subscribe(hub: str, indices: list[int], rooms: int, seconds: float, out: Any
 def run(args: argparse.Namespace) -> dict[str, Any]:
     """Run the bench; the report as a dict."""
     with tempfile.TemporaryDirectory() as tmp:
-        processes, hub, room_urls = start_servers(args.rooms, Path(tmp))
+        processes, hub, room_urls = start_servers(args.rooms, Path(tmp), args.late)
         try:
             return _measure(args, hub, room_urls)
         finally:
@@ -149,8 +156,9 @@ def _measure(args: argparse.Namespace, hub: str, room_urls: list[str]) -> dict[s
     for _ in workers:
         queue.get(timeout=120)
     time.sleep(1.0)  # the subscriptions reach the rooms' leaf servers
+    history = History(max_age_s=10.0) if args.late else None
     outputs = [
-        QueuedOutput(f"room{r}", NatsSink(url, f"room{r}"), capacity=8)
+        QueuedOutput(f"room{r}", NatsSink(url, f"room{r}", history=history if r == 0 else None))
         for r, url in enumerate(room_urls)
     ]
     for output in outputs:
@@ -169,6 +177,7 @@ def _measure(args: argparse.Namespace, hub: str, room_urls: list[str]) -> dict[s
             output.publish(frame, time.time(), time.monotonic())
     for output in outputs:
         output.close()
+    late = asyncio.run(replay_late(hub)) if args.late else {}
     results: dict[int, tuple[list[int], list[float]]] = {}
     for _ in workers:
         results.update(queue.get(timeout=listen_s + 60))
@@ -194,6 +203,28 @@ def _measure(args: argparse.Namespace, hub: str, room_urls: list[str]) -> dict[s
         "latency_ms_p50": round(float(np.percentile(latencies, 50)) * 1e3, 2),
         "latency_ms_p99": round(float(np.percentile(latencies, 99)) * 1e3, 2),
         "latency_ms_max": round(float(latencies.max()) * 1e3, 2),
+        **late,
+    }
+
+
+async def replay_late(hub: str) -> dict[str, Any]:
+    """A subscriber joining room 0 at the hub after the run: its JetStream history (domain
+    ``room0``) read whole: frames, whether their seqs are consecutive, the fused instants'
+    span (seconds) and the time the replay took."""
+    client = await nats.connect(hub)
+    js = client.jetstream(domain="room0")
+    count = (await js.stream_info("skelfuse-room0")).state.messages
+    started = time.perf_counter()
+    subscription = await js.subscribe(room_subject("room0"), ordered_consumer=True)
+    messages = [msgpack.unpackb((await subscription.next_msg(5)).data) for _ in range(count)]
+    took = time.perf_counter() - started
+    await client.close()
+    seqs = [m["seq"] for m in messages]
+    return {
+        "late_replayed": count,
+        "late_consecutive": seqs == list(range(seqs[0], seqs[0] + count)),
+        "late_span_s": round(messages[-1]["t"] - messages[0]["t"], 3),
+        "late_replay_s": round(took, 3),
     }
 
 
@@ -206,6 +237,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fps", type=float, default=30.0)
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--lockstep", action="store_true", help="all rooms publish at once")
+    parser.add_argument(
+        "--late", action="store_true", help="room 0 keeps 10 s in JetStream; replay it after"
+    )
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args(argv)
     report = run(args)
