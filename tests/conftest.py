@@ -21,8 +21,7 @@ from skelfuse.cli.values import parse_pose
 from skelfuse.demo import sensor_layout
 from skelfuse.fusion import kernels
 from skelfuse.protocol.transform import invert, pose_from_position_yaw_pitch
-from tests.support import free_port, wait_until
-from tests.support_kernels import require_numba
+from tests.support import free_port, require_numba, wait_until
 from tests.support_terminal import popen_in_terminal
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
@@ -41,7 +40,7 @@ def _fusion_kernels_compiled() -> None:
 @pytest.fixture
 def numba_kernels() -> Iterator[None]:
     """The compiled kernels on and every one warmed up (those that run only once warmed too);
-    skips without numba, fails under CI (tests/support_kernels.py)."""
+    skips without numba, fails under CI (tests/support.py's require_numba)."""
     require_numba()
     with kernels.forced("numba"):
         kernels.warm_up()

@@ -2,12 +2,18 @@
 
 from __future__ import annotations
 
+import os
 import socket
 import time
 from collections.abc import Callable
+from typing import NoReturn
 
 import numpy as np
 import numpy.typing as npt
+import pytest
+
+from skelfuse.fusion.kernels_jit import numba_module
+from tests.support_blender import blender_executable
 
 
 def free_port() -> int:
@@ -29,6 +35,39 @@ def wait_until(predicate: Callable[[], object], timeout_s: float, interval_s: fl
             pass
         time.sleep(interval_s)
     return False
+
+
+def unavailable(reason: str, ci_hint: str) -> NoReturn:
+    """Skip the calling test for want of a tool or data set; under CI (env ``CI``), which must
+    provide it, fail it with ``ci_hint`` instead.
+
+    Raises:
+        pytest.skip.Exception, pytest.fail.Exception: always.
+    """
+    if os.environ.get("CI"):
+        pytest.fail(f"{reason}: {ci_hint}", pytrace=False)
+    pytest.skip(reason)
+
+
+def require_blender() -> str:
+    """Debian's ``blender`` executable, or :func:`unavailable` (skip; fail under CI)."""
+    blender = blender_executable()
+    if blender is None:
+        unavailable(
+            "Blender not found (/usr/bin/blender or `blender` on PATH)",
+            "CI must install Debian's `blender` package (scripts/test.sh does)",
+        )
+    return blender
+
+
+def require_numba() -> None:
+    """Return when numba is installed, else :func:`unavailable` (skip; fail under CI, where the
+    dev extra installs numba so the compiled kernels must be tested)."""
+    if numba_module() is None:
+        unavailable(
+            "numba is not installed (pip install -e .[fast])",
+            "CI installs the dev extra, which has numba: the kernels must be tested",
+        )
 
 
 def mpjpe(estimate: npt.ArrayLike, truth: npt.ArrayLike) -> tuple[float, int]:

@@ -9,12 +9,10 @@ Blender does.
 
 from __future__ import annotations
 
-import os
 import shutil
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import NoReturn
 
 import numpy as np
 import pytest
@@ -26,7 +24,8 @@ from skelfuse.cli.mocap_stages import mono_python
 from skelfuse.protocol.mediapipe_pose import to_kinect_v2
 from skelfuse.protocol.pinhole import CV_TO_SENSOR
 from skelfuse.protocol.skeleton import JOINT_NAMES
-from tests.support_blender import blender_bvh_positions, blender_executable
+from tests.support import require_blender, unavailable
+from tests.support_blender import blender_bvh_positions
 from tests.support_exports import bvhio_positions_m, ezc3d_world_m
 
 with warnings.catch_warnings():
@@ -40,22 +39,6 @@ LANDMARKS = DATA / "mono_landmarks.npz"
 CALIBRATION = DATA / "pose2sim_single_calib.qca.txt"
 CLIP = ROOT.parent / "shared" / "data" / "pose2sim-single"
 CAMERAS = ("cam01", "cam02", "cam03", "cam04")
-
-
-def _unavailable(reason: str, ci_hint: str) -> NoReturn:
-    if os.environ.get("CI"):
-        pytest.fail(f"{reason}: {ci_hint}", pytrace=False)
-    pytest.skip(reason)
-
-
-def _blender() -> str:
-    blender = blender_executable()
-    if blender is None:
-        _unavailable(
-            "Blender not found (/usr/bin/blender or `blender` on PATH)",
-            "CI must install Debian's `blender` package (scripts/test.sh does)",
-        )
-    return blender
 
 
 def _videos(names: tuple[str, ...] = CAMERAS) -> list[str]:
@@ -120,7 +103,7 @@ def test_the_fused_take_follows_the_four_view_reference(four: Take) -> None:
 
 
 def test_blender_imports_every_frame_of_both_takes(four: Take, single: Take) -> None:
-    blender = _blender()
+    blender = require_blender()
     results = blender_bvh_positions(blender, [four.bvh, single.bvh], four.bvh.parent / "b.json")
     for take, result in zip((four, single), results, strict=True):
         frames = result["frame_end"] - result["frame_start"] + 1
@@ -218,7 +201,7 @@ def test_a_video_without_its_camera_in_the_calibration_is_named(
 def _clip() -> Path:
     missing = [f for f in (*_videos(), "Calib.qca.txt") if not (CLIP / f).is_file()]
     if missing:
-        _unavailable(f"the real clip is not in {CLIP}: {missing}", "CI must provide it")
+        unavailable(f"the real clip is not in {CLIP}: {missing}", "CI must provide it")
     return CLIP
 
 
@@ -226,7 +209,7 @@ def _mono() -> None:
     try:
         mono_python(None)
     except Exception as exc:  # MocapFailed: the message says how to make the environment
-        _unavailable(f"no mono environment: {exc}", "scripts/test.sh makes .venv-mono")
+        unavailable(f"no mono environment: {exc}", "scripts/test.sh makes .venv-mono")
 
 
 @pytest.mark.timeout(600)
@@ -246,7 +229,7 @@ def test_mocap_on_the_real_clip_detects_and_blender_imports_every_frame(
         markers = ezc3d_world_m(take.c3d, [f"P1_{n}" for n in JOINT_NAMES])
         assert markers.shape == (take.frames, len(JOINT_NAMES), 3)
         assert np.isfinite(markers).all()
-    results = blender_bvh_positions(_blender(), [four.bvh, one.bvh], tmp_path / "b.json")
+    results = blender_bvh_positions(require_blender(), [four.bvh, one.bvh], tmp_path / "b.json")
     for take, result in zip((four, one), results, strict=True):
         assert result["frame_end"] - result["frame_start"] + 1 == take.frames >= 95
         assert np.isfinite(result["positions"]).all()

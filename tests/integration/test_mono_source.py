@@ -10,11 +10,10 @@ under CI, which makes both. CPU per frame is a figure for bench/mono_source.py, 
 from __future__ import annotations
 
 import json
-import os
 import re
 import subprocess
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any
 
 import numpy as np
 import pytest
@@ -22,7 +21,7 @@ import pytest
 from skelfuse.protocol.mediapipe_pose import body_from_landmarks
 from skelfuse.protocol.pinhole import Intrinsics
 from tests.integration.conftest import LiveServer
-from tests.support import wait_until
+from tests.support import unavailable, wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
 MONO_PYTHON = ROOT / ".venv-mono" / "bin" / "python"
@@ -30,12 +29,6 @@ CLIP = ROOT.parent / "shared" / "data" / "pose2sim-single" / "cam01.mp4"
 CHILD = Path(__file__).with_name("mono_agent_child.py")
 FIXTURE = ROOT / "tests" / "data" / "mono_landmarks.npz"
 CLIP_FRAMES = 100
-
-
-def _unavailable(reason: str, ci_hint: str) -> NoReturn:
-    if os.environ.get("CI"):
-        pytest.fail(f"{reason}: {ci_hint}", pytrace=False)
-    pytest.skip(reason)
 
 
 def _sensor(live: LiveServer, sensor_id: str) -> dict[str, Any] | None:
@@ -50,12 +43,12 @@ def test_mono_source_streams_every_frame_of_the_real_clip_without_network(
     server_factory: Any, tmp_path: Path
 ) -> None:
     if not MONO_PYTHON.is_file():
-        _unavailable(
+        unavailable(
             f"no mono environment at {MONO_PYTHON}: make it with scripts/venv_mono.sh",
             "scripts/test.sh makes it (scripts/venv_mono.sh)",
         )
     if not CLIP.is_file():
-        _unavailable(f"the real clip is not at {CLIP}", "CI must provide ../shared/data")
+        unavailable(f"the real clip is not at {CLIP}", "CI must provide ../shared/data")
     doctor = subprocess.run(
         [str(MONO_PYTHON), "-m", "skelfuse", "doctor"],
         cwd=ROOT, capture_output=True, text=True, timeout=60, check=True,

@@ -10,11 +10,9 @@ standard library's csv module (CSV), and Blender's own BVH importer run headless
 from __future__ import annotations
 
 import csv
-import os
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import NoReturn
 
 import numpy as np
 import pytest
@@ -27,7 +25,8 @@ from skelfuse.recording.export_bvh import BvhExport, export_bvh
 from skelfuse.recording.export_table import export_csv
 from skelfuse.recording.replay import replay
 from skelfuse.recording.take import Take, take_from_frames
-from tests.support_blender import blender_bvh_positions, blender_executable
+from tests.support import require_blender
+from tests.support_blender import blender_bvh_positions
 from tests.support_exports import (
     LONG_OUTAGE_S,
     T0,
@@ -194,20 +193,9 @@ def test_csv_rows_are_the_fused_frames(exports: Exports) -> None:
 # --- Blender headless ----------------------------------------------------------------------------
 
 
-def _unavailable(reason: str, ci_hint: str) -> NoReturn:
-    if os.environ.get("CI"):
-        pytest.fail(f"{reason}: {ci_hint}", pytrace=False)
-    pytest.skip(reason)
-
-
 @pytest.mark.timeout(300)  # one Blender launch: about 4 s on an idle machine, 20 s under load
 def test_blender_imports_both_bvh_files_with_the_fused_motion(exports: Exports) -> None:
-    blender = blender_executable()
-    if blender is None:
-        _unavailable(
-            "Blender not found (/usr/bin/blender or `blender` on PATH)",
-            "CI must install Debian's `blender` package (scripts/test.sh does)",
-        )
+    blender = require_blender()
     files = [exports.folder / "rigid.bvh", exports.folder / "stretch.bvh"]
     results = blender_bvh_positions(blender, files, exports.folder / "blender.json")
     for mode, result in zip(("rigid", "stretch"), results, strict=True):

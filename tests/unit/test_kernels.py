@@ -18,7 +18,7 @@ import pytest
 from skelfuse.agent.sim.performer import ProceduralPerformer
 from skelfuse.fusion import anatomy, bones, kernels, weighted
 from skelfuse.protocol.skeleton import JointId as J
-from tests.support_kernels import require_numba
+from tests.support import require_numba
 from tests.unit import test_golden_replay as golden
 
 FloatArray = np.ndarray
