@@ -21,7 +21,7 @@ from skelfuse.cli.values import parse_pose
 from skelfuse.demo import sensor_layout
 from skelfuse.fusion import kernels
 from skelfuse.protocol.transform import invert, pose_from_position_yaw_pitch
-from tests.support import free_port, require_numba, wait_until
+from tests.support import free_port, require_numba, unavailable, wait_until
 from tests.support_terminal import popen_in_terminal
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
@@ -51,9 +51,7 @@ def numba_kernels() -> Iterator[None]:
 def cmu_dir() -> Path:
     """The CMU mocap samples; skips with a visible reason when ../shared/data is absent."""
     if not (CMU_DIR / "scaled_131_01.bvh").is_file():
-        if os.environ.get("CI"):
-            pytest.fail(f"CI must provide the shared data at {CMU_DIR}")
-        pytest.skip(f"shared mocap data not found at {CMU_DIR}")
+        unavailable(f"shared mocap data not found at {CMU_DIR}", "CI must provide it")
     return CMU_DIR
 
 

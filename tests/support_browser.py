@@ -7,15 +7,14 @@ address). They skip with a reason when Chromium or playwright is missing, and fa
 
 from __future__ import annotations
 
-import os
 import shutil
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING, NoReturn
+from typing import TYPE_CHECKING
 from urllib.parse import urlsplit
 
-import pytest
+from tests.support import unavailable
 
 if TYPE_CHECKING:
     from playwright.sync_api import Page, Route
@@ -31,13 +30,6 @@ CHROMIUM_ARGS = [
     "--no-first-run",
 ]
 LOOPBACK = frozenset({"127.0.0.1", "localhost", "[::1]", "::1"})
-
-
-def unavailable(reason: str, ci_hint: str) -> NoReturn:
-    """Skip with ``reason``; under CI (which installs every tool) fail with ``ci_hint``."""
-    if os.environ.get("CI"):
-        pytest.fail(f"{reason}: {ci_hint}", pytrace=False)
-    pytest.skip(reason)
 
 
 def chromium_executable() -> str:

@@ -28,7 +28,8 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from tests.support_browser import CHROMIUM_ARGS, chromium_executable, unavailable
+from tests.support import unavailable
+from tests.support_browser import CHROMIUM_ARGS, chromium_executable
 
 if TYPE_CHECKING:
     from playwright.sync_api import Browser, Page

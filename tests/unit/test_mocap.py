@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +12,7 @@ from skelfuse.agent.sim.asf_amc import asf_amc_points
 from skelfuse.agent.sim.clip import MocapFormatError, MotionClip
 from skelfuse.agent.sim.mocap import FOOT_JOINT_FLOOR_HEIGHT_M, bvh_points, load_asf_amc, load_bvh
 from skelfuse.protocol.skeleton import BONES, JOINT_COUNT, JOINT_NAMES, JointId as J, bone_lengths
+from tests.support import unavailable
 
 DATA_DIR = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "cmu-mocap"
 UP = np.array([0.0, 1.0, 0.0])
@@ -26,9 +26,7 @@ def data_dir() -> Path:
     files = ("02.asf", "02_01.amc", "scaled_131_01.bvh")
     missing = [f for f in files if not (DATA_DIR / f).is_file()]
     if missing:
-        if os.environ.get("CI"):
-            pytest.fail(f"CI must provide the CMU mocap samples: {missing} in {DATA_DIR}")
-        pytest.skip(f"CMU mocap samples not found: {missing} in {DATA_DIR}")
+        unavailable(f"CMU mocap samples not found: {missing} in {DATA_DIR}", "CI must provide them")
     return DATA_DIR
 
 
