@@ -35,7 +35,7 @@ from bench.load_server import ROOT, free_port, http_json, wait_for
 from bench.mono_accuracy_geometry import FloatArray, pinhole, undistorted_px
 from bench.mono_accuracy_single import FPS, Clip
 from skelfuse.agent.runner import run_agent
-from skelfuse.agent.sources.base import Capture
+from skelfuse.agent.sources.base import Capture, wait_for_due
 from skelfuse.calibration.camera import Camera
 from skelfuse.calibration.store import CalibrationStore, SensorCalibration
 from skelfuse.client.sync import SyncFeedClient
@@ -96,12 +96,8 @@ class LandmarkSource:
             time.sleep(timeout_s)
             return None
         stamp = self._start[0] + int(self._next / FPS * 1e9)
-        wait = (stamp - time.time_ns()) / 1e9
-        if wait > timeout_s:
-            time.sleep(timeout_s)
+        if not wait_for_due(stamp, time.time_ns(), timeout_s, time.sleep):
             return None
-        if wait > 0:
-            time.sleep(wait)
         joints, states = self._bodies[max(0, self._next - self._hold)]
         self._next += 1
         if not np.isfinite(joints[states > 0]).all():

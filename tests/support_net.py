@@ -14,7 +14,7 @@ import time
 import numpy as np
 
 from skelfuse.agent.sim.performer import standing_pose
-from skelfuse.agent.sources.base import Capture
+from skelfuse.agent.sources.base import Capture, wait_for_due
 from skelfuse.protocol.skeleton import JOINT_COUNT, TrackingState
 from skelfuse.protocol.transform import Matrix4
 from skelfuse.protocol.wire import Body
@@ -131,12 +131,8 @@ class TimeCodeSource:
         return np.eye(4), "manual"
 
     def next_capture(self, timeout_s: float) -> Capture | None:
-        wait = self._next_s - time.time()
-        if wait > timeout_s:
-            time.sleep(timeout_s)
+        if not wait_for_due(round(self._next_s * 1e9), time.time_ns(), timeout_s, time.sleep):
             return None
-        if wait > 0:
-            time.sleep(wait)
         self._next_s = max(self._next_s + self._period_s, time.time() - self._period_s)
         now_ns = time.time_ns()
         joints = self._template.copy()
