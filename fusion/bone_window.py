@@ -35,15 +35,7 @@ def nanmedian_axis(data: FloatArray, axis: int) -> FloatArray:
     moved = np.moveaxis(data, axis, -1)
     if moved.shape[-1] == 0:
         return np.full(moved.shape[:-1], np.nan)
-    rows = np.sort(moved, axis=-1).reshape(-1, moved.shape[-1])  # NaN last
-    count = np.isfinite(rows).sum(axis=1)
-    # The middle two of each row's finite values, by their flat index.
-    first = np.arange(0, rows.size, rows.shape[1])
-    flat = rows.reshape(-1)
-    low = flat[first + np.maximum((count - 1) // 2, 0)]
-    high = flat[first + count // 2]
-    median: FloatArray = np.where(count > 0, (low + high) / 2.0, np.nan)
-    return median.reshape(moved.shape[:-1])
+    return nanmedian_last(moved)  # its sort copies the moved axis into contiguous rows
 
 
 def nanmedian_last(data: FloatArray) -> FloatArray:
@@ -52,6 +44,7 @@ def nanmedian_last(data: FloatArray) -> FloatArray:
     n = data.shape[-1]
     rows = np.sort(data, axis=-1).reshape(-1, n)  # NaN last
     count = np.isfinite(rows).sum(axis=1)
+    # The middle two of each row's finite values, by their flat index.
     first = np.arange(0, rows.size, n)
     flat = rows.reshape(-1)
     low = flat[first + np.maximum((count - 1) // 2, 0)]
