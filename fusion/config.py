@@ -131,6 +131,20 @@ def _alignment_problems(changes: Mapping[str, object]) -> list[str]:
     return problems
 
 
+def read_toml(path: Path, error: type[Exception]) -> dict[str, Any]:
+    """The TOML document at ``path`` (a deployment's settings file: fusion, outputs).
+
+    Raises:
+        error: the file is unreadable or not TOML; the message starts with the path.
+    """
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise error(f"{path}: cannot read it ({exc.strerror or exc})") from exc
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise error(f"{path}: not valid TOML ({exc})") from exc
+
+
 def load_fusion_settings(path: str | Path) -> FusionSettings:
     """Fusion settings from the ``[fusion]`` table of a TOML file.
 
@@ -139,12 +153,7 @@ def load_fusion_settings(path: str | Path) -> FusionSettings:
             bad settings; the message starts with the path.
     """
     path = Path(path)
-    try:
-        document = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise FusionConfigError(f"{path}: cannot read it ({exc.strerror or exc})") from exc
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise FusionConfigError(f"{path}: not valid TOML ({exc})") from exc
+    document = read_toml(path, FusionConfigError)
     others = sorted(set(document) - {"fusion"})
     if others:
         raise FusionConfigError(

@@ -21,11 +21,11 @@ once at this trust boundary; docs/outputs.md. One ``[[outputs]]`` table per outp
 from __future__ import annotations
 
 import dataclasses
-import tomllib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Literal, TypeVar, cast
 
+from skelfuse.fusion.config import read_toml
 from skelfuse.server.output_nats import NATS_PORT, room_subject
 from skelfuse.server.settings import OutputSpec
 
@@ -110,12 +110,7 @@ def load_outputs(path: str | Path) -> tuple[OutputSpec, ...]:
             the message starts with the path.
     """
     path = Path(path)
-    try:
-        document = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise OutputConfigError(f"{path}: cannot read it ({exc.strerror or exc})") from exc
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise OutputConfigError(f"{path}: not valid TOML ({exc})") from exc
+    document = read_toml(path, OutputConfigError)
     others = sorted(set(document) - {"outputs"})
     tables = document.get("outputs", [])
     if others or not isinstance(tables, list):
