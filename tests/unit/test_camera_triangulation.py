@@ -30,6 +30,21 @@ LANDMARKS = DATA / "mono_landmarks.npz"
 LENS = (-0.05, 0.14, 0.0006, -0.0005, 0.0)
 
 
+def real_clip(lag_frames: dict[str, int] | None = None) -> tuple[list[Camera], np.ndarray]:
+    """The real clip's Qualisys cameras and their landmarks' pixels (cameras, frames, 33, 2),
+    each camera's frames rolled back by its ``lag_frames`` (the rolled-over ones stay at the
+    end); skips when the mono source's landmark fixture is missing."""
+    if not LANDMARKS.exists():
+        pytest.skip(f"{LANDMARKS} missing (the mono source's fixture)")
+    cameras = read_camera_file(QCA, "qualisys").cameras
+    data = np.load(LANDMARKS)
+    lags = lag_frames or {}
+    image = np.stack(
+        [np.roll(data[f"{c.name}_image_px"][..., :2], -lags.get(c.name, 0), 0) for c in cameras]
+    ).astype(np.float64)
+    return cameras, image
+
+
 def rig(distortion: tuple[float, ...] = LENS) -> list[Camera]:
     """Four portrait cameras 3-4 m around the origin at 1.8-2.1 m, aimed at a chest."""
     intrinsics = CameraIntrinsics(1088, 1920, 1680.0, 1679.0, 533.0, 950.0, distortion)
@@ -154,14 +169,7 @@ def test_qualisys_reprojection_on_the_real_landmarks() -> None:
     """Triangulated from the four views, the landmarks reproject to each within the
     landmarks' own consistency (MediaPipe's, about 13-18 px median here; with a wrong
     convention it is 50-400 px), and the body stands on the floor, about 1.7 m tall."""
-    if not LANDMARKS.exists():
-        pytest.skip(f"{LANDMARKS} missing (the mono source's fixture)")
-    cameras = read_camera_file(QCA, "qualisys").cameras
-    data = np.load(LANDMARKS)
-    lag = {"cam03": 2}  # cam03 lags the others (calibration.motion_sync finds it)
-    image = np.stack(
-        [np.roll(data[f"{c.name}_image_px"][..., :2], -lag.get(c.name, 0), 0) for c in cameras]
-    ).astype(np.float64)
+    cameras, image = real_clip({"cam03": 2})  # cam03 lags the others (motion_sync finds it)
     result = triangulate(cameras, image[:, 5:95])
     medians = np.nanmedian(result.reprojection_px.reshape(4, -1), axis=1)
     assert (medians < 20.0).all(), medians

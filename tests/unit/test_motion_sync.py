@@ -7,10 +7,9 @@ import numpy as np
 import pytest
 
 from skelfuse.agent.sim.performer import ProceduralPerformer
-from skelfuse.calibration.camera_files import read_camera_file
 from skelfuse.calibration.errors import InvalidInput, NotEnoughCorrespondences
 from skelfuse.calibration.motion_sync import lags_from_epipolar, lags_from_speed, shifted
-from tests.unit.test_camera_triangulation import LANDMARKS, QCA, rig
+from tests.unit.test_camera_triangulation import real_clip, rig
 
 RATE_HZ = 60.0
 LAGS = {"cam01": 0.0, "cam02": 1.4, "cam03": -3.0, "cam04": 2.6}
@@ -87,11 +86,7 @@ def test_refusals() -> None:
 
 def test_real_clip_cam03_lags_two_to_three_frames() -> None:
     """The issue's real case: cam03 lags the others by 2-3 frames at 60 fps."""
-    if not LANDMARKS.exists():
-        pytest.skip(f"{LANDMARKS} missing (the mono source's fixture)")
-    cameras = read_camera_file(QCA, "qualisys").cameras
-    data = np.load(LANDMARKS)
-    image = np.stack([data[f"{c.name}_image_px"][..., :2] for c in cameras]).astype(np.float64)
+    cameras, image = real_clip()
     sync = lags_from_epipolar(cameras, image, rate_hz=RATE_HZ, max_lag_frames=5.0)
     assert 2.0 <= sync.lag_frames["cam03"] <= 3.0, sync.lag_frames
     for name in ("cam02", "cam04"):
@@ -105,16 +100,7 @@ def test_real_clip_cam03_lags_two_to_three_frames() -> None:
 
 def test_lags_need_the_motion_not_the_frame_index() -> None:
     """Sanity of the sign: rolling cam03's frames back by its lag leaves (almost) no lag."""
-    if not LANDMARKS.exists():
-        pytest.skip(f"{LANDMARKS} missing (the mono source's fixture)")
-    cameras = read_camera_file(QCA, "qualisys").cameras
-    data = np.load(LANDMARKS)
-    image = np.stack(
-        [
-            np.roll(data[f"{c.name}_image_px"][..., :2], -2 if c.name == "cam03" else 0, 0)
-            for c in cameras
-        ]
-    ).astype(np.float64)
+    cameras, image = real_clip({"cam03": 2})
     image[2, -2:] = np.nan  # the rolled-over frames
     sync = lags_from_epipolar(cameras, image, rate_hz=RATE_HZ, max_lag_frames=5.0)
     assert abs(sync.lag_frames["cam03"]) < 1.0, sync.lag_frames
