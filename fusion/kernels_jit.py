@@ -62,6 +62,17 @@ class Warmed:
         return self.done
 
 
+def jit_inline(function: F) -> F:
+    """:func:`jit` for a small helper of other kernels, inlined into each caller by numba
+    itself (``inline="always"``): a call LLVM leaves out of line costs ~10 % in a per-view
+    loop (the body frame: 48 views 17.9 → 19.4 µs). ``function`` itself without numba."""
+    numba = numba_module()
+    if numba is None:
+        return function
+    compiled: F = numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")(function)
+    return compiled
+
+
 def plain(array: npt.ArrayLike, dtype: type = np.float64) -> Any:
     """``array`` as a writable C-contiguous array of ``dtype`` (copied only when it is not):
     every call then has the argument types the warm-up compiled for, so no frame waits for a

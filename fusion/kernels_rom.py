@@ -21,7 +21,7 @@ import math
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.kernels_jit import jit
+from skelfuse.fusion.kernels_jit import jit, jit_inline
 from skelfuse.protocol.skeleton import JointId as J
 
 FloatArray = npt.NDArray[np.float64]
@@ -64,7 +64,7 @@ def _factor(angle: float, low: float, high: float, scale_deg: float) -> float:
     return 1.0
 
 
-@jit
+@jit_inline
 def body_frame(
     v: FloatArray,
 ) -> tuple[float, float, float, float, float, float, float, float, float]:
@@ -73,6 +73,9 @@ def body_frame(
     up) and forward = left × up, as ``(u0, u1, u2, l0, l1, l2, f0, f1, f2)``; NaN where the
     trunk is unknown. Numba inlines it into :func:`rom_loop` and
     :func:`skelfuse.fusion.kernels_facing.facing_loop`: the same operations in the same order.
+    numba's disk cache checks only the caller's own file: after editing this function, delete
+    ``fusion/__pycache__/kernels_facing.*.nb?`` (or touch kernels_facing.py) on a machine
+    that has run the kernels, or facing_loop keeps the old body (CI starts without a cache).
     """
     u0, u1, u2 = v[_SS, 0] - v[_SB, 0], v[_SS, 1] - v[_SB, 1], v[_SS, 2] - v[_SB, 2]
     norm = math.sqrt((u0 * u0 + u1 * u1) + u2 * u2)
