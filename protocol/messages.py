@@ -60,12 +60,27 @@ def checked_body(
 
 
 @dataclass(frozen=True, slots=True)
+class SensorPose:
+    """A moving sensor's pose in its tracking space at a frame's capture instant
+    (``T_space_from_sensor``, docs/protocol.md §6.3).
+
+    position_m: (x, y, z), metres, the sensor's origin in the tracking space.
+    rotation_xyzw: unit quaternion (x, y, z, w) rotating sensor axes into the space's axes.
+    """
+
+    position_m: tuple[float, float, float]
+    rotation_xyzw: tuple[float, float, float, float]
+
+
+@dataclass(frozen=True, slots=True)
 class Hello:
     """Agent registration; the first message of every connection (and after a server restart).
 
     pose_hint: optional ``T_world_from_sensor`` (4×4 float64) the agent believes in, with its
         ``pose_hint_source``: ``sim_truth`` (the simulator's true pose) or ``manual``. The server
         uses it only for a sensor that has no stored calibration.
+    moving: the sensor moves (e.g. head-mounted); its frames carry a :class:`SensorPose` in the
+        tracking space ``pose_space`` (an id like a sensor id; required when ``moving``).
     """
 
     sensor_id: str
@@ -76,15 +91,22 @@ class Hello:
     skeleton: str = SKELETON_NAME
     pose_hint: npt.NDArray[np.float64] | None = None
     pose_hint_source: str | None = None
+    moving: bool = False
+    pose_space: str | None = None
 
 
 @dataclass(frozen=True, slots=True)
 class Welcome:
-    """Server's answer to :class:`Hello`."""
+    """Server's answer to :class:`Hello`.
+
+    features: what this server handles beyond v1's base (e.g. ``moving_sensors``); empty from
+        servers that announce none, and from servers older than the field.
+    """
 
     server_version: str
     heartbeat_interval_s: float
     t_ns: int
+    features: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True, slots=True)
@@ -95,18 +117,22 @@ class Frame:
     t_capture_ns: capture instant on the agent's clock, nanoseconds since the Unix epoch.
     floor: the SDK's floor plane (a, b, c, d) in the sensor frame, ``a·x + b·y + c·z + d = 0``
         with (a, b, c) a unit normal pointing up, or None.
+    pose: the sensor's pose in its tracking space at ``t_capture_ns`` (moving sensors only),
+        or None.
     """
 
     seq: int
     t_capture_ns: int
     bodies: tuple[Body, ...]
     floor: tuple[float, float, float, float] | None = None
+    pose: SensorPose | None = None
 
 
 _set_seq = cast(Any, Frame).seq.__set__
 _set_t_capture_ns = cast(Any, Frame).t_capture_ns.__set__
 _set_bodies = cast(Any, Frame).bodies.__set__
 _set_floor = cast(Any, Frame).floor.__set__
+_set_pose = cast(Any, Frame).pose.__set__
 
 
 def checked_frame(
@@ -114,13 +140,16 @@ def checked_frame(
     t_capture_ns: int,
     bodies: tuple[Body, ...],
     floor: tuple[float, float, float, float] | None,
+    pose: SensorPose | None = None,
 ) -> Frame:
-    """``Frame(seq, t_capture_ns, bodies, floor)`` for checked values, as :func:`checked_body`."""
+    """``Frame(seq, t_capture_ns, bodies, floor, pose)`` for checked values, as
+    :func:`checked_body`."""
     frame: Frame = _new_object(Frame)
     _set_seq(frame, seq)
     _set_t_capture_ns(frame, t_capture_ns)
     _set_bodies(frame, bodies)
     _set_floor(frame, floor)
+    _set_pose(frame, pose)
     return frame
 
 

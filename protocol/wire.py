@@ -33,6 +33,7 @@ from skelfuse.protocol.messages import (
     Message,
     Request,
     Response,
+    SensorPose,
     Welcome,
     checked_body,
     checked_frame,
@@ -46,6 +47,7 @@ from skelfuse.protocol.wire_checks import (
     finite_float,
     joint_arrays,
     rigid_pose,
+    sensor_pose,
     uint,
 )
 
@@ -67,6 +69,7 @@ __all__ = [
     "Message",
     "Request",
     "Response",
+    "SensorPose",
     "Welcome",
     "decode",
     "decode_frame_precisely",
@@ -88,6 +91,10 @@ def encode(message: Message) -> bytes:
                 "bodies": [_encode_body(b) for b in message.bodies],
                 "floor": [float(x) for x in message.floor] if message.floor is not None else None,
             }
+            if message.pose is not None:  # moving sensors only; v1 frames without it unchanged
+                body["pose"] = [
+                    float(x) for x in message.pose.position_m + message.pose.rotation_xyzw
+                ]
         case Heartbeat():
             body = {"type": "heartbeat", "t_ns": int(message.t_ns)}
             if message.echo_ns is not None:
@@ -107,6 +114,10 @@ def encode(message: Message) -> bytes:
                     "T_world_from_sensor": [float(x) for x in message.pose_hint.reshape(16)],
                     "source": message.pose_hint_source or "manual",
                 }
+            if message.moving:
+                body["moving"] = True
+            if message.pose_space is not None:
+                body["pose_space"] = message.pose_space
         case Welcome():
             body = {
                 "type": "welcome",
@@ -114,6 +125,8 @@ def encode(message: Message) -> bytes:
                 "heartbeat_interval_s": float(message.heartbeat_interval_s),
                 "t_ns": message.t_ns,
             }
+            if message.features:
+                body["features"] = list(message.features)
         case Request():
             body = {
                 "type": "request",
@@ -206,9 +219,9 @@ def _decode_frame(raw: dict[str, Any]) -> Frame:
 
 
 def _frame_of(bulk: BulkFrame) -> Frame:
-    seq, t_capture_ns, tracking_ids, joints_m, states, floor, hands = bulk
+    seq, t_capture_ns, tracking_ids, joints_m, states, floor, hands, pose = bulk
     bodies = tuple(map(checked_body, tracking_ids, joints_m, states, hands))
-    return checked_frame(seq, t_capture_ns, bodies, floor)
+    return checked_frame(seq, t_capture_ns, bodies, floor, pose)
 
 
 def decode_frame_precisely(raw: dict[str, Any]) -> Frame:
@@ -235,7 +248,9 @@ def decode_frame_precisely(raw: dict[str, Any]) -> Frame:
         if abs(normal - 1.0) > 1e-3:
             raise DecodeError("out_of_range", f"floor normal must be a unit vector, |n| = {normal}")
         floor = (values[0], values[1], values[2], values[3])
-    return Frame(seq=seq, t_capture_ns=t_capture_ns, bodies=bodies, floor=floor)
+    pose_raw = raw.get("pose")
+    pose = sensor_pose(pose_raw) if pose_raw is not None else None
+    return Frame(seq=seq, t_capture_ns=t_capture_ns, bodies=bodies, floor=floor, pose=pose)
 
 
 def _decode_body(raw: object, index: int) -> Body:
@@ -281,6 +296,16 @@ def _decode_hello(raw: dict[str, Any]) -> Hello:
         if pose_source not in POSE_HINT_SOURCES:
             raise DecodeError("bad_field", f"pose_hint source must be one of {POSE_HINT_SOURCES}")
         pose_hint = rigid_pose(matrix)
+    moving = raw.get("moving", False)
+    if type(moving) is not bool:
+        raise DecodeError("bad_field", "moving must be true or false")
+    pose_space = raw.get("pose_space")
+    if pose_space is not None and (
+        type(pose_space) is not str or not SENSOR_ID_PATTERN.fullmatch(pose_space)
+    ):
+        raise DecodeError("bad_field", "pose_space must be an id like a sensor_id")
+    if moving and pose_space is None:
+        raise DecodeError("bad_field", "a moving sensor must name its pose_space")
     return Hello(
         sensor_id=sensor_id,
         sensor_type=sensor_type,
@@ -290,14 +315,21 @@ def _decode_hello(raw: dict[str, Any]) -> Hello:
         skeleton=skeleton,
         pose_hint=pose_hint,
         pose_hint_source=pose_source,
+        moving=moving,
+        pose_space=pose_space,
     )
 
 
 def _decode_welcome(raw: dict[str, Any]) -> Welcome:
+    features = raw.get("features", [])
+    # Names this agent does not know are kept: they say only what the server can do.
+    if type(features) is not list or not all(type(f) is str and len(f) <= 64 for f in features):
+        raise DecodeError("bad_field", "features must be a list of names")
     return Welcome(
         server_version=field_of(raw, "server_version", str),
         heartbeat_interval_s=finite_float(raw, "heartbeat_interval_s"),
         t_ns=uint(raw, "t_ns"),
+        features=tuple(features),
     )
 
 

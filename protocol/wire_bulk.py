@@ -26,6 +26,7 @@ import numpy.typing as npt
 
 from skelfuse.protocol.constants import MAX_BODIES, MAX_COORDINATE_M
 from skelfuse.protocol.hands import Hands, hands_quickly
+from skelfuse.protocol.messages import SensorPose
 from skelfuse.protocol.skeleton import JOINT_COUNT
 from skelfuse.protocol.wire_checks import INT64_MAX, UINT64_MAX
 
@@ -58,6 +59,7 @@ class BulkFrame(NamedTuple):
     states: B arrays (25,) uint8 in 0..2; rows of one writable (B, 25) array.
     (Sequences: lists from the msgpack paths, tuples from :func:`frame_of_blobs`.)
     hands: B hand states (None where the body has none).
+    pose: the sensor's checked pose (moving sensors), or None.
     """
 
     seq: int
@@ -67,6 +69,7 @@ class BulkFrame(NamedTuple):
     states: Sequence[npt.NDArray[np.uint8]]
     floor: tuple[float, float, float, float] | None
     hands: list[Hands | None]
+    pose: SensorPose | None = None
 
 
 def frame_in_bulk(raw: dict[str, Any]) -> BulkFrame | None:
@@ -88,6 +91,7 @@ def frame_in_bulk(raw: dict[str, Any]) -> BulkFrame | None:
         or not 0 <= t_capture_ns <= INT64_MAX
         or type(bodies) is not list
         or len(bodies) > MAX_BODIES
+        or raw.get("pose") is not None  # a moving sensor's frame: the precise path checks it
     ):
         return None
     floor = checked_floor(raw.get("floor"))
@@ -137,17 +141,18 @@ def frame_of_blobs(
     state_blobs: list[bytes],
     hands: list[Hands | None],
     floor: tuple[float, float, float, float] | None,
+    pose: SensorPose | None = None,
 ) -> BulkFrame | None:
     """The frame's checked values from its fields, each checked already for type, range and
     size but for the bodies' ids (all different), states (0..2) and joints; None as above.
 
     joint_blobs: B blobs of 300 bytes; state_blobs: B blobs of 25 bytes; ids: B ints in
-    0..2^64-1; hands: B checked hand states or None.
+    0..2^64-1; hands: B checked hand states or None; pose: checked, or None.
     """
     if len(set(ids)) != len(ids):
         return None
     if not ids:
-        return BulkFrame(seq, t_capture_ns, ids, [], [], floor, hands)
+        return BulkFrame(seq, t_capture_ns, ids, [], [], floor, hands, pose)
     all_states = b"".join(state_blobs)
     if all_states.translate(None, _STATE_VALUES):  # a byte other than 0, 1, 2 is left
         return None
@@ -159,7 +164,7 @@ def frame_of_blobs(
         return None
     states = np.ndarray((count, JOINT_COUNT), np.uint8, bytearray(all_states))
     rows = _ROWS[count]
-    return BulkFrame(seq, t_capture_ns, ids, rows(joints), rows(states), floor, hands)
+    return BulkFrame(seq, t_capture_ns, ids, rows(joints), rows(states), floor, hands, pose)
 
 
 def _joints_valid(all_joints: bytes, all_states: bytes, joints: npt.NDArray[np.float32]) -> bool:

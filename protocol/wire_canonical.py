@@ -26,10 +26,11 @@ import math
 from typing import Annotated, Any, Literal
 
 from skelfuse.protocol.constants import MAX_BODIES
+from skelfuse.protocol.errors import DecodeError
 from skelfuse.protocol.hands import hands_quickly
 from skelfuse.protocol.skeleton import JOINT_COUNT
 from skelfuse.protocol.wire_bulk import BulkFrame, frame_of_blobs
-from skelfuse.protocol.wire_checks import INT64_MAX
+from skelfuse.protocol.wire_checks import INT64_MAX, sensor_pose
 
 try:
     import msgspec
@@ -50,13 +51,15 @@ if msgspec is not None:
         states: Annotated[bytes, msgspec.Meta(min_length=JOINT_COUNT, max_length=JOINT_COUNT)]
         hands: list[int] | None = None
 
-    class _Frame(msgspec.Struct, forbid_unknown_fields=True):
+    # omit_defaults: ``pose`` is written only when present; ``floor`` has no default (always).
+    class _Frame(msgspec.Struct, forbid_unknown_fields=True, omit_defaults=True):
         v: Literal[1]
         type: Literal["frame"]
         seq: Annotated[int, _UINT63]
         t_capture_ns: Annotated[int, _UINT63]
         bodies: Annotated[list[_Body], msgspec.Meta(max_length=MAX_BODIES)]
         floor: tuple[float, float, float, float] | None
+        pose: tuple[float, float, float, float, float, float, float] | None = None
 
     _decode_frame: Any = msgspec.msgpack.Decoder(_Frame).decode
     _encode: Any = msgspec.msgpack.Encoder().encode
@@ -87,6 +90,12 @@ def canonical_frame(buf: bytes) -> BulkFrame | None:
             or abs(math.sqrt(sum((a * a, b * b, c * c))) - 1.0) > 1e-3
         ):
             return None
+    pose = None
+    if frame.pose is not None:  # a moving sensor's frame: the very check of the precise path
+        try:
+            pose = sensor_pose(frame.pose)
+        except DecodeError:
+            return None
     bodies = frame.bodies
     hands: list[Any] = [body.hands for body in bodies]
     if hands.count(None) != len(hands):  # some bodies carry hand states: check and convert
@@ -103,4 +112,5 @@ def canonical_frame(buf: bytes) -> BulkFrame | None:
         [body.states for body in bodies],
         hands,
         floor,
+        pose,
     )

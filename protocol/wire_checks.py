@@ -14,8 +14,11 @@ import numpy.typing as npt
 
 from skelfuse.protocol.constants import MAX_COORDINATE_M
 from skelfuse.protocol.errors import DecodeError
+from skelfuse.protocol.messages import SensorPose
 from skelfuse.protocol.skeleton import JOINT_COUNT, TrackingState
 
+UNIT_TOLERANCE: Final = 1e-3
+"""How far from 1 a floor normal's or a sensor pose quaternion's length may be."""
 UINT64_MAX: Final = 2**64 - 1
 INT64_MAX: Final = 2**63 - 1
 _JOINT_BYTES: Final = JOINT_COUNT * 3 * 4
@@ -128,3 +131,25 @@ def rigid_pose(matrix: list[Any]) -> npt.NDArray[np.float64]:
     ):
         raise DecodeError("bad_field", "pose_hint is not a rigid transform")
     return pose
+
+
+def sensor_pose(value: object) -> SensorPose:
+    """A frame's ``pose``: ``[px, py, pz, qx, qy, qz, qw]`` (metres; a unit quaternion).
+
+    Raises:
+        DecodeError: ``bad_shape`` (not 7 numbers), ``non_finite``, or ``out_of_range`` (the
+            quaternion's length is not 1 within :data:`UNIT_TOLERANCE`).
+    """
+    if (
+        (type(value) is not list and type(value) is not tuple)
+        or len(value) != 7
+        or not all(type(x) is float or type(x) is int for x in value)
+    ):
+        raise DecodeError("bad_shape", "frame pose must be 7 numbers [px, py, pz, qx, qy, qz, qw]")
+    px, py, pz, qx, qy, qz, qw = (float(x) for x in value)
+    if not all(math.isfinite(x) for x in (px, py, pz, qx, qy, qz, qw)):
+        raise DecodeError("non_finite", "frame pose has NaN or infinity")
+    norm = math.sqrt(sum((qx * qx, qy * qy, qz * qz, qw * qw)))
+    if abs(norm - 1.0) > UNIT_TOLERANCE:
+        raise DecodeError("out_of_range", f"frame pose quaternion must be unit, |q| = {norm}")
+    return SensorPose((px, py, pz), (qx, qy, qz, qw))
