@@ -11,6 +11,10 @@ Rules (``docs/protocol.md``):
   counted.
 - Silence from the server for ``HEARTBEAT_LIVENESS`` intervals, or an ``error`` with code
   ``not_registered`` (the server restarted), sends us back to registering.
+- A moving sensor (``hello.moving``) streams only to a server whose ``welcome`` lists
+  :data:`MOVING_SENSORS` in ``features``: any other server would fuse its frames as if the sensor
+  stood still. Otherwise it stays registered (heartbeats, requests) but sends no frame, says why
+  once in the log and counts the frames in ``frames_refused``.
 """
 
 from __future__ import annotations
@@ -50,6 +54,9 @@ from skelfuse.protocol.wire import (
 
 logger = logging.getLogger(__name__)
 
+MOVING_SENSORS = "moving_sensors"
+"""The ``welcome`` feature a server announces once it poses moving sensors' frames."""
+
 RequestHandler = Callable[[dict[str, Any]], Any]
 
 
@@ -77,6 +84,7 @@ class CurveKeys:
 class LinkStats:
     frames_sent: int = 0
     frames_dropped: int = 0
+    frames_refused: int = 0
     registrations: int = 0
     server_errors: dict[str, int] = field(default_factory=dict)
 
@@ -111,6 +119,10 @@ class AgentLink:
         self._running: list[tuple[Request, Future[Any]]] = []
         self.stats = LinkStats()
         self.registered = False
+        self.refusal: str | None = None
+        """Why frames are not sent to this server (a moving sensor, a server without
+        :data:`MOVING_SENSORS`), or None."""
+        self._moving = False
         self._last_heard = -float("inf")
         self._last_sent = -float("inf")
         self._last_hello = -float("inf")
@@ -142,7 +154,14 @@ class AgentLink:
         return True
 
     def send_frame(self, frame: Frame) -> bool:
-        """Send one frame now or drop it (never blocks, never queues a backlog)."""
+        """Send one frame now or drop it (never blocks, never queues a backlog).
+
+        A frame is refused (``frames_refused``) while :attr:`refusal` says why, and dropped
+        (``frames_dropped``) while unregistered or when the send queue is full.
+        """
+        if self.refusal is not None:
+            self.stats.frames_refused += 1
+            return False
         if not self.registered or not self._send(frame):
             self.stats.frames_dropped += 1
             return False
@@ -165,7 +184,9 @@ class AgentLink:
             self.registered = False
         if not self.registered and now - self._last_hello >= self._interval:
             self._last_hello = now
-            self._send(self._make_hello())
+            hello = self._make_hello()
+            self._moving = hello.moving
+            self._send(hello)
         elif self.registered and now - self._last_sent >= self._interval:
             self._send(Heartbeat(t_ns=self._wall_clock_ns()))
 
@@ -184,6 +205,7 @@ class AgentLink:
                         "registered with server %s (%s)", self._endpoint, message.server_version
                     )
                 self.registered = True
+                self._check_features(message)
             case ErrorMessage(code=code):
                 self.stats.server_errors[code] = self.stats.server_errors.get(code, 0) + 1
                 if code == "not_registered":
@@ -200,6 +222,22 @@ class AgentLink:
                 pass
             case _:
                 logger.debug("ignored unexpected %s from server", type(message).__name__)
+
+    def _check_features(self, welcome: Welcome) -> None:
+        """Refuse to stream a moving sensor to a server that would treat it as fixed."""
+        if not self._moving or MOVING_SENSORS in welcome.features:
+            if self.refusal is not None:
+                logger.info("server %s now handles moving sensors: streaming", self._endpoint)
+            self.refusal = None
+            return
+        if self.refusal is None:
+            self.refusal = (
+                f"this sensor is configured as moving but the server at {self._endpoint} "
+                f"({welcome.server_version}) does not announce {MOVING_SENSORS!r} in its "
+                "welcome: it would fuse the frames as if the sensor stood still, so none are "
+                "sent (upgrade the server, or run the sensor as fixed; docs/protocol.md §6.2)"
+            )
+            logger.error("%s", self.refusal)
 
     def _start(self, request: Request) -> None:
         """Run a request's handler in a worker thread: a depth capture can take a second under
