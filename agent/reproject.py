@@ -19,7 +19,7 @@ Pure functions on arrays, numpy (+ numba when installed): importable on a sensor
 
 from __future__ import annotations
 
-from typing import Final
+from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
@@ -101,7 +101,7 @@ def reproject_depth(
     T_ref_from_sensor: npt.ArrayLike,
     max_edge_m: float = MAX_EDGE_M,
     compiled: bool | None = None,
-) -> tuple[npt.NDArray[np.generic], npt.NDArray[np.generic]]:
+) -> tuple[npt.NDArray[Any], npt.NDArray[Any]]:
     """Re-render a depth image and its IR image as the reference camera sees them.
 
     Args:
