@@ -62,6 +62,7 @@ def assert_identical(actual: Frame | tuple, expected: Frame | tuple) -> None:
     assert (actual.seq, actual.t_capture_ns) == (expected.seq, expected.t_capture_ns)
     assert type(actual.seq) is int and type(actual.t_capture_ns) is int
     assert actual.floor == expected.floor
+    assert actual.pose == expected.pose
     if expected.floor is not None:
         assert actual.floor is not None and all(type(x) is float for x in actual.floor)
     assert type(actual.bodies) is tuple and len(actual.bodies) == len(expected.bodies)

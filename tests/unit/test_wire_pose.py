@@ -16,6 +16,7 @@ from typing import Any
 
 import msgpack
 import pytest
+from hypothesis import given, strategies as st
 
 from skelfuse.protocol import wire_canonical
 from skelfuse.protocol.errors import DecodeError
@@ -39,6 +40,9 @@ from tests.unit.test_wire import (
     raw_frame,
     raw_hello,
 )
+from tests.unit.test_wire_bulk import assert_identical
+from tests.unit.test_wire_canonical import outcome, without_canonical
+from tests.unit.test_wire_properties import frames
 
 # Yaw about +Y by 2·atan(0.6/0.8) ≈ 73.7°, at head height: every number exact in binary but 0.6.
 GOLDEN_POSE = SensorPose(position_m=(0.25, 1.625, -0.5), rotation_xyzw=(0.0, 0.6, 0.0, 0.8))
@@ -183,6 +187,38 @@ def test_welcome_features() -> None:
         with pytest.raises(DecodeError) as info:
             decode(pack(raw))
         assert info.value.reason == "bad_field"
+
+
+@st.composite
+def wire_poses(draw: st.DrawFn) -> list[Any]:
+    """7 numbers as a frame's ``pose``: mostly near-unit quaternions (both sides of the
+    tolerance), sometimes any float (NaN, infinities, huge), sometimes an int."""
+    position = draw(st.lists(st.floats(-1e3, 1e3), min_size=3, max_size=3))
+    quaternion = draw(st.lists(st.floats(-1, 1), min_size=4, max_size=4))
+    norm = math.sqrt(sum(q * q for q in quaternion))
+    if norm > 1e-6:
+        scale = draw(st.sampled_from([1.0, 1 + 9e-4, 1 - 9e-4, 1 + 1.1e-3, 1 - 1.1e-3]))
+        quaternion = [q / norm * scale for q in quaternion]
+    values: list[Any] = position + quaternion
+    index = draw(st.integers(0, 6))
+    values[index] = draw(
+        st.one_of(st.just(values[index]), st.floats(), st.integers(-(2**63), 2**63 - 1))
+    )
+    return values
+
+
+@given(frame=frames(), pose=wire_poses())
+def test_any_pose_decodes_the_same_on_every_path(frame: Frame, pose: list[Any]) -> None:
+    raw = msgpack.unpackb(encode(dataclasses.replace(frame, pose=None)), raw=False)
+    buf = pack({**raw, "pose": pose})  # after floor: the reference encoder's order
+    got, want = outcome(buf), without_canonical(buf)
+    if isinstance(want, Frame):
+        assert isinstance(got, Frame) and got.pose is not None
+        assert_identical(got, want)
+        if wire_canonical.ENABLED and all(type(x) is float for x in pose):
+            assert canonical_frame(buf) is not None  # canonical bytes: the msgspec path took it
+    else:
+        assert got == want
 
 
 def _flat(pose: SensorPose) -> tuple[float, ...]:
