@@ -111,7 +111,8 @@ def reproject_depth(
         T_ref_from_sensor: (4, 4) sensor frame → reference frame (:func:`reference_from_sensor`).
         max_edge_m: source depth difference at or above which neighbours are not joined.
         compiled: use the numba loop (True), the numpy one (False), or numba when installed
-            (None). The first compiled call compiles (or loads numba's disk cache).
+            (None). The first compiled call compiles (or loads numba's disk cache): call
+            :func:`skelfuse.agent.reproject_raster.warm_up` before the first frame.
 
     Returns:
         ``(depth_ref, ir_ref)``: (H, W) each; depth in the input's unit and dtype (float input

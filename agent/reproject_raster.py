@@ -215,3 +215,23 @@ def raster_numpy(
     nearer = depth[first] < flat_z[winners]
     flat_z[winners[nearer]] = depth[first][nearer]
     flat_ir[winners[nearer]] = values[first][nearer]
+
+
+def warm_up() -> None:
+    """Compile :func:`raster_loop` (or load it from numba's disk cache) on a 2×2 image, so the
+    first frame does not wait ~1 s for it; nothing to do without numba."""
+    if numba_module() is None:
+        return
+    grid = np.array([[0.0, 1.0], [0.0, 1.0]])
+    ones = np.ones((2, 2))
+    raster_loop(
+        grid,
+        grid.T.copy(),
+        ones,
+        ones,
+        np.ones((2, 2), dtype=bool),
+        ones,
+        0.1,
+        np.full((2, 2), np.inf),
+        np.zeros((2, 2)),
+    )

@@ -17,7 +17,7 @@ from skelfuse.agent.reproject import (
     reference_from_sensor,
     reproject_depth,
 )
-from skelfuse.agent.reproject_raster import raster_loop, raster_numpy
+from skelfuse.agent.reproject_raster import raster_loop, raster_numpy, warm_up
 from skelfuse.agent.sim.depth_camera import KINECT_V2_DEPTH, DepthIntrinsics, pixel_rays
 from skelfuse.agent.sim.performer import standing_pose
 from skelfuse.agent.sim.room import default_room, render_depth
@@ -139,6 +139,15 @@ def test_the_numba_loop_and_numpy_agree() -> None:
     np.testing.assert_allclose(vectorised[0], loop[0], atol=1e-6)
     np.testing.assert_allclose(vectorised[1], loop[1], atol=1e-4)
     assert raster_loop is not raster_numpy
+
+
+def test_warm_up_draws_with_the_loop_the_frames_use() -> None:
+    warm_up()  # compiles (or loads) the loop: the same signature as a frame's call
+    out_z = np.full((2, 2), np.inf)
+    grid = np.array([[0.0, 1.0], [0.0, 1.0]])
+    ones = np.ones((2, 2))
+    raster_loop(grid, grid.T.copy(), ones, ones, ones > 0, ones, 0.1, out_z, np.zeros((2, 2)))
+    np.testing.assert_allclose(out_z, 1.0)
 
 
 def test_level_reference_keeps_position_and_heading() -> None:
