@@ -69,10 +69,14 @@ def trunk_distances(a: FloatArray, b: FloatArray) -> FloatArray:
     """:func:`trunk_distance` of many pairs: a, b (M, 5, 3) midline joints, metres → (M,)."""
     both = finite_points(a) & finite_points(b)
     diff = a - b
-    d = np.sqrt((diff * diff).sum(-1))
+    square = diff * diff
+    # x + y + z in the order numpy's sum over an axis of 3 adds them (the same floats), without
+    # the reduction's fixed cost (~1.5 µs a call on a step's arrays).
+    d = np.sqrt(square[..., 0] + square[..., 1] + square[..., 2])
     count = both.sum(-1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean = np.where(both, d, 0.0).sum(-1) / count
+    # Dividing by at least 1 instead of under np.errstate (~1.5 µs a call): a count of 0 is
+    # below 2, replaced by inf; any other count divides as before (the same floats).
+    mean = np.where(both, d, 0.0).sum(-1) / np.maximum(count, 1)
     result: FloatArray = np.where(count < 2, np.inf, mean)
     return result
 
@@ -217,20 +221,29 @@ class PersonTracker:
                 owner[member] = t
         sticky = [owner.get((view.sensor_id, view.tracking_id)) for view in views]
         with_track = [i for i, t in enumerate(sticky) if t is not None]
-        distances = np.full(len(views), np.inf)
-        if with_track:
-            rows = [row_of[t.person_id] for t in sticky if t is not None]
-            distances[with_track] = trunk_distances(trunks[with_track], predicted[rows])
+        rows = [row_of[t.person_id] for t in sticky if t is not None]
+        if len(with_track) == len(views):  # every body still tracked: no gather, no scatter
+            distances: list[float] = trunk_distances(trunks, predicted[rows]).tolist()
+        else:
+            spread = np.full(len(views), np.inf)
+            if with_track:
+                spread[with_track] = trunk_distances(trunks[with_track], predicted[rows])
+            distances = spread.tolist()
+        sticky_gate = 2 * gate
         seen: dict[int, set[str]] = {}  # the sensors each cluster has a view from
-        for view, track, distance in zip(views, sticky, distances.tolist(), strict=True):
-            if track is None or distance > 2 * gate:
+        for view, track, distance in zip(views, sticky, distances, strict=True):
+            if track is None or distance > sticky_gate:
                 remaining.append(view)
                 continue
-            sensors = seen.setdefault(track.person_id, set())
-            if view.sensor_id in sensors:
+            person_id = track.person_id
+            sensors = seen.get(person_id)
+            if sensors is None:
+                seen[person_id] = {view.sensor_id}
+                clusters[person_id] = [view]
+            elif view.sensor_id in sensors:
                 remaining.append(view)
             else:
-                clusters.setdefault(track.person_id, []).append(view)
+                clusters[person_id].append(view)
                 sensors.add(view.sensor_id)
 
         # 2. Hungarian assignment to existing tracks, sensor by sensor.
