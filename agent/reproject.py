@@ -34,16 +34,23 @@ MAX_EDGE_M: Final = 0.10
 """Neighbouring pixels are joined by a triangle only when their depths differ by less."""
 
 
-def level_reference(T_world_from_sensor: npt.ArrayLike) -> FloatArray:
-    """The level reference camera of a sensor pose: same position, same heading, no pitch/roll.
+def level_reference(
+    T_world_from_sensor: npt.ArrayLike, height_m: float | None = None
+) -> FloatArray:
+    """The level reference camera of a sensor pose: same floor position, same heading, no
+    pitch or roll.
 
     Args:
         T_world_from_sensor: (4, 4) the sensor's pose (Kinect camera frame → world, +Y up).
+        height_m: the reference's height above the floor (world y); None keeps the sensor's
+            (no parallax: the image is only turned). A fixed height keeps the tracker's camera
+            steady while the head bobs, at the cost of parallax (disoccluded holes).
 
     Returns:
-        (4, 4) ``T_world_from_ref``: the sensor's position, optical axis horizontal along the
-        sensor's heading (its forward axis projected onto the floor; when it looks straight up
-        or down, its up axis, or down axis, projected instead), image rows level.
+        (4, 4) ``T_world_from_ref``: the sensor's floor position (x, z), optical axis
+        horizontal along the sensor's heading (its forward axis projected onto the floor; when
+        it looks straight up or down, its up axis, or down axis, projected instead), image rows
+        level.
 
     Raises:
         ValueError: when the pose is not (4, 4).
@@ -56,7 +63,8 @@ def level_reference(T_world_from_sensor: npt.ArrayLike) -> FloatArray:
         # Looking straight down, the image's top points the way the wearer faces (up: its bottom).
         forward = pose[:3, 1] * (1.0 if forward[1] < 0 else -1.0)
     yaw = float(np.degrees(np.arctan2(forward[0], forward[2])))
-    position = (float(pose[0, 3]), float(pose[1, 3]), float(pose[2, 3]))
+    height = float(pose[1, 3]) if height_m is None else float(height_m)
+    position = (float(pose[0, 3]), height, float(pose[2, 3]))
     return pose_from_position_yaw_pitch(position, yaw)
 
 

@@ -158,6 +158,9 @@ def test_level_reference_keeps_position_and_heading() -> None:
     heading = pose[:3, 2].copy()
     heading[1] = 0.0
     np.testing.assert_allclose(ref[:3, 2], heading / np.linalg.norm(heading), atol=1e-12)
+    at_eye_height = level_reference(pose, height_m=1.7)
+    np.testing.assert_allclose(at_eye_height[:3, :3], ref[:3, :3])
+    np.testing.assert_allclose(at_eye_height[:3, 3], (pose[0, 3], 1.7, pose[2, 3]))
     down = pose_from_position_yaw_pitch((1.0, 2.0, 0.0), 30.0, 90.0)
     np.testing.assert_allclose(
         level_reference(down), pose_from_position_yaw_pitch((1.0, 2.0, 0.0), 30.0), atol=1e-9
