@@ -24,7 +24,12 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.agent.reproject_raster import numba_module, raster_loop, raster_numpy
+from skelfuse.agent.reproject_raster import (
+    numba_module,
+    project_loop,
+    raster_loop,
+    raster_numpy,
+)
 from skelfuse.agent.sim.depth_camera import DepthIntrinsics
 from skelfuse.protocol.transform import apply, invert, pose_from_position_yaw_pitch
 
@@ -141,22 +146,16 @@ def reproject_depth(
         raise ValueError(f"T_ref_from_sensor must be (4, 4), not {transform.shape}")
     millimetres = np.issubdtype(image.dtype, np.integer)
     z = image.astype(np.float64) / (1000.0 if millimetres else 1.0)
-    has = np.isfinite(z) & (z > 0)
-    z = np.where(has, z, 0.0)
-    rows, cols = np.indices(shape, dtype=np.float64)
-    x = -(cols - intrinsics.cx) * z / intrinsics.fx
-    y = -(rows - intrinsics.cy) * z / intrinsics.fy
-    rot, shift = transform[:3, :3], transform[:3, 3]
-    xr = rot[0, 0] * x + rot[0, 1] * y + rot[0, 2] * z + shift[0]
-    yr = rot[1, 0] * x + rot[1, 1] * y + rot[1, 2] * z + shift[1]
-    zr = rot[2, 0] * x + rot[2, 1] * y + rot[2, 2] * z + shift[2]
-    valid = has & (zr > 1e-3)
-    safe = np.where(valid, zr, 1.0)
-    u = np.where(valid, intrinsics.cx - intrinsics.fx * xr / safe, 0.0)
-    v = np.where(valid, intrinsics.cy - intrinsics.fy * yr / safe, 0.0)
+    use_loop = numba_module() is not None if compiled is None else compiled
+    if use_loop:
+        u, v, safe = np.empty(shape), np.empty(shape), np.empty(shape)
+        valid = np.empty(shape, dtype=bool)
+        camera = np.array([intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy])
+        project_loop(z, camera, transform, u, v, safe, valid)
+    else:
+        z, u, v, safe, valid = _project(z, intrinsics, transform)
     out_z = np.full(shape, np.inf)
     out_ir = np.zeros(shape)
-    use_loop = numba_module() is not None if compiled is None else compiled
     raster = raster_loop if use_loop else raster_numpy
     raster(u, v, safe, infra.astype(np.float64), valid, z, float(max_edge_m), out_z, out_ir)
     seen = np.isfinite(out_z)
@@ -172,3 +171,24 @@ def reproject_depth(
         )
         return depth_ref, ir_ref
     return np.where(seen, out_z, 0.0).astype(np.float32), ir_ref
+
+
+def _project(
+    z: FloatArray, intrinsics: DepthIntrinsics, transform: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, npt.NDArray[np.bool_]]:
+    """:func:`skelfuse.agent.reproject_raster.project_loop` in numpy: the cleaned source depth,
+    u, v (pixels), z (metres, 1 where not valid) in the reference camera, and validity."""
+    has = np.isfinite(z) & (z > 0)
+    z = np.where(has, z, 0.0)
+    rows, cols = np.indices(z.shape, dtype=np.float64)
+    x = -(cols - intrinsics.cx) * z / intrinsics.fx
+    y = -(rows - intrinsics.cy) * z / intrinsics.fy
+    rot, shift = transform[:3, :3], transform[:3, 3]
+    xr = rot[0, 0] * x + rot[0, 1] * y + rot[0, 2] * z + shift[0]
+    yr = rot[1, 0] * x + rot[1, 1] * y + rot[1, 2] * z + shift[1]
+    zr = rot[2, 0] * x + rot[2, 1] * y + rot[2, 2] * z + shift[2]
+    valid = has & (zr > 1e-3)
+    safe = np.where(valid, zr, 1.0)
+    u = np.where(valid, intrinsics.cx - intrinsics.fx * xr / safe, 0.0)
+    v = np.where(valid, intrinsics.cy - intrinsics.fy * yr / safe, 0.0)
+    return z, u, v, safe, valid

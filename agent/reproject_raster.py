@@ -57,6 +57,42 @@ def _jit(function: F) -> F:
 
 
 @_jit
+def project_loop(
+    depth: FloatArray,
+    camera: FloatArray,
+    transform: FloatArray,
+    u: FloatArray,
+    v: FloatArray,
+    z: FloatArray,
+    valid: BoolArray,
+) -> None:
+    """Source pixels into the reference camera, as the numpy code of
+    :func:`skelfuse.agent.reproject.reproject_depth` does: ``depth`` (H, W) metres (cleaned in
+    place: non-finite or ≤ 0 becomes 0), ``camera`` (fx, fy, cx, cy), ``transform`` (4, 4)
+    ref-from-sensor; fills ``u``, ``v`` (pixels), ``z`` (metres, 1 where not valid) and
+    ``valid`` (a reading in front of the reference camera)."""
+    fx, fy, cx, cy = camera[0], camera[1], camera[2], camera[3]
+    for row in range(depth.shape[0]):
+        for col in range(depth.shape[1]):
+            d = depth[row, col]
+            if not (math.isfinite(d) and d > 0.0):
+                depth[row, col] = d = 0.0
+            x = -(col - cx) * d / fx
+            y = -(row - cy) * d / fy
+            xr = transform[0, 0] * x + transform[0, 1] * y + transform[0, 2] * d + transform[0, 3]
+            yr = transform[1, 0] * x + transform[1, 1] * y + transform[1, 2] * d + transform[1, 3]
+            zr = transform[2, 0] * x + transform[2, 1] * y + transform[2, 2] * d + transform[2, 3]
+            ok = d > 0.0 and zr > 1e-3
+            valid[row, col] = ok
+            if ok:
+                z[row, col] = zr
+                u[row, col] = cx - fx * xr / zr
+                v[row, col] = cy - fy * yr / zr
+            else:
+                z[row, col], u[row, col], v[row, col] = 1.0, 0.0, 0.0
+
+
+@_jit
 def raster_loop(
     u: FloatArray,
     v: FloatArray,
@@ -222,6 +258,16 @@ def warm_up() -> None:
     first frame does not wait ~1 s for it; nothing to do without numba."""
     if numba_module() is None:
         return
+    out = np.zeros((2, 2))
+    project_loop(
+        np.ones((2, 2)),
+        np.ones(4),
+        np.eye(4),
+        out,
+        out.copy(),
+        out.copy(),
+        np.zeros((2, 2), dtype=bool),
+    )
     grid = np.array([[0.0, 1.0], [0.0, 1.0]])
     ones = np.ones((2, 2))
     raster_loop(

@@ -131,6 +131,7 @@ def test_the_numba_loop_and_numpy_agree() -> None:
     rng = np.random.default_rng(7)
     depth = _step_image(small) + rng.normal(0.0, 0.004, size=(48, 64))
     depth[rng.random(depth.shape) < 0.05] = 0.0
+    depth[5, 5:9] = (np.nan, np.inf, -1.0, 0.0)  # all no reading
     ir = rng.uniform(100.0, 900.0, size=depth.shape)
     T_ref_from_sensor = reference_from_sensor(_head_pose(20.0, -15.0))
     loop = reproject_depth(depth, ir, small, T_ref_from_sensor, compiled=True)
