@@ -1,8 +1,10 @@
-"""The z-buffered rasteriser of :mod:`skelfuse.agent.reproject`: a numba loop and its numpy twin.
+"""The loops of :mod:`skelfuse.agent.reproject`: the projection of the source pixels into the
+reference camera (:func:`project_loop`, its numpy twin is in that module) and the z-buffered
+rasteriser (:func:`raster_loop` and its numpy twin :func:`raster_numpy`).
 
-Both draw the same image from the same inputs: the source pixels already projected into the
-reference camera (``u``, ``v`` pixels, ``z`` metres along its axis, ``ir`` values) and, per
-source pixel, whether it has a reading and its source depth (for the edge rule).
+Both rasterisers draw the same image from the same inputs: the source pixels already projected
+into the reference camera (``u``, ``v`` pixels, ``z`` metres along its axis, ``ir`` values)
+and, per source pixel, whether it has a reading and its source depth (for the edge rule).
 
 - Mesh: each 2×2 block of source pixels gives two triangles, drawn only when all three corners
   have readings and their source depths differ by less than ``max_edge_m`` (so person and
