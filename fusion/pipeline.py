@@ -203,7 +203,11 @@ class FusionPipeline:
 
             # 7. Filter, 8. bone-length fit.
             alive = np.flatnonzero(np.isfinite(fused).any(axis=(1, 2))).tolist()
-            filtered = filter_all([memories[p].filter for p in alive], fused[alive], t_s)
+            # Everyone alive (the usual step): the arrays as they are, not copies by a gather.
+            everyone = len(alive) == len(ids)
+            filtered = filter_all(
+                [memories[p].filter for p in alive], fused if everyone else fused[alive], t_s
+            )
             skeletons = dict(zip(alive, filtered, strict=True))
             if s.enforce_bone_lengths and alive:
                 # The references as they are now: this step's observations are in.
@@ -225,9 +229,9 @@ class FusionPipeline:
             persons = fused_persons(
                 [ids[p] for p in alive],
                 [skeletons[p] for p in alive],
-                confidence[alive],
+                confidence if everyone else confidence[alive],
                 [batch.views[lo:hi] for lo, hi in spans],
-                carried[alive],
+                carried if everyone else carried[alive],
                 [flags[lo:hi] for lo, hi in spans],
             )
             outputs.update(zip([ids[p] for p in alive], persons, strict=True))
