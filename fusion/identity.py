@@ -171,7 +171,10 @@ class PersonTracker:
             & finite_points(joints[:, 0])
         ).tolist()
         if moving:
-            velocity = (fused[moving, 0] - joints[moving, 0]) / dts[moving, None]
+            if len(moving) == len(tracks):  # everyone moves (the usual step): no gathers
+                velocity = (fused[:, 0] - joints[:, 0]) / dts[:, None]
+            else:
+                velocity = (fused[moving, 0] - joints[moving, 0]) / dts[moving, None]
             velocity[:, 1] = 0.0
             old = np.array([tracks[p].velocity for p in moving], dtype=np.float64)
             smoothed = 0.6 * old + 0.4 * velocity

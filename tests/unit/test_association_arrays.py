@@ -125,3 +125,27 @@ def test_moving_persons_together_gives_each_persons_own_motion() -> None:
         assert got.velocity.tobytes() == want.velocity.tobytes()
         assert (got.last_seen_s, got.fused_once) == (want.last_seen_s, want.fused_once)
     assert any(np.linalg.norm(t.velocity) == pytest.approx(3.0) for t in alone.tracks.values())
+
+
+def test_moving_everyone_at_once_gives_each_persons_own_motion() -> None:
+    # Every person moves (the usual step): move_all's path without gathers, same bits.
+    rng = np.random.default_rng(9)
+    tracker, alone = PersonTracker(FusionSettings()), PersonTracker(FusionSettings())
+    for k, joints in enumerate(skeletons(rng, 5)):
+        joints[0] = rng.normal(0.0, 1.0, 3)  # a SpineBase for everyone
+        track = Track(k + 1, joints, 9.97, 0.0, velocity=rng.normal(0, 1, 3), fused_once=True)
+        tracker.tracks[k + 1] = track
+        alone.tracks[k + 1] = Track(k + 1, joints.copy(), 9.97, 0.0, velocity=track.velocity.copy(),
+                                    fused_once=True)  # fmt: skip
+    fused = np.stack([t.joints for t in tracker.tracks.values()])
+    fused = fused + rng.normal(0.0, 0.05, fused.shape)
+    fused[2] += 1.0  # 33 m/s: clipped
+    ids = [2, 1, 3, 5, 4]
+    tracker.move_all(ids, fused, 10.0)
+    for p, person_id in enumerate(ids):
+        move_alone(alone.tracks[person_id], fused[p], 10.0)
+    for person_id, want in alone.tracks.items():
+        got = tracker.tracks[person_id]
+        assert got.joints.tobytes() == want.joints.tobytes()
+        assert got.velocity.tobytes() == want.velocity.tobytes()
+    assert all(np.any(t.velocity != 0.0) for t in alone.tracks.values())  # everyone moved
