@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import pytest
 import uvicorn
+from websockets.sync.client import connect
 
 from skelfuse.agent.runner import run_agent
 from skelfuse.agent.sim.performer import Performer, ProceduralPerformer
@@ -125,3 +128,15 @@ def agent_factory() -> Iterator[Callable[..., AgentThread]]:
     yield make
     for agent in agents:
         agent.halt()
+
+
+def collect_feed(ws_url: str, frames: int, query: str = "") -> dict[int, dict[str, Any]]:
+    """The JSON feed's messages by ``seq`` (``query``: e.g. ``"?rotations=1"``) until ``frames``
+    of them carry persons: what an app on the WebSocket feed saw, to compare an output with."""
+    feed: dict[int, dict[str, Any]] = {}
+    with connect(f"{ws_url}/ws/skeletons{query}", open_timeout=10) as ws:
+        ws.recv(timeout=10)  # the skeleton definition
+        while sum(bool(f["persons"]) for f in feed.values()) < frames:
+            message = json.loads(ws.recv(timeout=10))
+            feed[message["seq"]] = message
+    return feed

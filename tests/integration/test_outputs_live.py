@@ -5,17 +5,15 @@ values a WebSocket client of the same server gets (as float32); a VMC receiver g
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable
 
 import httpx
 import numpy as np
-from websockets.sync.client import connect
 
 from skelfuse.protocol import osc
 from skelfuse.protocol.skeleton import JOINT_NAMES
 from skelfuse.server.settings import OutputSpec
-from tests.integration.conftest import AgentThread, LiveServer
+from tests.integration.conftest import AgentThread, LiveServer, collect_feed
 from tests.unit.test_outputs_osc import Receiver
 
 FRAMES = 30
@@ -33,12 +31,7 @@ def test_osc_and_vmc_get_every_fused_frame_with_the_feed_values(
     )
     agent_factory(live.zmq_url, "cam-a", (0.0, 1.0, 3.0), depth=False)
     agent_factory(live.zmq_url, "cam-b", (2.6, 1.0, -1.5), depth=False)
-    feed: dict[int, dict[str, object]] = {}
-    with connect(f"{live.ws_url}/ws/skeletons?rotations=1", open_timeout=10) as ws:
-        ws.recv(timeout=10)  # the skeleton definition
-        while sum(bool(f["persons"]) for f in feed.values()) < FRAMES:
-            message = json.loads(ws.recv(timeout=10))
-            feed[message["seq"]] = message
+    feed = collect_feed(live.ws_url, FRAMES, "?rotations=1")
     metrics = httpx.get(live.http_url + "/metrics/").text
     live.stop()
     osc_receiver.wait_for(10**6, timeout_s=1.0)

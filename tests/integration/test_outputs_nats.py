@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-import os
 import shutil
 import socket
 import subprocess
@@ -16,7 +15,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any
 
 import httpx
 import msgpack
@@ -33,17 +32,11 @@ from skelfuse.server.output_config import OutputConfigError, output_from_mapping
 from skelfuse.server.output_nats import History, NatsSink, room_subject
 from skelfuse.server.outputs import QueuedOutput, output_name
 from skelfuse.server.settings import OutputSpec
-from tests.integration.conftest import AgentThread, LiveServer
-from tests.support import free_port
+from tests.integration.conftest import AgentThread, LiveServer, collect_feed
+from tests.support import free_port, unavailable
 from tests.unit.test_outputs_osc import fused_frames
 
 FRAMES = 30
-
-
-def _unavailable(reason: str, ci_hint: str) -> NoReturn:
-    if os.environ.get("CI"):
-        pytest.fail(f"{reason}: {ci_hint}", pytrace=False)
-    pytest.skip(reason)
 
 
 def _wait(condition: Callable[[], bool], timeout_s: float, what: str) -> None:
@@ -100,7 +93,7 @@ def nats_server_binary() -> str:
     """The ``nats-server`` executable (skips, or fails under CI, without it)."""
     binary = shutil.which("nats-server") or shutil.which("nats-server", path="/usr/sbin")
     if binary is None:
-        _unavailable(
+        unavailable(
             "nats-server not found (`nats-server` on PATH or in /usr/sbin)",
             "CI must install Debian's `nats-server` package (scripts/test.sh does)",
         )
@@ -276,12 +269,7 @@ def test_a_live_server_publishes_what_its_feed_sends(
     live = server_factory(outputs=(spec,))
     agent_factory(live.zmq_url, "cam-a", (0.0, 1.0, 3.0), depth=False)
     agent_factory(live.zmq_url, "cam-b", (2.6, 1.0, -1.5), depth=False)
-    feed: dict[int, dict[str, Any]] = {}
-    with connect(f"{live.ws_url}/ws/skeletons", open_timeout=10) as ws:
-        ws.recv(timeout=10)  # the skeleton definition
-        while sum(bool(f["persons"]) for f in feed.values()) < FRAMES:
-            message = json.loads(ws.recv(timeout=10))
-            feed[message["seq"]] = message
+    feed = collect_feed(live.ws_url, FRAMES)
     metrics = httpx.get(live.http_url + "/metrics/").text
     live.stop()
     time.sleep(0.2)
