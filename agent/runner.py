@@ -16,7 +16,9 @@ logger = logging.getLogger(__name__)
 
 
 def make_hello(sensor_id: str, source: SkeletonSource) -> Hello:
+    """The source's registration; a source with a ``pose_space`` registers as moving."""
     hint = source.pose_hint()
+    pose_space: str | None = getattr(source, "pose_space", None)
     return Hello(
         sensor_id=sensor_id,
         sensor_type=source.sensor_type,
@@ -25,6 +27,8 @@ def make_hello(sensor_id: str, source: SkeletonSource) -> Hello:
         t_ns=time.time_ns(),
         pose_hint=hint[0] if hint else None,
         pose_hint_source=hint[1] if hint else None,
+        moving=pose_space is not None,
+        pose_space=pose_space,
     )
 
 
@@ -75,7 +79,9 @@ def run_agent(
             if capture is None:
                 continue
             seq += 1
-            link.send_frame(Frame(seq, capture.t_capture_ns, capture.bodies, capture.floor))
+            link.send_frame(
+                Frame(seq, capture.t_capture_ns, capture.bodies, capture.floor, capture.pose)
+            )
             if time.monotonic() - last_report > 10.0:
                 last_report = time.monotonic()
                 logger.info(

@@ -91,3 +91,44 @@ def quaternion_rotate(q: F64, v: F64) -> F64:
     t = 2.0 * np.cross(u, v)
     rotated: F64 = v + w * t + np.cross(u, t)
     return rotated
+
+
+def quaternion_to_matrix(quaternions: F64) -> F64:
+    """Unit quaternions (..., 4) ``(x, y, z, w)`` → rotation matrices (..., 3, 3).
+
+    The input is normalised first, so a quaternion a little off unit length (as sent over the
+    wire, within the protocol's tolerance) still gives a proper rotation.
+    """
+    q = np.asarray(quaternions, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    x, y, z, w = np.moveaxis(q, -1, 0)
+    rows = [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ]
+    return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
+
+
+def quaternion_slerp(a: F64, b: F64, alpha: npt.ArrayLike) -> F64:
+    """Spherical interpolation from unit quaternions ``a`` to ``b`` (..., 4) at ``alpha`` (...).
+
+    Takes the shorter arc (``b`` is negated where ``a · b < 0``: q and −q are the same rotation);
+    nearly equal quaternions fall back to normalised linear interpolation, where slerp's
+    ``sin θ`` division loses precision. ``alpha`` outside [0, 1] extrapolates along the arc.
+    """
+    qa = np.asarray(a, dtype=np.float64)
+    qb = np.asarray(b, dtype=np.float64)
+    t = np.asarray(alpha, dtype=np.float64)[..., None]
+    dot = np.sum(qa * qb, axis=-1, keepdims=True)
+    qb = np.where(dot < 0, -qb, qb)
+    dot = np.clip(np.abs(dot), 0.0, 1.0)
+    theta = np.arccos(dot)
+    sin_theta = np.sin(theta)
+    near = sin_theta < 1e-6
+    safe = np.where(near, 1.0, sin_theta)
+    weight_a = np.where(near, 1.0 - t, np.sin((1.0 - t) * theta) / safe)
+    weight_b = np.where(near, t, np.sin(t * theta) / safe)
+    q = weight_a * qa + weight_b * qb
+    result: F64 = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return result

@@ -11,6 +11,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
+from skelfuse.protocol.messages import SensorPose
 from skelfuse.protocol.transform import Matrix4
 from skelfuse.protocol.wire import Body
 
@@ -21,11 +22,16 @@ class SensorError(Exception):
 
 @dataclass(frozen=True, slots=True)
 class Capture:
-    """One sensor frame: bodies in the sensor frame, capture time on this PC's wall clock."""
+    """One sensor frame: bodies in the sensor frame, capture time on this PC's wall clock.
+
+    ``pose``: a moving sensor's ``T_space_from_sensor`` at ``t_capture_ns`` (docs/protocol.md
+    §6.3); None for a fixed sensor, or for a moving one whose tracker lost it at that instant.
+    """
 
     t_capture_ns: int
     bodies: tuple[Body, ...]
     floor: tuple[float, float, float, float] | None = None
+    pose: SensorPose | None = None
 
 
 def wait_for_due(
@@ -54,8 +60,10 @@ class SkeletonSource(Protocol):
     """What the agent needs from a sensor.
 
     Optional, looked up by the runner with ``getattr``: ``request_handlers()`` (requests the
-    source answers, e.g. ``depth_cloud``), ``wall_clock_ns`` (a source with its own clock) and
-    ``waits_for_server`` (True: start reading only once registered, for recordings).
+    source answers, e.g. ``depth_cloud``), ``wall_clock_ns`` (a source with its own clock),
+    ``waits_for_server`` (True: start reading only once registered, for recordings) and
+    ``pose_space`` (a moving sensor's tracking space id: its hello says ``moving`` and its
+    captures carry poses; None or absent for a fixed sensor).
     """
 
     @property
