@@ -36,6 +36,7 @@ from skelfuse.protocol.constants import (
     HEARTBEAT_INTERVAL_S,
     HEARTBEAT_LIVENESS,
     MAX_RESPONSE_BYTES,
+    MOVING_SENSORS,
 )
 from skelfuse.protocol.errors import DecodeError
 from skelfuse.protocol.wire import (
@@ -53,9 +54,6 @@ from skelfuse.protocol.wire import (
 )
 
 logger = logging.getLogger(__name__)
-
-MOVING_SENSORS = "moving_sensors"
-"""The ``welcome`` feature a server announces once it poses moving sensors' frames."""
 
 RequestHandler = Callable[[dict[str, Any]], Any]
 

@@ -25,3 +25,7 @@ MAX_COORDINATE_M: Final = 50.0
 
 AGENT_SEND_HWM: Final = 30
 """At most one second of frames queued on an agent: a reconnect never flushes a stale backlog."""
+
+MOVING_SENSORS: Final = "moving_sensors"
+"""The ``welcome`` feature (docs/protocol.md §6.2) of a server that poses a moving sensor's frames
+by their ``pose`` and its ``hello``'s ``pose_space``; agents of moving sensors wait for it."""
