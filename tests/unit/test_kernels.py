@@ -138,10 +138,11 @@ def test_bone_projection_kernel_gives_the_numpy_bits(
 
 def test_without_numba_everything_runs_on_numpy(monkeypatch: pytest.MonkeyPatch) -> None:
     """As the server's wheel and Docker image run: numba not importable."""
+    from skelfuse import jit as shared_jit
     from skelfuse.fusion import kernels_jit
 
     monkeypatch.setitem(sys.modules, "numba", None)  # import numba raises ImportError
-    monkeypatch.setattr(kernels_jit, "_found", {})
+    monkeypatch.setattr(shared_jit, "_found", {})  # the lookup is skelfuse.jit's, below both
     assert kernels_jit.numba_module() is None
     assert not kernels.enabled() and kernels.warm_up() == 0.0
 
