@@ -24,13 +24,9 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.agent.reproject_raster import (
-    numba_module,
-    project_loop,
-    raster_loop,
-    raster_numpy,
-)
+from skelfuse.agent.reproject_raster import project_loop, raster_loop, raster_numpy
 from skelfuse.agent.sim.depth_camera import DepthIntrinsics
+from skelfuse.jit import numba_module
 from skelfuse.protocol.transform import apply, invert, pose_from_position_yaw_pitch
 
 FloatArray = npt.NDArray[np.float64]

@@ -15,50 +15,28 @@ and, per source pixel, whether it has a reading and its source depth (for the ed
   loses a half-pixel rim at every gap, the points give it back.
 - Z-buffer: the nearest surface wins; missing = +inf depth.
 
-numba is optional (the ``fast`` extra). The agent may not import :mod:`skelfuse.fusion`, so this
-module looks numba up itself, as :mod:`skelfuse.fusion.kernels_jit` does.
+numba is optional (the ``fast`` extra): looked up and configured by :mod:`skelfuse.jit`, which
+the fusion kernels share (the agent may not import :mod:`skelfuse.fusion`).
 """
 
 from __future__ import annotations
 
-import importlib
 import math
-from collections.abc import Callable
-from typing import Any, Final, TypeVar
+from typing import Final
 
 import numpy as np
 import numpy.typing as npt
 
+from skelfuse.jit import jit, numba_module
+
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
-F = TypeVar("F", bound=Callable[..., Any])
 
 MAX_SPAN_PX: Final = 32
 """Triangles whose bounding box is wider or taller than this (pixels) are not drawn."""
 
-_found: dict[str, Any] = {}
 
-
-def numba_module() -> Any | None:
-    """The numba module, or None when it is not installed (looked up once per process)."""
-    if "numba" not in _found:
-        try:
-            _found["numba"] = importlib.import_module("numba")
-        except ImportError:
-            _found["numba"] = None
-    return _found["numba"]
-
-
-def _jit(function: F) -> F:
-    """``function`` compiled by numba (nopython, cached on disk), or itself without numba."""
-    numba = numba_module()
-    if numba is None:
-        return function
-    compiled: F = numba.njit(cache=True, nogil=True, error_model="numpy")(function)
-    return compiled
-
-
-@_jit
+@jit
 def project_loop(
     depth: FloatArray,
     camera: FloatArray,
@@ -94,7 +72,7 @@ def project_loop(
                 z[row, col], u[row, col], v[row, col] = 1.0, 0.0, 0.0
 
 
-@_jit
+@jit
 def raster_loop(
     u: FloatArray,
     v: FloatArray,
