@@ -10,6 +10,8 @@ on its forward-kinematics body (:func:`pose_joints`) and gait.
   pre-measurement pose: standing in front of one sensor for a few seconds).
 - :class:`Segment`: a time window of another performer, looped (e.g. only the turning part of
   the built-in routine).
+- :class:`RingWalkers`: people on a circle facing its centre (mutual capture: each looks at the
+  others), optionally walking to and fro along their radius.
 """
 
 from __future__ import annotations
@@ -144,3 +146,71 @@ class Segment:
 
     def joints_at(self, t_s: float) -> npt.NDArray[np.float64]:
         return self._performer.joints_at(self._start + t_s % self._duration)
+
+
+class RingWalkers:
+    """``count`` people evenly spaced on a circle of ``radius_m`` round ``center_xz``, facing it.
+
+    With ``walk_m`` > 0 each walks towards the centre and back (forwards, then backwards) over
+    ``walk_m`` metres every ``walk_period_s``, people a fraction of a period apart, with a gait
+    whose size follows their speed. Person i stands at angle 2πi/count (0 on the +Z side).
+
+    Raises:
+        ValueError: not 1..6 people, or a radius the walk would cross.
+    """
+
+    def __init__(
+        self,
+        count: int = 2,
+        radius_m: float = 1.5,
+        *,
+        center_xz: tuple[float, float] = (0.0, 0.0),
+        walk_m: float = 0.0,
+        walk_period_s: float = 6.0,
+        height_m: float = 1.75,
+    ) -> None:
+        if not 1 <= count <= 6:
+            raise ValueError(f"1..6 people, got {count}")
+        if radius_m - walk_m / 2 < 0.3:
+            raise ValueError("the walk would take people into the centre")
+        self._count = count
+        self._radius = radius_m
+        self._center = center_xz
+        self._walk = walk_m
+        self._period = walk_period_s
+        self._shape = BodyShape(height_m)
+
+    @property
+    def person_count(self) -> int:
+        return self._count
+
+    def joints_at(self, t_s: float) -> npt.NDArray[np.float64]:
+        out = np.empty((self._count, JOINT_COUNT, 3))
+        omega = 2 * math.pi / self._period
+        top_speed = max(self._walk / 2 * omega, 1e-9)
+        for i in range(self._count):
+            angle = 2 * math.pi * i / self._count
+            phase = omega * t_s + angle
+            radius = self._radius + self._walk / 2 * math.sin(phase)
+            speed = abs(self._walk / 2 * omega * math.cos(phase))
+            ramp = min(1.0, speed / top_speed) if self._walk > 0 else 0.0
+            gait = math.sin(2 * math.pi * 0.8 * t_s)
+            hip, arm = math.radians(20.0) * ramp, math.radians(15.0) * ramp
+            pose = Pose(
+                hip_flex_l=hip * gait,
+                hip_flex_r=-hip * gait,
+                knee_flex_l=math.radians(5.0 + 30.0 * max(0.0, gait)) * ramp,
+                knee_flex_r=math.radians(5.0 + 30.0 * max(0.0, -gait)) * ramp,
+                shoulder_flex_l=-arm * gait,
+                shoulder_flex_r=arm * gait,
+                shoulder_abd_l=math.radians(6.0),
+                shoulder_abd_r=math.radians(6.0),
+                elbow_flex_l=math.radians(15.0),
+                elbow_flex_r=math.radians(15.0),
+            )
+            position = (
+                self._center[0] + radius * math.sin(angle),
+                self._center[1] + radius * math.cos(angle),
+            )
+            out[i] = pose_joints(self._shape, pose, position, angle + math.pi)
+        return out
