@@ -59,6 +59,7 @@ def run_agent(
         curve=curve,
         wall_clock_ns=clock,
     )
+    moving = getattr(source, "pose_space", None) is not None
     deadline = None if duration_s is None else time.monotonic() + duration_s
     seq = 0
     last_report = time.monotonic()
@@ -79,6 +80,10 @@ def run_agent(
             if capture is None:
                 continue
             seq += 1
+            if moving and capture.pose is None:
+                # The server could not place it; the seq gap shows the loss (the pose source
+                # counts and logs why, e.g. agent/poses/posed.py).
+                continue
             link.send_frame(
                 Frame(seq, capture.t_capture_ns, capture.bodies, capture.floor, capture.pose)
             )
