@@ -14,6 +14,11 @@ A sensor's entry may carry ``intrinsics`` (an RGB camera's, :class:`CameraIntrin
 width, height, fx, fy, cx, cy, distortion) and ``lag_s`` (how late its clock shows events,
 seconds, from :mod:`calibration.motion_sync`; readers subtract it from the sensor's times).
 Both are written only when set, so files without them read and write as before (format 1).
+
+Tracking spaces (moving sensors, docs/calibration.md "Tracking spaces"): ``spaces`` maps a space
+id (a ``hello``'s ``pose_space``) to its ``T_world_from_space``; every moving sensor of that space
+shares it. Written only when there is one, so files without spaces keep their bytes, and files
+from before spaces load with none (still format 1).
 """
 
 from __future__ import annotations
@@ -74,20 +79,43 @@ class SensorCalibration:
 
 
 @dataclass(frozen=True, slots=True)
+class SpaceCalibration:
+    """One tracking space's pose in the world (``T_world_from_space``, 4×4 float64, metres),
+    shared by every moving sensor whose poses are in that space, and how it was obtained."""
+
+    T_world_from_space: Matrix4
+    method: str
+    residual_mm: float | None = None
+    details: dict[str, Any] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "T_world_from_space": self.T_world_from_space.tolist(),
+            "method": self.method,
+            "residual_mm": self.residual_mm,
+            "details": self.details,
+        }
+
+
+@dataclass(frozen=True, slots=True)
 class Calibration:
     version: int
     created_unix_s: float
     sensors: dict[str, SensorCalibration]
     note: str = ""
+    spaces: dict[str, SpaceCalibration] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
-        return {
+        data: dict[str, Any] = {
             "format": FORMAT_VERSION,
             "version": self.version,
             "created_unix_s": self.created_unix_s,
             "note": self.note,
             "sensors": {sensor_id: s.to_json() for sensor_id, s in sorted(self.sensors.items())},
         }
+        if self.spaces:
+            data["spaces"] = {space: c.to_json() for space, c in sorted(self.spaces.items())}
+        return data
 
     @staticmethod
     def from_json(data: Any, origin: str) -> Calibration:
@@ -142,7 +170,8 @@ class Calibration:
         created = data.get("created_unix_s", 0.0)
         if not isinstance(version, int) or not isinstance(created, int | float):
             raise CalibrationFileError(f"{origin}: bad version or created_unix_s")
-        return Calibration(version, float(created), sensors, str(data.get("note", "")))
+        spaces = _spaces_from_json(data.get("spaces", {}), origin)
+        return Calibration(version, float(created), sensors, str(data.get("note", "")), spaces)
 
 
 class CalibrationStore:
@@ -192,11 +221,21 @@ class CalibrationStore:
     def history(self) -> list[Calibration]:
         return [self.get(v) for v in self.versions()]
 
-    def save(self, sensors: dict[str, SensorCalibration], note: str = "") -> Calibration:
-        """Write a new version atomically, make it active, and return it."""
+    def save(
+        self,
+        sensors: dict[str, SensorCalibration],
+        note: str = "",
+        spaces: dict[str, SpaceCalibration] | None = None,
+    ) -> Calibration:
+        """Write a new version atomically, make it active, and return it.
+
+        ``spaces``: the tracking spaces of the new version; None keeps the active version's
+        (so a caller that only changes sensors cannot drop them)."""
         current = self.load()
         latest = max([*self.versions(), current.version if current else 0])
-        calibration = Calibration(latest + 1, time.time(), dict(sensors), note)
+        if spaces is None:
+            spaces = dict(current.spaces) if current else {}
+        calibration = Calibration(latest + 1, time.time(), dict(sensors), note, dict(spaces))
         self.history_dir.mkdir(parents=True, exist_ok=True)
         payload = calibration.to_json()
         _atomic_write(self.history_dir / f"v{calibration.version:06d}.json", payload)
@@ -206,12 +245,12 @@ class CalibrationStore:
     def rollback(self, version: int) -> Calibration:
         """Make an old version active again (saved as a new version)."""
         old = self.get(version)
-        return self.save(old.sensors, note=f"rollback to v{version}")
+        return self.save(old.sensors, note=f"rollback to v{version}", spaces=old.spaces)
 
     def import_json(self, data: Any, note: str = "imported") -> Calibration:
         """Validate an exported calibration and save it as a new active version."""
         parsed = Calibration.from_json(data, "imported calibration")
-        return self.save(parsed.sensors, note=note)
+        return self.save(parsed.sensors, note=note, spaces=parsed.spaces)
 
 
 def merge(
@@ -221,6 +260,38 @@ def merge(
     merged = dict(base.sensors) if base else {}
     merged.update(updates)
     return merged
+
+
+def _spaces_from_json(raw: Any, origin: str) -> dict[str, SpaceCalibration]:
+    """A file's ``spaces`` object, validated; raises :class:`CalibrationFileError`."""
+    if not isinstance(raw, dict):
+        raise CalibrationFileError(f"{origin}: 'spaces' must be an object of tracking space ids")
+    spaces: dict[str, SpaceCalibration] = {}
+    for space_id, entry in raw.items():
+        if not isinstance(entry, dict):
+            raise CalibrationFileError(f"{origin}: space {space_id!r} must be an object")
+        try:
+            matrix = np.asarray(entry.get("T_world_from_space"), dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise CalibrationFileError(
+                f"{origin}: space {space_id!r}: T_world_from_space is not a 4×4 matrix"
+            ) from exc
+        if not is_rigid(matrix, atol=1e-5):
+            raise CalibrationFileError(
+                f"{origin}: space {space_id!r}: T_world_from_space is not a rigid 4×4 transform "
+                "(row-major, metres, last row 0 0 0 1)"
+            )
+        residual = entry.get("residual_mm")
+        if residual is not None and not isinstance(residual, int | float):
+            raise CalibrationFileError(f"{origin}: space {space_id!r}: bad residual_mm")
+        details = entry.get("details", {})
+        spaces[str(space_id)] = SpaceCalibration(
+            matrix,
+            str(entry.get("method", "unknown")),
+            None if residual is None else float(residual),
+            details if isinstance(details, dict) else {},
+        )
+    return spaces
 
 
 def _atomic_write(path: Path, data: dict[str, Any]) -> None:

@@ -31,6 +31,7 @@ from skelfuse.fusion.rejection_budget import RejectionBudget
 from skelfuse.fusion.sensor_rows import sensor_rows
 from skelfuse.fusion.sensors import SensorState, calibrated_lag_s, new_sensor
 from skelfuse.fusion.settings import HubSettings
+from skelfuse.fusion.spaces import SERVER_FEATURES, resolve_pose
 from skelfuse.fusion.stats import RollingStats
 from skelfuse.fusion.views import FusedPerson, View
 from skelfuse.protocol.constants import MAX_MESSAGE_BYTES, MAX_RESPONSE_BYTES
@@ -315,7 +316,8 @@ class FusionHub:
             hello.sensor_type,
             hello.agent_version,
         )
-        return Welcome(__version__, self.settings.heartbeat_interval_s, round(now_s * 1e9))
+        interval_s = self.settings.heartbeat_interval_s
+        return Welcome(__version__, interval_s, round(now_s * 1e9), SERVER_FEATURES)
 
     def check_liveness(self, now_mono: float) -> list[SensorState]:
         """Mark silent sensors offline; returns the sensors still online.
@@ -340,13 +342,9 @@ class FusionHub:
     # --- calibration ----------------------------------------------------------------------
 
     def pose_of(self, sensor_id: str) -> tuple[Matrix4 | None, str]:
-        """``T_world_from_sensor`` and where it comes from: stored, sim_truth, manual, or none."""
-        if self._calibration is not None and sensor_id in self._calibration.sensors:
-            return self._calibration.sensors[sensor_id].T_world_from_sensor, "stored"
-        sensor = self.sensors.get(sensor_id)
-        if sensor is not None and sensor.pose_hint is not None:
-            return sensor.pose_hint, sensor.pose_hint_source or "manual"
-        return None, "uncalibrated"
+        """``T_world_from_sensor`` (a moving sensor: its space's ``T_world_from_space``) and
+        where it comes from: stored, sim_truth, manual, floor or uncalibrated (fusion/spaces.py)."""
+        return resolve_pose(self._calibration, self.sensors, sensor_id)
 
     def connected_poses(self) -> dict[str, Matrix4]:
         """Every connected sensor's ``T_world_from_sensor`` (copies; those without one left out)."""

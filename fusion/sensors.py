@@ -33,6 +33,7 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.calibration.store import Calibration
+from skelfuse.fusion.moving import NO_POSE, placed_in_space
 from skelfuse.fusion.points import finite_points
 from skelfuse.protocol.hands import Hands
 from skelfuse.protocol.skeleton import JOINT_COUNT, TrackingState
@@ -155,6 +156,10 @@ class SensorState:
     nominal_fps: float
     pose_hint: Matrix4 | None = None
     pose_hint_source: str | None = None
+    moving: bool = False
+    """Head-mounted or otherwise moving: frames are placed in ``pose_space`` as they arrive
+    (:mod:`skelfuse.fusion.moving`), so ``frames`` hold bodies in the space, not the sensor."""
+    pose_space: str | None = None
     connected: bool = True
     last_heard_mono: float = 0.0
     last_frame_mono: float | None = None
@@ -172,7 +177,10 @@ class SensorState:
     _offset: SlidingMinimum = field(default_factory=lambda: SlidingMinimum(OFFSET_WINDOW_S))
 
     def frame_time_problem(self, frame: Frame, received_s: float) -> str | None:
-        """``stale`` or ``future`` when the frame's mapped capture time is implausible."""
+        """``stale`` or ``future`` when the frame's mapped capture time is implausible;
+        ``no_pose`` for a moving sensor's frame without a pose (it cannot be placed)."""
+        if self.moving and frame.pose is None:
+            return NO_POSE
         offset = self.round_trip.offset_s
         if offset is None:
             offset = self.clock_offset_s
@@ -205,7 +213,10 @@ class SensorState:
         self.lag_s = lag_s
 
     def add_frame(self, frame: Frame, received_s: float, received_mono: float) -> TimedFrame:
-        """Record a frame received at ``received_s`` (server wall clock, Unix seconds)."""
+        """Record a frame received at ``received_s`` (server wall clock, Unix seconds); a moving
+        sensor's is kept placed in its tracking space (its pose is checked before)."""
+        if self.moving:
+            frame = placed_in_space(frame)
         capture_s = frame.t_capture_ns / 1e9
         if self.last_seq is not None and frame.seq > self.last_seq + 1:
             self.sequence_gaps += frame.seq - self.last_seq - 1
@@ -259,6 +270,8 @@ def new_sensor(hello: Hello, routing_id: bytes, now_mono: float) -> SensorState:
         nominal_fps=hello.fps,
         pose_hint=hello.pose_hint,
         pose_hint_source=hello.pose_hint_source,
+        moving=hello.moving,
+        pose_space=hello.pose_space,
         last_heard_mono=now_mono,
     )
 

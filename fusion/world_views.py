@@ -26,6 +26,7 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
+from skelfuse.fusion.moving import world_position
 from skelfuse.fusion.points import finite_points
 from skelfuse.fusion.sensors import BodyArrays, SensorState, TimedFrame, body_arrays_at
 from skelfuse.fusion.views import View
@@ -57,7 +58,10 @@ def views_at(
 
     Args:
         sensors: the sensors' frame buffers (times on the server clock).
-        pose_of: each sensor's ``T_world_from_sensor`` (4×4, metres); None leaves it out.
+        pose_of: each sensor's ``T_world_from_sensor`` (4×4, metres); None leaves it out. A
+            moving sensor's frames are in its tracking space (:mod:`skelfuse.fusion.moving`):
+            its pose is ``T_world_from_space`` and its views' ``sensor_position`` is where its
+            frames' poses put it at ``t_s``.
         t_s: the instant, server clock, seconds.
         gap_s: frames further apart than this are not interpolated between.
 
@@ -85,7 +89,10 @@ def views_at(
     joints = _to_world([pose for _, pose, _ in used], [a.joints_m for a in arrays])
     views: list[View] = []
     for (sensor, pose, _), bodies, world in zip(used, arrays, joints, strict=True):
-        position, sensor_id, sensor_type = pose[:3, 3], sensor.sensor_id, sensor.sensor_type
+        position: FloatArray | None = pose[:3, 3]
+        sensor_id, sensor_type = sensor.sensor_id, sensor.sensor_type
+        if sensor.moving:  # its frames are in its space; it stands where its poses say at t_s
+            position = world_position(sensor.frames, t_s, pose)
         hands = bodies.hands or [None] * len(bodies.tracking_ids)
         views.extend(
             View(sensor_id, tracking_id, body, states, position, sensor_type, hand)

@@ -13,8 +13,9 @@ from typing import Any
 import pytest
 import zmq
 
-from skelfuse.agent.link import MOVING_SENSORS, AgentLink
+from skelfuse.agent.link import AgentLink
 from skelfuse.fusion.hub import FusionHub
+from skelfuse.protocol.constants import MOVING_SENSORS
 from skelfuse.protocol.wire import Frame, Hello, SensorPose, Welcome, decode, encode
 from skelfuse.server.settings import Settings
 
@@ -107,10 +108,10 @@ def test_a_fixed_sensor_streams_to_any_server(
         link.close()
 
 
-def test_todays_server_does_not_announce_moving_sensors() -> None:
-    # It does not pose moving sensors' frames yet (issue 15, item 2): a moving agent must refuse.
+def test_the_server_announces_moving_sensors() -> None:
+    # It poses moving sensors' frames (issue 15, item 2): a moving agent streams to it.
     hub = FusionHub(Settings())
     replies = hub.handle_message(b"r1", [encode(hello(moving=True))], 1.0, 1.0)
     welcome = replies[0]
     assert isinstance(welcome, Welcome)
-    assert MOVING_SENSORS not in welcome.features
+    assert MOVING_SENSORS in welcome.features
