@@ -138,7 +138,8 @@ def make_source(kind: str, options: dict[str, Any]) -> SkeletonSource:
     """Build a source.
 
     Options by kind (missing ones take defaults):
-        sim: ``performer``, ``pose`` (4×4), ``seed``, ``clock_offset_ns``;
+        sim: ``performer``, ``pose`` (4×4), ``seed``, ``clock_offset_ns``; with ``scenario``
+        ``"mutual"``: :func:`skelfuse.agent.sources.sim_mutual.mutual_source`'s options;
         replay: ``file``, ``sensor``, ``loop``, ``speed``;
         ntu: ``file``, ``pose``, ``loop``, ``start_unix_s``;
         kinect_v2: ``pose``;
@@ -151,6 +152,10 @@ def make_source(kind: str, options: dict[str, Any]) -> SkeletonSource:
     Raises:
         SensorError: unknown kind, missing option, or the source cannot start.
     """
+    if kind == "sim" and options.get("scenario") == "mutual":
+        from skelfuse.agent.sources.sim_mutual import mutual_source
+
+        return mutual_source(options)
     if kind == "sim":
         from skelfuse.agent.sim.performer import ProceduralPerformer
         from skelfuse.agent.sources.sim import SimSource
