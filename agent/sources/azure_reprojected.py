@@ -9,7 +9,7 @@ position and heading would have seen. For each device capture:
 2. ``pose_at(t_capture_ns)`` gives the sensor's ``T_space_from_sensor`` then (a plain callable:
    e.g. ``PosedSource.sensor_pose_at`` of :mod:`skelfuse.agent.poses.posed`, which adds the
    mount and the clock offset; the space must be +Y up, as OpenVR's standing universe is). No
-   pose: the capture is not tracked, it is counted (:attr:`unposed`) and returned with
+   pose: the capture is not tracked, it is counted (``unposed``) and returned with
    ``pose=None`` and no bodies, so the runner skips it and its ``seq`` gap shows the loss;
 3. :func:`skelfuse.agent.reproject.reproject_depth` re-renders depth and IR as the level
    reference camera (:func:`skelfuse.agent.reproject.level_reference`: floor position and
@@ -78,6 +78,8 @@ from skelfuse.protocol.wire import Body
 logger = logging.getLogger(__name__)
 
 _US_NS: Final = 1000
+NO_POSE: Final = "no pose at the capture instant"
+"""The reason :attr:`ReprojectedAzureKinectSource.unposed` counts."""
 MAX_PENDING: Final = 8
 """Captures in the tracker awaiting their body frame; older ones are forgotten (lost frames)."""
 
@@ -152,8 +154,10 @@ class ReprojectedAzureKinectSource:
         warm_up()  # compile the re-projection before the first frame, not during it
         self._pending: dict[int, _Pending] = {}
         self._last_depth: tuple[Any, int] | None = None
-        self.unposed = 0
-        """Captures not tracked because ``pose_at`` had no pose for them."""
+        self.unposed: Counter[str] = Counter()
+        """Captures not tracked because ``pose_at`` had no pose for them, by reason (one
+        reason here; a Counter like :class:`~skelfuse.agent.poses.posed.PosedSource`'s, which
+        ``skelfuse agent`` reports at exit)."""
         self.dropped: Counter[str] = Counter()
         """Captures lost after posing, by reason (tracker queue full, frame never matched)."""
 
@@ -214,9 +218,9 @@ class ReprojectedAzureKinectSource:
         self._last_depth = (raw.depth, raw.device_us)
         pose = self._pose_at(t_ns)
         if pose is None:
-            self.unposed += 1
-            if self.unposed == 1:
+            if not self.unposed:
                 logger.warning("captures without a sensor pose are not tracked nor sent")
+            self.unposed[NO_POSE] += 1
             return Capture(t_ns, (), floor=None, pose=None)
         T_space_from_sensor = pose_matrix(pose)
         T_ref_from_sensor = invert(level_reference(T_space_from_sensor, self._height)) @ (
