@@ -30,6 +30,10 @@ from skelfuse.protocol.transform import Matrix4
 SERVER_FEATURES: tuple[str, ...] = (MOVING_SENSORS,)
 """What the hub's ``welcome`` announces (docs/protocol.md §6.2)."""
 
+RECORDING_SPACE_PREFIX = "space:"
+"""A recording header's ``calibration`` holds a tracking space's transform under this prefix and
+the space id (``space:room``); no sensor id contains ``:``, so the keys cannot clash."""
+
 _IDENTITY = np.eye(4)
 _IDENTITY.flags.writeable = False
 

@@ -15,10 +15,11 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TextIO
 
-from skelfuse.calibration.store import Calibration, SensorCalibration
+from skelfuse.calibration.store import Calibration, SensorCalibration, SpaceCalibration
 from skelfuse.fusion import kernels
 from skelfuse.fusion.hub import FusedFrame, FusionHub
 from skelfuse.fusion.settings import HubSettings
+from skelfuse.fusion.spaces import RECORDING_SPACE_PREFIX
 from skelfuse.protocol.feed import frame_json
 from skelfuse.protocol.recording_file import Header, ReadStatus, RecordingReader
 from skelfuse.protocol.skeleton import skeleton_definition
@@ -44,15 +45,24 @@ class ReplayStats:
 
 
 def calibration_of(header: Header) -> Calibration | None:
-    """The recording's calibration as the hub takes it (None when nothing was calibrated)."""
+    """The recording's calibration as the hub takes it (None when nothing was calibrated): its
+    sensors' stored poses, and its tracking spaces' (keys ``space:<id>``, moving sensors)."""
+    stored = {key: pose for key, pose in header.calibration.items() if pose.state == "stored"}
+    spaces = {
+        key.removeprefix(RECORDING_SPACE_PREFIX): SpaceCalibration(
+            pose.T_world_from_sensor, pose.method
+        )
+        for key, pose in stored.items()
+        if key.startswith(RECORDING_SPACE_PREFIX)
+    }
     sensors = {
         sensor_id: SensorCalibration(pose.T_world_from_sensor, pose.method, lag_s=pose.lag_s)
-        for sensor_id, pose in header.calibration.items()
-        if pose.state == "stored"
+        for sensor_id, pose in stored.items()
+        if not sensor_id.startswith(RECORDING_SPACE_PREFIX)
     }
-    if not sensors:
+    if not sensors and not spaces:
         return None
-    return Calibration(0, header.created_unix_s, sensors)
+    return Calibration(0, header.created_unix_s, sensors, spaces=spaces)
 
 
 def replay(

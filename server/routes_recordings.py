@@ -3,7 +3,9 @@
 One recording at a time. While it runs, the hub hands every accepted ``hello`` and ``frame`` to
 the recorder (``FusionHub.start_tap``) with the raw wire bytes; the file's header holds the
 calibration active at the start and the sensors then known, and each sensor already online gets
-a ``hello`` record rebuilt from its session, so the file replays on its own.
+a ``hello`` record rebuilt from its session, so the file replays on its own. A moving sensor's
+rebuilt ``hello`` says so (``moving``, ``pose_space``), its frames keep their poses (wire bytes),
+and its space's stored transform is in the header under ``space:<id>``.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from pydantic import BaseModel, Field, StrictStr
 
 from skelfuse import __version__
 from skelfuse.fusion.hub import FusionHub
+from skelfuse.fusion.spaces import RECORDING_SPACE_PREFIX
 from skelfuse.protocol.recording_file import (
     FILE_SUFFIX,
     Header,
@@ -61,6 +64,13 @@ def _header_from_hub(hub: FusionHub, name: str) -> Header:
     for sensor_id, sensor in sorted(hub.sensors.items()):
         pose, state = hub.pose_of(sensor_id)
         sensors[sensor_id] = {"type": sensor.sensor_type, "pose_state": state}
+        if sensor.moving and sensor.pose_space is not None:  # its pose is its space's
+            sensors[sensor_id]["pose_space"] = sensor.pose_space
+            space = hub.calibration.spaces.get(sensor.pose_space) if hub.calibration else None
+            if pose is not None and state == "stored" and space is not None:
+                key = RECORDING_SPACE_PREFIX + sensor.pose_space
+                calibration[key] = SensorPose(pose, space.method, state)
+            continue
         if pose is not None and state == "stored":
             entry = hub.calibration.sensors[sensor_id] if hub.calibration else None
             if entry is None:
@@ -140,7 +150,8 @@ async def start_recording(request: Request, body: StartBody | None = None) -> di
         if sensor.connected:
             hello = Hello(sensor_id, sensor.sensor_type, sensor.agent_version,
                           sensor.nominal_fps, 0, pose_hint=sensor.pose_hint,
-                          pose_hint_source=sensor.pose_hint_source)  # fmt: skip
+                          pose_hint_source=sensor.pose_hint_source, moving=sensor.moving,
+                          pose_space=sensor.pose_space)  # fmt: skip
             recorder.on_hello(sensor_id, encode(hello), now)
     hub.start_tap(recorder)
     request.app.state.recording = (recording_id, recorder)

@@ -1,0 +1,100 @@
+"""A real server with a moving sensor: the real agent link streams to it (its welcome announces
+``moving_sensors``), each frame carries the head-mounted sensor's pose, and the fused person
+stands where the truth is although the sensor's head turns all the while. With no fixed sensor
+and one tracking space, the space is the world (``floor``)."""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+
+import httpx
+import numpy as np
+import pytest
+
+from skelfuse.agent.runner import run_agent
+from skelfuse.agent.sim.performer import standing_pose
+from skelfuse.agent.sources.base import Capture
+from skelfuse.protocol.sensor_pose import pose_from_matrix
+from skelfuse.protocol.skeleton import JOINT_COUNT
+from skelfuse.protocol.transform import (
+    Matrix4,
+    apply,
+    invert,
+    look_at_pose,
+    pose_from_position_yaw_pitch,
+)
+from skelfuse.protocol.wire import Body
+from tests.integration.conftest import LiveServer, collect_feed
+from tests.support import wait_until
+
+pytestmark = pytest.mark.timeout(90)
+
+TRUTH = standing_pose() * [-1.0, 1.0, -1.0] + [0.0, 0.0, 3.0]  # 3 m away, facing the sensor
+
+
+def head_pose(t_s: float) -> Matrix4:
+    """A head at 1.6 m looking at the person, turning ±20° in yaw (up to 80°/s)."""
+    aim = look_at_pose((0.0, 1.6, 0.0), (0.0, 1.2, 3.0))
+    return aim @ pose_from_position_yaw_pitch((0.0, 0.0, 0.0), 20.0 * math.sin(4.0 * t_s))
+
+
+class HeadSource:
+    """A head-mounted sensor seeing one standing person, at 30 fps on the wall clock."""
+
+    sensor_type = "sim"
+    fps = 30.0
+    pose_space = "room"
+
+    def __init__(self) -> None:
+        self._next_ns = time.time_ns()
+
+    def pose_hint(self) -> None:
+        return None
+
+    def next_capture(self, timeout_s: float) -> Capture | None:
+        wait_s = (self._next_ns - time.time_ns()) / 1e9
+        if wait_s > timeout_s:
+            time.sleep(timeout_s)
+            return None
+        time.sleep(max(wait_s, 0.0))
+        now_ns = self._next_ns
+        self._next_ns += round(1e9 / self.fps)
+        pose = head_pose(now_ns / 1e9)
+        joints = apply(invert(pose), TRUTH).astype(np.float32)
+        body = Body(7, joints, np.full(JOINT_COUNT, 2, dtype=np.uint8))
+        return Capture(now_ns, (body,), None, pose_from_matrix(pose))
+
+    def close(self) -> None:
+        pass
+
+
+def test_a_moving_agent_streams_and_its_person_is_fused_where_the_truth_is(
+    live_server: LiveServer,
+) -> None:
+    stop = threading.Event()
+    thread = threading.Thread(
+        target=run_agent, args=("head-a", HeadSource(), live_server.zmq_url),
+        kwargs={"stop": stop}, daemon=True,
+    )  # fmt: skip
+    thread.start()
+    try:
+
+        def row() -> dict[str, object]:
+            rows = httpx.get(live_server.http_url + "/api/sensors", timeout=5).json()["sensors"]
+            return next((r for r in rows if r["id"] == "head-a"), {})
+
+        assert wait_until(lambda: row().get("frames_received", 0) > 10, 20), row()
+        assert row()["calibration"]["state"] == "floor"  # type: ignore[index]
+        feed = collect_feed(live_server.ws_url, 10)
+        errors = [
+            float(np.median(np.linalg.norm(np.array(person["joints"])[:, :3] - TRUTH, axis=1)))
+            for message in list(feed.values())[-5:]
+            for person in message["persons"]
+        ]
+        assert errors and max(errors) < 0.03, errors
+        assert row()["frames_rejected"] == {}
+    finally:
+        stop.set()
+        thread.join(timeout=10)
