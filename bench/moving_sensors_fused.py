@@ -51,7 +51,7 @@ class FusedCase:
     wearers: int = 3
     walk_m: float = 0.6
     turn_speed: float = 1.0
-    duration_s: float = 18.0
+    duration_s: float = 9.0
     position_noise_mm: float = 0.0
     rotation_noise_deg: float = 0.0
 

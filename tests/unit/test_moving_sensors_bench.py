@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from bench.moving_sensors_frames import FrameCase, erroneous_frames
 from bench.moving_sensors_fused import FusedCase, minimal_errors
+from bench.moving_sensors_hub import hub_errors
 
 
 def test_per_frame_poses_cut_the_erroneous_frames_of_a_turning_head() -> None:
@@ -30,4 +31,14 @@ def test_the_fused_error_grows_with_the_mismatch() -> None:
 
     synced, late = minimal_errors(case(0.0)), minimal_errors(case(50.0))
     assert synced["coverage"] > 0.5
+    assert late["mpjpe_mm"] > synced["mpjpe_mm"] + 10.0
+
+
+def test_the_server_fuses_mutual_capture_and_feels_the_mismatch() -> None:
+    def case(mismatch_ms: float) -> FusedCase:
+        return FusedCase("yaw", mismatch_ms, seed=1, turn_speed=5.0, duration_s=1.0)
+
+    synced, late = hub_errors(case(0.0)), hub_errors(case(50.0))
+    assert synced["coverage"] > 0.5
+    assert synced["mpjpe_mm"] < 100.0
     assert late["mpjpe_mm"] > synced["mpjpe_mm"] + 10.0
