@@ -16,6 +16,7 @@ from typing import Any
 
 from skelfuse.agent.sources.base import SensorError, SkeletonSource
 from skelfuse.agent.sources.registry import SOURCE_KINDS
+from skelfuse.cli.agent_poses import add_pose_options, posed_from_args
 from skelfuse.cli.values import UsageError, pose_matrix
 from skelfuse.protocol.constants import DEFAULT_ZMQ_PORT
 
@@ -72,6 +73,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     agent.add_argument("--duration", type=float, default=None, help="stop after N seconds")
     agent.set_defaults(func=run)
     _add_source_options(agent)
+    add_pose_options(agent)
 
 
 def _add_source_options(parser: argparse.ArgumentParser) -> None:
@@ -139,11 +141,12 @@ def run(args: argparse.Namespace) -> int:
     """Send frames until SIGINT/SIGTERM or ``--duration``; 0.
 
     Raises:
-        UsageError: a bad ``--pose``, ``--persons``, source option, or half a CurveZMQ pair.
+        UsageError: a bad ``--pose``, ``--persons``, source or pose source option, or half a
+            CurveZMQ pair.
     """
     from skelfuse.agent.runner import run_agent
 
-    source = source_from_args(args)
+    source = posed_from_args(args, source_from_args(args))
     curve = None
     if args.key or args.server_key:
         if not (args.key and args.server_key):
@@ -168,6 +171,14 @@ def run(args: argparse.Namespace) -> int:
         link.stats.frames_sent,
         link.stats.frames_dropped,
     )
+    unposed = getattr(source, "unposed", None)  # a moving sensor's (agent/poses/posed.py)
+    if unposed:
+        logging.getLogger("skelfuse.agent").info(
+            "%s: %d captures not sent for want of a pose (%s)",
+            args.id,
+            sum(unposed.values()),
+            ", ".join(f"{n} {why}" for why, n in unposed.most_common()),
+        )
     return 0
 
 
