@@ -39,6 +39,7 @@ DEFAULT = FusionSettings()
 OWN = replace(DEFAULT, alignment="deadline", alignment_predictor="own")
 TRACK = replace(DEFAULT, alignment="deadline", alignment_predictor="track")
 HORIZON = replace(TRACK, alignment_grid="horizon", alignment_skip_expected_late=True)
+VIEWS = replace(HORIZON, alignment_predictor="views")
 ALL_POLICIES: dict[str, FusionSettings] = {
     "aligned": replace(DEFAULT, alignment="aligned"),
     "phased": replace(DEFAULT, alignment="phased"),
@@ -60,6 +61,11 @@ ALL_POLICIES: dict[str, FusionSettings] = {
     "horizon own 10 ms": replace(HORIZON, alignment_predictor="own"),
     "horizon own 15 ms": replace(HORIZON, alignment_predictor="own", alignment_deadline_s=0.015),
     "horizon own 20 ms": replace(HORIZON, alignment_predictor="own", alignment_deadline_s=0.020),
+    # ... late sensors carried by what their person's on-time views saw meanwhile (horizon grid).
+    "views 5 ms": replace(VIEWS, alignment_deadline_s=0.005),
+    "views 10 ms": replace(VIEWS, alignment_deadline_s=0.010),
+    "views 12 ms": replace(VIEWS, alignment_deadline_s=0.012),
+    "views 15 ms": replace(VIEWS, alignment_deadline_s=0.015),
 }
 """Every policy the bench knows (the extrapolation bound is the default's, 34 ms, for every
 one); ``--policies`` picks some (``aligned`` always runs: the differences are against it)."""

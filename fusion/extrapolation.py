@@ -4,20 +4,28 @@ newest frame to the instant being fused (docs/fusion.md §2–3).
 The ``deadline`` policy (:mod:`skelfuse.fusion.alignment`) bounds how far (``alignment_max_
 extrapolation_s``, about one frame period); this module only does the arithmetic and builds the
 instant's views: on-time sensors interpolated as always (:func:`~skelfuse.fusion.pipeline.
-views_at`), late ones carried forward, those beyond the bound left out. Two predictors
+views_at`), late ones carried forward, those beyond the bound left out. Three predictors
 (``alignment_predictor``):
 
-- ``track`` (the default): the newest frame moved by the motion of the person that body was at
-  the last step, as that person's filter estimates it per joint (:mod:`skelfuse.fusion.
-  track_motion`): smoother than one sensor's own frame-to-frame difference. A body with no such
+- ``views`` (the default): the newest frame moved by what the *on-time* views of the same person
+  saw happen between that frame's capture and the instant: each on-time view interpolated at
+  both times, the difference averaged over those views per joint (left and right swapped where
+  their mirror labels differ; :func:`measured_displacements`). A measurement, not a model: it
+  neither lags a change of pace as a filter's velocity does nor feeds the fused estimate back
+  into itself. Joints no on-time view saw at both times are carried as ``track`` does.
+- ``track``: the newest frame moved by the motion of the person that body was at the last
+  step, as that person's filter estimates it per joint (:mod:`skelfuse.fusion.track_motion`):
+  smoother than one sensor's own frame-to-frame difference, but it lags. A body with no such
   estimate (a new person) is held at its newest frame.
 - ``own``: linear from the sensor's own two newest frames (:func:`extrapolated_bodies`).
 """
 
 from __future__ import annotations
 
+import warnings
 from collections import deque
 from collections.abc import Collection, Iterable, Mapping
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
@@ -26,10 +34,24 @@ from skelfuse.fusion.identity import ViewKey
 from skelfuse.fusion.pipeline import FusionPipeline, PoseLookup, views_at
 from skelfuse.fusion.sensors import SensorState, TimedFrame
 from skelfuse.fusion.settings import FusionSettings
-from skelfuse.fusion.track_motion import PersonMotion, track_motions
+from skelfuse.fusion.track_motion import PersonMotion, track_members, track_motions
 from skelfuse.fusion.views import View
+from skelfuse.protocol.skeleton import MIRROR_PERMUTATION, TrackingState
 from skelfuse.protocol.transform import apply
 from skelfuse.protocol.wire import Body
+
+FloatArray = npt.NDArray[np.float64]
+_MIRROR = np.array(MIRROR_PERMUTATION)
+
+
+@dataclass(frozen=True, slots=True)
+class LatePredictor:
+    """How :func:`views_with_late` carries late bodies (``alignment_predictor``): the persons'
+    filtered motions (``track``, and ``views`` for the joints the on-time views miss), and for
+    ``views`` which person each body was at the last step (None under ``track``)."""
+
+    motions: Mapping[ViewKey, PersonMotion]
+    members: Mapping[ViewKey, tuple[int, bool]] | None = None
 
 
 def extrapolated_bodies(
@@ -97,14 +119,60 @@ def carried_by_motion(
     return carried
 
 
-def late_motions(
-    pipeline: FusionPipeline, settings: FusionSettings
-) -> dict[ViewKey, PersonMotion] | None:
+def late_motions(pipeline: FusionPipeline, settings: FusionSettings) -> LatePredictor | None:
     """What :func:`views_with_late` carries late bodies with under ``settings``: each body's
-    person motion (``alignment_predictor = "track"``), or None (``own``)."""
-    if settings.alignment_predictor != "track":
+    person motion (``track``), that and each body's person (``views``), or None (``own``)."""
+    if settings.alignment_predictor == "own":
         return None
-    return track_motions(pipeline, settings.alignment_predict_acceleration)
+    motions = track_motions(pipeline, settings.alignment_predict_acceleration)
+    if settings.alignment_predictor == "track":
+        return LatePredictor(motions)
+    return LatePredictor(motions, track_members(pipeline))
+
+
+def measured_displacements(
+    late_keys: Iterable[ViewKey],
+    members: Mapping[ViewKey, tuple[int, bool]],
+    then: Mapping[ViewKey, View],
+    now: Mapping[ViewKey, View],
+) -> dict[ViewKey, FloatArray]:
+    """How far each late body's person moved between the late frame's capture and the instant,
+    as the on-time views of that person saw it, per joint: the mean over those views of (view
+    at the instant − view at the capture), in the late body's joint order (left and right
+    swapped for a view whose mirror label differs from the late body's), over the views where
+    the joint is Tracked at both times.
+
+    Args:
+        late_keys: the late sensor's bodies (sensor id, tracking id).
+        members: each body's (person id, mirror label) at the last step
+            (:func:`~skelfuse.fusion.track_motion.track_members`).
+        then: the on-time views interpolated at the late frame's capture time.
+        now: the same views at the instant.
+
+    Returns:
+        (25, 3) metres per late body that has a person with an on-time view at both times, NaN
+        where none of those views has the joint Tracked at both times; other bodies are absent.
+    """
+    seen: dict[int, list[tuple[bool, FloatArray]]] = {}
+    for key, view in now.items():
+        before = then.get(key)
+        person = members.get(key)
+        if before is None or person is None:
+            continue
+        # An Inferred joint is the sensor's guess, not a measurement: its motion is not used.
+        tracked = (view.states == TrackingState.TRACKED) & (before.states == TrackingState.TRACKED)
+        moved = np.where(tracked[:, None], view.joints_world - before.joints_world, np.nan)
+        seen.setdefault(person[0], []).append((person[1], moved))
+    out: dict[ViewKey, FloatArray] = {}
+    for key in late_keys:
+        person = members.get(key)
+        if person is None or person[0] not in seen:
+            continue
+        moved = np.stack([d if label == person[1] else d[_MIRROR] for label, d in seen[person[0]]])
+        with warnings.catch_warnings():  # a joint no view has at both times: NaN, as documented
+            warnings.simplefilter("ignore", RuntimeWarning)
+            out[key] = np.nanmean(moved, axis=0)
+    return out
 
 
 def views_with_late(
@@ -114,7 +182,7 @@ def views_with_late(
     gap_s: float,
     late: Mapping[str, float],
     left_out: Collection[str],
-    motions: Mapping[ViewKey, PersonMotion] | None = None,
+    predictor: LatePredictor | None = None,
 ) -> list[View]:
     """Steps 1–2 of the pipeline for an instant fused at its deadline: every connected,
     calibrated sensor's bodies at ``t_s`` in the world frame, in sensor order.
@@ -127,34 +195,51 @@ def views_with_late(
         late: the sensors to extrapolate (their newest frame is before ``t_s``; the policy
             checked the bound).
         left_out: the sensors too far behind to use at this instant.
-        motions: the ``track`` predictor: each body's person motion
-            (:func:`~skelfuse.fusion.track_motion.track_motions`); None: the ``own`` predictor.
+        predictor: what :func:`late_motions` gives: the ``views`` or ``track`` predictor;
+            None: the ``own`` predictor.
     """
+    sensors = list(sensors)
+    on_time = [s for s in sensors if s.sensor_id not in late and s.sensor_id not in left_out]
+    now: dict[str, list[View]] = {}
+    for view in views_at(on_time, pose_of, t_s, gap_s):  # the same bits as sensor by sensor
+        now.setdefault(view.sensor_id, []).append(view)
+    now_by_key = {(v.sensor_id, v.tracking_id): v for vs in now.values() for v in vs}
     views: list[View] = []
     for sensor in sensors:
         if sensor.sensor_id in left_out:
             continue
         if sensor.sensor_id not in late:
-            views += views_at((sensor,), pose_of, t_s, gap_s)
+            views += now.get(sensor.sensor_id, [])
             continue
         pose = pose_of(sensor.sensor_id)
         if not sensor.connected or pose is None or not sensor.frames:
             continue
-        if motions is None:
+        if predictor is None:
             bodies = extrapolated_bodies(sensor.frames, t_s, gap_s)
             worlds = [apply(pose, body.joints_m) for body in bodies]
         else:
             newest = sensor.frames[-1]
             bodies = newest.frame.bodies
-            worlds = [
-                carried_by_motion(
-                    apply(pose, body.joints_m),
-                    motions.get((sensor.sensor_id, body.tracking_id)),
-                    newest.t_server_s,
-                    t_s,
+            measured: dict[ViewKey, FloatArray] = {}
+            if predictor.members is not None:
+                then = views_at(on_time, pose_of, newest.t_server_s, gap_s)
+                measured = measured_displacements(
+                    [(sensor.sensor_id, body.tracking_id) for body in bodies],
+                    predictor.members,
+                    {(v.sensor_id, v.tracking_id): v for v in then},
+                    now_by_key,
                 )
-                for body in bodies
-            ]
+            worlds = []
+            for body in bodies:
+                key = (sensor.sensor_id, body.tracking_id)
+                world = carried_by_motion(
+                    apply(pose, body.joints_m), predictor.motions.get(key), newest.t_server_s, t_s
+                )
+                if key in measured:  # joints the on-time views saw: their measurement instead
+                    moved = measured[key]
+                    seen = np.isfinite(moved)
+                    world[seen] = (apply(pose, body.joints_m) + moved)[seen]
+                worlds.append(world)
         for body, world in zip(bodies, worlds, strict=True):
             views.append(
                 View(

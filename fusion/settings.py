@@ -224,10 +224,12 @@ class FusionSettings:
     # The late-sensor treatment under ``deadline`` (fusion/extrapolation.py, fusion/track_motion.py,
     # fusion/alignment.py; issue 11's raw latency target): how a late view is carried forward and
     # where the grid is put. None of these changes ``aligned`` or ``phased``.
-    alignment_predictor: Literal["track", "own"] = "track"
-    """``deadline``: a late sensor's bodies are carried to the instant by their person's motion as
-    its filter estimates it, per joint (``track``), or linearly from the sensor's own two newest
-    frames (``own``, the first version: their frame-to-frame noise makes a poor velocity)."""
+    alignment_predictor: Literal["views", "track", "own"] = "views"
+    """``deadline``: a late sensor's bodies are carried to the instant by what the same person's
+    on-time views saw happen meanwhile, per joint (``views``, fusion/extrapolation.py; the joints
+    none of them saw as ``track``), by their person's motion as its filter estimates it
+    (``track``: it lags a change of pace), or linearly from the sensor's own two newest frames
+    (``own``, the first version: their frame-to-frame noise makes a poor velocity)."""
     alignment_predict_acceleration: bool = True
     """``deadline``, ``track``: use the filter's acceleration as well as its velocity."""
     alignment_grid: Literal["wait", "horizon"] = "horizon"

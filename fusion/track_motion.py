@@ -107,3 +107,19 @@ def track_motions(pipeline: FusionPipeline, accelerate: bool = True) -> dict[Vie
             else:
                 out[key] = motion
     return out
+
+
+def track_members(pipeline: FusionPipeline) -> dict[ViewKey, tuple[int, bool]]:
+    """Every body that was part of a person at the last step: its person's id, and whether the
+    pipeline swapped that view's left and right (its mirror label).
+
+    Keys: (sensor id, the sensor's tracking id). Two bodies of one person with different labels
+    have their left and right joints the other way round from each other.
+    """
+    out: dict[ViewKey, tuple[int, bool]] = {}
+    for person_id, track in pipeline.tracker.tracks.items():
+        memory = pipeline.memories.get(person_id)
+        labels = memory.labels if memory is not None else {}
+        for key in track.members:
+            out[key] = (person_id, labels.get(key, False))
+    return out

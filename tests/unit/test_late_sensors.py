@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from skelfuse.fusion.alignment import Alignment, SensorTiming, replayed_horizons
-from skelfuse.fusion.extrapolation import carried_by_motion
+from skelfuse.fusion.extrapolation import carried_by_motion, measured_displacements
 from skelfuse.fusion.hub import FusedFrame, FusionHub
 from skelfuse.fusion.pipeline import FusionPipeline
 from skelfuse.fusion.track_motion import PersonMotion, track_motions
@@ -255,3 +255,61 @@ def test_the_hub_under_the_default_deadline_settings_uses_the_horizon_grid() -> 
         ((sensor, behind),) = frame.extrapolated
         assert sensor == "a" and behind == pytest.approx(0.011, abs=1e-4)
         assert frame.fused_at_s - frame.t_s == pytest.approx(0.004, abs=1e-4)
+
+
+# --- the ``views`` predictor: what the on-time views saw meanwhile -------------------------------
+
+
+VIEWS = replace(TRACK, alignment_predictor="views")
+"""b late at every instant, carried by a's views."""
+
+
+def test_measured_displacements_average_the_persons_on_time_views_per_joint() -> None:
+    """Person 7 is seen by a (straight) and c (mirror label set): their motions between the two
+    times are averaged in the late body's order, c's sides swapped back; an Inferred joint's
+    motion is not used, a joint neither has Tracked is NaN, a body of no person is absent."""
+    rng = np.random.default_rng(3)
+    then_a, moved_a, then_c, moved_c = (rng.normal(size=(JOINT_COUNT, 3)) for _ in range(4))
+    states_c = full_states()
+    states_c[5] = 1  # Inferred at the instant: c's motion of joint 5 is not a measurement
+    then = {
+        ("a", 1): View("a", 1, then_a, full_states()),
+        ("c", 2): View("c", 2, then_c, full_states()),
+    }
+    now = {("a", 1): View("a", 1, then_a + moved_a, full_states()),
+           ("c", 2): View("c", 2, then_c + moved_c, states_c)}  # fmt: skip
+    now[("a", 1)].joints_world[9] = np.nan  # a lost joint 9 at the instant
+    members = {("a", 1): (7, False), ("c", 2): (7, True), ("b", 3): (7, False)}
+    out = measured_displacements([("b", 3), ("b", 4)], members, then, now)
+    assert set(out) == {("b", 3)}, "b 4 was nobody at the last step"
+    mirror = list(MIRROR_PERMUTATION)
+    c_in_b_order = moved_c[mirror]
+    c_tracked = np.ones(JOINT_COUNT, bool)
+    c_tracked[mirror.index(5)] = False  # joint 5 of c is joint mirror⁻¹(5) in b's order
+    expected = np.where(c_tracked[:, None], (moved_a + c_in_b_order) / 2, moved_a)
+    expected[9] = np.where(c_tracked[9], c_in_b_order[9], np.nan)
+    np.testing.assert_allclose(out[("b", 3)], expected, atol=1e-12)
+
+
+def test_a_late_view_carried_by_the_on_time_views_needs_no_filter() -> None:
+    """b's frame is 18 ms old at every instant; a, on time, saw the walker move meanwhile:
+    carried by that, b's view is exactly where the walker is, with the filter off (no motion
+    estimate at all: the ``track`` predictor holds it 18 mm behind)."""
+    for fusion in (VIEWS, replace(VIEWS, filter="none")):
+        late = [f for f in drive(fusion, periods=90) if f.extrapolated and f.t_s > T0 + 2.0]
+        assert len(late) >= 25
+        for frame in late:
+            np.testing.assert_allclose(late_view(frame), walker(frame.t_s - DELIVERY_S), atol=1e-4)
+
+
+def test_a_sudden_stop_is_not_overshot_by_the_views_predictor() -> None:
+    """Where ``track`` carries b on at the old speed after the walker stops (over 8 mm: the
+    filter has not seen the stop), a's views show it at once: b's view is off only at the first
+    instant after the stop, by a's own interpolation across the stop, and exact after."""
+    stop = math.floor(T0 / P) * P + 1.0 + 2.0 + 0.005
+    fused = drive(VIEWS, periods=150, stop_s=stop)
+    after = [f for f in fused if f.extrapolated and f.t_s > stop + 0.02]
+    assert len(after) >= 25
+    errors = [float(np.abs(late_view(f) - walker(f.t_s - DELIVERY_S, stop)).max()) for f in after]
+    assert errors[0] < 0.003
+    assert max(errors[1:]) < 1e-4
