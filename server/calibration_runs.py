@@ -42,6 +42,7 @@ from skelfuse.calibration.solvers import (
 )
 from skelfuse.calibration.store import Calibration, CalibrationStore, SensorCalibration, merge
 from skelfuse.fusion.hub import FusionHub
+from skelfuse.fusion.spaces import split_by_space
 from skelfuse.protocol.transform import Matrix4
 from skelfuse.server import calibration_run_progress as stages
 from skelfuse.server.calibration_run import CalibrationRun, RunSpec, RunState
@@ -356,9 +357,12 @@ class CalibrationService:
             for sensor_id, r in run.results.items()
         }
         note = f"run {run_id} ({run.spec.method})"
+        fixed, spaces = split_by_space(self.hub.sensors, updates)  # a moving sensor: its space
 
         def save() -> Calibration:
-            return self.store.save(merge(self.store.load(), updates), note=note)
+            current = self.store.load()
+            kept = current.spaces if current else {}
+            return self.store.save(merge(current, fixed), note=note, spaces={**kept, **spaces})
 
         calibration = await asyncio.to_thread(save)
         self.hub.use_calibration(calibration)
