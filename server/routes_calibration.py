@@ -171,6 +171,30 @@ def _all_finite(value: Any) -> bool:
     return True
 
 
+class ImportedSpace(BaseModel):
+    """One tracking space of an exported calibration file (moving sensors share it)."""
+
+    model_config = ConfigDict(allow_inf_nan=False)
+    T_world_from_space: Annotated[list[Row], Field(min_length=4, max_length=4)] = Field(
+        description="a rigid transform, row-major, metres, last row 0 0 0 1 (else 400)"
+    )
+    method: StrictStr = "unknown"
+    residual_mm: StrictFloat | None = None
+    details: dict[str, Any] = Field(default_factory=dict)
+
+    @field_validator("details")
+    @classmethod
+    def _finite(cls, details: dict[str, Any]) -> dict[str, Any]:
+        """As :meth:`ImportedSensor._finite`.
+
+        Raises:
+            ValueError: a non-finite number somewhere in ``details`` (a 422).
+        """
+        if not _all_finite(details):
+            raise ValueError("details must not hold NaN or infinite numbers")
+        return details
+
+
 class CalibrationFile(BaseModel):
     """A file from ``GET /api/calibration/export`` (format 1), typed so that what the schema
     allows is what the import takes (issue 12); only rigidity is checked beyond it (400)."""
@@ -181,6 +205,9 @@ class CalibrationFile(BaseModel):
     created_unix_s: StrictFloat = 0.0
     note: StrictStr = ""
     sensors: dict[str, ImportedSensor] = Field(default_factory=dict)
+    spaces: dict[str, ImportedSpace] = Field(
+        default_factory=dict, description="tracking spaces' transforms (docs/calibration.md)"
+    )
 
 
 class RollbackRequest(BaseModel):

@@ -70,6 +70,16 @@ class HeadSource:
         pass
 
 
+def fused_errors(live_server: LiveServer, truth: np.ndarray) -> list[float]:
+    """Median joint error (metres) of each person in the feed's newest 5 messages."""
+    feed = collect_feed(live_server.ws_url, 10)
+    return [
+        float(np.median(np.linalg.norm(np.array(person["joints"])[:, :3] - truth, axis=1)))
+        for message in list(feed.values())[-5:]
+        for person in message["persons"]
+    ]
+
+
 def test_a_moving_agent_streams_and_its_person_is_fused_where_the_truth_is(
     live_server: LiveServer,
 ) -> None:
@@ -87,14 +97,24 @@ def test_a_moving_agent_streams_and_its_person_is_fused_where_the_truth_is(
 
         assert wait_until(lambda: row().get("frames_received", 0) > 10, 20), row()
         assert row()["calibration"]["state"] == "floor"  # type: ignore[index]
-        feed = collect_feed(live_server.ws_url, 10)
-        errors = [
-            float(np.median(np.linalg.norm(np.array(person["joints"])[:, :3] - TRUTH, axis=1)))
-            for message in list(feed.values())[-5:]
-            for person in message["persons"]
-        ]
+        errors = fused_errors(live_server, TRUTH)
         assert errors and max(errors) < 0.03, errors
         assert row()["frames_rejected"] == {}
+        # The space's transform set by hand: an exported calibration with a "spaces" entry.
+        world_from_space = pose_from_position_yaw_pitch((1.0, 0.0, 2.0), 90.0)
+        file = {
+            "format": 1,
+            "sensors": {},
+            "spaces": {"room": {"T_world_from_space": world_from_space.tolist(), "method": "tape"}},
+        }
+        url = live_server.http_url + "/api/calibration"
+        imported = httpx.post(url + "/import", json=file, timeout=10)
+        assert imported.status_code == 200, imported.text
+        assert imported.json()["spaces"]["room"]["method"] == "tape"
+        assert row()["calibration"]["state"] == "stored"  # type: ignore[index]
+        assert httpx.get(url + "/export", timeout=5).json()["spaces"]["room"]["method"] == "tape"
+        moved = apply(world_from_space, TRUTH)
+        assert wait_until(lambda: max(fused_errors(live_server, moved) or [1.0]) < 0.03, 10)
     finally:
         stop.set()
         thread.join(timeout=10)
