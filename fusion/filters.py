@@ -118,7 +118,16 @@ class OneEuroFilter:
         self._x, self._dx, self._t = x, dx, t
 
 
-def filter_all(filters: list[JointFilter], joints: FloatArray, t_s: float) -> list[FloatArray]:
+StateRows = tuple[FloatArray, FloatArray, FloatArray]
+"""One filter's state arrays, as ``_state()`` gives them."""
+Stacks = dict[tuple[type, tuple[float, ...]], tuple[list[StateRows], StateRows]]
+"""Per group of filters stepped together, each member's state rows after the last step and the
+stacked arrays they are rows of (:func:`filter_all`'s ``stacks``)."""
+
+
+def filter_all(
+    filters: list[JointFilter], joints: FloatArray, t_s: float, stacks: Stacks | None = None
+) -> list[FloatArray]:
     """Filter one sample per filter (``filters[i]`` gets ``joints[i]``), as separate calls would.
 
     One Euro or Kalman filters of the same kind and parameters, already started, are stepped
@@ -127,6 +136,11 @@ def filter_all(filters: list[JointFilter], joints: FloatArray, t_s: float) -> li
 
     Args:
         joints: (P, ...) one sample per filter.
+        stacks: the caller's memory of the last call's stacked states, or None. With it, a
+            group whose members' states are still the very rows the last call gave them (the
+            same filters, in the same order, none restarted: the usual step) steps the arrays
+            those rows came from instead of stacking the rows again (the same values, without
+            ~2 × P copies of each person's covariances).
     """
     out: list[FloatArray | None] = [None] * len(filters)
     groups: dict[tuple[type, tuple[float, ...]], list[int]] = {}
@@ -136,16 +150,40 @@ def filter_all(filters: list[JointFilter], joints: FloatArray, t_s: float) -> li
             groups.setdefault((type(f), f._params()), []).append(i)
         else:
             out[i] = f(joints[i], t_s)
-    for members in groups.values():
+    kept: Stacks = {}
+    for key, members in groups.items():
         chosen = [f for i in members if isinstance(f := filters[i], stackable)]
         first = chosen[0]
         states = [f._state() for f in chosen]
-        x, second, t = (np.stack([s[k] for s in states]) for k in range(3))
-        result, *new = first._step(np.asarray(joints[members], dtype=np.float64), x, second, t, t_s)
+        last = None if stacks is None else stacks.get(key)
+        if last is not None and _same_rows(last[0], states):
+            x, second, t = last[1]
+        else:
+            x, second, t = (np.stack([s[k] for s in states]) for k in range(3))
+        # Every filter in one group (the usual step): the samples as they are, not a gathered
+        # copy (_step only reads them).
+        whole = len(members) == len(joints)
+        z = joints if whole else joints[members]
+        result, *new = first._step(np.asarray(z, dtype=np.float64), x, second, t, t_s)
+        rows: list[StateRows] = []
         for k, (i, f) in enumerate(zip(members, chosen, strict=True)):
-            f._set_state(new[0][k], new[1][k], new[2][k])
+            row = (new[0][k], new[1][k], new[2][k])
+            f._set_state(*row)
+            rows.append(row)
             out[i] = result[k]
+        kept[key] = (rows, (new[0], new[1], new[2]))
+    if stacks is not None:  # only this call's groups: the others' states are gone
+        stacks.clear()
+        stacks.update(kept)
     return [o for o in out if o is not None]
+
+
+def _same_rows(last: list[StateRows], states: list[StateRows]) -> bool:
+    """Whether each filter's state arrays are the very ones ``last`` holds, in the same order
+    (a filter stepped alone or restarted since has new ones)."""
+    return len(last) == len(states) and all(
+        a is b for old, now in zip(last, states, strict=True) for a, b in zip(old, now, strict=True)
+    )
 
 
 class ConstantVelocityKalman(KalmanState):

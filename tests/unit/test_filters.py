@@ -120,6 +120,34 @@ def test_filter_all_matches_separate_calls() -> None:
             np.testing.assert_array_equal(f(x, k / 30), y)
 
 
+def test_filter_all_with_stacks_matches_separate_calls_as_groups_change() -> None:
+    """With the caller's ``stacks`` (the last call's stacked states stepped again), the same
+    bits as separate calls while the groups change under it: the filters reordered, one
+    restarted, one stepped on its own in between, one left out of a call."""
+    from skelfuse.fusion.filters import Stacks, filter_all
+
+    rng = np.random.default_rng(4)
+    together, apart = _mixed(), _mixed()
+    stacks: Stacks = {}
+    order = list(range(8))
+    for k in range(30):
+        t_s = k / 30
+        if k == 8:
+            order = order[::-1]  # the same filters, another order: rows must not be reused
+        if k == 14:  # a restart: new state arrays for filter 1
+            together[1], apart[1] = OneEuroFilter(1.5, 10.0), OneEuroFilter(1.5, 10.0)
+        if k == 20:  # filter 7 stepped alone: its rows are no longer the stack's
+            lone = rng.normal(size=(25, 3))
+            np.testing.assert_array_equal(together[7](lone, t_s - 0.01), apart[7](lone, t_s - 0.01))
+        chosen = [i for i in order if not (k == 24 and i == 4)]
+        sample = rng.normal(size=(len(chosen), 25, 3))
+        sample[rng.random(sample.shape) < 0.1] = np.nan
+        got = filter_all([together[i] for i in chosen], sample, t_s, stacks)
+        for i, x, y in zip(chosen, sample, got, strict=True):
+            np.testing.assert_array_equal(apart[i](x, t_s), y)
+    assert stacks  # the stacks were kept and used
+
+
 def test_kalman_with_lead_leads_a_ramp_by_its_horizon_and_smooths_a_still_joint() -> None:
     """The recommended lead-compensated Kalman: on a constant-velocity ramp its output is
     ``predict_s`` ahead (no lag of its own); on a still joint it removes a third of the noise."""
