@@ -1,7 +1,8 @@
 """A real agent as ``skelfuse agent --source sim --pose-source file:PATH --pose-space ...``
 builds it (the command line's own functions) streams frames with their poses: a ROUTER socket
 plays a server that announces ``moving_sensors``; frames whose capture instant falls in a gap
-of the pose file are not sent, and their ``seq`` numbers are missing."""
+of the pose file are not sent, and their ``seq`` numbers are missing. Then against a real
+server, which places the frames by their poses."""
 
 from __future__ import annotations
 
@@ -11,6 +12,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+import httpx
+import numpy as np
 import pytest
 import zmq
 
@@ -20,8 +23,12 @@ from skelfuse.agent.runner import run_agent
 from skelfuse.cli import build_parser
 from skelfuse.cli.agent import source_from_args
 from skelfuse.cli.agent_poses import posed_from_args
+from skelfuse.protocol.sensor_pose import pose_from_matrix
+from skelfuse.protocol.skeleton import JointId
+from skelfuse.protocol.transform import pose_from_position_yaw_pitch
 from skelfuse.protocol.wire import Frame, Heartbeat, Hello, Welcome, decode, encode
-from tests.support import free_port
+from tests.integration.conftest import LiveServer, collect_feed
+from tests.support import free_port, wait_until
 
 STEP_NS = 10_000_000  # the pose file's 100 Hz
 GAP = (50, 100)  # samples 0.5 s .. 1.0 s after the start are missing: a lost tracker
@@ -111,3 +118,49 @@ def test_the_agent_streams_each_frame_with_its_pose_and_skips_unposed_ones(
     assert max(b - a for a, b in itertools.pairwise(seqs)) >= 10  # ~0.5 s at 30 fps
     assert source.unposed["in a gap of the pose file"] >= 10
     assert source.unposed["before the pose file's first sample"] > 0
+
+
+def test_a_real_server_places_the_cli_agents_frames_by_their_poses(
+    live_server: LiveServer, tmp_path: Path
+) -> None:
+    # The sim stands at 0,1,3 looking back at the origin; the pose file says exactly that
+    # sensor pose, held (a moving sensor that happens to stand still). With no fixed sensor the
+    # lone space is the world, so the person (walking a 0.9 m circle about the origin) is fused
+    # about the origin only if every frame was placed by its pose: without it they would be
+    # fused in the sensor's frame, about 3 m in front of the origin.
+    sensor = pose_from_matrix(pose_from_position_yaw_pitch((0.0, 1.0, 3.0), 180.0))
+    row = ",".join(str(v) for v in (*sensor.position_m, *sensor.rotation_xyzw))
+    track = tmp_path / "still.csv"
+    track.write_text(f"t_s,px,py,pz,qx,qy,qz,qw\n0,{row}\n0.1,{row}\n")
+    args = build_parser().parse_args(
+        ["agent", "--id", "head-a", "--server", live_server.zmq_url, "--persons", "1",
+         "--pose=0,1.0,3.0,180", "--pose-source", f"file:{track}", "--pose-space", "room-a",
+         "--pose-loop"]
+    )  # fmt: skip
+    source = posed_from_args(args, source_from_args(args))
+    stop = threading.Event()
+    agent = threading.Thread(
+        target=run_agent, args=("head-a", source, args.server), kwargs={"stop": stop}, daemon=True
+    )
+    agent.start()
+    try:
+
+        def sensor_row() -> dict[str, Any]:
+            rows = httpx.get(live_server.http_url + "/api/sensors", timeout=5).json()["sensors"]
+            return next((r for r in rows if r["id"] == "head-a"), {})
+
+        assert wait_until(lambda: sensor_row().get("frames_received", 0) > 10, 30), sensor_row()
+        assert sensor_row()["calibration"]["state"] == "floor"
+        feed = collect_feed(live_server.ws_url, 10)
+        hips = [
+            np.array(person["joints"])[JointId.SPINE_BASE, :3]
+            for message in feed.values()
+            for person in message["persons"]
+        ]
+        assert hips
+        for hip in hips:
+            assert float(np.hypot(hip[0], hip[2])) < 1.4, hip  # on its circle, not 3 m away
+        assert sensor_row()["frames_rejected"] == {}
+    finally:
+        stop.set()
+        agent.join(timeout=10)
