@@ -31,6 +31,7 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.identity import ViewKey
+from skelfuse.fusion.moving import world_position
 from skelfuse.fusion.pipeline import FusionPipeline, PoseLookup, views_at
 from skelfuse.fusion.sensors import SensorState, TimedFrame
 from skelfuse.fusion.settings import FusionSettings
@@ -247,7 +248,7 @@ def views_with_late(
                     body.tracking_id,
                     world,
                     body.states,
-                    pose[:3, 3],
+                    world_position(sensor.frames, t_s, pose) if sensor.moving else pose[:3, 3],
                     sensor.sensor_type,
                 )
             )

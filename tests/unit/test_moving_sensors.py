@@ -12,6 +12,7 @@ import numpy.typing as npt
 
 from skelfuse.agent.sim.performer import standing_pose
 from skelfuse.calibration.store import Calibration, SensorCalibration, SpaceCalibration
+from skelfuse.fusion.extrapolation import views_with_late
 from skelfuse.fusion.hub import FusionHub
 from skelfuse.fusion.moving import placed_in_space, world_position
 from skelfuse.fusion.sensors import TimedFrame
@@ -280,3 +281,22 @@ def test_views_at_places_a_moving_sensor_with_its_space_and_its_position() -> No
     midway = (head_sensor(0, 0.0)[:3, 3] + head_sensor(0, 0.1)[:3, 3]) / 2
     assert view.sensor_position is not None
     np.testing.assert_allclose(view.sensor_position, midway, atol=1e-6)
+
+
+def test_a_late_moving_sensor_looks_from_where_its_newest_frame_put_it() -> None:
+    # The deadline alignment carries a late sensor's bodies forward; its position too must be
+    # the sensor's in the world, not its space's origin.
+    hub = FusionHub(HubSettings())
+    hub.handle_message(b"a", [moving_hello("head-a")], T0, 0.0)
+    for i, t in enumerate((0.0, 1 / FPS)):
+        pose = head_sensor(0, t)
+        frame = Frame(
+            i + 1, round((T0 + t) * 1e9), (body(5, seen(pose, wearer_truth(1, t))),), None,
+            space_pose(pose),
+        )  # fmt: skip
+        hub.handle_message(b"a", [encode(frame)], T0 + t + 0.004, t)
+    sensor = hub.sensors["head-a"]
+    t_s = sensor.frames[-1].t_server_s + 0.01
+    (view,) = views_with_late([sensor], lambda _: WORLD_FROM_SPACE, t_s, 0.2, {"head-a": 0.01}, ())
+    assert view.sensor_position is not None
+    np.testing.assert_allclose(view.sensor_position, head_sensor(0, 1 / FPS)[:3, 3], atol=1e-6)
