@@ -13,9 +13,12 @@ position and heading would have seen. For each device capture:
    ``pose=None`` and no bodies, so the runner skips it and its ``seq`` gap shows the loss;
 3. :func:`skelfuse.agent.reproject.reproject_depth` re-renders depth and IR as the level
    reference camera (:func:`skelfuse.agent.reproject.level_reference`: floor position and
-   heading only, at the sensor's height or ``reference_height_m``) sees them, with the same
-   intrinsics: the pinhole part of the device calibration the tracker was created with, so the
-   tracker's 3-D joints are consistent with the re-projected pixels;
+   heading only, at the sensor's height or ``reference_height_m``) sees them. The reference
+   camera is the device's own: the calibration the tracker was created with, lens included.
+   ``reproject_depth`` models a pinhole, so the images go through it as pinhole images (the
+   calibration's fx, fy, cx, cy) and are taken into and out of the lens by nearest-pixel maps
+   built from the SDK's lens model (:mod:`skelfuse.agent.sources.azure_reprojected_lens`): the
+   tracker's 3-D joints are then consistent with the re-projected pixels;
 4. a new ``k4a_capture_t`` holding the two images (DEPTH16, IR16, the device timestamp) is
    enqueued in the tracker; its body frames are popped and matched to their capture by that
    timestamp (the tracker may lag a frame behind);
@@ -30,11 +33,9 @@ are those of the physical camera; the ``depth_cloud`` reply (raw depth, sensor f
 with the bodies; and a reference at a fixed height (``reference_height_m``), which is not where
 the camera is, never reaches the wire.
 
-Known approximations (docs/sensors.md): the lens distortion of the calibration is ignored by
-the re-projection (pinhole on both sides: exact with no rotation, growing towards the image
-edges with it); no floor plane (``floor`` None), no hand states. Not run on hardware or with a
-real body tracker: tested against a fake of the SDK's ctypes layer; the effect of re-projection
-on a real body tracker cannot be measured here.
+No floor plane (``floor`` None) and no hand states, as the fixed Azure source. Not run on
+hardware or with a real body tracker: tested against a fake of the SDK's ctypes layer; the
+effect of re-projection on a real body tracker cannot be measured here (docs/sensors.md).
 """
 
 from __future__ import annotations
@@ -56,6 +57,7 @@ from skelfuse.agent.sources.azure_kinect import (
     body_from_skeleton,
     import_pykinect_azure,
 )
+from skelfuse.agent.sources.azure_reprojected_lens import lens_maps, remap
 from skelfuse.agent.sources.azure_reprojected_sdk import (
     SUCCEEDED,
     TIMEOUT,
@@ -151,6 +153,8 @@ class ReprojectedAzureKinectSource:
         self._opened = open_device(self._k4a, self._bt, device_index, depth_mode)
         self.intrinsics = depth_intrinsics(self._opened.calibration, depth_mode)
         """The depth camera's (and the reference camera's) pinhole intrinsics."""
+        self.lens = lens_maps(self._k4a, self._opened.calibration, self.intrinsics)
+        """Device image ↔ pinhole image of :attr:`intrinsics`, through the calibration's lens."""
         warm_up()  # compile the re-projection before the first frame, not during it
         self._pending: dict[int, _Pending] = {}
         self._last_depth: tuple[Any, int] | None = None
@@ -227,9 +231,19 @@ class ReprojectedAzureKinectSource:
             T_space_from_sensor
         )
         depth_ref, ir_ref = reproject_depth(
-            raw.depth, raw.ir, self.intrinsics, T_ref_from_sensor, self._max_edge_m
+            remap(raw.depth, self.lens.to_pinhole),
+            remap(raw.ir, self.lens.to_pinhole),
+            self.intrinsics,
+            T_ref_from_sensor,
+            self._max_edge_m,
         )
-        built = build_capture(k4a, depth_ref, ir_ref, raw.device_us, raw.temperature_c)
+        built = build_capture(
+            k4a,
+            remap(depth_ref, self.lens.to_device),
+            remap(ir_ref, self.lens.to_device),
+            raw.device_us,
+            raw.temperature_c,
+        )
         try:
             queued = self._bt.k4abt_tracker_enqueue_capture(self._opened.tracker, built, timeout_ms)
         finally:
@@ -271,12 +285,13 @@ class ReprojectedAzureKinectSource:
 
     def depth_cloud(self, params: dict[str, Any]) -> dict[str, Any]:
         """The ``depth_cloud`` request: the latest raw (not re-projected) depth image's points
-        in the sensor frame (pinhole back-projection), as
+        in the sensor frame (through the lens maps), as
         :meth:`~skelfuse.agent.sources.azure_kinect.AzureKinectSource.depth_cloud` replies."""
         if self._last_depth is None:
             raise SensorError("no depth capture yet")
         depth_mm, device_us = self._last_depth
-        points = depth_to_points(depth_mm.astype(np.float64) / 1000.0, self.intrinsics)
+        pinhole = remap(depth_mm, self.lens.to_pinhole).astype(np.float64) / 1000.0
+        points = depth_to_points(pinhole, self.intrinsics)
         return cloud_reply(points, params, device_timestamp_us=device_us)
 
     def close(self) -> None:

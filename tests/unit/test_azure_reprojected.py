@@ -24,6 +24,7 @@ import pytest
 
 from skelfuse.agent.reproject import level_reference, reproject_depth
 from skelfuse.agent.sim.depth_camera import DepthIntrinsics
+from skelfuse.agent.sources.azure_reprojected_lens import remap
 from skelfuse.protocol.messages import SensorPose
 from skelfuse.protocol.sensor_pose import pose_from_matrix
 from skelfuse.protocol.skeleton import AZURE_JOINT_COUNT, AZURE_TO_KINECT_V2
@@ -39,6 +40,7 @@ MARKERS = (  # azure joint, world centre (m), IR value
     (8, (0.05, 1.45, 3.0), 3000),  # left hand
 )
 HALF_SIZE_M = 0.07
+LENS_K1 = 0.08  # the fake device's calibration (tests/fakes/pykinect_azure/k4a/_k4a.py)
 BODY_ID = 7
 
 
@@ -62,11 +64,12 @@ def _pose(yaw: float, pitch: float, roll: float) -> npt.NDArray[np.float64]:
 def _render(
     pose: npt.NDArray[np.float64], intr: DepthIntrinsics
 ) -> tuple[npt.NDArray[np.uint16], npt.NDArray[np.uint16]]:
-    """Depth (mm) and IR a camera at ``pose`` sees: planes z = const in the world, ray cast."""
+    """Depth (mm) and IR a camera at ``pose`` sees through the fake's lens: planes z = const
+    in the world, ray cast."""
+    lens = sys.modules["pykinect_azure.k4a._k4a"]
     rows, cols = np.indices((intr.height, intr.width), dtype=np.float64)
-    rays = np.stack(
-        [-(cols - intr.cx) / intr.fx, -(rows - intr.cy) / intr.fy, np.ones_like(cols)], axis=-1
-    )
+    x, y = lens.undistort((cols - intr.cx) / intr.fx, (rows - intr.cy) / intr.fy, LENS_K1)
+    rays = np.stack([-x, -y, np.ones_like(cols)], axis=-1)  # k4a axes -> ours
     world = rays @ pose[:3, :3].T  # direction per pixel, world; the sensor-frame z is 1
     origin = pose[:3, 3]
     depth = np.zeros(rays.shape[:2])
@@ -90,7 +93,9 @@ def _render(
 
 
 def _detect(depth: Any, ir: Any, calibration: Any) -> list[tuple[int, Any, Any]]:
-    """The fake tracker's "body": a joint at each IR square's centre (k4a axes, mm)."""
+    """The fake tracker's "body": a joint at each IR square's centre (k4a axes, mm), read
+    through the lens model of the calibration the tracker was created with."""
+    lens = sys.modules["pykinect_azure.k4a._k4a"]
     param = calibration.depth_camera_calibration.intrinsics.parameters.param
     joints = np.zeros((AZURE_JOINT_COUNT, 3))
     levels = np.zeros(AZURE_JOINT_COUNT, dtype=int)
@@ -100,7 +105,8 @@ def _detect(depth: Any, ir: Any, calibration: Any) -> list[tuple[int, Any, Any]]
             continue
         z = float(np.median(depth[rows, cols]))
         u, v = cols.mean(), rows.mean()
-        joints[joint] = ((u - param.cx) * z / param.fx, (v - param.cy) * z / param.fy, z)
+        x, y = lens.undistort((u - param.cx) / param.fx, (v - param.cy) / param.fy, param.k1)
+        joints[joint] = (x * z, y * z, z)
         levels[joint] = 2
     if not levels.any():
         return []
@@ -169,7 +175,16 @@ def test_tracker_gets_the_level_image_and_joints_come_back_in_the_sensor_frame(
     assert device_us == 1_000_000
     T_sensor = np.asarray(T_world_from_sensor)
     reference = level_reference(T_sensor, reference_height_m)
-    expected_depth, expected_ir = reproject_depth(depth, ir, intr, invert(reference) @ T_sensor)
+    lens = source.lens
+    expected_depth, expected_ir = (
+        remap(image, lens.to_device)
+        for image in reproject_depth(
+            remap(depth, lens.to_pinhole),
+            remap(ir, lens.to_pinhole),
+            intr,
+            invert(reference) @ T_sensor,
+        )
+    )
     np.testing.assert_array_equal(fed_depth, expected_depth)
     np.testing.assert_array_equal(fed_ir, expected_ir)
     assert not np.array_equal(fed_depth, depth)
@@ -260,3 +275,27 @@ def test_a_capture_without_ir_is_dropped_and_a_bad_setup_refused(
         ReprojectedAzureKinectSource(lambda t: None, pose_space="room", sdk=package, device_index=3)
     with pytest.raises(SensorError, match="pose space"):
         ReprojectedAzureKinectSource(lambda t: None, pose_space="", sdk=package)
+
+
+def test_lens_maps_take_a_pixel_to_its_ray_and_back(fake_sdk: tuple[ModuleType, Any, Any]) -> None:
+    """Device pixel → pinhole pixel on the same ray (the fake lens, inverted analytically) and
+    back again, to the nearest pixel, from the grid-interpolated SDK samples."""
+    from skelfuse.agent.sources.azure_reprojected_lens import lens_maps
+
+    _, k4a, _ = fake_sdk
+    calibration = k4a.k4a_calibration_t()
+    k4a.k4a_device_get_calibration(k4a.k4a_device_t(), 2, 0, calibration)
+    intr = _intrinsics(k4a)
+    maps = lens_maps(k4a, calibration, intr)
+    rows, cols = np.indices((intr.height, intr.width))
+    xd, yd = k4a.distort((cols - intr.cx) / intr.fx, (rows - intr.cy) / intr.fy, LENS_K1)
+    truth_col, truth_row = np.rint(intr.cx + intr.fx * xd), np.rint(intr.cy + intr.fy * yd)
+    has = maps.to_pinhole >= 0
+    assert 0.85 < has.mean() < 1.0, "the pinhole image's corners lie outside the lens's image"
+    found_row, found_col = np.divmod(maps.to_pinhole[has], intr.width)
+    assert np.abs(found_col - truth_col[has]).max() <= 1
+    assert np.abs(found_row - truth_row[has]).max() <= 1
+    assert (maps.to_device >= 0).all()  # every device pixel's ray is inside the pinhole image
+    back = maps.to_device.reshape(-1)[maps.to_pinhole[has]]
+    back_row, back_col = np.divmod(back, intr.width)
+    assert np.abs(back_col - cols[has]).max() <= 1 and np.abs(back_row - rows[has]).max() <= 1

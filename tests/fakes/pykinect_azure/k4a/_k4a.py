@@ -119,9 +119,33 @@ class k4a_calibration_t(ctypes.Structure):
     ]
 
 
+class _xy(ctypes.Structure):
+    _fields_ = [("x", ctypes.c_float), ("y", ctypes.c_float)]
+
+
+class k4a_float2_t(ctypes.Union):
+    _fields_ = [("xy", _xy), ("v", ctypes.c_float * 2)]
+
+
+class _xyz(ctypes.Structure):
+    _fields_ = [("x", ctypes.c_float), ("y", ctypes.c_float), ("z", ctypes.c_float)]
+
+
+class k4a_float3_t(ctypes.Union):
+    _fields_ = [("xyz", _xyz), ("v", ctypes.c_float * 3)]
+
+
 # --- test state -------------------------------------------------------------------------------
 
-CALIBRATION = {"width": 640, "height": 576, "fx": 504.0, "fy": 503.0, "cx": 321.5, "cy": 286.0}
+CALIBRATION = {
+    "width": 640,
+    "height": 576,
+    "fx": 504.0,
+    "fy": 503.0,
+    "cx": 321.5,
+    "cy": 286.0,
+    "k1": 0.08,  # a radial lens: the corners move ~25 px (real units have a 6-term model)
+}
 SCRIPT = []  # device captures: (device_us, depth (H, W) uint16 or None, ir (H, W) uint16 or None)
 STARTED = []  # the configurations k4a_device_start_cameras was given (depth_mode, camera_fps)
 LIVE = {}  # address -> {"kind", "refs", ...} for every capture and image not yet released
@@ -194,7 +218,7 @@ def k4a_device_get_calibration(device_handle, depth_mode, color_resolution, cali
     param = camera.intrinsics.parameters.param
     for name in ("fx", "fy", "cx", "cy"):
         setattr(param, name, CALIBRATION[name])
-    param.k1 = 0.5  # a real unit's lens distortion, which the re-projection leaves out
+    param.k1 = CALIBRATION["k1"]
     calibration.depth_mode = depth_mode
     calibration.color_resolution = color_resolution
     return K4A_RESULT_SUCCEEDED
@@ -365,3 +389,70 @@ def k4a_image_set_device_timestamp_usec(image_handle, timestamp_usec):
 def k4a_image_release(image_handle):
     _check(image_handle, k4a_image_t)
     _release(image_handle)
+
+
+# --- the lens (radial, k1 only: x_d = x (1 + k1 r^2) on the z = 1 plane) ----------------------
+
+
+def distort(x, y, k1):
+    """Test helper: normalised ray (x, y) -> normalised image point, arrays."""
+    scale = 1.0 + k1 * (x * x + y * y)
+    return x * scale, y * scale
+
+
+def undistort(xd, yd, k1):
+    """Test helper: the inverse of distort (fixed-point iterations)."""
+    x, y = xd, yd
+    for _ in range(30):
+        scale = 1.0 + k1 * (x * x + y * y)
+        x, y = xd / scale, yd / scale
+    return x, y
+
+
+def _param(calibration):
+    return calibration.depth_camera_calibration.intrinsics.parameters.param
+
+
+def k4a_calibration_3d_to_2d(
+    calibration, source_point3d_mm, source_camera, target_camera, target_point2d, valid
+):
+    _check(calibration, k4a_calibration_t)
+    _check(source_point3d_mm, k4a_float3_t)
+    _check(target_point2d, k4a_float2_t)
+    _check(valid, ctypes.c_int)
+    p, q = _param(calibration), source_point3d_mm.xyz
+    if source_camera != 0 or target_camera != 0:
+        return K4A_RESULT_FAILED  # the fake has the depth camera only
+    if q.z <= 0:
+        valid.value = 0
+        return K4A_RESULT_SUCCEEDED
+    x, y = distort(q.x / q.z, q.y / q.z, p.k1)
+    valid.value = int(x * x + y * y < 1.0)  # inside the lens's valid radius
+    target_point2d.xy.x = p.cx + p.fx * x
+    target_point2d.xy.y = p.cy + p.fy * y
+    return K4A_RESULT_SUCCEEDED
+
+
+def k4a_calibration_2d_to_3d(
+    calibration,
+    source_point2d,
+    source_depth_mm,
+    source_camera,
+    target_camera,
+    target_point3d_mm,
+    valid,
+):
+    _check(calibration, k4a_calibration_t)
+    _check(source_point2d, k4a_float2_t)
+    _check(target_point3d_mm, k4a_float3_t)
+    _check(valid, ctypes.c_int)
+    if source_camera != 0 or target_camera != 0:
+        return K4A_RESULT_FAILED
+    p = _param(calibration)
+    xd = (source_point2d.xy.x - p.cx) / p.fx
+    yd = (source_point2d.xy.y - p.cy) / p.fy
+    valid.value = int(xd * xd + yd * yd < 1.0)
+    x, y = undistort(xd, yd, p.k1)
+    z = float(source_depth_mm)
+    target_point3d_mm.xyz.x, target_point3d_mm.xyz.y, target_point3d_mm.xyz.z = x * z, y * z, z
+    return K4A_RESULT_SUCCEEDED
