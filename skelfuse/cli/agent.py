@@ -16,7 +16,12 @@ from typing import Any
 
 from skelfuse.agent.sources.base import SensorError, SkeletonSource
 from skelfuse.agent.sources.registry import SOURCE_KINDS
-from skelfuse.cli.agent_poses import add_pose_options, posed_from_args
+from skelfuse.cli.agent_poses import (
+    add_mutual_options,
+    add_pose_options,
+    mutual_options,
+    posed_from_args,
+)
 from skelfuse.cli.values import UsageError, pose_matrix
 from skelfuse.protocol.constants import DEFAULT_ZMQ_PORT
 
@@ -74,6 +79,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     agent.set_defaults(func=run)
     _add_source_options(agent)
     add_pose_options(agent)
+    add_mutual_options(agent)
 
 
 def _add_source_options(parser: argparse.ArgumentParser) -> None:
@@ -186,8 +192,10 @@ def source_from_args(args: argparse.Namespace) -> SkeletonSource:
     """The source ``skelfuse agent --source KIND ...`` asks for.
 
     ``sim`` uses ``--pose`` (default :data:`SIM_DEFAULT_POSE`), ``--persons``, ``--seed``,
-    ``--clock-offset-ms``, ``--clock-drift-ppm``; for the real sensors and ``ntu``, ``--pose``
-    is announced as a manual pose hint only when given, since a real sensor's pose is not known.
+    ``--clock-offset-ms``, ``--clock-drift-ppm`` (with ``--scenario mutual``: ``--wearer`` and
+    the options of :func:`~skelfuse.cli.agent_poses.mutual_options`); for the real sensors and
+    ``ntu``, ``--pose`` is announced as a manual pose hint only when given, since a real
+    sensor's pose is not known.
 
     Raises:
         UsageError: an unknown kind, a bad ``--pose`` or ``--persons``, or a source that cannot
@@ -236,6 +244,7 @@ def source_from_args(args: argparse.Namespace) -> SkeletonSource:
             clock_drift_ppm=float(args.clock_drift_ppm),
             send_pose_hint=args.pose_hint,
         )
+    options.update(mutual_options(args))  # --scenario mutual: a head-mounted sim sensor
     try:
         return make_source(kind, options)
     except SensorError as exc:

@@ -2,7 +2,9 @@
 
 The sensor's skeleton source is wrapped in :class:`~skelfuse.agent.poses.posed.PosedSource`
 with poses from a file or from OpenVR (docs/sensors.md, "Moving sensors"). Without
-``--pose-source`` the sensor is fixed and none of these options may be given.
+``--pose-source`` the sensor is fixed and none of these options may be given. Also the
+simulator's moving sensors, ``--source sim --scenario mutual`` (``agent/sources/sim_mutual.py``:
+their headsets attach the poses themselves).
 """
 
 from __future__ import annotations
@@ -56,6 +58,70 @@ def add_pose_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--pose-loop", action="store_true", help="pose file: repeat the track at its end"
     )
+
+
+# --scenario mutual's options: flag, default (anything else needs --scenario mutual), option.
+_MUTUAL = (
+    ("--wearer", 0, "wearer"),
+    ("--head-axis", "yaw", "head_axis"),
+    ("--pose-noise-mm", 0.0, "pose_noise_mm"),
+    ("--pose-noise-deg", 0.0, "pose_noise_deg"),
+    ("--pose-mismatch-ms", 0.0, "pose_mismatch_ms"),
+    ("--walk-m", 0.6, "walk_m"),
+    ("--turn-speed", 1.0, "turn_speed"),
+)
+
+
+def add_mutual_options(parser: argparse.ArgumentParser) -> None:
+    """``--scenario mutual``: the simulator's head-mounted sensors capturing each other."""
+    parser.add_argument(
+        "--scenario",
+        default=None,
+        choices=["mutual"],
+        help="sim: 'mutual': wearer --wearer's head-mounted sensor among --persons people who "
+        "each wear one (run one agent per wearer; a moving sensor in the space 'room')",
+    )
+    parser.add_argument("--wearer", type=int, default=0, help="mutual: which person (0-based)")
+    parser.add_argument(
+        "--head-axis", default="yaw", choices=["yaw", "pitch", "roll"], help="mutual: head turns"
+    )
+    parser.add_argument(
+        "--pose-noise-mm", type=float, default=0.0, help="mutual: headset position noise (σ)"
+    )
+    parser.add_argument(
+        "--pose-noise-deg", type=float, default=0.0, help="mutual: headset rotation noise (σ)"
+    )
+    parser.add_argument(
+        "--pose-mismatch-ms",
+        type=float,
+        default=0.0,
+        help="mutual: the headset attaches the pose of this much later than the capture",
+    )
+    parser.add_argument(
+        "--walk-m", type=float, default=0.6, help="mutual: to-and-fro walk (0: standing)"
+    )
+    parser.add_argument(
+        "--turn-speed", type=float, default=1.0, help="mutual: head schedule rate (1: report B's)"
+    )
+
+
+def mutual_options(args: argparse.Namespace) -> dict[str, object]:
+    """The sim source's options of ``--scenario mutual`` (empty without it).
+
+    Raises:
+        UsageError: a mutual option without ``--scenario mutual``, or the scenario with another
+            source than sim or with ``--pose-source`` (its headsets have their own poses).
+    """
+    if args.scenario is None:
+        given = [flag for flag, default, name in _MUTUAL if getattr(args, name) != default]
+        if given:
+            raise UsageError(f"{', '.join(given)}: only with --source sim --scenario mutual")
+        return {}
+    if args.source != "sim":
+        raise UsageError("--scenario mutual is a scenario of --source sim")
+    if args.pose_source is not None:
+        raise UsageError("--scenario mutual's headsets attach their own poses: no --pose-source")
+    return {"scenario": "mutual"} | {name: getattr(args, name) for _, _, name in _MUTUAL}
 
 
 def posed_from_args(args: argparse.Namespace, source: SkeletonSource) -> SkeletonSource:

@@ -97,3 +97,34 @@ def test_openvr_without_a_runtime_is_a_usage_error_naming_the_cause(
     error = capsys.readouterr().err
     assert "--pose-source openvr: " in error
     assert "OpenVR did not start" in error or "pip install 'skelfuse[openvr]'" in error
+
+
+def test_the_mutual_scenario_is_a_moving_sim_sensor() -> None:
+    source = posed(
+        "--source", "sim", "--scenario", "mutual", "--persons", "3", "--wearer", "2",
+        "--head-axis", "pitch", "--pose-mismatch-ms", "20", "--walk-m", "0",
+    )  # fmt: skip
+    assert not isinstance(source, PosedSource)  # its headset attaches the poses itself
+    hello = make_hello("head-2", source)
+    assert hello.moving and hello.pose_space == "room"
+    capture = source.next_capture(timeout_s=1.0)
+    assert capture is not None and capture.pose is not None
+    source.close()
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        (["--wearer", "1"], r"--wearer: only with --source sim --scenario mutual"),
+        (["--head-axis", "roll", "--walk-m", "0"], r"--head-axis, --walk-m: only with"),
+        (["--source", "ntu", "--scenario", "mutual"], r"a scenario of --source sim"),
+        (
+            ["--scenario", "mutual", "--pose-source", "openvr", "--pose-space", "s"],
+            r"attach their own poses",
+        ),
+        (["--scenario", "mutual", "--persons", "3", "--wearer", "3"], r"wearer"),
+    ],
+)
+def test_mutual_usage_errors(options: list[str], message: str) -> None:
+    with pytest.raises(UsageError, match=message):
+        posed(*options)
