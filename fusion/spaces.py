@@ -21,11 +21,14 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 import numpy as np
+import numpy.typing as npt
 
 from skelfuse.calibration.store import Calibration, SensorCalibration, SpaceCalibration
+from skelfuse.fusion.moving import sensor_pose_at
 from skelfuse.fusion.sensors import SensorState
 from skelfuse.protocol.constants import MOVING_SENSORS
-from skelfuse.protocol.transform import Matrix4
+from skelfuse.protocol.sensor_pose import pose_matrix
+from skelfuse.protocol.transform import Matrix4, apply
 
 SERVER_FEATURES: tuple[str, ...] = (MOVING_SENSORS,)
 """What the hub's ``welcome`` announces (docs/protocol.md §6.2)."""
@@ -33,6 +36,10 @@ SERVER_FEATURES: tuple[str, ...] = (MOVING_SENSORS,)
 RECORDING_SPACE_PREFIX = "space:"
 """A recording header's ``calibration`` holds a tracking space's transform under this prefix and
 the space id (``space:room``); no sensor id contains ``:``, so the keys cannot clash."""
+
+CLOUD_POSE_SLACK_S = 0.1
+"""A moving sensor's depth cloud is placed by its frames' poses only if it was captured within
+this long of a frame (seconds): beyond, where the sensor looked is not known."""
 
 _IDENTITY = np.eye(4)
 _IDENTITY.flags.writeable = False
@@ -113,3 +120,29 @@ def split_by_space(
                 result.T_world_from_sensor, result.method, result.residual_mm, details
             )
     return fixed, spaces
+
+
+def cloud_in_space(
+    sensor: SensorState | None, t_capture_ns: object, points: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
+    """A depth cloud (N, 3) metres in the sensor's frame, as the calibration's ICP must see it:
+    a moving sensor's moved into its tracking space by its pose at the cloud's capture instant
+    (``t_capture_ns`` on the agent's clock, mapped like its frames'); anyone else's unchanged.
+
+    Raises:
+        ValueError: a moving sensor's cloud without a capture time, or captured further than
+            :data:`CLOUD_POSE_SLACK_S` from its frames (its pose then is not known).
+    """
+    if sensor is None or not sensor.moving:
+        return points
+    offset = sensor.clock_offset_s
+    if not isinstance(t_capture_ns, int) or offset is None or not sensor.frames:
+        raise ValueError(
+            "a moving sensor's depth cloud needs its capture time and the sensor's frames"
+        )
+    t_s = t_capture_ns / 1e9 + offset - sensor.lag_s
+    first, newest = sensor.frames[0].t_server_s, sensor.frames[-1].t_server_s
+    pose = sensor_pose_at(sensor.frames, t_s)
+    if pose is None or not first - CLOUD_POSE_SLACK_S <= t_s <= newest + CLOUD_POSE_SLACK_S:
+        raise ValueError("its depth cloud was captured where no frame says where the sensor was")
+    return apply(pose_matrix(pose), points)

@@ -223,7 +223,7 @@ class CalibrationService:
         run.state = RunState.CAPTURING
         run.tracker.enter(stages.DEPTH)
         try:
-            clouds = await capture_clouds(self._agents, spec.sensors)
+            clouds = await capture_clouds(self._agents, spec.sensors, self.hub.sensors)
             run.state = RunState.SOLVING
             run.tracker.enter(stages.ICP, measure=self._solver_ready)
             start = poses or {s: self._current(s) for s in spec.sensors}
@@ -263,7 +263,7 @@ class CalibrationService:
         run.state = RunState.CAPTURING
         run.tracker.enter(stages.DEPTH)
         try:
-            clouds = await capture_clouds(self._agents, sensors)
+            clouds = await capture_clouds(self._agents, sensors, self.hub.sensors)
             run.state = RunState.SOLVING
             run.tracker.enter(stages.ICP)  # the worker has just solved the skeletons
             result = await self._solvers.run_reporting(

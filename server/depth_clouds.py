@@ -17,6 +17,8 @@ from typing import Any, Protocol
 import numpy as np
 import numpy.typing as npt
 
+from skelfuse.fusion.sensors import SensorState
+from skelfuse.fusion.spaces import cloud_in_space
 from skelfuse.protocol import depth_cloud
 from skelfuse.protocol.errors import DecodeError
 from skelfuse.server.clock import Clock
@@ -39,9 +41,11 @@ class AgentCaller(Protocol):
 
 
 async def capture_clouds(
-    agents: AgentCaller, sensors: Sequence[str]
+    agents: AgentCaller, sensors: Sequence[str], states: Mapping[str, SensorState] | None = None
 ) -> dict[str, npt.NDArray[np.float64]]:
-    """Each sensor's depth cloud, (N, 3) metres in its own frame, all asked at once.
+    """Each sensor's depth cloud, (N, 3) metres in its own frame, all asked at once; with the
+    hub's sensor ``states``, a moving sensor's in its tracking space (the frame its bodies are
+    fused in: :func:`skelfuse.fusion.spaces.cloud_in_space`).
 
     Raises:
         SensorUnavailable: a sensor went offline.
@@ -53,9 +57,12 @@ async def capture_clouds(
             sensor_id, depth_cloud.METHOD, depth_cloud.encode_request(), DEPTH_TIMEOUT_S
         )
         try:
-            return sensor_id, depth_cloud.decode_reply(result)
-        except DecodeError as exc:
+            points = depth_cloud.decode_reply(result)
+            if states is not None:
+                points = cloud_in_space(states.get(sensor_id), result.get("t_capture_ns"), points)
+        except (DecodeError, ValueError) as exc:
             raise AgentRequestFailed(f"sensor {sensor_id!r}: {exc}") from exc
+        return sensor_id, points
 
     pairs = await asyncio.gather(*(one(s) for s in sensors))
     return dict(pairs)

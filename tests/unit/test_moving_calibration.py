@@ -19,12 +19,23 @@ from skelfuse.calibration.store import (
     SensorCalibration,
     SpaceCalibration,
 )
+from skelfuse.protocol.depth_cloud import encode_reply
 from skelfuse.protocol.sensor_pose import pose_from_matrix
 from skelfuse.protocol.skeleton import JOINT_COUNT, TrackingState
 from skelfuse.protocol.transform import apply, invert, look_at_pose, pose_from_position_yaw_pitch
 from skelfuse.protocol.wire import Body, Frame, Hello, encode
 from skelfuse.server.calibration_run import RunSpec, RunState
-from tests.unit.test_calibration_runs import PERFORMER, POSES, START_S, Rig, finished, floor_plane
+from skelfuse.server.depth_clouds import capture_clouds
+from skelfuse.server.errors import AgentRequestFailed
+from tests.unit.test_calibration_runs import (
+    PERFORMER,
+    POSES,
+    START_S,
+    FakeAgents,
+    Rig,
+    finished,
+    floor_plane,
+)
 
 WORLD_FROM_SPACE = pose_from_position_yaw_pitch((0.5, 0.0, -1.0), -40.0)
 
@@ -106,3 +117,26 @@ def test_the_store_keeps_tracking_spaces_and_reads_files_from_before_them(tmp_pa
         store.import_json(exported)
     with pytest.raises(CalibrationFileError, match="'spaces' must be an object"):
         store.import_json({**exported, "spaces": [1]})
+
+
+async def test_a_moving_sensors_depth_cloud_is_placed_in_its_space_for_icp(tmp_path: Path) -> None:
+    rig = MovingRig(tmp_path)
+    await rig.clock.sleep(0.3)  # frames of both sensors
+    rng = np.random.default_rng(4)
+    room = rng.uniform(-3.0, 3.0, (800, 3))  # points in the world
+    head = rig.hub.sensors["head-b"]
+    t_s = head.frames[-1].t_server_s - 0.02  # between its two newest frames
+    pose = head_pose(t_s - START_S)
+    captured_ns = round((t_s - (head.clock_offset_s or 0.0)) * 1e9)
+
+    def answer(sensor_id: str) -> object:
+        sensor_pose = pose if sensor_id == "head-b" else POSES[sensor_id]
+        return encode_reply(apply(invert(sensor_pose), room), t_capture_ns=captured_ns)
+
+    clouds = await capture_clouds(FakeAgents(answer), ("cam-a", "head-b"), rig.hub.sensors)
+    # cam-a's stays in its frame; head-b's is in its space, where its bodies are.
+    np.testing.assert_allclose(apply(POSES["cam-a"], clouds["cam-a"]), room, atol=1e-5)
+    np.testing.assert_allclose(apply(WORLD_FROM_SPACE, clouds["head-b"]), room, atol=2e-3)
+    late = encode_reply(room, t_capture_ns=captured_ns + 3 * 10**9)  # no frame says where
+    with pytest.raises(AgentRequestFailed, match=r"'head-b'.*no frame says where"):
+        await capture_clouds(FakeAgents(lambda _: late), ("head-b",), rig.hub.sensors)
