@@ -110,6 +110,8 @@ class ReprojectedAzureKinectSource:
         max_edge_m: the re-projection's mesh edge rule (metres).
         sdk: the ``pykinect_azure`` package (tests pass a fake).
         wall_clock_ns: this PC's clock (injected in tests).
+        close_with: called by :meth:`close` after the device is closed (the pose source's
+            ``close``, so one ``close`` ends both).
 
     Raises:
         SensorError: bad arguments, or the SDK, device or tracker cannot be started.
@@ -129,6 +131,7 @@ class ReprojectedAzureKinectSource:
         max_edge_m: float = MAX_EDGE_M,
         sdk: Any = None,
         wall_clock_ns: Callable[[], int] = time.time_ns,
+        close_with: Callable[[], None] | None = None,
     ) -> None:
         if sensor_type not in ("azure_kinect", "femto"):
             raise SensorError(f"sensor type must be azure_kinect or femto, got {sensor_type!r}")
@@ -138,6 +141,7 @@ class ReprojectedAzureKinectSource:
             raise SensorError("a moving sensor needs a pose space id")
         self._sensor_type = sensor_type
         self._pose_at = pose_at
+        self._close_with = close_with
         self.pose_space = pose_space
         self._height = reference_height_m
         self._max_edge_m = max_edge_m
@@ -299,3 +303,6 @@ class ReprojectedAzureKinectSource:
             close_device(self._k4a, self._bt, self._opened)
         except Exception:
             logger.debug("closing the SDK failed", exc_info=True)
+        finally:
+            if self._close_with is not None:
+                self._close_with()

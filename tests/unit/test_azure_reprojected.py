@@ -163,7 +163,13 @@ def test_tracker_gets_the_level_image_and_joints_come_back_in_the_sensor_frame(
     k4a.SCRIPT.append((1_000_000, depth, ir))
     clock_now = 1_800_000_000_000_000_000
     pose = pose_from_matrix(T_world_from_sensor)
-    source = _source(package, {clock_now: pose}, reference_height_m=reference_height_m)
+    closed: list[bool] = []
+    source = _source(
+        package,
+        {clock_now: pose},
+        reference_height_m=reference_height_m,
+        close_with=lambda: closed.append(True),
+    )
     assert source.pose_space == "room" and source.pose_hint() is None
     assert (source.intrinsics.fx, source.intrinsics.cy) == (intr.fx, intr.cy)
 
@@ -207,7 +213,7 @@ def test_tracker_gets_the_level_image_and_joints_come_back_in_the_sensor_frame(
     assert k4a.LIVE == {} and k4abt.FRAMES == {}, "every capture, image and frame released"
     assert k4abt.TRACKERS[0]["shutdown"] and k4abt.TRACKERS[0]["destroyed"]
     assert k4a.STARTED[0] == (k4a.K4A_DEPTH_MODE_NFOV_UNBINNED, k4a.K4A_FRAMES_PER_SECOND_30, 0)
-    assert k4a.STARTED[-2:] == ["stopped", "closed"]
+    assert k4a.STARTED[-2:] == ["stopped", "closed"] and closed == [True]
 
 
 def test_a_capture_without_a_pose_is_counted_and_not_tracked(
