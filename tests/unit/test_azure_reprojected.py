@@ -306,3 +306,27 @@ def test_lens_maps_take_a_pixel_to_its_ray_and_back(fake_sdk: tuple[ModuleType, 
     back = maps.to_device.reshape(-1)[maps.to_pinhole[has]]
     back_row, back_col = np.divmod(back, intr.width)
     assert np.abs(back_col - cols[has]).max() <= 1 and np.abs(back_row - rows[has]).max() <= 1
+
+
+def test_depth_cloud_is_the_raw_depth_in_the_sensor_frame(
+    fake_sdk: tuple[ModuleType, Any, Any],
+) -> None:
+    """The calibration's depth request gets the device's own (not re-projected) depth, through
+    the lens: every point lies on the wall or a square once posed in the world."""
+    from skelfuse.agent.sources.base import SensorError
+
+    package, k4a, _ = fake_sdk
+    T = _pose(10.0, -15.0, 20.0)
+    k4a.SCRIPT.append((1_000_000, *_render(T, _intrinsics(k4a))))
+    source = _source(package, {1_800_000_000_000_000_000: pose_from_matrix(T)})
+    with pytest.raises(SensorError, match="no depth capture"):
+        source.request_handlers()["depth_cloud"]({})
+    source.next_capture(0.1)
+    reply = source.depth_cloud({"max_points": 5000, "max_range_m": 5.0})
+    points = np.frombuffer(reply["points"], dtype="<f4").reshape(-1, 3).astype(np.float64)
+    assert reply["frame"] == "sensor" and reply["device_timestamp_us"] == 1_000_000
+    assert 4000 <= len(points) <= 5000
+    world_z = apply(T, points)[:, 2]
+    off = np.minimum(np.abs(world_z - WALL_Z), np.abs(world_z - 3.0))
+    assert np.percentile(off, 99) < 0.01
+    source.close()
