@@ -33,10 +33,6 @@ from skelfuse.protocol.transform import Matrix4, apply
 SERVER_FEATURES: tuple[str, ...] = (MOVING_SENSORS,)
 """What the hub's ``welcome`` announces (docs/protocol.md §6.2)."""
 
-RECORDING_SPACE_PREFIX = "space:"
-"""A recording header's ``calibration`` holds a tracking space's transform under this prefix and
-the space id (``space:room``); no sensor id contains ``:``, so the keys cannot clash."""
-
 CLOUD_POSE_SLACK_S = 0.1
 """A moving sensor's depth cloud is placed by its frames' poses only if it was captured within
 this long of a frame (seconds): beyond, where the sensor looked is not known."""

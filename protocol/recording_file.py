@@ -37,6 +37,9 @@ FORMAT_VERSION: Final = 1
 FILE_SUFFIX: Final = ".sfrec"
 KINDS: Final = frozenset({"hello", "frame", "end"})
 _MAX_PAYLOAD_BYTES: Final = 1 << 20
+SPACE_KEY_PREFIX: Final = "space:"
+"""The header's ``calibration`` holds a tracking space's ``T_world_from_space`` (moving sensors)
+under this prefix and the space id, e.g. ``space:room``; no sensor id contains ``:``."""
 
 
 class RecordingError(Exception):

@@ -19,9 +19,13 @@ from skelfuse.calibration.store import Calibration, SensorCalibration, SpaceCali
 from skelfuse.fusion import kernels
 from skelfuse.fusion.hub import FusedFrame, FusionHub
 from skelfuse.fusion.settings import HubSettings
-from skelfuse.fusion.spaces import RECORDING_SPACE_PREFIX
 from skelfuse.protocol.feed import frame_json
-from skelfuse.protocol.recording_file import Header, ReadStatus, RecordingReader
+from skelfuse.protocol.recording_file import (
+    SPACE_KEY_PREFIX,
+    Header,
+    ReadStatus,
+    RecordingReader,
+)
 from skelfuse.protocol.skeleton import skeleton_definition
 
 
@@ -49,16 +53,14 @@ def calibration_of(header: Header) -> Calibration | None:
     sensors' stored poses, and its tracking spaces' (keys ``space:<id>``, moving sensors)."""
     stored = {key: pose for key, pose in header.calibration.items() if pose.state == "stored"}
     spaces = {
-        key.removeprefix(RECORDING_SPACE_PREFIX): SpaceCalibration(
-            pose.T_world_from_sensor, pose.method
-        )
+        key.removeprefix(SPACE_KEY_PREFIX): SpaceCalibration(pose.T_world_from_sensor, pose.method)
         for key, pose in stored.items()
-        if key.startswith(RECORDING_SPACE_PREFIX)
+        if key.startswith(SPACE_KEY_PREFIX)
     }
     sensors = {
         sensor_id: SensorCalibration(pose.T_world_from_sensor, pose.method, lag_s=pose.lag_s)
         for sensor_id, pose in stored.items()
-        if not sensor_id.startswith(RECORDING_SPACE_PREFIX)
+        if not sensor_id.startswith(SPACE_KEY_PREFIX)
     }
     if not sensors and not spaces:
         return None

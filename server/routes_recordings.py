@@ -24,9 +24,9 @@ from pydantic import BaseModel, Field, StrictStr
 
 from skelfuse import __version__
 from skelfuse.fusion.hub import FusionHub
-from skelfuse.fusion.spaces import RECORDING_SPACE_PREFIX
 from skelfuse.protocol.recording_file import (
     FILE_SUFFIX,
+    SPACE_KEY_PREFIX,
     Header,
     RecordingError,
     SensorPose,
@@ -68,7 +68,7 @@ def _header_from_hub(hub: FusionHub, name: str) -> Header:
             sensors[sensor_id]["pose_space"] = sensor.pose_space
             space = hub.calibration.spaces.get(sensor.pose_space) if hub.calibration else None
             if pose is not None and state == "stored" and space is not None:
-                key = RECORDING_SPACE_PREFIX + sensor.pose_space
+                key = SPACE_KEY_PREFIX + sensor.pose_space
                 calibration[key] = SensorPose(pose, space.method, state)
             continue
         if pose is not None and state == "stored":

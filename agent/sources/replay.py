@@ -3,7 +3,9 @@
 The agent then behaves as if that sensor were connected: it registers with the recorded sensor
 type's frames (``sensor_type`` ``replay``), sends the recorded bodies and floor planes, and
 stamps each frame with this PC's clock shifted so that the recorded spacing between frames is
-kept exactly. The recorded calibration (or the recorded pose hint) becomes the pose hint.
+kept exactly. The recorded calibration (or the recorded pose hint) becomes the pose hint. A
+recorded moving sensor plays back as one: its hello's ``pose_space``, its frames' poses, and its
+tracking space's recorded transform as its hint (docs/protocol.md §6.1).
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ import numpy as np
 
 from skelfuse.agent.sources.base import Capture, SensorError, wait_for_due
 from skelfuse.protocol.errors import DecodeError
-from skelfuse.protocol.recording_file import RecordingError, read_recording
+from skelfuse.protocol.recording_file import SPACE_KEY_PREFIX, RecordingError, read_recording
 from skelfuse.protocol.transform import Matrix4
 from skelfuse.protocol.wire import Frame, Hello, decode
 
@@ -70,8 +72,14 @@ class ReplaySource:
                 self._frames.append(message)
             elif isinstance(message, Hello) and self._hello is None:
                 self._hello = message
+        self.pose_space = self._hello.pose_space if self._hello and self._hello.moving else None
+        """A recorded moving sensor's tracking space (None: a fixed sensor): the hello says
+        ``moving`` and the frames keep their recorded poses."""
         self._pose: tuple[Matrix4, str] | None = None
-        if sensor_id in header.calibration:
+        space = header.calibration.get(SPACE_KEY_PREFIX + (self.pose_space or ""))
+        if self.pose_space is not None and space is not None:  # a moving sensor's hint: its space
+            self._pose = space.T_world_from_sensor.copy(), "manual"
+        elif sensor_id in header.calibration:
             self._pose = header.calibration[sensor_id].T_world_from_sensor.copy(), "manual"
         elif self._hello is not None and self._hello.pose_hint is not None:
             self._pose = (
@@ -122,7 +130,7 @@ class ReplaySource:
         if not wait_for_due(due, now, timeout_s, self._sleep):
             return None
         self._index += 1
-        return Capture(t_capture_ns=due, bodies=frame.bodies, floor=frame.floor)
+        return Capture(t_capture_ns=due, bodies=frame.bodies, floor=frame.floor, pose=frame.pose)
 
     def close(self) -> None:
         return None

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from skelfuse.agent.sources.replay import ReplaySource
 from skelfuse.calibration.store import Calibration, SpaceCalibration
 from skelfuse.fusion.hub import FusedFrame, FusionHub
 from skelfuse.fusion.settings import HubSettings
@@ -101,3 +102,22 @@ def recorded_header(calibration: Calibration) -> Header:
     for k in (0, 1):
         hub.handle_message(bytes([k]), [moving_hello(f"head-{k}")], T0, 0.0)
     return _header_from_hub(hub, "take")
+
+
+def test_a_recorded_moving_sensor_plays_back_live_as_one(tmp_path: Path) -> None:
+    path = tmp_path / "mutual.sfrec"
+    space = SpaceCalibration(WORLD_FROM_SPACE, "m")
+    write_recording(path, recorded_header(Calibration(1, 0.0, {}, spaces={"room": space})),
+                    mutual_records(0.5))  # fmt: skip
+    clock = [10**18]
+    source = ReplaySource(path, "head-1", wall_clock_ns=lambda: clock[0], sleep=lambda _: None)
+    assert source.pose_space == "room"
+    hint = source.pose_hint()
+    assert hint is not None
+    np.testing.assert_array_equal(hint[0], WORLD_FROM_SPACE)
+    capture = source.next_capture(1.0)
+    assert capture is not None and capture.pose == space_pose(head_sensor(1, 0.0))
+    fixed = tmp_path / "fixed.sfrec"
+    frame = Frame(1, 5, ())
+    write_recording(fixed, Header(0.0, "t"), [Record(5, "cam", "frame", encode(frame))])
+    assert ReplaySource(fixed, "cam").pose_space is None
