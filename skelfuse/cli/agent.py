@@ -22,6 +22,7 @@ from skelfuse.cli.agent_poses import (
     mutual_options,
     posed_from_args,
 )
+from skelfuse.cli.agent_reprojected import add_reprojected_options, reprojected_from_args
 from skelfuse.cli.values import UsageError, pose_matrix
 from skelfuse.protocol.constants import DEFAULT_ZMQ_PORT
 
@@ -80,6 +81,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     _add_source_options(agent)
     add_pose_options(agent)
     add_mutual_options(agent)
+    add_reprojected_options(agent)
 
 
 def _add_source_options(parser: argparse.ArgumentParser) -> None:
@@ -152,7 +154,7 @@ def run(args: argparse.Namespace) -> int:
     """
     from skelfuse.agent.runner import run_agent
 
-    source = posed_from_args(args, source_from_args(args))
+    source = sensor_from_args(args)
     curve = None
     if args.key or args.server_key:
         if not (args.key and args.server_key):
@@ -186,6 +188,21 @@ def run(args: argparse.Namespace) -> int:
             ", ".join(f"{n} {why}" for why, n in unposed.most_common()),
         )
     return 0
+
+
+def sensor_from_args(args: argparse.Namespace) -> SkeletonSource:
+    """The source with its poses when it moves: ``--reproject`` (a head-mounted Azure Kinect /
+    Femto), ``--pose-source`` around any source, or :func:`source_from_args` alone.
+
+    Raises:
+        UsageError: as :func:`source_from_args` and the pose options' own checks.
+    """
+    if args.reproject:
+        mutual_options(args)  # only its checks: the scenario is the simulator's
+        return reprojected_from_args(args)
+    if args.reference_height_m is not None:
+        raise UsageError("--reference-height-m is for --reproject")
+    return posed_from_args(args, source_from_args(args))
 
 
 def source_from_args(args: argparse.Namespace) -> SkeletonSource:

@@ -14,8 +14,10 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from skelfuse.agent.poses.base import PoseSource
 from skelfuse.agent.sources.base import SensorError, SkeletonSource
 from skelfuse.cli.values import UsageError
+from skelfuse.protocol.transform import Matrix4
 
 _SPACE_HINT = (
     "name the tracking space its poses are in, one per tracking system and room (two "
@@ -157,40 +159,57 @@ def posed_from_args(args: argparse.Namespace, source: SkeletonSource) -> Skeleto
 
 
 def _posed(args: argparse.Namespace, source: SkeletonSource) -> SkeletonSource:
-    from skelfuse.agent.poses.base import PoseSource, mount_matrix
     from skelfuse.agent.poses.posed import PosedSource
+
+    # Poses must be read on the clock the captures are stamped with (a source may have its own).
+    clock: Callable[[], int] = getattr(source, "wall_clock_ns", time.time_ns)
+    mount = mount_from_args(args)
+    return PosedSource(
+        source,
+        pose_source_from_args(args, clock),
+        args.pose_space,
+        mount=mount,
+        offset_ns=round(args.pose_offset_ms * 1e6),
+    )
+
+
+def mount_from_args(args: argparse.Namespace) -> Matrix4 | None:
+    """``--mount`` as ``T_body_from_sensor`` (None without it); checks ``--pose-space`` too.
+
+    Raises:
+        UsageError: no ``--pose-space``, ``--mount`` not numbers; SensorError: not a mount.
+    """
+    from skelfuse.agent.poses.base import mount_matrix
 
     if not args.pose_space:
         raise UsageError(f"--pose-space is required: {_SPACE_HINT}")
-    mount = None
-    if args.mount is not None:
-        try:
-            values = [float(v) for v in args.mount.split(",")]
-        except ValueError:
-            raise UsageError(f"--mount {args.mount!r}: expected X,Y,Z,QX,QY,QZ,QW") from None
-        mount = mount_matrix(values)
-    # Poses must be read on the clock the captures are stamped with (a source may have its own).
-    clock: Callable[[], int] = getattr(source, "wall_clock_ns", time.time_ns)
+    if args.mount is None:
+        return None
+    try:
+        values = [float(v) for v in args.mount.split(",")]
+    except ValueError:
+        raise UsageError(f"--mount {args.mount!r}: expected X,Y,Z,QX,QY,QZ,QW") from None
+    return mount_matrix(values)
+
+
+def pose_source_from_args(args: argparse.Namespace, clock: Callable[[], int]) -> PoseSource:
+    """The pose source ``--pose-source`` names, read on ``clock`` (the capture stamps').
+
+    Raises:
+        UsageError: an unknown pose source, or an option of the other one; SensorError: it
+            cannot start (its own message).
+    """
     kind, _, path = args.pose_source.partition(":")
-    poses: PoseSource
     if kind == "file" and path:
         from skelfuse.agent.poses.pose_file import FilePoseSource, read_pose_file
 
         if args.pose_device is not None:
             raise UsageError("--pose-device is for --pose-source openvr")
-        poses = FilePoseSource(read_pose_file(Path(path)), clock_ns=clock, loop=args.pose_loop)
-    elif args.pose_source == "openvr":
+        return FilePoseSource(read_pose_file(Path(path)), clock_ns=clock, loop=args.pose_loop)
+    if args.pose_source == "openvr":
         from skelfuse.agent.poses.openvr_source import OpenVRPoseSource
 
         if args.pose_loop:
             raise UsageError("--pose-loop is for a pose file")
-        poses = OpenVRPoseSource(args.pose_device or "hmd", clock_ns=clock)
-    else:
-        raise UsageError("expected openvr or file:PATH")
-    return PosedSource(
-        source,
-        poses,
-        args.pose_space,
-        mount=mount,
-        offset_ns=round(args.pose_offset_ms * 1e6),
-    )
+        return OpenVRPoseSource(args.pose_device or "hmd", clock_ns=clock)
+    raise UsageError("expected openvr or file:PATH")
