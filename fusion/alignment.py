@@ -21,6 +21,9 @@ when each live sensor's newest frame was captured, whether the next instant can 
   ``phased``, :func:`replayed_horizons`) instead of where the wait for the last sensor is; with
   ``skip_expected_late`` an instant does not wait for a sensor whose frame is expected after the
   deadline anyway (late in most replayed frames): it is fused as soon as the others are in.
+  With ``wait_for_phase`` there is no deadline until the grid's phase is first chosen (about
+  a second): the grid the first frames put is anywhere against the sensors' phases, and a
+  deadline there carries late sensors by up to a period.
 
 Pure logic on times: nothing here reads a clock (the hub passes ``now_s``, server clock, Unix
 seconds), so tests drive it with a clock of their own.
@@ -194,6 +197,8 @@ class Alignment:
         grid: ``deadline``: place the grid for the least wait (``wait``, as ``phased``) or
             for the shortest extrapolation of late sensors (``horizon``).
         skip_expected_late: ``deadline``: do not wait for sensors expected late.
+        wait_for_phase: ``deadline``: until the grid's phase is first chosen (every sensor has
+            :data:`PHASE_MIN_SAMPLES` frames), wait for every sensor as ``phased`` does.
     """
 
     def __init__(
@@ -204,10 +209,12 @@ class Alignment:
         max_extrapolation_s: float = 0.034,
         grid: Grid = "wait",
         skip_expected_late: bool = False,
+        wait_for_phase: bool = False,
     ) -> None:
         self.policy = policy
         self.grid: Grid = grid if policy == "deadline" else "wait"
         self.skip_expected_late = skip_expected_late and policy == "deadline"
+        self.wait_for_phase = wait_for_phase
         self.expected_late: frozenset[str] = frozenset()
         """``skip_expected_late``: the sensors the pending instants do not wait for (late in
         most replayed frames at the chosen phase); re-chosen with the phase."""
@@ -227,7 +234,7 @@ class Alignment:
         s = settings
         return cls(
             s.alignment, output_hz, s.alignment_deadline_s, s.alignment_max_extrapolation_s,
-            s.alignment_grid, s.alignment_skip_expected_late,
+            s.alignment_grid, s.alignment_skip_expected_late, s.alignment_wait_for_phase,
         )  # fmt: skip
 
     @property
@@ -262,7 +269,9 @@ class Alignment:
         if next_t < fusable - 2 * period:  # start, or resync after a stall
             next_t = self._grid_floor(fusable)
         if next_t > ready_until:
-            if self.policy != "deadline":
+            # Until the sensors' phases are known the grid is where the first frames put it, and
+            # a deadline there carries late sensors by up to a period: wait as ``phased`` does.
+            if self.policy != "deadline" or self._settling():
                 self._due_s = None
                 return None
             waited = [s.newest_s for s in sensors if s.sensor_id not in self.expected_late]
@@ -304,9 +313,13 @@ class Alignment:
         self._last_t = instant.t_s
         following = self._grid_point(instant.t_s + period)
         self._due_s = None
-        if self.policy == "deadline":
+        if self.policy == "deadline" and not self._settling():
             self._due_s = following + (self.deadline_s if self._waits_for_any() else 0.0)
         return instant
+
+    def _settling(self) -> bool:
+        """``wait_for_phase``: the grid's phase has not been chosen yet (no deadline)."""
+        return self.wait_for_phase and self._next_rephase_s == -math.inf
 
     def _waits_for_any(self) -> bool:
         """Whether some sensor is waited for (not every one is expected late)."""

@@ -252,6 +252,7 @@ def test_a_late_sensor_is_extrapolated_to_the_instant_and_marked_in_the_feed() -
     fusion = FusionSettings(
         alignment="deadline", alignment_predictor="own", alignment_grid="wait",
         alignment_skip_expected_late=False, filter="none", enforce_bone_lengths=False,
+        alignment_wait_for_phase=False,
     )  # fmt: skip
     fused = drive(hub_with_sensors(Settings(fusion=fusion)), periods=60)
     late = [f for f in fused if f.extrapolated and f.persons]  # published from the 3rd frame
@@ -282,7 +283,8 @@ def test_aligned_hub_output_has_no_extrapolation_mark() -> None:
 
 
 def test_the_loop_sleeps_until_the_deadline_not_the_idle_poll() -> None:
-    hub = FusionHub(Settings(fusion=FusionSettings(alignment="deadline")))
+    fusion = FusionSettings(alignment="deadline", alignment_wait_for_phase=False)
+    hub = FusionHub(Settings(fusion=fusion))
     assert wake_in_s(hub, T0) == IDLE_WAKE_S, "nothing pending"
     hub.alignment.next_instant([timing("a", T0 + 0.002), timing("b", T0 - 0.02)], T0 + 0.003)
     due = hub.alignment.due_s
@@ -295,7 +297,9 @@ def test_the_fusion_loop_publishes_at_the_deadline_with_no_further_frame() -> No
     """Through the real loop and wall clock: b stops sending; a's frames are past the instant;
     nothing more arrives, and the instant is still fused, b extrapolated."""
     deadline_s = 0.02
-    fusion = FusionSettings(alignment="deadline", alignment_deadline_s=deadline_s)
+    fusion = FusionSettings(
+        alignment="deadline", alignment_deadline_s=deadline_s, alignment_wait_for_phase=False
+    )
     hub = hub_with_sensors(Settings(fusion=replace(fusion, filter="none")))
 
     async def run() -> None:

@@ -313,3 +313,20 @@ def test_a_sudden_stop_is_not_overshot_by_the_views_predictor() -> None:
     errors = [float(np.abs(late_view(f) - walker(f.t_s - DELIVERY_S, stop)).max()) for f in after]
     assert errors[0] < 0.003
     assert max(errors[1:]) < 1e-4
+
+
+def test_no_deadline_until_the_grid_has_its_phase() -> None:
+    """``wait_for_phase`` (the default setting): for the first second, before every sensor has
+    30 frames and the grid its phase, each instant waits for both sensors (no timer, nobody
+    carried); from then on the deadline applies as before. Without it, the first instants are
+    already fused at the deadline, on the grid the first frames put."""
+    assert FusionSettings().alignment_wait_for_phase
+    waiting = Alignment("deadline", 30.0, deadline_s=0.010, wait_for_phase=True)
+    rows = run_policy(waiting)
+    first = [row for row in rows if row[1] < T0 + 0.9]
+    assert len(first) >= 20
+    assert all(late == () for _, _, late in first), "nobody carried before the phase"
+    settled = [row for row in rows if row[1] > T0 + 2.0]
+    assert len(settled) >= 25 and all(late == ("b",) for _, _, late in settled)
+    eager = run_policy(Alignment("deadline", 30.0, deadline_s=0.010))
+    assert any(late for _, instant, late in eager if instant < T0 + 0.9)
