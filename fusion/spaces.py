@@ -136,9 +136,24 @@ def cloud_in_space(
         raise ValueError(
             "a moving sensor's depth cloud needs its capture time and the sensor's frames"
         )
-    t_s = t_capture_ns / 1e9 + offset - sensor.lag_s
-    first, newest = sensor.frames[0].t_server_s, sensor.frames[-1].t_server_s
+    return cloud_at(sensor, t_capture_ns / 1e9 + offset - sensor.lag_s, points)
+
+
+def cloud_at(
+    sensor: SensorState, t_s: float, points: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
+    """A moving sensor's cloud (N, 3) metres captured at server time ``t_s``, moved from its
+    camera frame into its tracking space by its frames' pose then.
+
+    Raises:
+        ValueError: ``t_s`` is further than :data:`CLOUD_POSE_SLACK_S` from its frames.
+    """
     pose = sensor_pose_at(sensor.frames, t_s)
-    if pose is None or not first - CLOUD_POSE_SLACK_S <= t_s <= newest + CLOUD_POSE_SLACK_S:
+    near = bool(sensor.frames) and (
+        sensor.frames[0].t_server_s - CLOUD_POSE_SLACK_S
+        <= t_s
+        <= sensor.frames[-1].t_server_s + CLOUD_POSE_SLACK_S
+    )
+    if pose is None or not near:
         raise ValueError("its depth cloud was captured where no frame says where the sensor was")
     return apply(pose_matrix(pose), points)

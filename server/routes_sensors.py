@@ -21,6 +21,7 @@ from pydantic import BaseModel, Field
 
 from skelfuse.fusion.hub import FusionHub
 from skelfuse.fusion.sensors import SensorState
+from skelfuse.fusion.spaces import cloud_at
 from skelfuse.protocol.transform import Matrix4, apply
 from skelfuse.server.calibration_runs import CalibrationService
 from skelfuse.server.depth_clouds import LatestClouds
@@ -142,6 +143,11 @@ async def cloud(
     captured = await clouds.cloud(sensor_id, max_points)
     points = captured.at_most(max_points)
     pose, source = _pose(request, sensor_id)
+    if pose is not None and sensor.moving:  # a moving camera's cloud: into its space first
+        try:
+            points = cloud_at(sensor, captured.t_capture_s, points)
+        except ValueError:  # where it looked then is not known: shown in its own frame
+            pose, source = None, None
     if pose is not None:
         points = apply(pose, points)
     header = {

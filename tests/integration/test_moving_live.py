@@ -8,6 +8,8 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections.abc import Callable
+from typing import Any
 
 import httpx
 import numpy as np
@@ -16,6 +18,7 @@ import pytest
 from skelfuse.agent.runner import run_agent
 from skelfuse.agent.sim.performer import standing_pose
 from skelfuse.agent.sources.base import Capture
+from skelfuse.protocol.depth_cloud import encode_reply
 from skelfuse.protocol.sensor_pose import pose_from_matrix
 from skelfuse.protocol.skeleton import JOINT_COUNT
 from skelfuse.protocol.transform import (
@@ -32,6 +35,7 @@ from tests.support import wait_until
 pytestmark = pytest.mark.timeout(90)
 
 TRUTH = standing_pose() * [-1.0, 1.0, -1.0] + [0.0, 0.0, 3.0]  # 3 m away, facing the sensor
+ROOM = np.random.default_rng(2).uniform([-3.0, 0.0, 1.0], [3.0, 2.5, 5.0], (2000, 3))
 
 
 def head_pose(t_s: float) -> Matrix4:
@@ -49,6 +53,16 @@ class HeadSource:
 
     def __init__(self) -> None:
         self._next_ns = time.time_ns()
+        self._sent: list[tuple[int, Matrix4]] = []  # (capture stamp, pose) of the newest two
+
+    def request_handlers(self) -> dict[str, Callable[[dict[str, Any]], Any]]:
+        return {"depth_cloud": self.depth_cloud}
+
+    def depth_cloud(self, params: dict[str, Any]) -> dict[str, object]:
+        """The room's points as the sensor saw them at the frame before its newest (that frame's
+        stamp): a frame surely at the server already."""
+        captured_ns, pose = self._sent[0]
+        return encode_reply(apply(invert(pose), ROOM), t_capture_ns=captured_ns)
 
     def pose_hint(self) -> None:
         return None
@@ -62,6 +76,7 @@ class HeadSource:
         now_ns = self._next_ns
         self._next_ns += round(1e9 / self.fps)
         pose = head_pose(now_ns / 1e9)
+        self._sent = [*self._sent[-1:], (now_ns, pose)]
         joints = apply(invert(pose), TRUTH).astype(np.float32)
         body = Body(7, joints, np.full(JOINT_COUNT, 2, dtype=np.uint8))
         return Capture(now_ns, (body,), None, pose_from_matrix(pose))
@@ -100,6 +115,11 @@ def test_a_moving_agent_streams_and_its_person_is_fused_where_the_truth_is(
         errors = fused_errors(live_server, TRUTH)
         assert errors and max(errors) < 0.03, errors
         assert row()["frames_rejected"] == {}
+        # The viewer's depth cloud of a moving camera lands in the world too.
+        cloud = httpx.get(live_server.http_url + "/api/sensors/head-a/cloud", timeout=10).json()
+        assert cloud["frame"] == "world" and cloud["pose"] == "floor", cloud.get("detail")
+        shown = np.array(cloud["points"])
+        assert np.abs(shown - ROOM[: len(shown)]).max() < 0.01
         # The space's transform set by hand: an exported calibration with a "spaces" entry.
         world_from_space = pose_from_position_yaw_pitch((1.0, 0.0, 2.0), 90.0)
         file = {
