@@ -21,10 +21,10 @@ from typing import Any, Final
 
 import numpy as np
 
-from skelfuse.agent.poses.base import PoseSource
+from skelfuse.agent.poses.base import PoseSource, compose
 from skelfuse.agent.sources.base import Capture, SkeletonSource
 from skelfuse.protocol.messages import SensorPose
-from skelfuse.protocol.sensor_pose import pose_from_matrix, pose_matrix
+from skelfuse.protocol.sensor_pose import pose_from_matrix
 from skelfuse.protocol.transform import Matrix4
 
 logger = logging.getLogger(__name__)
@@ -57,7 +57,7 @@ class SensorPoses:
     ) -> None:
         self.poses = poses
         identity = mount is None or np.array_equal(np.asarray(mount), np.eye(4))
-        self._mount = None if identity else np.asarray(mount, dtype=np.float64)
+        self._mount = None if identity else pose_from_matrix(np.asarray(mount, dtype=np.float64))
         self._offset_ns = offset_ns
         self._report_s = report_s
         self._monotonic = monotonic
@@ -74,7 +74,7 @@ class SensorPoses:
         self.posed += 1
         if self._mount is None:
             return body
-        return pose_from_matrix(pose_matrix(body) @ self._mount)
+        return compose(body, self._mount)
 
     def _miss(self, reason: str) -> None:
         first = reason not in self.unposed

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from skelfuse.agent.poses.base import mount_matrix
+from skelfuse.agent.poses.base import compose, mount_matrix
 from skelfuse.agent.poses.openvr_source import OpenVRPoseSource
 from skelfuse.agent.poses.pose_file import FilePoseSource, read_pose_file
 from skelfuse.agent.poses.posed import PosedSource
@@ -18,7 +18,8 @@ from skelfuse.agent.runner import make_hello
 from skelfuse.agent.sim.performer import ProceduralPerformer
 from skelfuse.agent.sources.base import SensorError
 from skelfuse.agent.sources.sim import SimSource
-from skelfuse.protocol.sensor_pose import pose_matrix
+from skelfuse.protocol.messages import SensorPose
+from skelfuse.protocol.sensor_pose import pose_from_matrix, pose_matrix
 from skelfuse.protocol.transform import look_at_pose
 from tests.fakes.openvr_api import FakeDevice, make_openvr
 
@@ -131,3 +132,20 @@ def test_a_headset_mounted_camera_through_fake_openvr() -> None:
 def test_bad_mounts(values: tuple[float, ...], message: str) -> None:
     with pytest.raises(SensorError, match=message):
         mount_matrix(values)
+
+
+def test_compose_is_the_matrix_product() -> None:
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        a, b = (
+            SensorPose(
+                tuple(rng.normal(size=3)),  # type: ignore[arg-type]
+                tuple(q / np.linalg.norm(q)),  # type: ignore[arg-type]
+            )
+            for q in rng.normal(size=(2, 4))
+        )
+        expected = pose_from_matrix(pose_matrix(a) @ pose_matrix(b))
+        got = compose(a, b)
+        assert got.position_m == pytest.approx(expected.position_m, abs=1e-12)
+        assert got.rotation_xyzw == pytest.approx(expected.rotation_xyzw, abs=1e-12)
+        assert got.rotation_xyzw[3] >= 0
