@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from skelfuse.agent.poses.posed import PosedSource
@@ -15,6 +16,7 @@ from skelfuse.cli.agent import source_from_args
 from skelfuse.cli.agent_poses import posed_from_args
 from skelfuse.cli.values import UsageError
 from skelfuse.protocol.sensor_pose import pose_matrix
+from tests.fakes.openvr_api import FakeDevice, make_openvr
 
 TRACK = "t_s,px,py,pz,qx,qy,qz,qw\n0,0,1.6,0,0,0,0,1\n0.2,0,1.6,0,0,0,0,1\n"
 
@@ -128,3 +130,24 @@ def test_the_mutual_scenario_is_a_moving_sim_sensor() -> None:
 def test_mutual_usage_errors(options: list[str], message: str) -> None:
     with pytest.raises(UsageError, match=message):
         posed(*options)
+
+
+def test_openvr_options_reach_the_pose_source(monkeypatch: pytest.MonkeyPatch) -> None:
+    # The fake pyopenvr (tests/fakes/openvr_api.py) in place of the wheel: a headset and a
+    # tracker 2 m up, chosen by serial.
+    up = np.hstack([np.eye(3), [[0.0], [2.0], [0.0]]])
+    vr = make_openvr([FakeDevice(1, "HMD-1"), FakeDevice(3, "LHR-1A2B", lambda dt: up)])
+    monkeypatch.setattr("skelfuse.agent.poses.openvr_source.import_openvr", lambda: vr)
+    source = posed(
+        "--pose-source", "openvr", "--pose-space", "alice", "--pose-device", "LHR-1A2B",
+        "--mount", "0,0,0.1,0,0,0,1", "--pose-offset-ms", "-15",
+    )  # fmt: skip
+    assert isinstance(source, PosedSource)
+    capture = source.next_capture(timeout_s=1.0)
+    assert capture is not None and capture.pose is not None
+    # OpenVR's device looks along −Z: the camera 10 cm "forward" is at z = −0.1.
+    assert capture.pose.position_m == pytest.approx((0.0, 2.0, -0.1))
+    (origin, seconds), *_ = vr.system.calls
+    assert origin == vr.TrackingUniverseStanding and -0.2 < seconds <= -0.015
+    source.close()
+    assert vr.shutdowns == 1
