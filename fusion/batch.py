@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from skelfuse.fusion.mirror_labellings import slots
 from skelfuse.fusion.ray_weighting import depth_noise_ratios, ray_weighted_mean
 from skelfuse.fusion.views import View
 from skelfuse.fusion.weighted import weighted_mean
@@ -25,6 +26,7 @@ class ViewBatch:
     """The views of P persons stacked: person ``person_of[i]``'s ``slot_of[i]``-th view.
 
     joints: (N, 25, 3) float64 metres, world; states: (N, 25) uint8; sensors: (N, 3) metres.
+    person_of, slot_of (N,) and starts (P + 1,) are shared read-only arrays.
     Per-person sums use (P, widest, ...) blocks padded after the real views (:meth:`pad`).
     depth_ratios: (N,) each view's noise along its sensor's ray over across it, None when all
     are 1 (fusion/ray_weighting.py: only ``rgb`` views have more).
@@ -46,8 +48,7 @@ class ViewBatch:
         ratio (``FusionSettings.use_sensor_priors``), else treat every view as isotropic."""
         counts = [len(cluster) for cluster in clusters]
         views = [view for cluster in clusters for view in cluster]
-        person_of = np.repeat(np.arange(len(clusters)), counts)
-        starts = np.cumsum([0, *counts])
+        places = slots(tuple(counts))  # cached per shape (read-only arrays): frames repeat
         # np.array on the lists: np.stack's values, a few times faster on these small arrays.
         return cls(
             views,
@@ -58,9 +59,9 @@ class ViewBatch:
                 [_NO_POSITION if v.sensor_position is None else v.sensor_position for v in views],
                 dtype=np.float64,
             ),
-            person_of,
-            np.arange(len(views)) - starts[person_of],
-            starts,
+            places.person_of,
+            places.slot_of,
+            places.starts,
             depth_noise_ratios([v.sensor_type for v in views]) if depth_noise else None,
         )
 

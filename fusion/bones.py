@@ -301,6 +301,12 @@ class BoneModel:
         self._locked = self._locked[_BONE_MIRROR]
 
 
+def references_of(models: list[BoneModel]) -> FloatArray:
+    """(P, 24) each model's :meth:`BoneModel.reference` (P >= 1), without a copy of each."""
+    rows = [m.set_lengths if m.set_lengths is not None else m._estimate for m in models]
+    return np.array(rows, dtype=np.float64)
+
+
 def observe_bone_lengths(
     models: list[BoneModel],
     joints: FloatArray,

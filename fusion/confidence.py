@@ -82,7 +82,7 @@ from skelfuse.fusion.anatomy import (
     unit,
 )
 from skelfuse.fusion.points import finite_points
-from skelfuse.fusion.priors import SensorPrior
+from skelfuse.fusion.priors import SensorPrior, distinct_priors
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.protocol.skeleton import BONES, PARENTS, JointId
 
@@ -168,10 +168,10 @@ def facing_cosines(
     """
     sensors = np.asarray(sensor_positions, dtype=np.float64)
     if kernels.enabled() and sensors.ndim == 2:  # the same bits in one compiled loop
-        shape = sensors.shape
-        return kernels_stages.facing_cosines(
-            np.broadcast_to(np.asarray(facing, dtype=np.float64), shape),
-            np.broadcast_to(np.asarray(body_position, dtype=np.float64), shape),
+        one, at = np.asarray(facing, dtype=np.float64), np.asarray(body_position, dtype=np.float64)
+        return kernels_stages.facing_cosines(  # (broadcast only when needed: µs a call)
+            one if one.shape == sensors.shape else np.broadcast_to(one, sensors.shape),
+            at if at.shape == sensors.shape else np.broadcast_to(at, sensors.shape),
             sensors,
         )
     to_sensor = sensors - np.asarray(body_position)
@@ -285,7 +285,7 @@ def body_weights(
     """
     s = settings
     # Each distinct prior's values once, gathered per view (the same floats as view by view).
-    distinct, of_view = _distinct(priors) if priors is not None else ([], None)
+    distinct, of_view = distinct_priors(priors) if priors is not None else ([], None)
     if all(_as_settings(p, s) for p in distinct):  # Kinect v2 alike: the shared table's floats
         of_view = None
     if of_view is None and kernels.enabled():  # the same bits in one compiled loop
@@ -340,22 +340,6 @@ def _as_settings(prior: SensorPrior, settings: FusionSettings) -> bool:
     )
 
 
-def _distinct(
-    priors: Sequence[SensorPrior],
-) -> tuple[list[SensorPrior], npt.NDArray[np.intp]]:
-    """The distinct priors (first-seen order) and each view's index among them, (N,)."""
-    # Views share a handful of prior objects: hashing each object once (a frozen dataclass
-    # hashes all its fields every time) instead of once per view is most of this function.
-    ids = [id(prior) for prior in priors]
-    objects = dict(zip(ids, priors, strict=True))  # first-seen order; one object per id
-    index: dict[SensorPrior, int] = {}
-    of_object = {key: index.setdefault(prior, len(index)) for key, prior in objects.items()}
-    if len(index) == 1:  # the usual frame: one kind of sensor
-        return list(index), np.zeros(len(ids), dtype=np.intp)
-    of_view = np.array([of_object[key] for key in ids], dtype=np.intp)
-    return list(index), of_view
-
-
 def view_factors(
     cosines: FloatArray,
     body_positions: FloatArray,
@@ -379,7 +363,7 @@ def view_factors(
     if s.use_facing and priors is None:
         factors *= facing_factors(cosines, s.facing_power, s.facing_floor, s.facing_back_factor)
     elif s.use_facing and priors is not None:
-        distinct, of_view = _distinct(priors)
+        distinct, of_view = distinct_priors(priors)
         models = [p.facing(s) for p in distinct]
         # One call per distinct facing model (a few sensor types): the same arithmetic, hence
         # the same bits, as the shared model for every Kinect v2 view (an element's factor

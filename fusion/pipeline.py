@@ -39,13 +39,13 @@ import numpy.typing as npt
 from skelfuse.fusion import kernels
 from skelfuse.fusion.anatomy import corrected_yaw, facing_directions
 from skelfuse.fusion.batch import ViewBatch
-from skelfuse.fusion.bones import BoneModel, fit_bone_lengths, observe_bone_lengths
-from skelfuse.fusion.confidence import (
-    body_weights,
-    facing_cosines,
-    joint_confidence,
-    view_factors,
+from skelfuse.fusion.bones import (
+    BoneModel,
+    fit_bone_lengths,
+    observe_bone_lengths,
+    references_of,
 )
+from skelfuse.fusion.confidence import body_weights, facing_cosines, view_factors
 from skelfuse.fusion.filters import JointFilter, Stacks, filter_all, make_filter
 from skelfuse.fusion.identity import PersonTracker, Track
 from skelfuse.fusion.labels import LabelDoubt, Labels, label_views, walking_backwards
@@ -55,7 +55,7 @@ from skelfuse.fusion.reliability import reliability_factors
 from skelfuse.fusion.sensors import SensorState
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.views import FusedPerson, View, fused_persons
-from skelfuse.fusion.weighted import carriers, cauchy_reweight
+from skelfuse.fusion.weighted import cauchy_reweight, confidence_and_carriers
 from skelfuse.fusion.world_views import PoseLookup, views_at
 
 __all__ = ["FusionPipeline", "PersonMemory", "PoseLookup", "views_at"]
@@ -143,7 +143,7 @@ class FusionPipeline:
                     track_facing[p] = facing_directions(tracks[p].joints[None])[0]
 
             # 5. Per-joint confidence from each view's body alone, 6. a first fusion.
-            references = np.stack([m.bones.reference() for m in memories])
+            references = references_of([m.bones for m in memories])
             types = [v.sensor_type for v in batch.views]
             priors = priors_of(types) if s.use_sensor_priors else None  # fusion/priors.py
             weights = body_weights(
@@ -195,8 +195,7 @@ class FusionPipeline:
                     weights = np.where(several[:, None], reweighted, weights)
                     fused = batch.fuse(weights)
             padded_joints, padded_weights = batch.pad(batch.joints, np.nan), batch.pad(weights, 0.0)
-            confidence = joint_confidence(padded_joints, padded_weights)
-            carried = carriers(padded_joints, padded_weights)
+            confidence, carried = confidence_and_carriers(padded_joints, padded_weights)
 
             observe_bone_lengths(
                 [m.bones for m in memories],
@@ -223,7 +222,7 @@ class FusionPipeline:
             skeletons = dict(zip(alive, filtered, strict=True))
             if s.enforce_bone_lengths and alive:
                 # The references as they are now: this step's observations are in.
-                lengths = np.stack([memories[p].bones.reference() for p in alive])
+                lengths = references_of([memories[p].bones for p in alive])
                 known = np.isfinite(lengths).any(axis=1)
                 usable: list[bool] = np.asarray(known).tolist()
                 fitted = [p for p, k in zip(alive, usable, strict=True) if k]
@@ -299,7 +298,7 @@ class FusionPipeline:
         self._facings = {}
         if tracks and s.mirror_walk_check_s > 0 and s.use_mirror_correction:
             joints = [track.joints for track in tracks]
-            computed = facing_directions(np.stack(joints))
+            computed = facing_directions(np.array(joints, dtype=np.float64))
             facings = list(computed)
             self._facings = {
                 pid: (row, facing) for pid, row, facing in zip(ids, joints, computed, strict=True)

@@ -25,6 +25,9 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Final
 
+import numpy as np
+import numpy.typing as npt
+
 from skelfuse.fusion.settings import FusionSettings
 
 _log = logging.getLogger(__name__)
@@ -161,4 +164,42 @@ def prior_for(sensor_type: str, priors: Mapping[str, SensorPrior] = PRIORS) -> S
 
 def priors_of(sensor_types: Sequence[str]) -> list[SensorPrior]:
     """Each view's prior, in order (:func:`prior_for` on each type)."""
-    return [prior_for(t) for t in sensor_types]
+    key = tuple(sensor_types)
+    kept = _priors_of.get(key)
+    if kept is None:  # frames repeat the same sensors: each sequence of types looked up once
+        if len(_priors_of) >= _KEPT:
+            _priors_of.clear()
+        kept = _priors_of[key] = tuple(prior_for(t) for t in sensor_types)
+    return list(kept)
+
+
+def distinct_priors(
+    priors: Sequence[SensorPrior],
+) -> tuple[list[SensorPrior], npt.NDArray[np.intp]]:
+    """The distinct priors (first-seen order) and each view's index among them, (N,) read-only.
+
+    Frames repeat the same sequence of prior objects: the answer is kept per sequence, by the
+    objects' identities (the objects kept with it, so that no id is reused meanwhile), which
+    is cheaper than hashing a frozen dataclass (all its fields, each time).
+    """
+    key = tuple(map(id, priors))
+    kept = _distinct_of.get(key)
+    if kept is None:
+        if len(_distinct_of) >= _KEPT:
+            _distinct_of.clear()
+        # Views share a handful of prior objects: each object hashed once, not once per view.
+        objects = dict(zip(key, priors, strict=True))  # first-seen order; one object per id
+        index: dict[SensorPrior, int] = {}
+        of_object = {k: index.setdefault(prior, len(index)) for k, prior in objects.items()}
+        of_view = np.array([of_object[k] for k in key], dtype=np.intp)
+        of_view.flags.writeable = False
+        kept = _distinct_of[key] = (tuple(priors), list(index), of_view)
+    return list(kept[1]), kept[2]
+
+
+_KEPT: Final = 64
+"""Sequences of types (of priors) :func:`priors_of` (:func:`distinct_priors`) keeps."""
+_priors_of: dict[tuple[str, ...], tuple[SensorPrior, ...]] = {}
+_distinct_of: dict[
+    tuple[int, ...], tuple[tuple[SensorPrior, ...], list[SensorPrior], npt.NDArray[np.intp]]
+] = {}

@@ -91,6 +91,23 @@ def cauchy_reweight(
     return result
 
 
+def confidence_and_carriers(
+    joints: FloatArray, weights: FloatArray
+) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
+    """:func:`~skelfuse.fusion.confidence.joint_confidence` and :func:`carriers` of the same
+    views: with the kernels on, both from one compiled pass (the same bits as the two calls).
+
+    Args:
+        joints: (P, S, J, 3) as fused (NaN: no position); weights: (P, S, J) the final weights.
+
+    Returns:
+        confidence (P, J) float64 and carried (P, S, J) bool.
+    """
+    if kernels.enabled():
+        return kernels_stages.confidence_and_carriers(joints, weights, MIN_SHARE)
+    return joint_confidence(joints, weights), carriers(joints, weights)
+
+
 def carriers(joints: FloatArray, weights: FloatArray) -> npt.NDArray[np.bool_]:
     """Which views carried each fused joint: at least :data:`MIN_SHARE` of its weight.
 

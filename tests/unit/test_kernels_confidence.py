@@ -69,6 +69,11 @@ def test_confidence_and_carriers_kernel_gives_the_numpy_bits(
         with kernels.forced("numpy"):
             expected = (confidence.joint_confidence(points, w), weighted.carriers(points, w))
         assert _same_bits(got[0], expected[0]) and _same_bits(got[1], expected[1])
+        both = weighted.confidence_and_carriers(points, w)  # one compiled pass for the two
+        with kernels.forced("numpy"):
+            apart = weighted.confidence_and_carriers(points, w)
+        for pair in (both, apart):
+            assert _same_bits(pair[0], expected[0]) and _same_bits(pair[1], expected[1])
     assert (got[0] == 0).any() and got[1].any() and not got[1].all()
 
 

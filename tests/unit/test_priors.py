@@ -17,6 +17,7 @@ from skelfuse.fusion.priors import (
     PRIORS,
     RGB_MONO,
     SensorPrior,
+    distinct_priors,
     prior_for,
     priors_of,
 )
@@ -134,6 +135,23 @@ def test_unknown_type_falls_back_to_kinect_v2_with_one_warning(
         assert priors_of(["gizmo_test_priors", "azure_kinect"]) == [KINECT_V2, AZURE_BODY_TRACKING]
     warnings = [r for r in caplog.records if "gizmo_test_priors" in r.getMessage()]
     assert len(warnings) == 1
+
+
+def test_distinct_priors_by_value_and_kept_answers_stay_right() -> None:
+    """Equal priors count as one (by value, as hashing them did), each view's index follows the
+    sequence given, and a kept answer (frames repeat) is the same and cannot be written to."""
+    twin = dataclasses.replace(KINECT_V2)  # equal to Kinect v2's, another object
+    assert twin == KINECT_V2 and twin is not KINECT_V2
+    for _ in range(2):  # the second time from what was kept
+        found, of_view = distinct_priors([RGB_MONO, KINECT_V2, twin, RGB_MONO, AZURE_BODY_TRACKING])
+        assert found == [RGB_MONO, KINECT_V2, AZURE_BODY_TRACKING]
+        assert of_view.tolist() == [0, 1, 1, 0, 2] and not of_view.flags.writeable
+    found, of_view = distinct_priors([twin, KINECT_V2])  # another sequence, another answer
+    assert found == [KINECT_V2] and of_view.tolist() == [0, 0]
+    types = ["azure_kinect", "rgb", "kinect_v2"]
+    first = priors_of(types)
+    first.append(KINECT_V2)  # the caller's own list: what is kept is not changed
+    assert priors_of(types) == [AZURE_BODY_TRACKING, RGB_MONO, KINECT_V2]
 
 
 def _fuse(types: list[str], settings: FusionSettings, thigh_m: float) -> np.ndarray:
