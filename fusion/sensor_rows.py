@@ -18,7 +18,8 @@ def sensor_rows(
     """Session, health counters, clock, calibration and drift of each sensor, sorted by id.
 
     ``pose_of`` gives a sensor's ``T_world_from_sensor`` and where it comes from (the hub's
-    :meth:`~skelfuse.fusion.hub.FusionHub.pose_of`); ``now_mono``: monotonic seconds.
+    :meth:`~skelfuse.fusion.hub.FusionHub.pose_of`; a moving sensor's is its tracking space's,
+    and its row names the space: ``pose_space``); ``now_mono``: monotonic seconds.
     """
     rows: list[dict[str, object]] = []
     for sensor in sorted(sensors, key=lambda x: x.sensor_id):
@@ -51,4 +52,6 @@ def sensor_rows(
                 else status.to_json(),
             }
         )
+        if sensor.moving:  # only then, so fixed sensors' rows are as before
+            rows[-1]["pose_space"] = sensor.pose_space
     return rows

@@ -112,6 +112,7 @@ def test_a_moving_agent_streams_and_its_person_is_fused_where_the_truth_is(
 
         assert wait_until(lambda: row().get("frames_received", 0) > 10, 20), row()
         assert row()["calibration"]["state"] == "floor"  # type: ignore[index]
+        assert row()["pose_space"] == "room"
         errors = fused_errors(live_server, TRUTH)
         assert errors and max(errors) < 0.03, errors
         assert row()["frames_rejected"] == {}
