@@ -18,8 +18,12 @@ tracking space's own (OpenVR) axes; the mount then places the camera on the body
 from __future__ import annotations
 
 import importlib
+import importlib.util
+import os
+import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -51,6 +55,35 @@ def import_openvr() -> Any:
         raise SensorError(
             f"OpenVR poses need pyopenvr: pip install 'skelfuse[openvr]' ({exc})"
         ) from exc
+
+
+def check_openvr(
+    home: Path | None = None, environ: Mapping[str, str] | None = None
+) -> tuple[bool, str]:
+    """Whether OpenVR poses can run here, without starting OpenVR (``skelfuse doctor``).
+
+    Looks for pyopenvr (not imported) and for the OpenVR path registry SteamVR writes when it
+    first runs (``openvrpaths.vrpath``, where ``libopenvr_api`` looks for the runtime).
+    ``home``/``environ``: the user's home and environment (injected in tests).
+    """
+    env = os.environ if environ is None else environ
+    base = Path.home() if home is None else home
+    try:
+        found = importlib.util.find_spec("openvr") is not None
+    except (ImportError, ValueError):
+        found = False
+    if not found:
+        return False, "missing pyopenvr: pip install 'skelfuse[openvr]'"
+    if sys.platform == "win32":
+        folder = Path(env.get("LOCALAPPDATA", str(base / "AppData" / "Local"))) / "openvr"
+    elif sys.platform == "darwin":
+        folder = base / "Library" / "Application Support" / "OpenVR" / ".openvr"
+    else:
+        folder = Path(env.get("XDG_CONFIG_HOME", str(base / ".config"))) / "openvr"
+    registry = folder / "openvrpaths.vrpath"
+    if not registry.exists():
+        return False, f"pyopenvr found, but no {registry}: install SteamVR and run it once"
+    return True, f"pyopenvr and {registry} found (SteamVR must be running; headset not probed)"
 
 
 def openvr_matrix(m34: Any) -> np.ndarray[Any, np.dtype[np.float64]]:

@@ -21,5 +21,18 @@ def run(args: argparse.Namespace) -> int:
     for check in check_sources():
         mark = "yes" if check.available else "no "
         lines.append(f"  {check.kind:13s} {mark}  {check.reason}")
+    lines.extend(_pose_source_lines())
     sys.stdout.write("\n".join(lines) + "\n")
     return 0
+
+
+def _pose_source_lines() -> list[str]:
+    """The pose sources of a moving sensor (``--pose-source``; docs/sensors.md)."""
+    from skelfuse.agent.poses.openvr_source import check_openvr
+
+    available, reason = check_openvr()
+    return [
+        "pose sources (--pose-source, moving sensors):",
+        "  file          yes  built in: a pose file (CSV or JSON lines)",
+        f"  openvr        {'yes' if available else 'no '}  {reason}",
+    ]

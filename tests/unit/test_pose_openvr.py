@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import importlib.util
 import math
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from skelfuse.agent.poses.openvr_source import OpenVRPoseSource
+from skelfuse.agent.poses.openvr_source import OpenVRPoseSource, check_openvr
 from skelfuse.agent.sources.base import SensorError
 from skelfuse.protocol.sensor_pose import pose_matrix
 from tests.fakes.openvr_api import FakeDevice, make_openvr
@@ -114,3 +116,18 @@ def test_the_real_wheel_without_a_runtime_gives_the_clear_error() -> None:
     # This machine has no SteamVR: libopenvr_api finds no path registry and init fails.
     with pytest.raises(SensorError, match=r"OpenVR did not start \(InitError_Init_\w+\)"):
         OpenVRPoseSource()
+
+
+def test_doctor_finds_the_runtime_by_its_path_registry(tmp_path: Path) -> None:
+    if importlib.util.find_spec("openvr") is None:
+        unavailable("pyopenvr not installed", "the dev extra installs openvr (pyproject.toml)")
+    env = {"XDG_CONFIG_HOME": str(tmp_path / "config"), "LOCALAPPDATA": str(tmp_path / "local")}
+    available, reason = check_openvr(tmp_path, env)
+    assert not available and "install SteamVR and run it once" in reason
+    folder = {"win32": tmp_path / "local" / "openvr", "darwin": tmp_path / "Library" /
+              "Application Support" / "OpenVR" / ".openvr"}.get(sys.platform,
+              tmp_path / "config" / "openvr")  # fmt: skip
+    folder.mkdir(parents=True)
+    (folder / "openvrpaths.vrpath").write_text("{}")
+    available, reason = check_openvr(tmp_path, env)
+    assert available and "SteamVR must be running" in reason
