@@ -1,6 +1,7 @@
 """Moving sensors (issue 15 item 5, report B): the figures of docs/benchmarks.md "Moving sensors".
 
     .venv/bin/python bench/moving_sensors.py [--seeds 3] [--part a|b|all] [--fusion server|minimal]
+        [--turn-speeds 1,5] [--pose-noise-mm 0] [--pose-noise-deg 0]
 
 (a) Report B's measure in simulation (:mod:`bench.moving_sensors_frames`): % of erroneous frames
     for head, hands and feet of a person filmed by a head-mounted sensor turning by report B's
@@ -75,7 +76,10 @@ def frames_table(seeds: int, walk_m: float, noisy: bool = True) -> list[str]:
 
 
 def fused_table(
-    seeds: int, turn_speed: float, errors_of: Callable[[FusedCase], dict[str, float]]
+    seeds: int,
+    turn_speed: float,
+    errors_of: Callable[[FusedCase], dict[str, float]],
+    noise: tuple[float, float] = (0.0, 0.0),
 ) -> list[str]:
     """Part (b) as markdown rows: per axis, MPJPE / per-joint median (mm) for each mismatch."""
     lines = [
@@ -86,7 +90,16 @@ def fused_table(
         cells, coverage = [], []
         for mismatch in MISMATCHES_MS:
             runs = [
-                errors_of(FusedCase(axis, mismatch, seed=s, turn_speed=turn_speed))
+                errors_of(
+                    FusedCase(
+                        axis,
+                        mismatch,
+                        seed=s,
+                        turn_speed=turn_speed,
+                        position_noise_mm=noise[0],
+                        rotation_noise_deg=noise[1],
+                    )
+                )
                 for s in range(seeds)
             ]
             mpjpe = float(np.median([r["mpjpe_mm"] for r in runs]))
@@ -110,6 +123,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seeds", type=int, default=3, help="runs per figure (median)")
     parser.add_argument("--part", choices=["a", "b", "all"], default="all")
     parser.add_argument("--fusion", choices=["server", "minimal"], default="server")
+    parser.add_argument(
+        "--turn-speeds", default="1,5", help="(b): schedule rates, comma-separated (1: report B's)"
+    )
+    parser.add_argument("--pose-noise-mm", type=float, default=0.0, help="(b): σ per axis")
+    parser.add_argument("--pose-noise-deg", type=float, default=0.0, help="(b): σ per axis")
     args = parser.parse_args(argv)
     start = time.perf_counter()
     print(f"load average at start: {os.getloadavg()}")
@@ -119,12 +137,14 @@ def main(argv: list[str] | None = None) -> None:
             print("\n".join(frames_table(args.seeds, walk)))
     if args.part in ("b", "all"):
         errors_of = _fused_errors(args.fusion)
-        for speed in (1.0, 5.0):
+        noise = (args.pose_noise_mm, args.pose_noise_deg)
+        for speed in (float(v) for v in args.turn_speeds.split(",")):
             print(
                 f"\n(b) fused error, {args.fusion} fusion, MPJPE / median mm, schedule x{speed:g} "
-                f"(<= {20 * speed:.0f} deg/s), median of {args.seeds} seeds\n"
+                f"(<= {20 * speed:.0f} deg/s), pose noise {noise[0]:g} mm / {noise[1]:g} deg, "
+                f"median of {args.seeds} seeds\n"
             )
-            print("\n".join(fused_table(args.seeds, speed, errors_of)))
+            print("\n".join(fused_table(args.seeds, speed, errors_of, noise)))
     print(f"\nload average at end: {os.getloadavg()}; {time.perf_counter() - start:.0f} s")
 
 
