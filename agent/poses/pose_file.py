@@ -11,7 +11,8 @@ Two formats (docs/sensors.md, "Pose files"), told apart by the file's extension:
   qx, qy, qz, qw]}`` (or ``"t_ns"``), the same 7 numbers as a frame's wire ``pose``.
 
 Times strictly increase; quaternions are unit within 1e-3 (the protocol's tolerance) and are
-normalised. Every error names the file and the line.
+normalised. Every error names the file and the line. :func:`write_pose_file` writes the CSV form
+(a simulator's trajectory, a tracker's recording).
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
@@ -80,6 +81,32 @@ def read_pose_file(path: Path) -> PoseFile:
     if absolute is None:
         raise SensorError(f"pose file {path}: no samples")
     return PoseFile(tuple(times), tuple(poses), absolute, t0_ns)
+
+
+def write_pose_file(
+    path: Path,
+    times: Sequence[float] | Sequence[int],
+    poses: Sequence[SensorPose],
+    *,
+    absolute: bool,
+) -> None:
+    """Write a CSV pose file :func:`read_pose_file` reads back: a simulated or recorded
+    trajectory (``times``: ``t_ns`` ints when ``absolute``, else ``t_s`` seconds).
+
+    Floats are written with ``repr`` (round-trip exact).
+
+    Raises:
+        ValueError: lengths differ; OSError: the file cannot be written.
+    """
+    if len(times) != len(poses):
+        raise ValueError(f"{len(times)} times for {len(poses)} poses")
+    header = ("t_ns" if absolute else "t_s", *POSE_COLUMNS)
+    lines = [",".join(header)]
+    for t, pose in zip(times, poses, strict=True):
+        stamp = str(int(t)) if absolute else repr(float(t))
+        values = (*pose.position_m, *pose.rotation_xyzw)
+        lines.append(",".join([stamp, *(repr(float(v)) for v in values)]))
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 
 Row = tuple[int, str, int | float, list[float]]

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from skelfuse.agent.poses.pose_file import FilePoseSource, read_pose_file
+from skelfuse.agent.poses.pose_file import FilePoseSource, read_pose_file, write_pose_file
 from skelfuse.agent.sources.base import SensorError
 from skelfuse.protocol.messages import SensorPose
 
@@ -135,3 +135,23 @@ def test_bad_files_say_where(tmp_path: Path, name: str, text: str, message: str)
 def test_a_missing_file_is_a_sensor_error(tmp_path: Path) -> None:
     with pytest.raises(SensorError, match="pose file"):
         read_pose_file(tmp_path / "absent.csv")
+
+
+@pytest.mark.parametrize("absolute", [False, True])
+def test_a_written_file_reads_back_exactly(tmp_path: Path, absolute: bool) -> None:
+    poses = [
+        SensorPose((0.1 * k, 1.6, -1 / 3), (0.0, math.sin(k / 7), 0.0, math.cos(k / 7)))
+        for k in range(5)
+    ]
+    times = (
+        [1_700_000_000_000_000_000 + k * 10_000_000 for k in range(5)]
+        if absolute
+        else [k / 90 for k in range(5)]
+    )
+    path = tmp_path / "written.csv"
+    write_pose_file(path, times, poses, absolute=absolute)
+    track = read_pose_file(path)
+    assert track.absolute == absolute
+    assert track.poses == tuple(poses)
+    expected = [(t - times[0]) / 1e9 for t in times] if absolute else times
+    assert track.times_s == pytest.approx(tuple(expected), abs=0)
