@@ -95,12 +95,15 @@ class ViewBatch:
 
     def body_positions(self, fused: FloatArray) -> FloatArray:
         """(P, 3) where each person stands: fused SpineBase, else the mean of the views'."""
+        fused_spine_ok = np.isfinite(fused[:, 0]).all(axis=-1, keepdims=True)
+        if fused_spine_ok.all():  # every person's fused SpineBase known (the usual step)
+            known: FloatArray = fused[:, 0].copy()
+            return known
         spine = self.joints[:, 0]
         seen = np.isfinite(spine)
         sums = self.pad(np.where(seen, spine, 0.0), 0.0).sum(axis=1)
         counts = self.pad(seen.astype(np.float64), 0.0).sum(axis=1)
         with np.errstate(invalid="ignore", divide="ignore"):
             mean_spine = sums / counts
-        fused_spine_ok = np.isfinite(fused[:, 0]).all(axis=-1, keepdims=True)
         positions: FloatArray = np.where(fused_spine_ok, fused[:, 0], mean_spine)
         return positions

@@ -101,7 +101,7 @@ def label_views(
     unbiased = s.mirror_unbiased_facing and doubts is not None
     if unbiased:  # the last step's facing without the sensors' turn, where known
         assert doubts is not None
-        remembered = np.stack([d.facing for d in doubts])
+        remembered = np.array([d.facing for d in doubts], dtype=np.float64)
         known = np.isfinite(remembered).all(axis=1, keepdims=True)
         reference_facings = np.where(known, remembered, reference_facings)
     mirrored, both_rom, forward = choose_labellings_and_forward(

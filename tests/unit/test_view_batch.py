@@ -66,3 +66,24 @@ def test_fusing_the_batch_is_fusing_each_person_alone(counts: list[int]) -> None
         lo, hi = batch.starts[p], batch.starts[p + 1]
         alone = weighted_mean(batch.joints[None, lo:hi], weights[None, lo:hi])[0]
         assert fused[p].tobytes() == alone.tobytes()
+
+
+@pytest.mark.parametrize("counts", [[3, 3, 3], [2, 3, 1]])
+def test_body_positions_fused_spine_else_the_mean_of_the_views(counts: list[int]) -> None:
+    """Where a person's fused SpineBase is known, that point (the usual step: every person's);
+    else the mean of its views' known SpineBases, NaN when none is known."""
+    rng = np.random.default_rng(5)
+    batch = ViewBatch.of([views(rng, n) for n in counts])
+    fused = rng.normal(0.0, 1.0, (len(counts), JOINT_COUNT, 3))
+    assert batch.body_positions(fused).tobytes() == fused[:, 0].tobytes()
+    fused[1, 0, 2] = np.nan  # person 1: from its views
+    fused[2, 0] = np.nan  # person 2: from its views, none of which knows its SpineBase
+    lo, hi = batch.starts[2], batch.starts[3]
+    batch.joints[lo:hi, 0] = np.nan
+    batch.joints[batch.starts[1], 0] = np.nan  # one of person 1's views does not know it
+    got = batch.body_positions(fused)
+    assert got[0].tobytes() == fused[0, 0].tobytes()
+    spines = batch.joints[batch.starts[1] : batch.starts[2], 0]
+    known = spines[np.isfinite(spines).all(axis=1)]
+    np.testing.assert_allclose(got[1], known.mean(axis=0), rtol=1e-15)
+    assert np.isnan(got[2]).all()
