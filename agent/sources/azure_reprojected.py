@@ -59,6 +59,7 @@ from skelfuse.agent.sources.azure_kinect import (
 )
 from skelfuse.agent.sources.azure_reprojected_lens import lens_maps, remap
 from skelfuse.agent.sources.azure_reprojected_sdk import (
+    FPS,
     SUCCEEDED,
     TIMEOUT,
     build_capture,
@@ -140,6 +141,7 @@ class ReprojectedAzureKinectSource:
         if not pose_space:
             raise SensorError("a moving sensor needs a pose space id")
         self._sensor_type = sensor_type
+        self._depth_mode = depth_mode
         self._pose_at = pose_at
         self._close_with = close_with
         self.pose_space = pose_space
@@ -175,7 +177,7 @@ class ReprojectedAzureKinectSource:
 
     @property
     def fps(self) -> float:
-        return 30.0
+        return float(FPS[self._depth_mode])
 
     @property
     def last_device_timestamp_us(self) -> int | None:

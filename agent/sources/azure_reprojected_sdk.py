@@ -44,6 +44,8 @@ DEPTH_RANGE_M: Final = {
     "WFOV_UNBINNED": (0.25, 2.21),
 }
 """Operating range of each depth mode (Azure Kinect DK hardware specification), metres."""
+FPS: Final = {"NFOV_2X2BINNED": 30, "NFOV_UNBINNED": 30, "WFOV_2X2BINNED": 30, "WFOV_UNBINNED": 15}
+"""Frame rate each depth mode is started at: its highest (WFOV unbinned allows 15 fps only)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -204,7 +206,8 @@ class OpenDevice:
 
 
 def open_device(k4a: Any, k4abt: Any, device_index: int, depth_mode: str) -> OpenDevice:
-    """Open device ``device_index``, start its depth camera (``depth_mode``, 30 fps, no colour)
+    """Open device ``device_index``, start its depth camera (``depth_mode`` at :data:`FPS`, no
+    colour)
     and create a body tracker (pykinect_azure's default configuration: its processing mode is
     what ``initialize_libraries`` found) from the device's calibration for that mode.
 
@@ -217,7 +220,7 @@ def open_device(k4a: Any, k4abt: Any, device_index: int, depth_mode: str) -> Ope
     config = k4a.k4a_device_configuration_t()
     config.color_resolution = k4a.K4A_COLOR_RESOLUTION_OFF
     config.depth_mode = getattr(k4a, f"K4A_DEPTH_MODE_{depth_mode}")
-    config.camera_fps = k4a.K4A_FRAMES_PER_SECOND_30
+    config.camera_fps = getattr(k4a, f"K4A_FRAMES_PER_SECOND_{FPS[depth_mode]}")
     calibration = k4a.k4a_calibration_t()
     started = False
     try:

@@ -330,3 +330,14 @@ def test_depth_cloud_is_the_raw_depth_in_the_sensor_frame(
     off = np.minimum(np.abs(world_z - WALL_Z), np.abs(world_z - 3.0))
     assert np.percentile(off, 99) < 0.01
     source.close()
+
+
+def test_wide_unbinned_depth_starts_at_15_fps(fake_sdk: tuple[ModuleType, Any, Any]) -> None:
+    package, k4a, _ = fake_sdk
+    source = _source(package, {}, depth_mode="WFOV_UNBINNED")
+    assert source.fps == 15.0
+    assert k4a.STARTED[0][:2] == (k4a.K4A_DEPTH_MODE_WFOV_UNBINNED, k4a.K4A_FRAMES_PER_SECOND_15)
+    source.close()
+    narrow = _source(package, {})
+    assert narrow.fps == 30.0
+    narrow.close()

@@ -20,6 +20,8 @@ K4A_DEPTH_MODE_NFOV_UNBINNED = 2
 K4A_DEPTH_MODE_WFOV_2X2BINNED = 3
 K4A_DEPTH_MODE_WFOV_UNBINNED = 4
 K4A_COLOR_RESOLUTION_OFF = 0
+K4A_FRAMES_PER_SECOND_5 = 0
+K4A_FRAMES_PER_SECOND_15 = 1
 K4A_FRAMES_PER_SECOND_30 = 2
 K4A_IMAGE_FORMAT_DEPTH16 = 4
 K4A_IMAGE_FORMAT_IR16 = 5
@@ -228,6 +230,8 @@ def k4a_device_start_cameras(device_handle, config):
     _check(device_handle, k4a_device_t)
     _check(config, k4a_device_configuration_t)
     STARTED.append((config.depth_mode, config.camera_fps, config.color_resolution))
+    if config.depth_mode == K4A_DEPTH_MODE_WFOV_UNBINNED and config.camera_fps > 1:
+        return K4A_RESULT_FAILED  # as the real device: WFOV unbinned runs at 15 fps at most
     return K4A_RESULT_SUCCEEDED
 
 
