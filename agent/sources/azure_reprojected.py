@@ -224,6 +224,11 @@ class ReprojectedAzureKinectSource:
         if raw is None:
             self.dropped["capture without depth or IR"] += 1
             return None
+        shape = (self.intrinsics.height, self.intrinsics.width)
+        if raw.depth.shape != shape or raw.ir.shape != shape:
+            raise SensorError(
+                f"depth {raw.depth.shape} / IR {raw.ir.shape} images, calibration {shape}"
+            )
         t_ns = self._clock.stamp(raw.device_us)
         self._last_depth = (raw.depth, raw.device_us)
         pose = self._pose_at(t_ns)

@@ -277,6 +277,11 @@ def test_a_capture_without_ir_is_dropped_and_a_bad_setup_refused(
     assert source.dropped["capture without depth or IR"] == 1 and k4abt.ENQUEUED == []
     source.close()
     assert k4a.LIVE == {}
+    k4a.SCRIPT.append((1_000_000, depth[:-2], depth[:-2]))  # not the calibration's size
+    source = _source(package, {})
+    with pytest.raises(SensorError, match="calibration"):
+        source.next_capture(0.1)
+    source.close()
     with pytest.raises(SensorError, match="k4a_device_open"):
         ReprojectedAzureKinectSource(lambda t: None, pose_space="room", sdk=package, device_index=3)
     with pytest.raises(SensorError, match="pose space"):
