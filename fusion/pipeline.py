@@ -157,9 +157,9 @@ class FusionPipeline:
             fused = batch.fuse(weights)
 
             # 5. Facing and distance: each view's factor from where the person stands and faces.
-            fused_once = np.array([t.fused_once for t in tracks])
             facing = track_facing
-            if not fused_once.all():
+            if not all(t.fused_once for t in tracks):
+                fused_once = np.array([t.fused_once for t in tracks])
                 facing = np.where(fused_once[:, None], track_facing, facing_directions(fused))
             stands = batch.body_positions(fused)[batch.person_of]
             cosines = facing_cosines(facing[batch.person_of], stands, batch.sensors)
@@ -228,8 +228,8 @@ class FusionPipeline:
                 fitted = [p for p, k in zip(alive, usable, strict=True) if k]
                 if fitted:
                     fit = fit_bone_lengths(
-                        np.stack([skeletons[p] for p in fitted]),
-                        lengths[known],
+                        np.array([skeletons[p] for p in fitted], dtype=np.float64),
+                        lengths if len(fitted) == len(alive) else lengths[known],
                         s.bone_length_fit,
                         s.bone_fit_iterations,
                     )
