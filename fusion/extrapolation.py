@@ -22,7 +22,6 @@ views_at`), late ones carried forward, those beyond the bound left out. Three pr
 
 from __future__ import annotations
 
-import warnings
 from collections import deque
 from collections.abc import Collection, Iterable, Mapping
 from dataclasses import dataclass
@@ -154,25 +153,38 @@ def measured_displacements(
         (25, 3) metres per late body that has a person with an on-time view at both times, NaN
         where none of those views has the joint Tracked at both times; other bodies are absent.
     """
-    seen: dict[int, list[tuple[bool, FloatArray]]] = {}
-    for key, view in now.items():
-        before = then.get(key)
-        person = members.get(key)
-        if before is None or person is None:
-            continue
-        # An Inferred joint is the sensor's guess, not a measurement: its motion is not used.
-        tracked = (view.states == TrackingState.TRACKED) & (before.states == TrackingState.TRACKED)
-        moved = np.where(tracked[:, None], view.joints_world - before.joints_world, np.nan)
-        seen.setdefault(person[0], []).append((person[1], moved))
+    keys = [k for k in now if k in then and k in members]
+    if not keys:
+        return {}
+    persons = np.array([members[k][0] for k in keys])
+    labels = np.array([members[k][1] for k in keys])
+    after = np.stack([now[k].joints_world for k in keys])  # (K, 25, 3)
+    before = np.stack([then[k].joints_world for k in keys])
+    # An Inferred joint is the sensor's guess, not a measurement: its motion is not used.
+    tracked = (np.stack([now[k].states for k in keys]) == TrackingState.TRACKED) & (
+        np.stack([then[k].states for k in keys]) == TrackingState.TRACKED
+    )
+    moved_all = np.where(tracked[..., None], after - before, np.nan)
     out: dict[ViewKey, FloatArray] = {}
+    done: dict[tuple[int, bool], FloatArray | None] = {}
     for key in late_keys:
         person = members.get(key)
-        if person is None or person[0] not in seen:
+        if person is None:
             continue
-        moved = np.stack([d if label == person[1] else d[_MIRROR] for label, d in seen[person[0]]])
-        with warnings.catch_warnings():  # a joint no view has at both times: NaN, as documented
-            warnings.simplefilter("ignore", RuntimeWarning)
-            out[key] = np.nanmean(moved, axis=0)
+        if person not in done:
+            rows = persons == person[0]
+            if not rows.any():
+                done[person] = None
+                continue
+            moved = moved_all[rows]
+            swap = labels[rows] != person[1]
+            moved[swap] = moved[swap][:, _MIRROR]
+            finite = np.isfinite(moved)
+            count = finite.sum(axis=0)
+            total = np.where(finite, moved, 0.0).sum(axis=0)
+            done[person] = np.where(count > 0, total / np.maximum(count, 1), np.nan)
+        if (mean := done[person]) is not None:
+            out[key] = mean
     return out
 
 
@@ -204,7 +216,7 @@ def views_with_late(
     now: dict[str, list[View]] = {}
     for view in views_at(on_time, pose_of, t_s, gap_s):  # the same bits as sensor by sensor
         now.setdefault(view.sensor_id, []).append(view)
-    now_by_key = {(v.sensor_id, v.tracking_id): v for vs in now.values() for v in vs}
+    moved = _moved_meanwhile(sensors, on_time, pose_of, t_s, gap_s, late, predictor, now)
     views: list[View] = []
     for sensor in sensors:
         if sensor.sensor_id in left_out:
@@ -221,25 +233,18 @@ def views_with_late(
         else:
             newest = sensor.frames[-1]
             bodies = newest.frame.bodies
-            measured: dict[ViewKey, FloatArray] = {}
-            if predictor.members is not None:
-                then = views_at(on_time, pose_of, newest.t_server_s, gap_s)
-                measured = measured_displacements(
-                    [(sensor.sensor_id, body.tracking_id) for body in bodies],
-                    predictor.members,
-                    {(v.sensor_id, v.tracking_id): v for v in then},
-                    now_by_key,
-                )
+            scale = late[sensor.sensor_id] / moved[0] if moved[0] > 0.0 else 0.0
             worlds = []
             for body in bodies:
                 key = (sensor.sensor_id, body.tracking_id)
+                newest_world = apply(pose, body.joints_m)
                 world = carried_by_motion(
-                    apply(pose, body.joints_m), predictor.motions.get(key), newest.t_server_s, t_s
+                    newest_world, predictor.motions.get(key), newest.t_server_s, t_s
                 )
-                if key in measured:  # joints the on-time views saw: their measurement instead
-                    moved = measured[key]
-                    seen = np.isfinite(moved)
-                    world[seen] = (apply(pose, body.joints_m) + moved)[seen]
+                if key in moved[1]:  # joints the on-time views saw: their measurement instead
+                    carried = scale * moved[1][key]
+                    seen = np.isfinite(carried)
+                    world[seen] = (newest_world + carried)[seen]
                 worlds.append(world)
         for body, world in zip(bodies, worlds, strict=True):
             views.append(
@@ -253,3 +258,37 @@ def views_with_late(
                 )
             )
     return views
+
+
+def _moved_meanwhile(
+    sensors: list[SensorState],
+    on_time: list[SensorState],
+    pose_of: PoseLookup,
+    t_s: float,
+    gap_s: float,
+    late: Mapping[str, float],
+    predictor: LatePredictor | None,
+    now: Mapping[str, list[View]],
+) -> tuple[float, dict[ViewKey, FloatArray]]:
+    """The ``views`` predictor's measurement for every late body at once: the horizon ``H`` of
+    the furthest-late sensor (seconds) and what each late body's person's on-time views saw
+    happen in the ``H`` before the instant (:func:`measured_displacements`). A sensor late by
+    ``h`` is carried ``h / H`` of it: exactly its own measurement for the furthest-late
+    sensor, the same line for the others (one more interpolation of the on-time sensors per
+    instant instead of one per late sensor). (0, {}) for the other predictors."""
+    if predictor is None or predictor.members is None or not late:
+        return 0.0, {}
+    reach = max(late.values())
+    late_keys = [
+        (sensor.sensor_id, body.tracking_id)
+        for sensor in sensors
+        if sensor.sensor_id in late and sensor.frames
+        for body in sensor.frames[-1].frame.bodies
+    ]
+    then = views_at(on_time, pose_of, t_s - reach, gap_s)
+    return reach, measured_displacements(
+        late_keys,
+        predictor.members,
+        {(v.sensor_id, v.tracking_id): v for v in then},
+        {(v.sensor_id, v.tracking_id): v for vs in now.values() for v in vs},
+    )
