@@ -51,24 +51,23 @@ import numpy as np
 
 from skelfuse.agent.reproject import MAX_EDGE_M, joints_to_sensor, level_reference, reproject_depth
 from skelfuse.agent.reproject_raster import warm_up
-from skelfuse.agent.sim.depth_camera import depth_to_points
 from skelfuse.agent.sources.azure_kinect import (
     DEPTH_MODES,
     body_from_skeleton,
     import_pykinect_azure,
 )
-from skelfuse.agent.sources.azure_reprojected_lens import lens_maps, remap
+from skelfuse.agent.sources.azure_reprojected_lens import lens_maps, remap, sensor_points
 from skelfuse.agent.sources.azure_reprojected_sdk import (
     FPS,
-    SUCCEEDED,
-    TIMEOUT,
     build_capture,
     close_device,
     depth_intrinsics,
+    enqueue,
+    get_capture,
+    load_libraries,
     open_device,
     pop_skeletons,
     read_capture,
-    sdk_layers,
 )
 from skelfuse.agent.sources.base import Capture, SensorError
 from skelfuse.agent.sources.depth_reply import cloud_reply
@@ -149,13 +148,7 @@ class ReprojectedAzureKinectSource:
         self._max_edge_m = max_edge_m
         self._clock = DeviceClock(_US_NS, wall_clock_ns)
         package = sdk if sdk is not None else import_pykinect_azure()
-        try:
-            package.initialize_libraries(
-                module_k4a_path=k4a_path, module_k4abt_path=k4abt_path, track_body=True
-            )
-        except (Exception, SystemExit) as exc:  # pykinect_azure sys.exit()s on a missing DLL
-            raise SensorError(f"cannot load the Azure Kinect SDK libraries: {exc}") from exc
-        self._k4a, self._bt = sdk_layers(package)
+        self._k4a, self._bt = load_libraries(package, k4a_path, k4abt_path)
         self._opened = open_device(self._k4a, self._bt, device_index, depth_mode)
         self.intrinsics = depth_intrinsics(self._opened.calibration, depth_mode)
         """The depth camera's (and the reference camera's) pinhole intrinsics."""
@@ -211,12 +204,9 @@ class ReprojectedAzureKinectSource:
         """One device capture, re-projected, into the tracker; the pose-less capture to
         return when its pose is unknown, else None."""
         k4a = self._k4a
-        device_capture = k4a.k4a_capture_t()
-        result = k4a.k4a_device_get_capture(self._opened.device, device_capture, timeout_ms)
-        if result == TIMEOUT:
+        device_capture = get_capture(k4a, self._opened.device, timeout_ms)
+        if device_capture is None:
             return None
-        if result != SUCCEEDED:
-            raise SensorError(f"k4a_device_get_capture failed ({result}): device unplugged?")
         try:
             raw = read_capture(k4a, device_capture)
         finally:
@@ -256,14 +246,12 @@ class ReprojectedAzureKinectSource:
             raw.temperature_c,
         )
         try:
-            queued = self._bt.k4abt_tracker_enqueue_capture(self._opened.tracker, built, timeout_ms)
+            queued = enqueue(self._bt, self._opened.tracker, built, timeout_ms)
         finally:
             k4a.k4a_capture_release(built)  # the tracker holds its own reference
-        if queued == TIMEOUT:
+        if not queued:
             self.dropped["tracker queue full"] += 1
             return None
-        if queued != SUCCEEDED:
-            raise SensorError(f"k4abt_tracker_enqueue_capture failed ({queued})")
         self._pending[raw.device_us] = _Pending(t_ns, pose, T_ref_from_sensor)
         while len(self._pending) > MAX_PENDING:
             del self._pending[min(self._pending)]
@@ -301,8 +289,7 @@ class ReprojectedAzureKinectSource:
         if self._last_depth is None:
             raise SensorError("no depth capture yet")
         depth_mm, device_us = self._last_depth
-        pinhole = remap(depth_mm, self.lens.to_pinhole).astype(np.float64) / 1000.0
-        points = depth_to_points(pinhole, self.intrinsics)
+        points = sensor_points(depth_mm, self.lens, self.intrinsics)
         return cloud_reply(points, params, device_timestamp_us=device_us)
 
     def close(self) -> None:

@@ -27,7 +27,7 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.agent.sim.depth_camera import DepthIntrinsics
+from skelfuse.agent.sim.depth_camera import DepthIntrinsics, depth_to_points
 
 IndexArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
@@ -66,6 +66,23 @@ def remap(image: npt.NDArray[Any], index: IndexArray) -> npt.NDArray[Any]:
     flat[-1] = 0
     out: npt.NDArray[Any] = flat[index]
     return out
+
+
+def sensor_points(
+    depth_mm: npt.NDArray[np.uint16], lens: LensMaps, intrinsics: DepthIntrinsics
+) -> npt.NDArray[np.float32]:
+    """A device depth image's points in our sensor frame, through the lens.
+
+    Args:
+        depth_mm: (H, W) device depth image (mm, 0 = no reading), H, W of ``intrinsics``.
+        lens: the maps of :func:`lens_maps` for ``intrinsics``.
+
+    Returns:
+        (N, 3) float32 points (m, +X sensor-left, +Y up, +Z forward), one per pixel with depth
+        in the pinhole image.
+    """
+    pinhole = remap(depth_mm, lens.to_pinhole).astype(np.float64) / 1000.0
+    return depth_to_points(pinhole, intrinsics)
 
 
 def lens_maps(

@@ -1,4 +1,5 @@
-"""The Azure Kinect / Femto SDK calls of :mod:`skelfuse.agent.sources.azure_reprojected`.
+"""The Azure Kinect / Femto SDK calls of :mod:`skelfuse.agent.sources.azure_kinect` and
+:mod:`skelfuse.agent.sources.azure_reprojected`.
 
 Everything goes through pykinect_azure's ctypes layer (``pykinect_azure.k4a._k4a`` and
 ``pykinect_azure.k4abt._k4abt``: one Python function per C function of the Sensor SDK 1.4 and
@@ -69,6 +70,58 @@ def sdk_layers(sdk: Any) -> tuple[Any, Any]:
         importlib.import_module(base + ".k4a._k4a"),
         importlib.import_module(base + ".k4abt._k4abt"),
     )
+
+
+def waited(result: int, function: str, hint: str = "") -> bool:
+    """A waiting SDK call's result (``k4a_wait_result_t``): True on success, False on a timeout.
+
+    Raises:
+        SensorError: on any other result, naming ``function`` (and ``hint``).
+    """
+    if result == TIMEOUT:
+        return False
+    if result != SUCCEEDED:
+        raise SensorError(f"{function} failed ({result}){hint}")
+    return True
+
+
+def load_libraries(sdk: Any, k4a_path: str | None, k4abt_path: str | None) -> tuple[Any, Any]:
+    """Point pykinect_azure's ctypes layer at the native libraries (``initialize_libraries``,
+    body tracking included; None: its default search) and return :func:`sdk_layers`.
+
+    Raises:
+        SensorError: when a library cannot be loaded (pykinect_azure ``sys.exit()``s then).
+    """
+    try:
+        sdk.initialize_libraries(
+            module_k4a_path=k4a_path, module_k4abt_path=k4abt_path, track_body=True
+        )
+    except (Exception, SystemExit) as exc:  # SystemExit: pykinect_azure's own error path
+        raise SensorError(f"cannot load the Azure Kinect SDK libraries: {exc!r}") from exc
+    return sdk_layers(sdk)
+
+
+def get_capture(k4a: Any, device: Any, timeout_ms: int) -> Any | None:
+    """The device's next ``k4a_capture_t`` (the caller releases it), None when none came within
+    ``timeout_ms``.
+
+    Raises:
+        SensorError: when ``k4a_device_get_capture`` fails (not on a timeout).
+    """
+    capture = k4a.k4a_capture_t()
+    result = k4a.k4a_device_get_capture(device, capture, timeout_ms)
+    return capture if waited(result, "k4a_device_get_capture", ": device unplugged?") else None
+
+
+def enqueue(k4abt: Any, tracker: Any, capture: Any, timeout_ms: int) -> bool:
+    """Put ``capture`` in the tracker's queue (the tracker takes its own reference: the caller
+    still releases it); False when the queue stayed full for ``timeout_ms``.
+
+    Raises:
+        SensorError: when ``k4abt_tracker_enqueue_capture`` fails (not on a timeout).
+    """
+    result = k4abt.k4abt_tracker_enqueue_capture(tracker, capture, timeout_ms)
+    return waited(result, "k4abt_tracker_enqueue_capture")
 
 
 def depth_intrinsics(calibration: Any, depth_mode: str) -> DepthIntrinsics:
@@ -177,11 +230,10 @@ def pop_skeletons(
         SensorError: when the tracker fails (not on a timeout).
     """
     frame = k4abt.k4abt_frame_t()
-    result = k4abt.k4abt_tracker_pop_result(tracker, frame, timeout_ms)
-    if result == TIMEOUT:
+    if not waited(
+        k4abt.k4abt_tracker_pop_result(tracker, frame, timeout_ms), "k4abt_tracker_pop_result"
+    ):
         return None
-    if result != SUCCEEDED:
-        raise SensorError(f"k4abt_tracker_pop_result failed ({result})")
     try:
         device_us = int(k4abt.k4abt_frame_get_device_timestamp_usec(frame))
         bodies = []
