@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from skelfuse.cli.calibration_lag import add_lag_parser
+from skelfuse.cli.calibration_space import add_space_parser
 from skelfuse.cli.values import UsageError
 
 if TYPE_CHECKING:
@@ -22,8 +23,8 @@ if TYPE_CHECKING:
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    """Add ``calibration import`` (and ``calibration lag``) and their options to the command
-    line."""
+    """Add ``calibration import`` (and ``calibration lag``, ``calibration space``) and their
+    options to the command line."""
     calibration = sub.add_parser(
         "calibration", help="import camera calibration files, store sensors' clock lags"
     )
@@ -64,6 +65,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )
     command.set_defaults(func=run_import)
     add_lag_parser(actions)
+    add_space_parser(actions)
 
 
 def run_import(args: argparse.Namespace) -> int:
