@@ -6,6 +6,14 @@ Tracking SDK on top of Orbbec's K4A wrapper (OrbbecSDK-K4A-Wrapper), whose ``k4a
 passed as ``k4a_path`` (``--k4a-path``), conventions.md §1.3. Not yet run on hardware
 (docs/sensors.md).
 
+The SDKs are called through pykinect_azure's ctypes layer
+(:mod:`skelfuse.agent.sources.azure_reprojected_sdk`), not its ``Device`` / ``Tracker``
+classes: those pass every result to ``VERIFY``, which ``sys.exit()``s on a capture timeout as
+on a real failure, having already released the capture it holds. Here a timeout is no frame
+this time (None), a failure a :class:`SensorError` naming the SDK function, and every capture
+and body frame is released once. The depth mode starts at its own highest rate
+(:data:`~skelfuse.agent.sources.azure_reprojected_sdk.FPS`: WFOV unbinned 15 fps, else 30).
+
 Conversions (conventions.md §1.2, §1.7): the tracker's 32 joints (depth camera frame, mm,
 +X right, +Y down) become our 25 (metres, +X left, +Y up) through
 :func:`protocol.skeleton.azure_to_kinect_v2`, confidence levels become tracking states
@@ -15,7 +23,7 @@ Conversions (conventions.md §1.2, §1.7): the tracker's 32 joints (depth camera
 plane, so ``floor`` is None, and no hand states (k4abt bodies have joints and confidence
 levels only), so bodies carry no ``hands`` (docs/protocol.md §7.4).
 :meth:`AzureKinectSource.depth_cloud` answers the server's depth requests for calibration: depth
-points of the latest capture, in our sensor frame.
+points of the latest capture, in our sensor frame (through the calibration's lens).
 """
 
 from __future__ import annotations
@@ -23,12 +31,15 @@ from __future__ import annotations
 import importlib
 import logging
 import time
+from collections import Counter
 from collections.abc import Callable
 from typing import Any, Final
 
 import numpy as np
-import numpy.typing as npt
 
+from skelfuse.agent.sim.depth_camera import DepthIntrinsics
+from skelfuse.agent.sources import azure_reprojected_sdk as k4a_sdk
+from skelfuse.agent.sources.azure_reprojected_lens import LensMaps, lens_maps, sensor_points
 from skelfuse.agent.sources.base import Capture, SensorError
 from skelfuse.agent.sources.depth_reply import cloud_reply
 from skelfuse.agent.sources.kinect_v2 import DeviceClock
@@ -73,15 +84,6 @@ def body_from_skeleton(body_id: int, skeleton: Any) -> Body:
     return Body(int(body_id), joints_m, states)
 
 
-def cloud_to_sensor_frame(points_mm: npt.ArrayLike) -> npt.NDArray[np.float32]:
-    """(N, 3) depth-camera points (mm, +X right, +Y down) → our sensor frame (m, +X left, +Y up);
-    points with z = 0 (no depth) are dropped."""
-    points = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)
-    points = points[points[:, 2] > 0]
-    out: npt.NDArray[np.float32] = (points * np.array([-1e-3, -1e-3, 1e-3])).astype(np.float32)
-    return out
-
-
 class AzureKinectSource:
     """Bodies from an Azure Kinect (or an Orbbec Femto through the K4A wrapper).
 
@@ -93,6 +95,10 @@ class AzureKinectSource:
         depth_mode: one of :data:`DEPTH_MODES` (NFOV_UNBINNED is the body tracker's best).
         pose: ``T_world_from_sensor`` to announce as a manual pose hint.
         sdk: the ``pykinect_azure`` module (tests pass a fake).
+        wall_clock_ns: this PC's clock (injected in tests).
+
+    Raises:
+        SensorError: bad arguments, or the SDK, device or tracker cannot be started.
     """
 
     def __init__(
@@ -112,27 +118,16 @@ class AzureKinectSource:
         if depth_mode not in DEPTH_MODES:
             raise SensorError(f"depth mode {depth_mode!r}: choose one of {', '.join(DEPTH_MODES)}")
         self._sensor_type = sensor_type
+        self._depth_mode = depth_mode
         self._pose = pose
         self._clock = DeviceClock(_US_NS, wall_clock_ns)
-        self._k4a = sdk if sdk is not None else import_pykinect_azure()
-        k4a = self._k4a
-        try:
-            k4a.initialize_libraries(
-                module_k4a_path=k4a_path, module_k4abt_path=k4abt_path, track_body=True
-            )
-            config = k4a.default_configuration
-            config.color_resolution = k4a.K4A_COLOR_RESOLUTION_OFF
-            config.depth_mode = getattr(k4a, f"K4A_DEPTH_MODE_{depth_mode}")
-            self._fps = 30.0
-            config.camera_fps = k4a.K4A_FRAMES_PER_SECOND_30
-            self._device = k4a.start_device(device_index=device_index, config=config)
-            self._tracker = k4a.start_body_tracker()
-        except (OSError, AttributeError, RuntimeError, Exception) as exc:  # ctypes/SDK failures
-            raise SensorError(
-                f"cannot start {sensor_type} device {device_index} with body tracking: {exc}"
-            ) from exc
-        self._bt = importlib.import_module(k4a.__name__ + ".k4abt._k4abt")
-        self._last_capture: Any = None
+        package = sdk if sdk is not None else import_pykinect_azure()
+        self._k4a, self._bt = k4a_sdk.load_libraries(package, k4a_path, k4abt_path)
+        self._opened = k4a_sdk.open_device(self._k4a, self._bt, device_index, depth_mode)
+        self._last_depth: tuple[k4a_sdk.U16, int] | None = None
+        self._lens: tuple[DepthIntrinsics, LensMaps] | None = None
+        self.dropped: Counter[str] = Counter()
+        """Device captures not given to the tracker, by reason (no depth or IR, queue full)."""
 
     @property
     def sensor_type(self) -> str:
@@ -140,7 +135,7 @@ class AzureKinectSource:
 
     @property
     def fps(self) -> float:
-        return self._fps
+        return float(k4a_sdk.FPS[self._depth_mode])
 
     @property
     def last_device_timestamp_us(self) -> int | None:
@@ -151,25 +146,37 @@ class AzureKinectSource:
         return None if self._pose is None else (self._pose.copy(), "manual")
 
     def next_capture(self, timeout_s: float) -> Capture | None:
+        """Give the device's next capture to the tracker, then return its next body frame.
+
+        Returns:
+            The bodies (our sensor frame) of the tracker's next body frame; None when no
+            capture or no body frame came within ``timeout_s`` (each SDK call waits that long).
+
+        Raises:
+            SensorError: the device or the tracker failed (not on a timeout).
+        """
         timeout_ms = max(int(timeout_s * 1000), 1)
+        k4a = self._k4a
+        capture = k4a_sdk.get_capture(k4a, self._opened.device, timeout_ms)
+        if capture is None:
+            return None
         try:
-            capture = self._device.update(timeout_in_ms=timeout_ms)
-            if capture is None:
+            raw = k4a_sdk.read_capture(k4a, capture)
+            if raw is None:  # k4abt refuses a capture without both images
+                self.dropped["capture without depth or IR"] += 1
                 return None
-            frame = self._tracker.update(capture=capture, timeout_in_ms=timeout_ms)
-        except Exception as exc:  # pykinect_azure raises bare Exception from VERIFY
-            logger.debug("no body frame within %d ms: %s", timeout_ms, exc)
+            self._last_depth = (raw.depth, raw.device_us)
+            if not k4a_sdk.enqueue(self._bt, self._opened.tracker, capture, timeout_ms):
+                self.dropped["tracker queue full"] += 1  # still pop: that is what frees it
+        finally:
+            k4a.k4a_capture_release(capture)  # the tracker holds its own reference
+        popped = k4a_sdk.pop_skeletons(self._bt, self._opened.tracker, timeout_ms)
+        if popped is None:
             return None
-        if frame is None:
-            return None
-        self._last_capture = capture
-        device_us = int(self._bt.k4abt_frame_get_device_timestamp_usec(frame.handle()))
-        bodies = []
-        for index in range(int(frame.get_num_bodies())):
-            skeleton = frame.get_body_skeleton(index)
-            bodies.append(body_from_skeleton(int(frame.get_body_id(index)), skeleton))
+        device_us, skeletons = popped
+        bodies = tuple(body_from_skeleton(body_id, skeleton) for body_id, skeleton in skeletons)
         # k4abt 1.1 reports no floor plane; a depth + IMU floor estimate is future work.
-        return Capture(self._clock.stamp(device_us), tuple(bodies), floor=None)
+        return Capture(self._clock.stamp(device_us), bodies, floor=None)
 
     def request_handlers(self) -> dict[str, Callable[[dict[str, Any]], Any]]:
         """Requests this source answers (docs/protocol.md §6.5)."""
@@ -184,24 +191,24 @@ class AzureKinectSource:
         float32 little-endian x, y, z triples (metres), ``count``, ``frame`` = ``"sensor"``,
         ``device_timestamp_us``.
         """
-        if self._last_capture is None:
+        if self._last_depth is None:
             raise SensorError("no depth capture yet")
-        ok, points_mm = self._last_capture.get_pointcloud()
-        if not ok:
-            raise SensorError("the SDK returned no point cloud for the latest capture")
-        return cloud_reply(
-            cloud_to_sensor_frame(points_mm),
-            params,
-            device_timestamp_us=self._clock.last_device_ticks,
-        )
+        depth_mm, device_us = self._last_depth
+        if self._lens is None:  # once, on the first request: 2 SDK calls per 8-px grid point
+            calibration = self._opened.calibration
+            intrinsics = k4a_sdk.depth_intrinsics(calibration, self._depth_mode)
+            self._lens = (intrinsics, lens_maps(self._k4a, calibration, intrinsics))
+        intrinsics, lens = self._lens
+        if depth_mm.shape != (intrinsics.height, intrinsics.width):
+            raise SensorError(
+                f"depth image {depth_mm.shape}, calibration {(intrinsics.height, intrinsics.width)}"
+            )
+        points = sensor_points(depth_mm, lens, intrinsics)
+        return cloud_reply(points, params, device_timestamp_us=device_us)
 
     def close(self) -> None:
-        for closer in (
-            getattr(self._tracker, "destroy", None),
-            getattr(self._device, "close", None),
-        ):
-            if closer is not None:
-                try:
-                    closer()
-                except Exception:
-                    logger.debug("closing the SDK failed", exc_info=True)
+        """Shut the tracker down, stop the cameras and close the device."""
+        try:
+            k4a_sdk.close_device(self._k4a, self._bt, self._opened)
+        except Exception:
+            logger.debug("closing the SDK failed", exc_info=True)

@@ -23,6 +23,7 @@ from skelfuse.protocol.wire import Body, Frame, decode, encode
 from tests.unit.test_sdk_sources import (  # noqa: F401 (fixtures)
     FakeClock,
     _azure_body,
+    _images,
     fake_k4a,
     fake_pykinect2,
 )
@@ -68,7 +69,8 @@ def test_azure_kinect_bodies_have_no_hand_states() -> None:
     fake_k4a_module = importlib.import_module("pykinect_azure")
 
     joints, levels = _azure_body(np.random.default_rng(1))
-    fake_k4a_module.SCRIPT[:] = [(1_000_000, [(7, joints, levels)], None)]
+    fake_k4a_module.k4a.SCRIPT[:] = [(1_000_000, *_images())]
+    fake_k4a_module.k4abt.DETECT = lambda depth, ir, calibration: [(7, joints, levels)]
     capture = AzureKinectSource(wall_clock_ns=FakeClock()).next_capture(0.1)
     assert capture is not None and capture.bodies[0].hands is None
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import importlib
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -39,10 +39,15 @@ def fake_pykinect2(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
 
 @pytest.fixture
 def fake_k4a(monkeypatch: pytest.MonkeyPatch) -> Iterator[ModuleType]:
+    """The fake pykinect_azure package (tests/fakes/pykinect_azure), its ctypes layers reset;
+    ``package.k4a`` / ``package.k4abt`` are the fake ``_k4a`` / ``_k4abt``."""
     monkeypatch.syspath_prepend(str(FAKES))
     _forget("pykinect_azure")
     module = importlib.import_module("pykinect_azure")
-    module.SCRIPT.clear()
+    module.k4a = importlib.import_module("pykinect_azure.k4a._k4a")
+    module.k4abt = importlib.import_module("pykinect_azure.k4abt._k4abt")
+    module.k4a.reset()
+    module.k4abt.reset()
     module.CALLS.clear()
     yield module
     _forget("pykinect_azure")
@@ -163,17 +168,33 @@ def _azure_body(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     return joints, levels
 
 
+def _images(shape: tuple[int, int] = (8, 8)) -> tuple[np.ndarray, np.ndarray]:
+    """A device capture's depth (a wall 2 m away) and IR, small where pixels do not matter."""
+    return np.full(shape, 2000, dtype=np.uint16), np.full(shape, 100, dtype=np.uint16)
+
+
+def _detect_in_turn(frames: list[list[Any]]) -> Callable[..., list[Any]]:
+    """The fake tracker's DETECT: the bodies of each enqueued capture, in turn."""
+    pending = iter(frames)
+    return lambda depth, ir, calibration: next(pending)
+
+
+def _live_captures(k4a: Any) -> int:
+    return sum(1 for entry in k4a.LIVE.values() if entry["kind"] == "capture")
+
+
 def test_azure_source_maps_32_joints_mm_ydown_and_confidence(fake_k4a: ModuleType) -> None:
     from skelfuse.agent.sources.azure_kinect import AzureKinectSource
 
-    rng = np.random.default_rng(1)
-    joints, levels = _azure_body(rng)
-    fake_k4a.SCRIPT[:] = [(1_000_000, [(7, joints, levels)], None),
-                          (1_033_333, [], None)]  # fmt: skip
+    k4a, k4abt = fake_k4a.k4a, fake_k4a.k4abt
+    joints, levels = _azure_body(np.random.default_rng(1))
+    k4a.SCRIPT[:] = [(1_000_000, *_images()), (1_033_333, *_images())]
+    k4abt.DETECT = _detect_in_turn([[(7, joints, levels)], []])
     clock = FakeClock()
     source = AzureKinectSource(wall_clock_ns=clock)
     assert ("initialize_libraries", None, None, True) in fake_k4a.CALLS
-    assert ("start_device", 0, fake_k4a.K4A_DEPTH_MODE_NFOV_UNBINNED, 0) in fake_k4a.CALLS
+    assert k4a.STARTED[0] == (k4a.K4A_DEPTH_MODE_NFOV_UNBINNED, k4a.K4A_FRAMES_PER_SECOND_30, 0)
+    assert source.fps == 30.0
     first = source.next_capture(0.1)
     clock.now += 50_000_000
     second = source.next_capture(0.1)
@@ -183,10 +204,77 @@ def test_azure_source_maps_32_joints_mm_ydown_and_confidence(fake_k4a: ModuleTyp
     np.testing.assert_array_equal(first.bodies[0].states, expected_states)
     # Y down, mm -> Y up, m: the pelvis seen at +y (below the camera) comes out at -y.
     assert first.bodies[0].joints_m[0, 1] == pytest.approx(-joints[0, 1] / 1000, abs=1e-5)
-    assert first.bodies[0].tracking_id == 7 and first.floor is None
+    assert first.bodies[0].tracking_id == 7 and first.floor is None and second.bodies == ()
     assert second.t_capture_ns - first.t_capture_ns == 33_333_000
     assert source.last_device_timestamp_us == 1_033_333
-    assert source.next_capture(0.01) is None  # the SDK timed out: no frame, no crash
+    source.close()
+
+
+def test_a_capture_timeout_is_no_frame_and_the_source_goes_on(fake_k4a: ModuleType) -> None:
+    """pykinect_azure 0.0.4's Device.update sys.exit()s on a timeout (VERIFY), the capture it
+    held already released: the source asks the SDK itself, gets None, and goes on."""
+    from skelfuse.agent.sources.azure_kinect import AzureKinectSource
+
+    k4a, k4abt = fake_k4a.k4a, fake_k4a.k4abt
+    source = AzureKinectSource(wall_clock_ns=FakeClock())
+    assert source.next_capture(0.01) is None  # no capture yet
+    k4a.SCRIPT[:] = [(1_000_000, *_images())]
+    assert source.next_capture(0.1) is not None
+    assert source.next_capture(0.01) is None  # a timeout after a capture
+    k4a.SCRIPT[:] = [(2_000_000, *_images()), (2_033_333, *_images())]
+    k4abt.LAG = 1  # the tracker a frame behind: its pop times out once
+    assert source.next_capture(0.1) is None
+    late = source.next_capture(0.1)
+    assert late is not None and source.last_device_timestamp_us == 2_000_000
+    assert _live_captures(k4a) == 0 and k4abt.FRAMES == {}, "released once each, not kept"
+    source.close()
+    assert k4a.LIVE == {} and k4abt.FRAMES == {}
+    assert k4abt.TRACKERS[-1]["destroyed"] and k4a.STARTED[-2:] == ["stopped", "closed"]
+
+
+def test_sdk_failures_are_sensor_errors_naming_the_call(
+    fake_k4a: ModuleType, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from skelfuse.agent.sources.azure_kinect import AzureKinectSource
+
+    k4a, k4abt = fake_k4a.k4a, fake_k4a.k4abt
+    with pytest.raises(SensorError, match="k4a_device_open"):
+        AzureKinectSource(device_index=1)
+    source = AzureKinectSource()
+    depth, _ = _images()
+    k4a.SCRIPT[:] = [(1_000, depth, None), (2_000, *_images()), (3_000, *_images())]
+    assert source.next_capture(0.1) is None  # no IR: the tracker would refuse it; dropped
+    assert source.dropped["capture without depth or IR"] == 1
+    failed = k4a.K4A_WAIT_RESULT_FAILED
+    monkeypatch.setattr(k4abt, "k4abt_tracker_enqueue_capture", lambda *args: failed)
+    with pytest.raises(SensorError, match="k4abt_tracker_enqueue_capture"):
+        source.next_capture(0.1)
+    monkeypatch.undo()
+    monkeypatch.setattr(k4abt, "k4abt_tracker_pop_result", lambda *args: failed)
+    with pytest.raises(SensorError, match="k4abt_tracker_pop_result"):
+        source.next_capture(0.1)
+    monkeypatch.setattr(k4a, "k4a_device_get_capture", lambda *args: failed)
+    with pytest.raises(SensorError, match="k4a_device_get_capture"):
+        source.next_capture(0.1)
+    source.close()
+    assert _live_captures(k4a) == 0 and k4abt.FRAMES == {}
+
+    def exits(**kwargs: Any) -> None:
+        sys.exit(1)  # what pykinect_azure does when a native library is missing
+
+    monkeypatch.setattr(fake_k4a, "initialize_libraries", exits)
+    with pytest.raises(SensorError, match="libraries"):
+        AzureKinectSource()
+
+
+def test_wide_unbinned_depth_starts_at_15_fps(fake_k4a: ModuleType) -> None:
+    """The device refuses 30 fps in WFOV unbinned (the fake too): the mode's own rate."""
+    from skelfuse.agent.sources.azure_kinect import AzureKinectSource
+
+    k4a = fake_k4a.k4a
+    source = AzureKinectSource(depth_mode="WFOV_UNBINNED")
+    assert source.fps == 15.0
+    assert k4a.STARTED[0][:2] == (k4a.K4A_DEPTH_MODE_WFOV_UNBINNED, k4a.K4A_FRAMES_PER_SECOND_15)
     source.close()
 
 
@@ -198,7 +286,8 @@ def test_femto_passes_the_orbbec_wrapper_library(fake_k4a: ModuleType) -> None:
     )
     assert source.sensor_type == "femto"
     assert ("initialize_libraries", "/opt/orbbec/libk4a.so", None, True) in fake_k4a.CALLS
-    assert fake_k4a.CALLS[-1][2] == fake_k4a.K4A_DEPTH_MODE_WFOV_2X2BINNED
+    assert fake_k4a.k4a.STARTED[0][0] == fake_k4a.k4a.K4A_DEPTH_MODE_WFOV_2X2BINNED
+    source.close()
     with pytest.raises(SensorError, match="depth mode"):
         AzureKinectSource(depth_mode="HUGE")
 
@@ -206,24 +295,30 @@ def test_femto_passes_the_orbbec_wrapper_library(fake_k4a: ModuleType) -> None:
 def test_depth_cloud_is_in_our_sensor_frame_and_fits_one_message(fake_k4a: ModuleType) -> None:
     from skelfuse.agent.sources.azure_kinect import AzureKinectSource
 
-    cloud = np.zeros((20_000, 3), dtype=np.int16)
-    cloud[:, 0] = 100
-    cloud[:, 1] = -200  # above the camera in Azure's Y-down frame
-    cloud[:, 2] = 2000
-    cloud[::2, 2] = 0  # no depth
-    fake_k4a.SCRIPT[:] = [(5, [], cloud)]
+    k4a = fake_k4a.k4a
+    shape = (k4a.CALIBRATION["height"], k4a.CALIBRATION["width"])
+    depth, ir = _images(shape)
+    depth[:, 320:] = 3000  # the image's right half 3 m away, its left half 2 m
+    depth[400:] = 0  # no depth in the bottom rows
+    k4a.SCRIPT[:] = [(5, depth, ir)]
     source = AzureKinectSource()
     with pytest.raises(SensorError, match="no depth"):
         source.depth_cloud({})
     source.next_capture(0.1)
     result = source.depth_cloud({})
     points = np.frombuffer(result["points"], dtype="<f4").reshape(-1, 3)
-    assert result["count"] == points.shape[0] and 0 < points.shape[0] <= 10_000
-    np.testing.assert_allclose(points[0], [-0.1, 0.2, 2.0], atol=1e-6)
+    assert result["frame"] == "sensor" and result["device_timestamp_us"] == 5
+    assert result["count"] == points.shape[0] and 10_000 <= points.shape[0] <= 20_000
+    near = np.isclose(points[:, 2], 2.0)
+    assert (near | np.isclose(points[:, 2], 3.0)).all()
+    # Azure's +X right, +Y down, mm -> ours +X left, +Y up, m.
+    assert (points[near, 0] > 0).mean() > 0.99 and (points[~near, 0] < 0).mean() > 0.99
+    assert points[:, 1].max() > 1.0 and points[:, 1].min() > -0.7  # depth above, none low
     assert source.request_handlers()["depth_cloud"] == source.depth_cloud
     message = encode(Response(1, True, result))
     decoded = decode(message, MAX_RESPONSE_BYTES)  # the server's limit while it waits
     assert isinstance(decoded, Response) and decoded.result["count"] == result["count"]
+    source.close()
 
 
 # --- registry ----------------------------------------------------------------------------------

@@ -166,9 +166,6 @@ def k4abt_frame_get_body_skeleton(body_frame_handle, index, skeleton):
 
 
 def k4abt_frame_get_device_timestamp_usec(body_frame_handle):
-    # The high-level fake's Frame (tests/fakes/pykinect_azure/__init__.py) or a k4abt_frame_t.
-    if hasattr(body_frame_handle, "_timestamp_us"):
-        return body_frame_handle._timestamp_us
     return _frame(body_frame_handle)["device_us"]
 
 
