@@ -12,9 +12,15 @@ import numpy as np
 import pytest
 
 from skelfuse.fusion.alignment import Alignment, SensorTiming, replayed_horizons
-from skelfuse.fusion.extrapolation import carried_by_motion, measured_displacements
+from skelfuse.fusion.extrapolation import (
+    LatePredictor,
+    carried_by_motion,
+    measured_displacements,
+    views_with_late,
+)
 from skelfuse.fusion.hub import FusedFrame, FusionHub
 from skelfuse.fusion.pipeline import FusionPipeline
+from skelfuse.fusion.sensors import SensorState, TimedFrame
 from skelfuse.fusion.track_motion import PersonMotion, track_motions
 from skelfuse.fusion.views import View
 from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION
@@ -330,3 +336,34 @@ def test_no_deadline_until_the_grid_has_its_phase() -> None:
     assert len(settled) >= 25 and all(late == ("b",) for _, _, late in settled)
     eager = run_policy(Alignment("deadline", 30.0, deadline_s=0.010))
     assert any(late for _, instant, late in eager if instant < T0 + 0.9)
+
+
+def test_sensors_late_by_different_amounts_are_each_carried_their_own_horizon() -> None:
+    """a on time (frames 20 ms before and 13 ms after the instant), b late by 18 ms, c by 6 ms,
+    one walker at 1 m/s: the on-time views are measured once over b's 18 ms, c carried 6/18 of
+    it; both land where the walker is at the instant."""
+    t = T0 + 1.0
+    sensors = []
+    for name, captures in (("a", (t - 0.020, t + 0.013)), ("b", (t - 0.051, t - 0.018)),
+                           ("c", (t - 0.039, t - 0.006))):  # fmt: skip
+        sensor = SensorState(name, "kinect_v2", "test", name.encode(), 30.0)
+        for n, capture in enumerate(captures):
+            body = Body(1, walker(capture).astype(np.float32), full_states())
+            sensor.frames.append(TimedFrame(capture, Frame(n + 1, int(capture * 1e9), (body,))))
+        sensors.append(sensor)
+    members = {("a", 1): (7, False), ("b", 1): (7, False), ("c", 1): (7, False)}
+    views = views_with_late(
+        sensors,
+        lambda _: np.eye(4),
+        t,
+        0.1,
+        {"b": 0.018, "c": 0.006},
+        (),
+        LatePredictor({}, members),
+    )
+    assert [v.sensor_id for v in views] == ["a", "b", "c"]
+    for view in views:
+        np.testing.assert_allclose(view.joints_world, walker(t), atol=1e-5)
+    held = views_with_late(sensors, lambda _: np.eye(4), t, 0.1, {"b": 0.018, "c": 0.006}, (),
+                           LatePredictor({}))  # fmt: skip
+    assert abs(held[1].joints_world[0, 0] - walker(t)[0, 0]) > 0.017, "no motion known: held"
