@@ -232,6 +232,23 @@ def test_a_capture_timeout_is_no_frame_and_the_source_goes_on(fake_k4a: ModuleTy
     assert k4abt.TRACKERS[-1]["destroyed"] and k4a.STARTED[-2:] == ["stopped", "closed"]
 
 
+def test_a_full_tracker_queue_drops_the_capture_and_still_pops(fake_k4a: ModuleType) -> None:
+    from skelfuse.agent.sources.azure_kinect import AzureKinectSource
+
+    k4a, k4abt = fake_k4a.k4a, fake_k4a.k4abt
+    k4abt.QUEUE_LIMIT, k4abt.LAG = 1, 1  # one result waits; the tracker holds it back
+    k4a.SCRIPT[:] = [(t, *_images()) for t in (1_000, 2_000, 3_000)]
+    source = AzureKinectSource()
+    assert source.next_capture(0.1) is None  # queued, its body frame not out yet
+    assert source.next_capture(0.1) is None  # queue full: dropped
+    k4abt.LAG = 0
+    frame = source.next_capture(0.1)  # queue still full, but the pop gets the first one out
+    assert frame is not None and source.last_device_timestamp_us == 1_000
+    assert source.dropped["tracker queue full"] == 2
+    source.close()
+    assert k4a.LIVE == {} and k4abt.FRAMES == {}
+
+
 def test_sdk_failures_are_sensor_errors_naming_the_call(
     fake_k4a: ModuleType, monkeypatch: pytest.MonkeyPatch
 ) -> None:
