@@ -161,11 +161,11 @@ class AzureKinectSource:
         if capture is None:
             return None
         try:
-            raw = k4a_sdk.read_capture(k4a, capture)
-            if raw is None:  # k4abt refuses a capture without both images
+            depth = k4a_sdk.read_depth(k4a, capture)
+            if depth is None:  # k4abt refuses a capture without both images
                 self.dropped["capture without depth or IR"] += 1
                 return None
-            self._last_depth = (raw.depth, raw.device_us)
+            self._last_depth = depth
             if not k4a_sdk.enqueue(self._bt, self._opened.tracker, capture, timeout_ms):
                 self.dropped["tracker queue full"] += 1  # still pop: that is what frees it
         finally:

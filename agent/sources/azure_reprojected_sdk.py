@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import ctypes
 import importlib
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, Final
 
@@ -159,24 +161,42 @@ def _image_array(k4a: Any, image: Any) -> U16:
     return pixels
 
 
-def read_capture(k4a: Any, capture: Any) -> RawCapture | None:
-    """Depth and IR of a device capture, or None when it lacks either (the images' references
-    are released; the capture is the caller's)."""
+@contextmanager
+def _depth_and_ir(k4a: Any, capture: Any) -> Iterator[tuple[Any, Any] | None]:
+    """A capture's depth and IR image handles, None when it lacks either (k4abt needs both);
+    their references are released on exit, the capture stays the caller's."""
     depth = k4a.k4a_capture_get_depth_image(capture)
     ir = k4a.k4a_capture_get_ir_image(capture)
     try:
-        if not depth or not ir:
+        yield (depth, ir) if depth and ir else None
+    finally:
+        for image in (depth, ir):
+            if image:
+                k4a.k4a_image_release(image)
+
+
+def read_capture(k4a: Any, capture: Any) -> RawCapture | None:
+    """Depth and IR of a device capture, or None when it lacks either."""
+    with _depth_and_ir(k4a, capture) as images:
+        if images is None:
             return None
+        depth, ir = images
         return RawCapture(
             _image_array(k4a, depth),
             _image_array(k4a, ir),
             int(k4a.k4a_image_get_device_timestamp_usec(depth)),
             float(k4a.k4a_capture_get_temperature_c(capture)),
         )
-    finally:
-        for image in (depth, ir):
-            if image:
-                k4a.k4a_image_release(image)
+
+
+def read_depth(k4a: Any, capture: Any) -> tuple[U16, int] | None:
+    """A device capture's depth image ((H, W) uint16 mm, copied) and its device timestamp (µs),
+    or None when it lacks depth or IR (the IR image is not copied)."""
+    with _depth_and_ir(k4a, capture) as images:
+        if images is None:
+            return None
+        depth = images[0]
+        return _image_array(k4a, depth), int(k4a.k4a_image_get_device_timestamp_usec(depth))
 
 
 def _new_image(k4a: Any, image_format: int, pixels: U16, device_us: int) -> Any:
