@@ -7,12 +7,12 @@ passed as ``k4a_path`` (``--k4a-path``), conventions.md §1.3. Not yet run on ha
 (docs/sensors.md).
 
 The SDKs are called through pykinect_azure's ctypes layer
-(:mod:`skelfuse.agent.sources.azure_reprojected_sdk`), not its ``Device`` / ``Tracker``
+(:mod:`skelfuse.agent.sources.azure_sdk`), not its ``Device`` / ``Tracker``
 classes: those pass every result to ``VERIFY``, which ``sys.exit()``s on a capture timeout as
 on a real failure, having already released the capture it holds. Here a timeout is no frame
 this time (None), a failure a :class:`SensorError` naming the SDK function, and every capture
 and body frame is released once. The depth mode starts at its own highest rate
-(:data:`~skelfuse.agent.sources.azure_reprojected_sdk.FPS`: WFOV unbinned 15 fps, else 30).
+(:data:`~skelfuse.agent.sources.azure_sdk.FPS`: WFOV unbinned 15 fps, else 30).
 
 Conversions (conventions.md §1.2, §1.7): the tracker's 32 joints (depth camera frame, mm,
 +X right, +Y down) become our 25 (metres, +X left, +Y up) through
@@ -38,8 +38,8 @@ from typing import Any, Final
 import numpy as np
 
 from skelfuse.agent.sim.depth_camera import DepthIntrinsics
-from skelfuse.agent.sources import azure_reprojected_sdk as k4a_sdk
-from skelfuse.agent.sources.azure_reprojected_lens import LensMaps, lens_maps, sensor_points
+from skelfuse.agent.sources import azure_sdk as k4a_sdk
+from skelfuse.agent.sources.azure_lens import LensMaps, lens_maps, sensor_points
 from skelfuse.agent.sources.base import Capture, SensorError
 from skelfuse.agent.sources.depth_reply import cloud_reply
 from skelfuse.agent.sources.kinect_v2 import DeviceClock

@@ -4,7 +4,7 @@ Report B (issue 15): a body tracker trained on level cameras sees a head-mounted
 and roll with its wearer. This source feeds it instead what a level camera at the same floor
 position and heading would have seen. For each device capture:
 
-1. depth and IR are copied out of the SDK (:mod:`skelfuse.agent.sources.azure_reprojected_sdk`);
+1. depth and IR are copied out of the SDK (:mod:`skelfuse.agent.sources.azure_sdk`);
    the depth image's device timestamp, anchored to this PC's clock, is the capture instant;
 2. ``pose_at(t_capture_ns)`` gives the sensor's ``T_space_from_sensor`` then (a plain callable:
    e.g. ``PosedSource.sensor_pose_at`` of :mod:`skelfuse.agent.poses.posed`, which adds the
@@ -17,7 +17,7 @@ position and heading would have seen. For each device capture:
    camera is the device's own: the calibration the tracker was created with, lens included.
    ``reproject_depth`` models a pinhole, so the images go through it as pinhole images (the
    calibration's fx, fy, cx, cy) and are taken into and out of the lens by nearest-pixel maps
-   built from the SDK's lens model (:mod:`skelfuse.agent.sources.azure_reprojected_lens`): the
+   built from the SDK's lens model (:mod:`skelfuse.agent.sources.azure_lens`): the
    tracker's 3-D joints are then consistent with the re-projected pixels;
 4. a new ``k4a_capture_t`` holding the two images (DEPTH16, IR16, the device timestamp) is
    enqueued in the tracker; its body frames are popped and matched to their capture by that
@@ -56,8 +56,8 @@ from skelfuse.agent.sources.azure_kinect import (
     body_from_skeleton,
     import_pykinect_azure,
 )
-from skelfuse.agent.sources.azure_reprojected_lens import lens_maps, remap, sensor_points
-from skelfuse.agent.sources.azure_reprojected_sdk import (
+from skelfuse.agent.sources.azure_lens import lens_maps, remap, sensor_points
+from skelfuse.agent.sources.azure_sdk import (
     FPS,
     build_capture,
     close_device,

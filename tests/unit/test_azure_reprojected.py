@@ -24,7 +24,7 @@ import pytest
 
 from skelfuse.agent.reproject import level_reference, reproject_depth
 from skelfuse.agent.sim.depth_camera import DepthIntrinsics
-from skelfuse.agent.sources.azure_reprojected_lens import remap
+from skelfuse.agent.sources.azure_lens import remap
 from skelfuse.protocol.messages import SensorPose
 from skelfuse.protocol.sensor_pose import pose_from_matrix
 from skelfuse.protocol.skeleton import AZURE_JOINT_COUNT, AZURE_TO_KINECT_V2
@@ -291,7 +291,7 @@ def test_a_capture_without_ir_is_dropped_and_a_bad_setup_refused(
 def test_lens_maps_take_a_pixel_to_its_ray_and_back(fake_sdk: tuple[ModuleType, Any, Any]) -> None:
     """Device pixel → pinhole pixel on the same ray (the fake lens, inverted analytically) and
     back again, to the nearest pixel, from the grid-interpolated SDK samples."""
-    from skelfuse.agent.sources.azure_reprojected_lens import lens_maps
+    from skelfuse.agent.sources.azure_lens import lens_maps
 
     _, k4a, _ = fake_sdk
     calibration = k4a.k4a_calibration_t()

@@ -1,5 +1,6 @@
-"""The depth camera's lens for :mod:`skelfuse.agent.sources.azure_reprojected`: nearest-pixel
-maps between the device's image (with its lens distortion) and a pinhole image.
+"""The depth camera's lens for :mod:`skelfuse.agent.sources.azure_reprojected` (and the depth
+cloud of :mod:`skelfuse.agent.sources.azure_kinect`): nearest-pixel maps between the device's
+image (with its lens distortion) and a pinhole image.
 
 :func:`skelfuse.agent.reproject.reproject_depth` models a pinhole camera; an Azure Kinect's
 depth camera is not one (Brown–Conrady / rational lens model in its calibration), and its body
