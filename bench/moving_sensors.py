@@ -1,7 +1,7 @@
 """Moving sensors (issue 15 item 5, report B): the figures of docs/benchmarks.md "Moving sensors".
 
     .venv/bin/python bench/moving_sensors.py [--seeds 3] [--part a|b|all] [--fusion server|minimal]
-        [--turn-speeds 1,5] [--pose-noise-mm 0] [--pose-noise-deg 0]
+        [--turn-speeds 1,5] [--pose-noise-mm 0] [--pose-noise-deg 0] [--spaces one|per-wearer]
 
 (a) Report B's measure in simulation (:mod:`bench.moving_sensors_frames`): % of erroneous frames
     for head, hands and feet of a person filmed by a head-mounted sensor turning by report B's
@@ -10,7 +10,9 @@
     pose-to-frame mismatch grows (0, 10, 20, 50 ms), at report B's turn rates (≤ 20°/s) and five
     times faster (≤ 100°/s). ``--fusion server`` feeds the production FusionHub
     (:mod:`bench.moving_sensors_hub`); ``minimal`` is the bench's own placement + weighted
-    average, not the server's fusion.
+    average, not the server's fusion. ``--spaces per-wearer`` (server fusion, 0 ms mismatch):
+    each wearer's headset in its own tracking space (:mod:`bench.moving_sensors_spaces`), the
+    spaces' transforms stored, or solved by a skeleton calibration run, against one shared space.
 
 Each figure is the median over ``--seeds`` runs. Geometry only: the figures do not depend on the
 machine's load (printed anyway, with the run time).
@@ -110,6 +112,36 @@ def fused_table(
     return lines
 
 
+def spaces_table(seeds: int, turn_speed: float) -> list[str]:
+    """``--spaces per-wearer`` as markdown rows: per axis, MPJPE / median (mm) at 0 ms with one
+    shared space, each wearer's space stored, and solved by a calibration run; and the solved
+    spaces' worst error against the truth (deg, mm), medians over seeds."""
+    from bench.moving_sensors_hub import hub_errors
+    from bench.moving_sensors_spaces import solved_spaces, stored_spaces
+
+    lines = [
+        "| axis | one space | per-wearer, stored | per-wearer, solved | solved error deg / mm |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    for axis in AXES:
+        cases = [FusedCase(axis, 0.0, seed=s, turn_speed=turn_speed) for s in range(seeds)]
+        solved = [solved_spaces(c) for c in cases]
+        runs = {
+            "one": [hub_errors(c) for c in cases],
+            "stored": [hub_errors(c, stored_spaces(c.wearers)) for c in cases],
+            "solved": [hub_errors(c, s) for c, s in zip(cases, solved, strict=True)],
+        }
+        cells = [
+            f"{np.median([r['mpjpe_mm'] for r in rs]):.1f} / "
+            f"{np.median([r['median_mm'] for r in rs]):.1f}"
+            for rs in runs.values()
+        ]
+        worst_deg = np.median([max(d for d, _ in s.errors.values()) for s in solved])
+        worst_mm = np.median([max(m for _, m in s.errors.values()) for s in solved])
+        lines.append(f"| {axis} | " + " | ".join(cells) + f" | {worst_deg:.2f} / {worst_mm:.1f} |")
+    return lines
+
+
 def _fused_errors(fusion: str) -> Callable[[FusedCase], dict[str, float]]:
     if fusion == "minimal":
         return minimal_errors
@@ -128,6 +160,12 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--pose-noise-mm", type=float, default=0.0, help="(b): σ per axis")
     parser.add_argument("--pose-noise-deg", type=float, default=0.0, help="(b): σ per axis")
+    parser.add_argument(
+        "--spaces",
+        choices=["one", "per-wearer"],
+        default="one",
+        help="(b): per-wearer = each headset in its own tracking space, stored and solved",
+    )
     args = parser.parse_args(argv)
     start = time.perf_counter()
     print(f"load average at start: {os.getloadavg()}")
@@ -135,7 +173,14 @@ def main(argv: list[str] | None = None) -> None:
         for title, walk in (("standing (report B's test)", 0.0), ("both walking", 0.6)):
             print(f"\n(a) erroneous frames %, {title}, median of {args.seeds} seeds\n")
             print("\n".join(frames_table(args.seeds, walk)))
-    if args.part in ("b", "all"):
+    if args.part in ("b", "all") and args.spaces == "per-wearer":
+        for speed in (float(v) for v in args.turn_speeds.split(",")):
+            print(
+                f"\n(b) fused error, server fusion, 0 ms mismatch, MPJPE / median mm, schedule "
+                f"x{speed:g} (<= {20 * speed:.0f} deg/s), median of {args.seeds} seeds\n"
+            )
+            print("\n".join(spaces_table(args.seeds, speed)))
+    elif args.part in ("b", "all"):
         errors_of = _fused_errors(args.fusion)
         noise = (args.pose_noise_mm, args.pose_noise_deg)
         for speed in (float(v) for v in args.turn_speeds.split(",")):

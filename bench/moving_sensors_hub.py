@@ -7,6 +7,11 @@ clock; its frames go to the hub as wire bytes (bodies in the sensor frame, the h
 attached) 2 ms after capture, the hub fusing on its default settings and output grid as the
 live loop does. Fused persons are matched to the truth as the accuracy benchmark does
 (:class:`bench.accuracy_metrics.Log`: trunk distance, Hungarian, 1 m gate).
+
+With ``spaces`` (:mod:`bench.moving_sensors_spaces`, ``--spaces per-wearer``) each wearer's
+sensor is in its own space ``quest-k`` instead, its frames' poses given in it, the hub knowing
+the spaces from that calibration only (no hint), and the fused persons moved by its gauge onto
+the truth's world before they are scored.
 """
 
 from __future__ import annotations
@@ -15,8 +20,11 @@ import numpy as np
 
 from bench.accuracy_metrics import Log
 from bench.moving_sensors_fused import FPS, FusedCase
+from bench.moving_sensors_spaces import Spaces, space_id
 from skelfuse.fusion.hub import FusionHub
 from skelfuse.fusion.settings import HubSettings
+from skelfuse.protocol.sensor_pose import pose_from_matrix, pose_matrix
+from skelfuse.protocol.transform import apply, invert
 from skelfuse.protocol.wire import Body, Frame, Hello, encode
 
 T0 = 1_800_000_000.0
@@ -27,27 +35,34 @@ def _names(count: int) -> list[str]:
     return [f"head-{i}" for i in range(count)]
 
 
-def new_hub(count: int, settings: HubSettings | None = None) -> FusionHub:
-    """A hub with ``count`` moving sensors ``head-i`` registered in the space ``room``."""
-    hub = FusionHub(settings or HubSettings())
-    for name in _names(count):
-        hello = Hello(
-            name,
-            "sim",
-            "bench",
-            FPS,
-            0,
-            pose_hint=np.eye(4),
-            pose_hint_source="sim_truth",
-            moving=True,
-            pose_space="room",
-        )
+def new_hub(
+    count: int, settings: HubSettings | None = None, spaces: Spaces | None = None
+) -> FusionHub:
+    """A hub with ``count`` moving sensors ``head-i`` registered in the space ``room`` (the
+    identity hinted as its world transform), or each in its own space of ``spaces``."""
+    hub = FusionHub(settings or HubSettings(), spaces.calibration if spaces else None)
+    for k, name in enumerate(_names(count)):
+        if spaces is not None:
+            hello = Hello(name, "sim", "bench", FPS, 0, moving=True, pose_space=space_id(k))
+        else:
+            hello = Hello(
+                name,
+                "sim",
+                "bench",
+                FPS,
+                0,
+                pose_hint=np.eye(4),
+                pose_hint_source="sim_truth",
+                moving=True,
+                pose_space="room",
+            )
         hub.handle_message(name.encode(), [encode(hello)], T0, 0.0)
     return hub
 
 
-def hub_errors(case: FusedCase) -> dict[str, float]:
-    """MPJPE, per-joint median (mm), coverage and erroneous share of the hub's fused persons."""
+def hub_errors(case: FusedCase, spaces: Spaces | None = None) -> dict[str, float]:
+    """MPJPE, per-joint median (mm), coverage and erroneous share of the hub's fused persons
+    (``spaces``: see the module docstring)."""
     capture = case.capture()
     rng = np.random.default_rng(case.seed + 77)
     names = _names(capture.wearer_count)
@@ -56,7 +71,8 @@ def hub_errors(case: FusedCase) -> dict[str, float]:
         for w, phase in enumerate(rng.uniform(0.0, 1.0 / FPS, size=capture.wearer_count))
         for n in range(round(case.duration_s * FPS))
     )
-    hub = new_hub(capture.wearer_count)
+    hub = new_hub(capture.wearer_count, spaces=spaces)
+    space_from_world = [invert(w) for w in spaces.world_from_space] if spaces else None
     log = Log()
     seqs = [0] * capture.wearer_count
     fused_count = 0
@@ -64,7 +80,10 @@ def hub_errors(case: FusedCase) -> dict[str, float]:
         frame = capture.frame(wearer, float(t))
         seqs[wearer] += 1
         bodies = tuple(Body(o.tracking_id, o.joints_m, o.states) for o in frame.bodies)
-        message = encode(Frame(seqs[wearer], int((T0 + t) * 1e9), bodies, None, frame.pose))
+        pose = frame.pose
+        if space_from_world is not None:
+            pose = pose_from_matrix(space_from_world[wearer] @ pose_matrix(pose))
+        message = encode(Frame(seqs[wearer], int((T0 + t) * 1e9), bodies, None, pose))
         received = T0 + t + NETWORK_DELAY_S
         hub.handle_message(names[wearer].encode(), [message], received, received - T0)
         fused = hub.fuse_step(received)
@@ -72,7 +91,10 @@ def hub_errors(case: FusedCase) -> dict[str, float]:
             continue
         fused_count += 1
         truth = capture.truth(fused.t_s - T0)
-        log.add(fused_count, [(p.person_id, p.joints) for p in fused.persons], truth)
+        persons = [(p.person_id, p.joints) for p in fused.persons]
+        if spaces is not None:
+            persons = [(i, apply(spaces.gauge, joints)) for i, joints in persons]
+        log.add(fused_count, persons, truth)
     summary = log.summary()
     errors = np.stack(log.errors) if log.errors else np.full((1, 25), np.nan)
     seen = errors[np.isfinite(errors)]
