@@ -199,7 +199,7 @@ class FusionHub:
                 if sensor.last_seq is not None and message.seq <= sensor.last_seq:
                     self._reject(sensor, "replayed_seq")
                     return []
-                problem = sensor.frame_time_problem(message, now_s)
+                problem = sensor.admit(message, now_s)  # its seq is seen even if rejected
                 if problem is not None:
                     self._reject(sensor, problem)
                     return []

@@ -193,6 +193,19 @@ class SensorState:
             return "future"
         return None
 
+    def admit(self, frame: Frame, received_s: float) -> str | None:
+        """Note a delivered frame's ``seq``, then say why it is rejected
+        (:meth:`frame_time_problem`) or None. A frame rejected for what it holds is counted once,
+        in ``frames_rejected``: its seq was seen, so the next frame does not count it again as a
+        sequence gap (frames numbered but never delivered, docs/protocol.md §10.5)."""
+        self._note_seq(frame.seq)
+        return self.frame_time_problem(frame, received_s)
+
+    def _note_seq(self, seq: int) -> None:
+        if self.last_seq is not None and seq > self.last_seq + 1:
+            self.sequence_gaps += seq - self.last_seq - 1
+        self.last_seq = seq
+
     def keep_clock_of(self, previous: SensorState) -> None:
         """Take over ``previous``'s clock estimates (round trip, one-way minimum, offset): the
         same agent on the same connection registered again, so its clock has not changed."""
@@ -218,9 +231,7 @@ class SensorState:
         if self.moving:
             frame = placed_in_space(frame)
         capture_s = frame.t_capture_ns / 1e9
-        if self.last_seq is not None and frame.seq > self.last_seq + 1:
-            self.sequence_gaps += frame.seq - self.last_seq - 1
-        self.last_seq = frame.seq
+        self._note_seq(frame.seq)
         one_way = self._offset.push(received_s, received_s - capture_s)
         if self.round_trip.offset_s is not None:
             self.clock_offset_s, self.clock_source = self.round_trip.offset_s, "round_trip"

@@ -124,6 +124,29 @@ def test_a_moving_frame_without_a_pose_is_counted_and_dropped() -> None:
     sensor = hub.sensors["head-a"]
     assert sensor.frames_rejected == {"no_pose": 1}
     assert [timed.frame.seq for timed in sensor.frames] == [1, 3]
+    # Counted once: the unposed frame was delivered, so it is no sequence gap as well.
+    assert sensor.sequence_gaps == 0
+
+
+def test_each_lost_frame_is_counted_once_rejected_or_never_sent() -> None:
+    hub = FusionHub(HubSettings())
+    hub.handle_message(b"a", [moving_hello("head-a")], T0, 0.0)
+    pose = space_pose(np.eye(4))
+
+    def send(seq: int, captured_s: float, posed: bool = True) -> None:
+        frame = Frame(seq, round(captured_s * 1e9), (), None, pose if posed else None)
+        hub.handle_message(b"a", [encode(frame)], T0 + seq / FPS + 0.004, seq / FPS)
+
+    send(1, T0 + 1 / FPS)
+    send(2, T0 + 2 / FPS, posed=False)  # no_pose
+    send(3, T0 + 3 / FPS - 5.0)  # captured 5 s before it arrived: stale
+    send(5, T0 + 5 / FPS)  # 4 never came (the agent did not send an unposed capture): a gap
+    sensor = hub.sensors["head-a"]
+    assert sensor.frames_rejected == {"no_pose": 1, "stale": 1}
+    assert sensor.sequence_gaps == 1
+    assert [timed.frame.seq for timed in sensor.frames] == [1, 5]
+    send(5, T0 + 5 / FPS)  # a repeated seq is refused and does not move the counter back
+    assert sensor.frames_rejected["replayed_seq"] == 1 and sensor.sequence_gaps == 1
 
 
 def test_a_fixed_sensor_is_unchanged_by_a_pose_it_did_not_need() -> None:
