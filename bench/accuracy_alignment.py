@@ -66,6 +66,7 @@ ALL_POLICIES: dict[str, FusionSettings] = {
     "views 10 ms": replace(VIEWS, alignment_deadline_s=0.010),
     "views 12 ms": replace(VIEWS, alignment_deadline_s=0.012),
     "views 15 ms": replace(VIEWS, alignment_deadline_s=0.015),
+    "views no skip 10 ms": replace(VIEWS, alignment_skip_expected_late=False),
 }
 """Every policy the bench knows (the extrapolation bound is the default's, 34 ms, for every
 one); ``--policies`` picks some (``aligned`` always runs: the differences are against it)."""
