@@ -6,6 +6,7 @@ from __future__ import annotations
 from bench.moving_sensors_frames import FrameCase, erroneous_frames
 from bench.moving_sensors_fused import FusedCase, minimal_errors
 from bench.moving_sensors_hub import hub_errors
+from bench.moving_sensors_spaces import solved_spaces, stored_spaces
 
 
 def test_per_frame_poses_cut_the_erroneous_frames_of_a_turning_head() -> None:
@@ -42,3 +43,15 @@ def test_the_server_fuses_mutual_capture_and_feels_the_mismatch() -> None:
     assert synced["coverage"] > 0.5
     assert synced["mpjpe_mm"] < 100.0
     assert late["mpjpe_mm"] > synced["mpjpe_mm"] + 10.0
+
+
+def test_each_wearer_in_their_own_space_stored_or_solved() -> None:
+    case = FusedCase("yaw", 0.0, seed=1, duration_s=1.0)
+    one = hub_errors(case)
+    stored = hub_errors(case, stored_spaces(case.wearers))
+    assert abs(stored["mpjpe_mm"] - one["mpjpe_mm"]) < 0.1  # only float rounding differs
+    solved = solved_spaces(case)  # a skeleton calibration run over the calibration walk
+    assert set(solved.calibration.spaces) == {"quest-0", "quest-1", "quest-2"}
+    for rotation_deg, translation_mm in solved.errors.values():
+        assert rotation_deg < 1.0 and translation_mm < 25.0, solved.errors
+    assert hub_errors(case, solved)["mpjpe_mm"] < one["mpjpe_mm"] + 3.0
