@@ -20,7 +20,8 @@ when each live sensor's newest frame was captured, whether the next instant can 
   extrapolation is shortest (the sum of squared horizons, replayed over the same frames as
   ``phased``, :func:`replayed_horizons`) instead of where the wait for the last sensor is; with
   ``skip_expected_late`` an instant does not wait for a sensor whose frame is expected after the
-  deadline anyway (late in most replayed frames): it is fused as soon as the others are in.
+  deadline anyway (late in most replayed frames): it is fused as soon as the others are in (at
+  the deadline when every sensor is expected late).
   With ``wait_for_phase`` there is no deadline until the grid's phase is first chosen (about
   a second): the grid the first frames put is anywhere against the sensors' phases, and a
   deadline there carries late sensors by up to a period.
@@ -275,7 +276,9 @@ class Alignment:
                 self._due_s = None
                 return None
             waited = [s.newest_s for s in sensors if s.sensor_id not in self.expected_late]
-            due = next_t if not waited else next_t + self.deadline_s
+            # Never before the deadline, even with every sensor expected late: the frame each
+            # was captured just before the instant is then in, and carried least.
+            due = next_t + self.deadline_s
             if now_s >= due or (waited and min(waited) >= next_t):
                 instant = self._take(self._late_instant(next_t, sensors), period)
                 # Nobody within the bound (every sensor stalled): skip the instant rather than
@@ -314,16 +317,12 @@ class Alignment:
         following = self._grid_point(instant.t_s + period)
         self._due_s = None
         if self.policy == "deadline" and not self._settling():
-            self._due_s = following + (self.deadline_s if self._waits_for_any() else 0.0)
+            self._due_s = following + self.deadline_s
         return instant
 
     def _settling(self) -> bool:
         """``wait_for_phase``: the grid's phase has not been chosen yet (no deadline)."""
         return self.wait_for_phase and self._next_rephase_s == -math.inf
-
-    def _waits_for_any(self) -> bool:
-        """Whether some sensor is waited for (not every one is expected late)."""
-        return not self.expected_late or any(s not in self.expected_late for s in self._sensors)
 
     def _late_instant(self, t_s: float, sensors: Sequence[SensorTiming]) -> Instant:
         late: list[tuple[str, float]] = []
