@@ -206,19 +206,20 @@ class FusionSettings:
     2026-11-22); 2 is the default."""
 
     # --- time alignment: when an output instant is fused (fusion/alignment.py; issue 11 item 1) --
-    alignment: Literal["aligned", "phased", "deadline"] = "deadline"
+    alignment: Literal["aligned", "phased", "deadline"] = "phased"
     """When the hub fuses an output instant (docs/fusion.md §2): ``aligned`` once every live
     sensor has a frame at or after it, on a grid of phase 0 (the rule before issue 11, and what
-    offline replay always uses); ``phased`` the same rule on a grid whose phase follows the
-    sensors' capture phases: 4–7 ms less wait on average in the accuracy scenarios (up to 12 ms
-    for a rig), MPJPE within 0.25 mm of ``aligned`` (docs/benchmarks.md "Alignment policies");
-    ``deadline`` (the default) as ``phased``, but at the latest ``alignment_deadline_s`` after
-    the instant, late sensors carried forward: with the ``alignment_*`` defaults below +0.13 to
-    +0.72 mm against ``aligned`` in those scenarios (mean of 3 runs each; +0.8 to +2.3 mm with
-    3 ms of delivery jitter, where ``phased`` is the safer setting), and capture → client
-    13.4 / 25.9 ms p50 / p99 for 10 sensors at random phases on a quiet machine (``track``
-    predictor; ``views`` the same within noise at load 2–5), against ``phased``'s 37.7 / 49.1
-    (docs/benchmarks.md "Load")."""
+    offline replay always uses); ``phased`` (the default) the same rule on a grid whose phase
+    follows the sensors' capture phases: 4–7 ms less wait on average in the accuracy
+    scenarios (up to 12 ms for a rig), MPJPE within 0.25 mm of ``aligned`` (docs/benchmarks.md
+    "Alignment policies"); ``deadline`` as ``phased``, but at the latest
+    ``alignment_deadline_s`` after the instant, late sensors carried forward: with the
+    ``alignment_*`` defaults below +0.13 to +0.72 mm against ``aligned`` in those scenarios
+    (mean of 3 runs each; +0.8 to +2.3 mm with 3 ms of delivery jitter), but capture → client
+    23.4 / 32.2 ms p50 / p99 for 10 sensors at random phases at load ~1 (``phased`` 41.2 /
+    53.3), over issue 11's 15 / 30: the live rig's sensors are all expected late, and the
+    instant is fused at its deadline (docs/benchmarks.md "Late sensors carried by what the
+    on-time views saw")."""
     alignment_deadline_s: float = 0.010
     """``deadline``: an instant is fused at the latest this long after it (server clock,
     seconds); it must cover the agents' usual delivery delay (capture to the server)."""
