@@ -19,6 +19,7 @@ named), ``numpy`` (never compile).
 from __future__ import annotations
 
 import os
+import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -35,7 +36,10 @@ IntArray = npt.NDArray[np.intp]
 ENV: Final = "SKELFUSE_KERNELS"
 MODES: Final = ("auto", "numba", "numpy")
 
-_state: dict[str, str | None] = {"mode": None}
+# Per thread: the fusion step forces its mode for its own duration, and a live server fuses in
+# its own thread; one process-wide value would let overlapping steps restore each other's mode
+# (left set for good) and let one thread's step change another's kernels.
+_state = threading.local()
 
 
 def mode() -> str:
@@ -44,7 +48,7 @@ def mode() -> str:
     Raises:
         ValueError: when ``SKELFUSE_KERNELS`` is not one of :data:`MODES`.
     """
-    chosen = _state["mode"]
+    chosen: str | None = getattr(_state, "mode", None)
     if chosen is None:  # (once per kernel call: kept cheap)
         raw = os.environ.get(ENV)
         chosen = raw.strip().lower() or "auto" if raw else "auto"
@@ -60,19 +64,20 @@ def enabled() -> bool:
 
 @contextmanager
 def forced(chosen: str) -> Iterator[None]:
-    """Run the block with the kernel mode ``chosen`` (tests, benches), whatever the environment.
+    """Run the block with the kernel mode ``chosen`` (tests, benches), whatever the environment,
+    in this thread only.
 
     Raises:
         ValueError: when ``chosen`` is not one of :data:`MODES`.
     """
     if chosen not in MODES:
         raise ValueError(f"mode must be one of {', '.join(MODES)}, got {chosen!r}")
-    saved = _state["mode"]
-    _state["mode"] = chosen
+    saved: str | None = getattr(_state, "mode", None)
+    _state.mode = chosen
     try:
         yield
     finally:
-        _state["mode"] = saved
+        _state.mode = saved
 
 
 def rom_factors_and_forward(

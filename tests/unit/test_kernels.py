@@ -170,3 +170,27 @@ def test_weighted_mean_kernel_gives_the_numpy_bits(numba_kernels: None, seed: in
             expected = weighted.weighted_mean(joints[:, :size], weights[:, :size])
         assert _same_bits(fused, expected)
         assert np.isnan(fused).any()
+
+
+def test_a_forced_mode_holds_in_its_own_thread_only(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A live server fuses (and forces its mode) in its own thread: it must not change the mode
+    another thread sees, nor leave its mode behind when steps overlap."""
+    import threading
+
+    monkeypatch.setenv(kernels.ENV, "numpy")
+    inside, release = threading.Event(), threading.Event()
+
+    def step() -> None:
+        with kernels.forced("auto"):
+            inside.set()
+            release.wait(5)
+
+    worker = threading.Thread(target=step)
+    worker.start()
+    assert inside.wait(5)
+    try:
+        assert kernels.mode() == "numpy"
+    finally:
+        release.set()
+        worker.join(5)
+    assert kernels.mode() == "numpy"
