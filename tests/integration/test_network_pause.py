@@ -26,6 +26,7 @@ from tests.support_net import PausableProxy, TimeCodeSource
 pytestmark = pytest.mark.timeout(90)
 
 PAUSE_S = 5.0
+IN_FLIGHT_S = 0.25  # capture -> proxy takes milliseconds; this is slack for a loaded machine
 
 
 class ProxiedAgent:
@@ -100,8 +101,8 @@ async def test_a_backlog_after_a_network_pause_is_stale_and_never_fused(
         )
         assert streaming, sensor_row(live_server)
         before = sensor_row(live_server)
-        proxy.pause()
         paused_at = time.time()
+        proxy.pause()
         await asyncio.sleep(PAUSE_S)
         proxy.resume()
         healed_at = time.time()
@@ -121,11 +122,14 @@ async def test_a_backlog_after_a_network_pause_is_stale_and_never_fused(
     stale = rejected_after.get("stale", 0) - rejected_before.get("stale", 0)
     # Every frame the agent queued during the pause and captured more than the stale limit
     # before the heal arrived after the heal: each must be counted stale. (Frames captured in
-    # the last 0.5 s before the heal may arrive in time.)
+    # the last 0.5 s before the heal may arrive in time.) Frames captured just before the pause
+    # may still sit in the agent's or the proxy's buffers when it starts and go stale with the
+    # backlog (CI once counted 75 stale of 74 queued in the pause), so the upper bound takes in
+    # the last IN_FLIGHT_S before it.
     surely_stale = sum(paused_at <= t < healed_at - STALE_S for _, t in agent.queued)
-    queued_in_pause = sum(paused_at <= t < healed_at for _, t in agent.queued)
+    could_be_stale = sum(paused_at - IN_FLIGHT_S <= t < healed_at for _, t in agent.queued)
     assert surely_stale > 30, (surely_stale, "the pause did not hold a backlog back")
-    assert surely_stale <= stale <= queued_in_pause, (surely_stale, stale, queued_in_pause)
+    assert surely_stale <= stale <= could_be_stale, (surely_stale, stale, could_be_stale)
     # No fused frame (before, during or after the pause) shows data captured > 100 ms before
     # its instant.
     ages = [instant - captured for instant, captured in fused]
