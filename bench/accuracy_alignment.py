@@ -62,6 +62,8 @@ ALL_POLICIES: dict[str, FusionSettings] = {
     "horizon own 15 ms": replace(HORIZON, alignment_predictor="own", alignment_deadline_s=0.015),
     "horizon own 20 ms": replace(HORIZON, alignment_predictor="own", alignment_deadline_s=0.020),
     # ... late sensors carried by what their person's on-time views saw meanwhile (horizon grid).
+    "views 2 ms": replace(VIEWS, alignment_deadline_s=0.002),
+    "views 3 ms": replace(VIEWS, alignment_deadline_s=0.003),
     "views 5 ms": replace(VIEWS, alignment_deadline_s=0.005),
     "views 10 ms": replace(VIEWS, alignment_deadline_s=0.010),
     "views 12 ms": replace(VIEWS, alignment_deadline_s=0.012),

@@ -92,6 +92,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--warmup", type=float, default=3.0, help="s after all sensors are online")
     parser.add_argument("--clients", type=int, default=20, help="healthy WebSocket clients")
     parser.add_argument("--stalled", type=int, default=1, choices=(0, 1), help="stalled clients")
+    parser.add_argument(
+        "--client", choices=("websockets", "raw"), default="websockets",
+        help="the healthy clients: the websockets library parsing every frame's JSON, or a raw "
+        "reader timing each frame when its bytes arrive and reading only its head",
+    )  # fmt: skip
     parser.add_argument("--scaling", action="store_true", help="agents 1..16 × bodies 1, 6")
     parser.add_argument("--scaling-duration", type=float, default=15.0)
     parser.add_argument("--repeat", type=int, default=1, help="runs per configuration (medians)")
@@ -146,7 +151,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         else:
             config = RunConfig(args.agents, args.bodies, args.duration, args.warmup,
                                args.clients, args.stalled, args.calibrate,
-                               args.calibrate_capture)  # fmt: skip
+                               args.calibrate_capture, args.client)  # fmt: skip
             print_main(run_config(config), args.repeat)
     timings = [fusion_timing(s, b, args.fusion_steps) for s, b in ((4, 6), (10, 6), (16, 6))]
     raw["fusion"] = [asdict(t) for t in timings]

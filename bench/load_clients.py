@@ -41,6 +41,36 @@ async def healthy_client(url: str, log: ClientLog) -> None:
         log.error = f"{type(exc).__name__}: {exc}"
 
 
+async def raw_healthy_client(url: str, log: ClientLog) -> None:
+    """As :func:`healthy_client` on a :class:`RawFeedReader`: each frame is timed when its bytes
+    reach the client process, and only its head (seq, t, t_sent) is read; the JSON parse a real
+    app does is its own cost, which 20 clients in one process would otherwise pay one after
+    another before the last one's receive time is read (``bench/load.py --client raw``)."""
+    host_port, path = url.removeprefix("ws://").split("/", 1)
+    host, port = host_port.rsplit(":", 1)
+
+    def on_message(head: bytes, received: float) -> None:
+        match = HEAD_BYTES.search(head)
+        if match is not None:
+            seq, t, t_sent = match.groups()
+            log.records.append((received, int(seq), float(t), float(t_sent)))
+
+    reader = RawFeedReader("/" + path, host, int(port), on_message)
+    loop = asyncio.get_running_loop()
+    transport: asyncio.BaseTransport | None = None
+    try:
+        transport, _ = await loop.create_connection(_factory(reader), host, int(port))
+        await reader.done.wait()
+        log.error = reader.error or "closed by the server"
+    except asyncio.CancelledError:
+        raise
+    except Exception as exc:
+        log.error = f"{type(exc).__name__}: {exc}"
+    finally:
+        if transport is not None:
+            transport.close()
+
+
 def open_stalled_client(port: int) -> tuple[socket.socket, int]:
     """A WebSocket client that completes the handshake and then never reads again."""
     sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)

@@ -95,8 +95,8 @@ def print_main(r: RunResult, repeat: int) -> None:
     runs = f", median of {repeat} runs" if repeat > 1 else ""
     print(
         f"\n{c.agents} agents × {FPS:.0f} fps × {c.bodies} bodies, {c.clients} healthy WebSocket "
-        f"clients + {c.stalled} stalled, {r.window_s:.0f} s window after {c.warmup_s:.0f} s "
-        f"warm-up{runs}\n"
+        f"clients ({c.client}) + {c.stalled} stalled, {r.window_s:.0f} s window after "
+        f"{c.warmup_s:.0f} s warm-up{runs}\n"
     )
     print("| metric | target | measured |")
     print("|---|---|---|")

@@ -19,7 +19,12 @@ import numpy.typing as npt
 
 from bench.load_agents import FPS, agents_process, sensor_layout
 from bench.load_calibrate import calibrate_under_load
-from bench.load_clients import ClientLog, healthy_client, open_stalled_client
+from bench.load_clients import (
+    ClientLog,
+    healthy_client,
+    open_stalled_client,
+    raw_healthy_client,
+)
 from bench.load_server import (
     free_port,
     get,
@@ -48,6 +53,9 @@ class RunConfig:
     calibrate: str | None = None
     """A calibration method (``auto``) run through REST part-way into the window, or None."""
     calibrate_capture_s: float = 15.0
+    client: str = "websockets"
+    """The healthy clients: ``websockets`` (parse every frame) or ``raw`` (time the bytes'
+    arrival, read the head; :func:`bench.load_clients.raw_healthy_client`)."""
 
 
 @dataclass
@@ -165,7 +173,8 @@ async def run_once(config: RunConfig, seed: int, log_dir: Path) -> RunResult:
         )
         logs = [ClientLog() for _ in range(config.clients)]
         ws_url = f"ws://127.0.0.1:{http_port}/ws/skeletons"
-        tasks = [asyncio.create_task(healthy_client(ws_url, log)) for log in logs]
+        reader = raw_healthy_client if config.client == "raw" else healthy_client
+        tasks = [asyncio.create_task(reader(ws_url, log)) for log in logs]
         for _ in range(config.stalled):
             sock, port = await asyncio.to_thread(open_stalled_client, http_port)
             stalled.append((sock, port, time.time()))
