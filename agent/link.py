@@ -125,6 +125,8 @@ class AgentLink:
         self._last_sent = -float("inf")
         self._last_hello = -float("inf")
         self._socket = self._open()
+        self._poller: zmq.Poller | None = None
+        self._poller_fd = -1
         self.handshake = HandshakeWatch(self._socket, endpoint, curve is not None, clock)
         """Failed handshakes (a key missing or refused), said in the log and counted."""
 
@@ -168,9 +170,29 @@ class AgentLink:
 
     # --- receiving and timers ----------------------------------------------------------------
 
-    def poll(self, timeout_s: float = 0.0) -> None:
-        """Handle everything the server sent, then heartbeats and re-registration."""
+    @property
+    def socket(self) -> zmq.Socket[Any]:
+        """The link's socket, to wait on it with others (``zmq.Poller``); only :meth:`poll`
+        reads it, in the thread that calls :meth:`poll` and :meth:`send_frame`."""
+        return self._socket
+
+    def poll(self, timeout_s: float = 0.0, wake_fd: int | None = None) -> None:
+        """Handle everything the server sent, then heartbeats and re-registration.
+
+        Waits up to ``timeout_s`` for the server, or until ``wake_fd`` (a file descriptor, such
+        as :meth:`skelfuse.agent.capture_thread.CaptureThread.fileno`) is readable; the caller
+        reads ``wake_fd``. A heartbeat is answered as soon as it is read: the echo's stamp is
+        the server's measure of this agent's clock (docs/fusion.md §1).
+        """
         deadline_ms = int(timeout_s * 1000)
+        if wake_fd is not None and deadline_ms > 0:
+            if self._poller is None or self._poller_fd != wake_fd:
+                self._poller = zmq.Poller()
+                self._poller.register(self._socket, zmq.POLLIN)
+                self._poller.register(wake_fd, zmq.POLLIN)
+                self._poller_fd = wake_fd
+            self._poller.poll(deadline_ms)
+            deadline_ms = 0
         while self._socket.poll(deadline_ms, zmq.POLLIN):
             deadline_ms = 0
             self._handle(self._socket.recv())

@@ -8,6 +8,7 @@ import time
 from collections.abc import Callable
 
 from skelfuse import __version__
+from skelfuse.agent.capture_thread import CaptureThread
 from skelfuse.agent.link import AgentLink, CurveKeys, RequestHandler
 from skelfuse.agent.sources.base import SkeletonSource
 from skelfuse.protocol.wire import Frame, Hello
@@ -74,28 +75,31 @@ def run_agent(
         if getattr(source, "waits_for_server", False):
             while running() and not link.registered:
                 link.poll(timeout_s=0.05)
-        while running():
-            capture = source.next_capture(timeout_s=0.1)
-            link.poll()
-            if capture is None:
-                continue
-            seq += 1
-            if moving and capture.pose is None:
-                # The server could not place it; the seq gap shows the loss (the pose source
-                # counts and logs why, e.g. agent/poses/posed.py).
-                continue
-            link.send_frame(
-                Frame(seq, capture.t_capture_ns, capture.bodies, capture.floor, capture.pose)
-            )
-            if time.monotonic() - last_report > 10.0:
-                last_report = time.monotonic()
-                logger.info(
-                    "%s: %d frames sent, %d dropped, registered=%s",
-                    sensor_id,
-                    link.stats.frames_sent,
-                    link.stats.frames_dropped,
-                    link.registered,
-                )
+        # The source is read in its own thread so that a heartbeat is answered when it comes,
+        # not after the source's next frame (agent/capture_thread.py says why).
+        with CaptureThread(source, name=f"capture-{sensor_id}") as captures:
+            while running():
+                link.poll(timeout_s=0.1, wake_fd=captures.fileno())
+                for capture in captures.take():
+                    seq += 1
+                    if moving and capture.pose is None:
+                        # The server could not place it; the seq gap shows the loss (the pose
+                        # source counts and logs why, e.g. agent/poses/posed.py).
+                        continue
+                    link.send_frame(
+                        Frame(
+                            seq, capture.t_capture_ns, capture.bodies, capture.floor, capture.pose
+                        )
+                    )
+                if time.monotonic() - last_report > 10.0:
+                    last_report = time.monotonic()
+                    logger.info(
+                        "%s: %d frames sent, %d dropped, registered=%s",
+                        sensor_id,
+                        link.stats.frames_sent,
+                        link.stats.frames_dropped,
+                        link.registered,
+                    )
     finally:
         link.close()
         source.close()

@@ -144,6 +144,13 @@ def agents_process(
         AgentLink(endpoint, partial(hello, s), context=context, handlers=handlers[i])
         for i, s in enumerate(ids)
     ]
+    # Every link's socket, waited on between captures: a heartbeat is echoed when it comes,
+    # as a real agent does (agent/capture_thread.py), not after that sensor's next frame.
+    poller = zmq.Poller()
+    link_of: dict[Any, int] = {}
+    for j, link in enumerate(links):
+        poller.register(link.socket, zmq.POLLIN)
+        link_of[link.socket] = j
     rng = random.Random(seed)
     start = time.time() + 0.05
     due: list[tuple[float, int]] = [(start + rng.random() * PERIOD_S, i) for i in range(len(ids))]
@@ -157,7 +164,9 @@ def agents_process(
         when, i = due[0]
         now = time.time()
         if when > now:
-            time.sleep(min(when - now, 0.02))
+            # Answer the server's heartbeats while waiting, as a real agent's link does.
+            for ready, _ in poller.poll(round(min(when - now, 0.02) * 1000)):
+                links[link_of[ready]].poll(0.0)
             continue
         heapq.heappop(due)
         t_ns = time.time_ns()
