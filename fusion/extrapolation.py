@@ -234,18 +234,25 @@ def views_with_late(
             newest = sensor.frames[-1]
             bodies = newest.frame.bodies
             scale = late[sensor.sensor_id] / moved[0] if moved[0] > 0.0 else 0.0
+            # All the sensor's bodies moved to the world at once (the same bits as one by one).
+            newest_worlds = apply(pose, np.array([b.joints_m for b in bodies])) if bodies else ()
             worlds = []
-            for body in bodies:
+            for body, newest_world in zip(bodies, newest_worlds, strict=True):
                 key = (sensor.sensor_id, body.tracking_id)
-                newest_world = apply(pose, body.joints_m)
+                measured = moved[1].get(key)
+                carried = None if measured is None else scale * measured
+                if carried is not None and np.isfinite(carried).all():
+                    # The on-time views saw every joint: their measurement, no filter motion.
+                    worlds.append(newest_world + carried)
+                    continue
                 world = carried_by_motion(
                     newest_world, predictor.motions.get(key), newest.t_server_s, t_s
                 )
-                if key in moved[1]:  # joints the on-time views saw: their measurement instead
-                    carried = scale * moved[1][key]
+                if carried is not None:  # joints the on-time views saw: their measurement
                     seen = np.isfinite(carried)
                     world[seen] = (newest_world + carried)[seen]
                 worlds.append(world)
+        position = world_position(sensor.frames, t_s, pose) if sensor.moving else pose[:3, 3]
         for body, world in zip(bodies, worlds, strict=True):
             views.append(
                 View(
@@ -253,7 +260,7 @@ def views_with_late(
                     body.tracking_id,
                     world,
                     body.states,
-                    world_position(sensor.frames, t_s, pose) if sensor.moving else pose[:3, 3],
+                    position,
                     sensor.sensor_type,
                 )
             )
