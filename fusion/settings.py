@@ -206,23 +206,24 @@ class FusionSettings:
     2026-11-22); 2 is the default."""
 
     # --- time alignment: when an output instant is fused (fusion/alignment.py; issue 11 item 1) --
-    alignment: Literal["aligned", "phased", "deadline"] = "phased"
+    alignment: Literal["aligned", "phased", "deadline"] = "deadline"
     """When the hub fuses an output instant (docs/fusion.md §2): ``aligned`` once every live
     sensor has a frame at or after it, on a grid of phase 0 (the rule before issue 11, and what
-    offline replay always uses); ``phased`` (the default) the same rule on a grid whose phase
-    follows the sensors' capture phases: 4–7 ms less wait on average in the accuracy
-    scenarios (up to 12 ms for a rig), MPJPE within 0.25 mm of ``aligned`` (docs/benchmarks.md
-    "Alignment policies"); ``deadline`` as ``phased``, but at the latest
+    offline replay always uses); ``phased`` the same rule on a grid whose phase follows the
+    sensors' capture phases: 4–7 ms less wait on average in the accuracy scenarios (up to 12
+    ms for a rig), MPJPE within 0.25 mm of ``aligned`` (docs/benchmarks.md "Alignment
+    policies"); ``deadline`` (the default) as ``phased``, but at the latest
     ``alignment_deadline_s`` after the instant, late sensors carried forward: with the
-    ``alignment_*`` defaults below +0.13 to +0.72 mm against ``aligned`` in those scenarios
-    (mean of 3 runs each; +0.8 to +2.3 mm with 3 ms of delivery jitter), but capture → client
-    23.4 / 32.2 ms p50 / p99 for 10 sensors at random phases at load ~1 (``phased`` 41.2 /
-    53.3), over issue 11's 15 / 30: the live rig's sensors are all expected late, and the
-    instant is fused at its deadline (docs/benchmarks.md "Late sensors carried by what the
-    on-time views saw")."""
-    alignment_deadline_s: float = 0.010
+    ``alignment_*`` defaults below +0.19 to +0.67 mm against ``aligned`` in those scenarios
+    (mean of 3 runs each), and capture → client 12.0 / 16.6 ms p50 / p99 for 10 sensors at
+    random phases on a quiet machine (``phased`` 33.7 / 43.8; docs/benchmarks.md "Load"). On
+    links with delivery jitter ``phased`` is the safer choice: with 3 ms of jitter ``deadline``
+    at 10 ms cost +0.8 to +2.3 mm where ``phased`` cost nothing."""
+    alignment_deadline_s: float = 0.007
     """``deadline``: an instant is fused at the latest this long after it (server clock,
-    seconds); it must cover the agents' usual delivery delay (capture to the server)."""
+    seconds); it must cover the agents' usual delivery delay (capture to the server). 7 ms:
+    +0.19 to +0.67 mm against ``aligned`` in the accuracy scenarios, 10 ms +0.13 to +0.72, 5
+    ms +0.32 to +1.03 (docs/benchmarks.md "Alignment policies")."""
     alignment_max_extrapolation_s: float = 0.034
     """``deadline``: a late sensor's newest frame is extrapolated to the instant by at most this
     much (seconds, about one frame period at 30 fps); a sensor further behind is left out."""
