@@ -4,8 +4,11 @@ measure of the agent's clock, and one answered a frame period late biased it by 
 
 from __future__ import annotations
 
+import select
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
@@ -70,8 +73,6 @@ def test_captures_come_out_in_order_and_wake_the_reader() -> None:
     source = ScriptedSource(ready=5)
     with CaptureThread(source) as thread:
         assert wait_for(source.blocked.is_set)
-        import select
-
         readable, _, _ = select.select([thread.fileno()], [], [], 5.0)
         assert readable, "no wake byte for the captures"
         taken = thread.take()
@@ -90,12 +91,14 @@ def test_an_error_from_the_source_reaches_the_reader() -> None:
             thread.take()
 
 
-def test_a_heartbeat_is_echoed_while_the_source_waits_for_a_frame() -> None:
+@contextmanager
+def registered_agent(source: ScriptedSource) -> Iterator[tuple[zmq.Socket[Any], bytes]]:
+    """The real agent loop streaming ``source`` to a ROUTER socket playing the server, which
+    has welcomed it; yields (that socket, the agent's routing id); stops the agent after."""
     context: zmq.Context[Any] = zmq.Context()
     server = context.socket(zmq.ROUTER)
     server.linger = 0
     port = server.bind_to_random_port("tcp://127.0.0.1")
-    source = ScriptedSource(ready=3)
     stop = threading.Event()
     agent = threading.Thread(
         target=run_agent, args=("cam-a", source, f"tcp://127.0.0.1:{port}"), kwargs={"stop": stop}
@@ -106,6 +109,20 @@ def test_a_heartbeat_is_echoed_while_the_source_waits_for_a_frame() -> None:
         routing_id, payload = server.recv_multipart()
         assert isinstance(decode(payload), Hello)
         server.send_multipart([routing_id, encode(Welcome("9.9", 1.0, 2, ()))])
+        yield server, routing_id
+    finally:
+        source.release.set()
+        stop.set()
+        agent.join(10)
+        server.close(linger=0)
+        context.term()
+    assert not agent.is_alive()
+    assert source.closed
+
+
+def test_a_heartbeat_is_echoed_while_the_source_waits_for_a_frame() -> None:
+    source = ScriptedSource(ready=3)
+    with registered_agent(source) as (server, routing_id):
         # The source hands over its frames, then blocks as if waiting for the next one.
         assert wait_for(source.blocked.is_set), "the source was never read"
         time.sleep(0.2)  # the agent's loop is now waiting; before the fix it sat in the source
@@ -119,31 +136,11 @@ def test_a_heartbeat_is_echoed_while_the_source_waits_for_a_frame() -> None:
             echoed = isinstance(message, Heartbeat) and message.echo_ns == stamp
         assert echoed, "no echo while the source was waiting for a frame"
         assert not source.release.is_set() and source.blocked.is_set()
-    finally:
-        source.release.set()
-        stop.set()
-        agent.join(10)
-        server.close(linger=0)
-        context.term()
-    assert not agent.is_alive()
-    assert source.closed
 
 
 def test_frames_still_go_out_in_order_with_their_seq() -> None:
-    context: zmq.Context[Any] = zmq.Context()
-    server = context.socket(zmq.ROUTER)
-    server.linger = 0
-    port = server.bind_to_random_port("tcp://127.0.0.1")
     source = ScriptedSource(ready=0)
-    stop = threading.Event()
-    agent = threading.Thread(
-        target=run_agent, args=("cam-a", source, f"tcp://127.0.0.1:{port}"), kwargs={"stop": stop}
-    )
-    agent.start()
-    try:
-        assert server.poll(5000), "no hello"
-        routing_id, _ = server.recv_multipart()
-        server.send_multipart([routing_id, encode(Welcome("9.9", 1.0, 2, ()))])
+    with registered_agent(source) as (server, _):
         assert wait_for(source.blocked.is_set)
         time.sleep(0.2)  # registered by now
         source.ready = 4
@@ -157,9 +154,3 @@ def test_frames_still_go_out_in_order_with_their_seq() -> None:
         assert [f.seq for f in frames] == [1, 2, 3, 4]
         stamps = [f.t_capture_ns for f in frames]
         assert stamps == sorted(stamps)
-    finally:
-        source.release.set()
-        stop.set()
-        agent.join(10)
-        server.close(linger=0)
-        context.term()
