@@ -92,6 +92,21 @@ def test_a_sensor_beyond_the_extrapolation_bound_is_left_out() -> None:
     assert instant.left_out == ("b",) and [s for s, _ in instant.late] == ["c"]
 
 
+def test_a_sensor_stamped_ahead_of_the_clock_does_not_fuse_the_instant_before_it_comes() -> None:
+    """A camera whose frames are stamped after they arrive (a lag nobody calibrated) has the
+    instant "in" long before the server clock reaches it; with the others expected late, fusing
+    then left them out (further behind than the bound): the live lag test's rig did this."""
+    t = math.floor(T0 / P) * P
+    policy = primed(Alignment("deadline", 30.0, deadline_s=0.007, skip_expected_late=True), t)
+    policy.expected_late = frozenset({"a"})
+    ahead = timing("c", t + 0.010)  # captured at t - 0.030, stamped 40 ms late
+    assert policy.next_instant([timing("a", t - 0.040), ahead], t - 0.029) is None
+    assert policy.due_s == pytest.approx(t), "the loop's timer: the instant itself"
+    instant = policy.next_instant([timing("a", t - 0.006), ahead], t)
+    assert instant is not None and instant.t_s == pytest.approx(t) and not instant.left_out
+    assert [s for s, _ in instant.late] == ["a"]
+
+
 def test_an_instant_nobody_can_give_is_skipped_not_fused_empty() -> None:
     t = math.floor(T0 / P) * P
     policy = primed(Alignment("deadline", 30.0, deadline_s=0.010, max_extrapolation_s=0.020), t)
