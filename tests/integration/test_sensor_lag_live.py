@@ -11,6 +11,7 @@ import dataclasses
 import math
 import threading
 import time
+from collections import Counter
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -114,9 +115,13 @@ def delays(live: LiveServer, frames: int, after_s: float = 0.0) -> dict[str, flo
     error does not count and its lateness does."""
     columns: dict[str, list[tuple[float, float]]] = {s: [] for s in ("cam-a", "cam-b", "cam-c")}
     truth = standing_pose()[:, 0]
+    seen: Counter[tuple[str, ...]] = Counter()
     with SyncFeedClient(live.http_url, raw=True, reconnect=False) as feed:
         for frame in feed:
             views = {body.sensor: body.joints for body in frame.raw}
+            seen[tuple(sorted(views))] += 1
+            # Bounded: a feed that stops showing some sensor fails here, saying which.
+            assert seen.total() <= 4 * frames, f"frames by the sensors in them: {dict(seen)}"
             if frame.t <= after_s or set(views) != set(columns):
                 continue
             phase = 2 * math.pi * frame.t / SWAY_PERIOD_S
