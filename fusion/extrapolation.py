@@ -23,7 +23,7 @@ views_at`), late ones carried forward, those beyond the bound left out. Three pr
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Collection, Iterable, Mapping
+from collections.abc import Collection, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,12 +36,14 @@ from skelfuse.fusion.sensors import SensorState, TimedFrame
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.track_motion import PersonMotion, track_members, track_motions
 from skelfuse.fusion.views import View
-from skelfuse.protocol.skeleton import MIRROR_PERMUTATION, TrackingState
-from skelfuse.protocol.transform import apply
+from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION, TrackingState
+from skelfuse.protocol.transform import Matrix4, apply
 from skelfuse.protocol.wire import Body
 
 FloatArray = npt.NDArray[np.float64]
 _MIRROR = np.array(MIRROR_PERMUTATION)
+_UNSEEN = np.full((JOINT_COUNT, 3), np.nan)
+"""A body none of whose joints the on-time views measured."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -52,6 +54,31 @@ class LatePredictor:
 
     motions: Mapping[ViewKey, PersonMotion]
     members: Mapping[ViewKey, tuple[int, bool]] | None = None
+
+
+class _MotionsOnDemand(Mapping[ViewKey, PersonMotion]):
+    """:func:`~skelfuse.fusion.track_motion.track_motions` of ``pipeline``, read at the first
+    look: under ``views`` an instant whose late bodies the on-time views measured whole never
+    looks (the pipeline is not updated before :func:`views_with_late` has run)."""
+
+    def __init__(self, pipeline: FusionPipeline, accelerate: bool) -> None:
+        self._pipeline = pipeline
+        self._accelerate = accelerate
+        self._motions: dict[ViewKey, PersonMotion] | None = None
+
+    def _all(self) -> dict[ViewKey, PersonMotion]:
+        if self._motions is None:
+            self._motions = track_motions(self._pipeline, self._accelerate)
+        return self._motions
+
+    def __getitem__(self, key: ViewKey) -> PersonMotion:
+        return self._all()[key]
+
+    def __iter__(self) -> Iterator[ViewKey]:
+        return iter(self._all())
+
+    def __len__(self) -> int:
+        return len(self._all())
 
 
 def extrapolated_bodies(
@@ -124,7 +151,7 @@ def late_motions(pipeline: FusionPipeline, settings: FusionSettings) -> LatePred
     person motion (``track``), that and each body's person (``views``), or None (``own``)."""
     if settings.alignment_predictor == "own":
         return None
-    motions = track_motions(pipeline, settings.alignment_predict_acceleration)
+    motions = _MotionsOnDemand(pipeline, settings.alignment_predict_acceleration)
     if settings.alignment_predictor == "track":
         return LatePredictor(motions)
     return LatePredictor(motions, track_members(pipeline))
@@ -156,35 +183,40 @@ def measured_displacements(
     keys = [k for k in now if k in then and k in members]
     if not keys:
         return {}
-    persons = np.array([members[k][0] for k in keys])
+    # Each person's views, in their order (dicts keep it).
+    rows_of: dict[int, list[int]] = {}
+    for row, key in enumerate(keys):
+        rows_of.setdefault(members[key][0], []).append(row)
     labels = np.array([members[k][1] for k in keys])
-    after = np.stack([now[k].joints_world for k in keys])  # (K, 25, 3)
-    before = np.stack([then[k].joints_world for k in keys])
+    count = len(keys)
+    joints = np.array([now[k].joints_world for k in keys] + [then[k].joints_world for k in keys])
+    states = np.array([now[k].states for k in keys] + [then[k].states for k in keys])
     # An Inferred joint is the sensor's guess, not a measurement: its motion is not used.
-    tracked = (np.stack([now[k].states for k in keys]) == TrackingState.TRACKED) & (
-        np.stack([then[k].states for k in keys]) == TrackingState.TRACKED
-    )
-    moved_all = np.where(tracked[..., None], after - before, np.nan)
+    tracked = (states[:count] == TrackingState.TRACKED) & (states[count:] == TrackingState.TRACKED)
+    moved_all = np.where(tracked[..., None], joints[:count] - joints[count:], np.nan)
+    # Every view in the joint order of a body labelled False (a view labelled True swapped):
+    # a body labelled True gets its person's mean swapped back (a permutation: the same sums).
+    canonical = np.where(labels[:, None, None], moved_all[:, _MIRROR], moved_all)
+    # Per person, its views in their order, padded with NaN (unseen) to the most views one has,
+    # summed row after row: the sum over the person's rows alone, to the bit (np.add.reduceat
+    # adds in another order).
+    groups = list(rows_of.values())
+    padded = np.full((len(groups), max(map(len, groups)), JOINT_COUNT, 3), np.nan)
+    padded[
+        [g for g, rows in enumerate(groups) for _ in rows],
+        [w for rows in groups for w in range(len(rows))],
+    ] = canonical[[row for rows in groups for row in rows]]
+    finite = np.isfinite(padded)
+    seen = finite.sum(axis=1)
+    total = np.where(finite, padded, 0.0).sum(axis=1)
+    means = np.where(seen > 0, total / np.maximum(seen, 1), np.nan)
+    row_of = {person: k for k, person in enumerate(rows_of)}
     out: dict[ViewKey, FloatArray] = {}
-    done: dict[tuple[int, bool], FloatArray | None] = {}
     for key in late_keys:
         person = members.get(key)
-        if person is None:
+        if person is None or (at := row_of.get(person[0])) is None:
             continue
-        if person not in done:
-            rows = persons == person[0]
-            if not rows.any():
-                done[person] = None
-                continue
-            moved = moved_all[rows]
-            swap = labels[rows] != person[1]
-            moved[swap] = moved[swap][:, _MIRROR]
-            finite = np.isfinite(moved)
-            count = finite.sum(axis=0)
-            total = np.where(finite, moved, 0.0).sum(axis=0)
-            done[person] = np.where(count > 0, total / np.maximum(count, 1), np.nan)
-        if (mean := done[person]) is not None:
-            out[key] = mean
+        out[key] = means[at][_MIRROR] if person[1] else means[at]
     return out
 
 
@@ -234,24 +266,10 @@ def views_with_late(
             newest = sensor.frames[-1]
             bodies = newest.frame.bodies
             scale = late[sensor.sensor_id] / moved[0] if moved[0] > 0.0 else 0.0
-            # All the sensor's bodies moved to the world at once (the same bits as one by one).
-            newest_worlds = apply(pose, np.array([b.joints_m for b in bodies])) if bodies else ()
-            worlds = []
-            for body, newest_world in zip(bodies, newest_worlds, strict=True):
-                key = (sensor.sensor_id, body.tracking_id)
-                measured = moved[1].get(key)
-                carried = None if measured is None else scale * measured
-                if carried is not None and np.isfinite(carried).all():
-                    # The on-time views saw every joint: their measurement, no filter motion.
-                    worlds.append(newest_world + carried)
-                    continue
-                world = carried_by_motion(
-                    newest_world, predictor.motions.get(key), newest.t_server_s, t_s
-                )
-                if carried is not None:  # joints the on-time views saw: their measurement
-                    seen = np.isfinite(carried)
-                    world[seen] = (newest_world + carried)[seen]
-                worlds.append(world)
+            worlds = _carried_bodies(
+                sensor.sensor_id, bodies, pose, scale, moved[1], predictor.motions,
+                newest.t_server_s, t_s,
+            )  # fmt: skip
         position = world_position(sensor.frames, t_s, pose) if sensor.moving else pose[:3, 3]
         for body, world in zip(bodies, worlds, strict=True):
             views.append(
@@ -265,6 +283,38 @@ def views_with_late(
                 )
             )
     return views
+
+
+def _carried_bodies(
+    sensor_id: str,
+    bodies: tuple[Body, ...],
+    pose: Matrix4,
+    scale: float,
+    measured: Mapping[ViewKey, FloatArray],
+    motions: Mapping[ViewKey, PersonMotion],
+    from_s: float,
+    to_s: float,
+) -> list[FloatArray]:
+    """A late sensor's newest bodies (sensor frame) in the world, carried from ``from_s`` to
+    ``to_s`` (seconds): by ``scale`` × what the on-time views measured of each body's person
+    (:func:`measured_displacements`), joint by joint where they saw it; the other joints by the
+    person's filtered motion (:func:`carried_by_motion`). (25, 3) world metres per body.
+
+    All bodies at once (one product to the world, one sum), the same bits as body by body."""
+    if not bodies:
+        return []
+    newest_worlds = apply(pose, np.array([body.joints_m for body in bodies]))
+    keys = [(sensor_id, body.tracking_id) for body in bodies]
+    carried = scale * np.array([measured.get(key, _UNSEEN) for key in keys])  # (B, 25, 3)
+    seen = np.isfinite(carried)
+    worlds_seen = newest_worlds + np.where(seen, carried, 0.0)
+    worlds: list[FloatArray] = list(worlds_seen)
+    # Bodies with a joint the on-time views did not see: those joints by the filter's motion.
+    for row in np.flatnonzero(~seen.all(axis=(1, 2))).tolist():
+        world = carried_by_motion(newest_worlds[row], motions.get(keys[row]), from_s, to_s)
+        world[seen[row]] = worlds_seen[row][seen[row]]
+        worlds[row] = world
+    return worlds
 
 
 def _moved_meanwhile(

@@ -300,6 +300,46 @@ def test_measured_displacements_average_the_persons_on_time_views_per_joint() ->
     np.testing.assert_allclose(out[("b", 3)], expected, atol=1e-12)
 
 
+def test_measured_displacements_for_many_persons_are_each_persons_own_mean_to_the_bit() -> None:
+    """Six persons seen by up to five views each, in interleaved order, some views mirrored,
+    some joints unseen or Inferred: every person's displacement is the mean over its own views
+    alone, computed person by person (the reference), to the bit."""
+    rng = np.random.default_rng(11)
+    mirror = np.array(MIRROR_PERMUTATION)
+    then: dict[tuple[str, int], View] = {}
+    now: dict[tuple[str, int], View] = {}
+    members: dict[tuple[str, int], tuple[int, bool]] = {}
+    for sensor in "acdefg":
+        for person in rng.permutation(6)[: rng.integers(2, 7)].tolist():
+            key = (sensor, person)
+            joints = rng.normal(size=(JOINT_COUNT, 3))
+            joints[rng.integers(JOINT_COUNT)] = np.nan
+            states = full_states()
+            states[rng.integers(JOINT_COUNT)] = 1
+            then[key] = View(sensor, person, joints, full_states())
+            now[key] = View(sensor, person, joints + rng.normal(size=(JOINT_COUNT, 3)), states)
+            members[key] = (person, bool(rng.random() < 0.4))
+    late = [("b", person) for person in range(7)]
+    members.update({key: (key[1], key[1] % 2 == 0) for key in late})
+    out = measured_displacements(late, members, then, now)
+    seen_persons = {person for key, (person, _) in members.items() if key[0] != "b"}
+    assert set(out) == {key for key in late if key[1] in seen_persons}, "person 6: nobody saw"
+    for key, got in out.items():
+        rows = [k for k in now if k[0] != "b" and members[k][0] == key[1]]
+        moved = []
+        for k in rows:
+            tracked = (now[k].states == 2) & (then[k].states == 2)
+            row = np.where(tracked[:, None], now[k].joints_world - then[k].joints_world, np.nan)
+            moved.append(row[mirror] if members[k][1] != members[key][1] else row)
+        stacked = np.array(moved)
+        finite = np.isfinite(stacked)
+        count = finite.sum(axis=0)
+        expected = np.where(
+            count > 0, np.where(finite, stacked, 0.0).sum(axis=0) / np.maximum(count, 1), np.nan
+        )
+        assert np.array_equal(got, expected, equal_nan=True), key
+
+
 def test_a_late_view_carried_by_the_on_time_views_needs_no_filter() -> None:
     """b's frame is 18 ms old at every instant; a, on time, saw the walker move meanwhile:
     carried by that, b's view is exactly where the walker is, with the filter off (no motion
