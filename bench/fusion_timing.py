@@ -6,6 +6,7 @@ import math
 import statistics
 import time
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 
@@ -16,6 +17,8 @@ from skelfuse.calibration.store import Calibration, SensorCalibration
 from skelfuse.protocol.skeleton import JOINT_COUNT, TrackingState
 from skelfuse.protocol.transform import apply, invert
 from skelfuse.protocol.wire import Body, Frame, encode
+
+Drive = Literal["arrivals", "period"]
 
 
 @dataclass
@@ -33,11 +36,25 @@ class FusionTiming:
     handle_message_ms: float
     stages_ms: dict[str, float] = field(default_factory=dict)
     """Median ms per pipeline stage (bench/fusion_stages.py); the medians need not add up."""
+    drive: Drive = "arrivals"
+    """When ``fuse_step`` was called (:func:`fusion_timing`)."""
+    late_per_frame: float = 0.0
+    """Mean number of sensors carried forward (late at the deadline) per fused frame."""
 
 
-def fusion_timing(sensors: int, bodies: int, steps: int = 1000, warmup: int = 100) -> FusionTiming:
+def fusion_timing(
+    sensors: int, bodies: int, steps: int = 1000, warmup: int = 100, drive: Drive = "arrivals"
+) -> FusionTiming:
     """Median cost of one fused frame (and of ingesting one frame) on the production classes,
-    and of each pipeline stage in it (bench/fusion_stages.py)."""
+    and of each pipeline stage in it (bench/fusion_stages.py).
+
+    ``drive``: when ``fuse_step`` is called. ``arrivals``, as the live loop does
+    (server/ingest.py): after each frame arrives (0.5 ms after its capture), and at the pending
+    instant's deadline when that comes first; only the calls that fused are timed. ``period``,
+    as this bench did before 2026-11-23 16:00: once per frame period, a period after the
+    instant, when every sensor's newest frame looks more than the deadline old, so under
+    ``deadline`` every sensor is carried forward at every instant (the late path's worst case,
+    not what the live server does)."""
     from skelfuse.fusion import kernels
     from skelfuse.fusion.hub import FusionHub
     from skelfuse.fusion.pipeline import FusionPipeline
@@ -72,35 +89,62 @@ def fusion_timing(sensors: int, bodies: int, steps: int = 1000, warmup: int = 10
     fuse_cpu: list[float] = []
     encode_times: list[float] = []
     handle: list[float] = []
+    late_views = 0
+
+    def step(now_s: float, measured: bool) -> bool:
+        """One ``fuse_step`` at ``now_s``; its times kept when it fused and ``measured``."""
+        nonlocal late_views
+        start, start_cpu = time.perf_counter(), time.thread_time()
+        fused = hub.fuse_step(now_s)
+        elapsed, elapsed_cpu = time.perf_counter() - start, time.thread_time() - start_cpu
+        if fused is None:
+            stages.discard()
+            return False
+        start = time.perf_counter()
+        encode_message(frame_json(fused, False, time.time()), binary=False)
+        encode_elapsed = time.perf_counter() - start
+        if not measured:
+            stages.discard()
+            return True
+        fuse.append(elapsed)
+        fuse_cpu.append(elapsed_cpu)
+        encode_times.append(encode_elapsed)
+        stages.finish(elapsed)
+        late_views += len(fused.extrapolated)
+        return True
+
+    # Sensors out of phase, as real ones are: 4 ms apart. Fused on arrival, time must not run
+    # backwards, so the phases past a period wrap into it and the sensors arrive in phase order
+    # (``period`` keeps the unwrapped phases it always had).
+    phases = [0.002 + j * 0.004 for j in range(len(ids))]
+    if drive == "arrivals":
+        phases = [phase % PERIOD_S for phase in phases]
+    order = sorted(enumerate(ids), key=lambda js: phases[js[0]])
     with stage_timers(hub.pipeline) as stages:
         for k in range(warmup + steps):
             t = t_start + k * PERIOD_S
             world = performer.joints_at(k * PERIOD_S)
-            for j, s in enumerate(ids):
-                phase = 0.002 + j * 0.004  # sensors out of phase, as real ones are
+            measured = k >= warmup
+            for j, s in order:
+                phase = phases[j]
+                arrival = t + phase + 0.0005
                 bodies_ = tuple(
                     Body(b + 1, apply(sensor_from_world[s], world[b]).astype(np.float32), states)
                     for b in range(bodies)
                 )
                 payload = encode(Frame(k + 1, int((t + phase) * 1e9), bodies_))
+                due = hub.alignment.due_s if drive == "arrivals" else None
+                if due is not None and due <= arrival:  # the live loop's timer fires first
+                    step(due, measured)
                 start = time.perf_counter()
-                hub.handle_message(s.encode(), [payload], t + phase + 0.0005, k * PERIOD_S)
+                hub.handle_message(s.encode(), [payload], arrival, k * PERIOD_S)
                 handle.append(time.perf_counter() - start)
-            start, start_cpu = time.perf_counter(), time.thread_time()
-            fused = hub.fuse_step(t + PERIOD_S)
-            elapsed, elapsed_cpu = time.perf_counter() - start, time.thread_time() - start_cpu
-            if fused is None:
+                if drive == "arrivals":
+                    step(arrival, measured)
+            if drive == "period" and not step(t + PERIOD_S, measured):
                 raise RuntimeError(f"fusion produced nothing at step {k}")
-            start = time.perf_counter()
-            encode_message(frame_json(fused, False, time.time()), binary=False)
-            encode_elapsed = time.perf_counter() - start
-            if k >= warmup:
-                fuse.append(elapsed)
-                fuse_cpu.append(elapsed_cpu)
-                encode_times.append(encode_elapsed)
-                stages.finish(elapsed)
-            else:
-                stages.discard()
+    if len(fuse) < steps * 0.95:
+        raise RuntimeError(f"{len(fuse)} of {steps} measured periods fused")
     tracked = tracker_times[warmup:]
     return FusionTiming(
         sensors,
@@ -113,4 +157,6 @@ def fusion_timing(sensors: int, bodies: int, steps: int = 1000, warmup: int = 10
         statistics.median(encode_times) * 1e3,
         statistics.median(handle[warmup * sensors :]) * 1e3,
         stages.medians_ms(),
+        drive,
+        late_views / len(fuse),
     )

@@ -102,6 +102,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--repeat", type=int, default=1, help="runs per configuration (medians)")
     parser.add_argument("--fusion-only", action="store_true", help="in-process timing only")
     parser.add_argument("--fusion-steps", type=int, default=1000)
+    parser.add_argument(
+        "--fusion-drive", choices=("arrivals", "period"), default="arrivals",
+        help="in-process timing: fuse_step at each arrival and deadline, as the live loop does, "
+        "or once per period (before 2026-11-23 16:00: every sensor carried, the late worst case)",
+    )  # fmt: skip
     parser.add_argument("--encode-only", action="store_true", help="the feed message cost only")
     parser.add_argument("--decode-only", action="store_true", help="decoding one frame only")
     parser.add_argument("--json", type=Path, default=None, help="write raw results here")
@@ -153,7 +158,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                                args.clients, args.stalled, args.calibrate,
                                args.calibrate_capture, args.client)  # fmt: skip
             print_main(run_config(config), args.repeat)
-    timings = [fusion_timing(s, b, args.fusion_steps) for s, b in ((4, 6), (10, 6), (16, 6))]
+    timings = [
+        fusion_timing(s, b, args.fusion_steps, drive=args.fusion_drive)
+        for s, b in ((4, 6), (10, 6), (16, 6))
+    ]
     raw["fusion"] = [asdict(t) for t in timings]
     print_fusion(timings)
     print_encode(encode)
