@@ -21,10 +21,8 @@ when each live sensor's newest frame was captured, whether the next instant can 
   ``phased``, :func:`replayed_horizons`) instead of where the wait for the last sensor is; with
   ``skip_expected_late`` an instant does not wait for a sensor whose frame is expected after the
   deadline anyway (late in most replayed frames): it is fused as soon as the others are in (at
-  the deadline when every sensor is expected late). An instant some sensor is still behind is
-  never fused before the server clock reaches it, however early the others' frames say they
-  were captured: one stamped after it arrives (an uncalibrated lag) would otherwise put the
-  instant ahead of the rest by more than the extrapolation bound, and they would be left out.
+  the deadline when every sensor is expected late), never before the server clock reaches it:
+  a camera stamping frames after they arrive (an uncalibrated lag) must not leave the rest out.
   With ``wait_for_phase`` there is no deadline until the grid's phase is first chosen (about
   a second): the grid the first frames put is anywhere against the sensors' phases, and a
   deadline there carries late sensors by up to a period.
@@ -283,9 +281,7 @@ class Alignment:
             # was captured just before the instant is then in, and carried least.
             due = next_t + self.deadline_s
             waited_in = bool(waited) and min(waited) >= next_t
-            # Nor before the server clock reaches the instant: a sensor whose frames are stamped
-            # after they arrive (a lag nobody calibrated) would otherwise pull the output ahead of
-            # the others, leaving every other sensor further behind than the bound.
+            # Nor before the clock reaches it (module docstring: a camera stamping frames late).
             if now_s >= due or (waited_in and now_s >= next_t):
                 instant = self._take(self._late_instant(next_t, sensors), period)
                 # Nobody within the bound (every sensor stalled): skip the instant rather than
