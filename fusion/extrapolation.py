@@ -36,6 +36,7 @@ from skelfuse.fusion.sensors import SensorState, TimedFrame
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.track_motion import PersonMotion, track_members, track_motions
 from skelfuse.fusion.views import View
+from skelfuse.fusion.world_views import bodies_to_world
 from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION, TrackingState
 from skelfuse.protocol.transform import Matrix4, apply
 from skelfuse.protocol.wire import Body
@@ -249,6 +250,11 @@ def views_with_late(
     for view in views_at(on_time, pose_of, t_s, gap_s):  # the same bits as sensor by sensor
         now.setdefault(view.sensor_id, []).append(view)
     moved = _moved_meanwhile(sensors, on_time, pose_of, t_s, gap_s, late, predictor, now)
+    carried: dict[str, list[FloatArray]] = {}
+    if predictor is not None:
+        carried = _carried_late(
+            [s for s in sensors if s.sensor_id in late], pose_of, late, moved, predictor, t_s
+        )
     views: list[View] = []
     for sensor in sensors:
         if sensor.sensor_id in left_out:
@@ -259,62 +265,82 @@ def views_with_late(
         pose = pose_of(sensor.sensor_id)
         if not sensor.connected or pose is None or not sensor.frames:
             continue
+        bodies = sensor.frames[-1].frame.bodies
         if predictor is None:
             bodies = extrapolated_bodies(sensor.frames, t_s, gap_s)
             worlds = [apply(pose, body.joints_m) for body in bodies]
         else:
-            newest = sensor.frames[-1]
-            bodies = newest.frame.bodies
-            scale = late[sensor.sensor_id] / moved[0] if moved[0] > 0.0 else 0.0
-            worlds = _carried_bodies(
-                sensor.sensor_id, bodies, pose, scale, moved[1], predictor.motions,
-                newest.t_server_s, t_s,
-            )  # fmt: skip
+            worlds = carried.get(sensor.sensor_id, [])
         position = world_position(sensor.frames, t_s, pose) if sensor.moving else pose[:3, 3]
-        for body, world in zip(bodies, worlds, strict=True):
-            views.append(
-                View(
-                    sensor.sensor_id,
-                    body.tracking_id,
-                    world,
-                    body.states,
-                    position,
-                    sensor.sensor_type,
-                )
-            )
+        sensor_id, sensor_type = sensor.sensor_id, sensor.sensor_type
+        views.extend(
+            View(sensor_id, body.tracking_id, world, body.states, position, sensor_type)
+            for body, world in zip(bodies, worlds, strict=True)
+        )
     return views
 
 
-def _carried_bodies(
-    sensor_id: str,
-    bodies: tuple[Body, ...],
-    pose: Matrix4,
-    scale: float,
-    measured: Mapping[ViewKey, FloatArray],
-    motions: Mapping[ViewKey, PersonMotion],
-    from_s: float,
-    to_s: float,
-) -> list[FloatArray]:
-    """A late sensor's newest bodies (sensor frame) in the world, carried from ``from_s`` to
-    ``to_s`` (seconds): by ``scale`` × what the on-time views measured of each body's person
-    (:func:`measured_displacements`), joint by joint where they saw it; the other joints by the
-    person's filtered motion (:func:`carried_by_motion`). (25, 3) world metres per body.
+def _carried_late(
+    late_sensors: list[SensorState],
+    pose_of: PoseLookup,
+    late: Mapping[str, float],
+    moved: tuple[float, dict[ViewKey, FloatArray]],
+    predictor: LatePredictor,
+    t_s: float,
+) -> dict[str, list[FloatArray]]:
+    """Every late sensor's newest bodies in the world, carried to ``t_s`` (seconds): a sensor
+    late by ``h`` by ``h / H`` × what the on-time views measured of each body's person in the
+    ``H`` before the instant (``moved``, :func:`_moved_meanwhile`), joint by joint where they
+    saw it; the other joints by the person's filtered motion (:func:`carried_by_motion`).
+    (25, 3) world metres per body, per sensor id (connected, calibrated, with a body).
 
-    All bodies at once (one product to the world, one sum), the same bits as body by body."""
-    if not bodies:
-        return []
-    newest_worlds = apply(pose, np.array([body.joints_m for body in bodies]))
-    keys = [(sensor_id, body.tracking_id) for body in bodies]
-    carried = scale * np.array([measured.get(key, _UNSEEN) for key in keys])  # (B, 25, 3)
+    All sensors at once (one product to the world, one sum), the same bits as body by body."""
+    used: list[tuple[SensorState, Matrix4]] = []
+    for sensor in late_sensors:
+        pose = pose_of(sensor.sensor_id)
+        if (
+            sensor.connected
+            and pose is not None
+            and sensor.frames
+            and sensor.frames[-1].frame.bodies
+        ):
+            used.append((sensor, pose))
+    if not used:
+        return {}
+    arrays = [sensor.frames[-1].arrays() for sensor, _ in used]
+    counts = [len(a.tracking_ids) for a in arrays]
+    newest_worlds = np.concatenate(
+        bodies_to_world([pose for _, pose in used], [a.joints_m for a in arrays])
+    )
+    reach, measured = moved
+    keys = [
+        (sensor.sensor_id, body_id)
+        for (sensor, _), bodies in zip(used, arrays, strict=True)
+        for body_id in bodies.tracking_ids
+    ]
+    scales = [late[s.sensor_id] / reach if reach > 0.0 else 0.0 for s, _ in used]
+    # Each body's measurement times its sensor's scale (B, 25, 3): the same products as one
+    # body at a time.
+    carried = np.repeat(np.array(scales), counts)[:, None, None] * np.array(
+        [measured.get(key, _UNSEEN) for key in keys]
+    )
     seen = np.isfinite(carried)
     worlds_seen = newest_worlds + np.where(seen, carried, 0.0)
     worlds: list[FloatArray] = list(worlds_seen)
     # Bodies with a joint the on-time views did not see: those joints by the filter's motion.
+    newest_s = np.repeat([sensor.frames[-1].t_server_s for sensor, _ in used], counts).tolist()
     for row in np.flatnonzero(~seen.all(axis=(1, 2))).tolist():
-        world = carried_by_motion(newest_worlds[row], motions.get(keys[row]), from_s, to_s)
+        world = carried_by_motion(
+            newest_worlds[row], predictor.motions.get(keys[row]), newest_s[row], t_s
+        )
         world[seen[row]] = worlds_seen[row][seen[row]]
         worlds[row] = world
-    return worlds
+    out: dict[str, list[FloatArray]] = {}
+    lo = 0
+    for (sensor, _), count in zip(used, counts, strict=True):
+        out[sensor.sensor_id] = worlds[lo : lo + count]
+        lo += count
+    return out
 
 
 def _moved_meanwhile(

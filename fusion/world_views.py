@@ -86,7 +86,7 @@ def views_at(
     if not used:
         return []
     arrays = _interpolate_pending([bodies for _, _, bodies in used])
-    joints = _to_world([pose for _, pose, _ in used], [a.joints_m for a in arrays])
+    joints = bodies_to_world([pose for _, pose, _ in used], [a.joints_m for a in arrays])
     views: list[View] = []
     for (sensor, pose, _), bodies, world in zip(used, arrays, joints, strict=True):
         position: FloatArray | None = pose[:3, 3]
@@ -165,7 +165,9 @@ def _interpolate_pending(items: list[BodyArrays | _Pending]) -> list[BodyArrays]
     return done
 
 
-def _to_world(poses: list[Matrix4], joints: list[npt.NDArray[np.float32]]) -> list[FloatArray]:
+def bodies_to_world(
+    poses: list[Matrix4], joints: list[npt.NDArray[np.float32]]
+) -> list[FloatArray]:
     """Each sensor's (B, 25, 3) joints moved by its pose: ``apply(pose, joints)``'s floats.
 
     One stacked product over the sensors (padded with zero rows to the most bodies): BLAS
