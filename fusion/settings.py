@@ -217,8 +217,8 @@ class FusionSettings:
     ``alignment_*`` defaults below +0.19 to +0.67 mm against ``aligned`` in those scenarios
     (mean of 3 runs each), and capture → client 12.0 / 16.6 ms p50 / p99 for 10 sensors at
     random phases on a quiet machine (``phased`` 33.7 / 43.8; docs/benchmarks.md "Load"). On
-    links with delivery jitter ``phased`` is the safer choice: with 3 ms of jitter ``deadline``
-    at 10 ms cost +0.8 to +2.3 mm where ``phased`` cost nothing."""
+    links with delivery jitter ``phased`` is the safer choice: with 3 ms of jitter the default
+    costs +1.0 to +3.8 mm, ``phased`` +0.0 to +0.2 mm."""
     alignment_deadline_s: float = 0.007
     """``deadline``: an instant is fused at the latest this long after it (server clock,
     seconds); it must cover the agents' usual delivery delay (capture to the server). 7 ms:
