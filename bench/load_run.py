@@ -129,6 +129,9 @@ class RunResult:
     stalled_dropped: int = 0
     evicted_total: int = 0
     agents_late: int = 0
+    alignment: str = ""
+    """The server's alignment policy (``/api/fusion/settings``): the reconstructed wait is
+    that of ``aligned`` / ``phased``, which wait for every sensor."""
     notes: list[str] = field(default_factory=list)
 
 
@@ -196,6 +199,8 @@ async def run_once(config: RunConfig, seed: int, log_dir: Path) -> RunResult:
 
         online_s = 30 if config.calibrate is None else 30 + 2 * config.agents  # depth renders
         await asyncio.to_thread(wait_for, all_online, online_s, "every sensor online and fusing")
+        settings = await asyncio.to_thread(http_json, base + "/api/fusion/settings")
+        result.alignment = str(settings["fusion"]["alignment"])
         await asyncio.sleep(config.warmup_s)
 
         async def snapshot() -> tuple[float, float, dict[str, Any], dict[str, Any]]:
