@@ -50,18 +50,46 @@ def _head_pose(pitch_deg: float, roll_deg: float) -> FloatArray:
     return neck @ _rot_x(pitch_deg) @ _rot_z(roll_deg) @ lever
 
 
-def test_identity_reproduces_the_image() -> None:
+def test_identity_reproduces_the_image_and_fills_lone_dropouts() -> None:
     rng = np.random.default_rng(3)
     depth = render_depth(default_room(), standing_pose()[None], _head_pose(0, 0), rng=rng)
     depth_mm = np.rint(depth * 1000).astype(np.uint16)
     ir = rng.integers(1, 60000, size=depth.shape).astype(np.uint16)
     got_mm, got_ir = reproject_depth(depth_mm, ir, K, np.eye(4))
     assert got_mm.dtype == np.uint16 and got_ir.dtype == np.uint16
-    np.testing.assert_array_equal(got_mm, depth_mm)
-    np.testing.assert_array_equal(got_ir, np.where(depth_mm > 0, ir, 0))
+    read = depth_mm > 0
+    np.testing.assert_array_equal(got_mm[read], depth_mm[read])
+    np.testing.assert_array_equal(got_ir[read], ir[read])
+    # A dropped pixel is filled only from a diamond of neighbours on one surface (< 10 cm): its
+    # centre lies on the diamond's north-south edge, so its depth is between those two.
+    filled = ~read & (got_mm > 0)
+    rows, cols = np.nonzero(filled)
+    assert 1000 < rows.size < (~read).sum()
+    north, south = depth_mm[rows - 1, cols].astype(int), depth_mm[rows + 1, cols].astype(int)
+    assert (north > 0).all() and (south > 0).all()
+    assert (np.abs(north - south) <= 100).all()  # < 10 cm before rounding to mm
+    assert (got_mm[filled] >= np.minimum(north, south) - 1).all()
+    assert (got_mm[filled] <= np.maximum(north, south) + 1).all()
     got_m, _ = reproject_depth(depth, ir.astype(np.float32), K, np.eye(4))
     assert got_m.dtype == np.float32
-    np.testing.assert_allclose(got_m, depth, atol=1e-6)
+    np.testing.assert_allclose(got_m[read], depth[read], atol=1e-6)
+    # The same fills in metres, but for spreads at 10 cm that rounding to mm moved across it.
+    assert ((got_m > 0) != (got_mm > 0)).sum() <= 5
+
+
+def test_a_dropped_pixel_is_filled_within_a_surface_not_across_an_edge() -> None:
+    small = dataclasses.replace(K, width=16, height=12, cx=8.0, cy=6.0, fx=12.0, fy=12.0)
+    depth = np.full((12, 16), 2.0)
+    depth[:, 8:] = 2.5  # a 50 cm step between columns 7 and 8
+    depth[7:, :8] = 3.0  # and a 1 m step between rows 6 and 7 on the left
+    depth[3, 3] = 0.0  # inside the near surface
+    depth[7, 8] = 0.0  # beside a step, but its diamond's other half is on its own surface
+    depth[6, 3] = 0.0  # on the step: north and south are across it
+    for compiled in (True, False):
+        got, _ = reproject_depth(depth, depth, small, np.eye(4), compiled=compiled)
+        assert got[3, 3] == pytest.approx(2.0)
+        assert got[7, 8] == pytest.approx(2.5)
+        assert got[6, 3] == 0.0
 
 
 def test_a_known_plane_reprojects_to_its_depth() -> None:

@@ -10,7 +10,9 @@ def test_the_20_degree_case_meets_the_targets() -> None:
     f = case_figures(20.0, 20.0, seed=2)
     # Mesh + points: holes near the level camera's own dropout; points alone leave many more.
     assert f["ideal mesh+points holes %"] <= 3.0
-    assert f["noisy mesh+points holes %"] <= f["own holes %"] + 2.0
+    assert f["noisy mesh+points holes %"] <= 3.0
+    # Lone dropouts are filled from their neighbours: fewer holes than the level camera's own.
+    assert f["noisy mesh+points holes %"] < f["own holes %"]
     assert f["noisy points holes %"] > 2.0 * f["noisy mesh+points holes %"]
     assert f["ideal mesh+points error mm"] <= 1.0
     assert f["noisy mesh+points error mm"] <= 6.0
