@@ -283,12 +283,12 @@ class Alignment:
             waited_in = bool(waited) and min(waited) >= next_t
             # Nor before the clock reaches it (module docstring: a camera stamping frames late).
             if now_s >= due or (waited_in and now_s >= next_t):
-                instant = self._take(self._late_instant(next_t, sensors), period)
-                # Nobody within the bound (every sensor stalled): skip the instant rather than
-                # publish a frame without anyone in it.
-                on_time = len(sensors) - len(instant.late) - len(instant.left_out)
-                return instant if on_time or instant.late else None
-            self._due_s = next_t if waited_in else due
+                instant = self._late_instant(next_t, sensors)
+                if len(sensors) > len(instant.left_out):
+                    return self._take(instant, period)
+                # Nobody within the bound (all frames held up): wait for the first, as phased
+                # would; a stall beyond 2 periods is skipped by the resync above.
+            self._due_s = (next_t if waited_in else due) if now_s < due else None
             return None
         return self._take(Instant(next_t), period)
 

@@ -107,11 +107,31 @@ def test_a_sensor_stamped_ahead_of_the_clock_does_not_fuse_the_instant_before_it
     assert [s for s, _ in instant.late] == ["a"]
 
 
-def test_an_instant_nobody_can_give_is_skipped_not_fused_empty() -> None:
+def test_an_instant_nobody_can_give_waits_for_the_first_frame_not_fused_empty() -> None:
+    """Every sensor's frames held up beyond the bound (a busy machine delaying every agent):
+    the instant is neither published empty nor skipped; it waits, with no timer (the loop
+    cannot spin), for the first frame, as ``phased`` would (CI, under load, lost 14 of 74
+    instants in 2.5 s to skips: 24 frames/s from two 30 fps sensors)."""
     t = math.floor(T0 / P) * P
     policy = primed(Alignment("deadline", 30.0, deadline_s=0.010, max_extrapolation_s=0.020), t)
-    assert policy.next_instant([timing("a", t - 0.05)], t + 0.011) is None
-    assert policy.due_s is not None and policy.due_s > t + 0.011, "moved on: the loop can't spin"
+    held_up = [timing("a", t - 0.05), timing("b", t - 0.03)]
+    assert policy.next_instant(held_up, t + 0.011) is None
+    assert policy.due_s is None, "no timer: it waits for a frame"
+    assert policy.next_instant(held_up, t + 0.030) is None
+    # b's next frame (captured 3 ms after its last, 45 ms late) brings it within the bound.
+    instant = policy.next_instant([timing("a", t - 0.05), timing("b", t - 0.003)], t + 0.045)
+    assert instant is not None and instant.t_s == pytest.approx(t)
+    assert instant.left_out == ("a",) and [s for s, _ in instant.late] == ["b"]
+
+
+def test_a_stall_beyond_two_periods_skips_to_the_newest_fusable_instant() -> None:
+    t = math.floor(T0 / P) * P
+    policy = primed(Alignment("deadline", 30.0, deadline_s=0.010, max_extrapolation_s=0.020), t)
+    held_up = [timing("a", t - 0.05), timing("b", t - 0.03)]
+    assert policy.next_instant(held_up, t + 0.011) is None
+    late_by_far = [timing("a", t + 3 * P + 0.001), timing("b", t + 3 * P + 0.002)]
+    instant = policy.next_instant(late_by_far, t + 3 * P + 0.004)
+    assert instant is not None and instant.t_s == pytest.approx(t + 3 * P), "resynced"
 
 
 def test_circular_phase_averages_across_the_wrap() -> None:
