@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import gc
 import logging
 import time
 from collections.abc import AsyncIterator
@@ -87,6 +88,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         warm_up_s = await asyncio.to_thread(kernels.warm_up)
         if warm_up_s:
             logger.info("fusion kernels ready in %.2f s", warm_up_s)
+        # What start-up made (modules, classes, caches) lives as long as the process: out of the
+        # cycle collector's reach, a full collection no longer walks it on the event loop (one
+        # took 154 ms during a calibration, bench/calibration_stall.py; issue 11 item 5).
+        gc.collect()
+        gc.freeze()
         broadcaster = Broadcaster(settings.ws_send_timeout_s)
         context = zmq.asyncio.Context()
         authenticator = None
@@ -150,6 +156,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             if authenticator is not None:
                 authenticator.stop()
             context.term()
+            gc.unfreeze()  # a process that starts another server (tests) collects it again
 
     app = FastAPI(
         title="skelfuse fusion server",
