@@ -268,8 +268,8 @@ def raster_numpy(
 def _joined_blocks(
     tri: tuple[tuple[slice, slice], ...], valid: BoolArray, source_z: FloatArray, max_edge_m: float
 ) -> BoolArray:
-    """:func:`_joined` for every block at once: ``tri`` is three views of the source image,
-    one per corner."""
+    """Per block (or pixel), whether a triangle is joined: its three corners, ``tri``, given as
+    views of the source image, all have readings within ``max_edge_m`` of each other."""
     ok = valid[tri[0]] & valid[tri[1]] & valid[tri[2]]
     s = np.stack([source_z[c] for c in tri])
     joined: BoolArray = ok & ((s.max(axis=0) - s.min(axis=0)) < max_edge_m)
