@@ -31,20 +31,22 @@ import numpy.typing as npt
 
 from skelfuse.fusion.identity import ViewKey
 from skelfuse.fusion.moving import world_position
-from skelfuse.fusion.pipeline import FusionPipeline, PoseLookup, views_at
+from skelfuse.fusion.pipeline import FusionPipeline, PoseLookup
 from skelfuse.fusion.sensors import SensorState, TimedFrame
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.track_motion import PersonMotion, track_members, track_motions
 from skelfuse.fusion.views import View
-from skelfuse.fusion.world_views import bodies_to_world
+from skelfuse.fusion.world_views import Gathered, SensorBodies, gather_at, resolve, views_of
 from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION, TrackingState
-from skelfuse.protocol.transform import Matrix4, apply
+from skelfuse.protocol.transform import apply
 from skelfuse.protocol.wire import Body
 
 FloatArray = npt.NDArray[np.float64]
 _MIRROR = np.array(MIRROR_PERMUTATION)
 _UNSEEN = np.full((JOINT_COUNT, 3), np.nan)
 """A body none of whose joints the on-time views measured."""
+_TRACKED = int(TrackingState.TRACKED)
+"""Compared as a plain int: numpy compares a uint8 array with an IntEnum member 5× slower."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -184,16 +186,29 @@ def measured_displacements(
     keys = [k for k in now if k in then and k in members]
     if not keys:
         return {}
+    joints = np.array([now[k].joints_world for k in keys] + [then[k].joints_world for k in keys])
+    states = np.array([now[k].states for k in keys] + [then[k].states for k in keys])
+    return _displacements(late_keys, members, keys, joints, states)
+
+
+def _displacements(
+    late_keys: Iterable[ViewKey],
+    members: Mapping[ViewKey, tuple[int, bool]],
+    keys: list[ViewKey],
+    joints: FloatArray,
+    states: npt.NDArray[np.uint8],
+) -> dict[ViewKey, FloatArray]:
+    """:func:`measured_displacements` of the on-time bodies ``keys`` (each with a person), their
+    world joints and states at the instant (rows ``0..K-1``, (2K, 25, 3) and (2K, 25)) and at
+    the late frame's capture (rows ``K..2K-1``)."""
     # Each person's views, in their order (dicts keep it).
     rows_of: dict[int, list[int]] = {}
     for row, key in enumerate(keys):
         rows_of.setdefault(members[key][0], []).append(row)
     labels = np.array([members[k][1] for k in keys])
     count = len(keys)
-    joints = np.array([now[k].joints_world for k in keys] + [then[k].joints_world for k in keys])
-    states = np.array([now[k].states for k in keys] + [then[k].states for k in keys])
     # An Inferred joint is the sensor's guess, not a measurement: its motion is not used.
-    tracked = (states[:count] == TrackingState.TRACKED) & (states[count:] == TrackingState.TRACKED)
+    tracked = (states[:count] == _TRACKED) & (states[count:] == _TRACKED)
     moved_all = np.where(tracked[..., None], joints[:count] - joints[count:], np.nan)
     # Every view in the joint order of a body labelled False (a view labelled True swapped):
     # a body labelled True gets its person's mean swapped back (a permutation: the same sums).
@@ -233,6 +248,13 @@ def views_with_late(
     """Steps 1–2 of the pipeline for an instant fused at its deadline: every connected,
     calibrated sensor's bodies at ``t_s`` in the world frame, in sensor order.
 
+    Under ``views`` a sensor late by ``h`` is carried ``h / H`` of what the on-time views of
+    each body's person saw happen in the ``H`` before the instant, ``H`` the furthest-late
+    sensor's horizon: exactly its own measurement for that sensor, the same line for the others
+    (one more interpolation of the on-time sensors per instant instead of one per late sensor).
+    The on-time sensors at both times and the late sensors' newest frames go to the world in one
+    product (:func:`~skelfuse.fusion.world_views.resolve`: the same bits as one by one).
+
     Args:
         sensors: the sensors' frame buffers (times on the server clock).
         pose_of: each sensor's pose; sensors without one are left out.
@@ -246,15 +268,23 @@ def views_with_late(
     """
     sensors = list(sensors)
     on_time = [s for s in sensors if s.sensor_id not in late and s.sensor_id not in left_out]
+    measuring = predictor is not None and predictor.members is not None and bool(late)
+    reach = max(late.values()) if measuring else 0.0
+    groups = [gather_at(on_time, pose_of, t_s, gap_s)]
+    if measuring:
+        groups.append(gather_at(on_time, pose_of, t_s - reach, gap_s))
+    if predictor is not None:
+        groups.append(_newest_of([s for s in sensors if s.sensor_id in late], pose_of))
+    resolved = resolve(groups)
     now: dict[str, list[View]] = {}
-    for view in views_at(on_time, pose_of, t_s, gap_s):  # the same bits as sensor by sensor
+    for view in views_of(resolved[0], t_s):
         now.setdefault(view.sensor_id, []).append(view)
-    moved = _moved_meanwhile(sensors, on_time, pose_of, t_s, gap_s, late, predictor, now)
     carried: dict[str, list[FloatArray]] = {}
     if predictor is not None:
-        carried = _carried_late(
-            [s for s in sensors if s.sensor_id in late], pose_of, late, moved, predictor, t_s
-        )
+        measured: dict[ViewKey, FloatArray] = {}
+        if measuring and predictor.members is not None:
+            measured = _measured(resolved[-1], predictor.members, resolved[0], resolved[1])
+        carried = _carried_late(resolved[-1], late, (reach, measured), predictor, t_s)
     views: list[View] = []
     for sensor in sensors:
         if sensor.sensor_id in left_out:
@@ -280,22 +310,10 @@ def views_with_late(
     return views
 
 
-def _carried_late(
-    late_sensors: list[SensorState],
-    pose_of: PoseLookup,
-    late: Mapping[str, float],
-    moved: tuple[float, dict[ViewKey, FloatArray]],
-    predictor: LatePredictor,
-    t_s: float,
-) -> dict[str, list[FloatArray]]:
-    """Every late sensor's newest bodies in the world, carried to ``t_s`` (seconds): a sensor
-    late by ``h`` by ``h / H`` × what the on-time views measured of each body's person in the
-    ``H`` before the instant (``moved``, :func:`_moved_meanwhile`), joint by joint where they
-    saw it; the other joints by the person's filtered motion (:func:`carried_by_motion`).
-    (25, 3) world metres per body, per sensor id (connected, calibrated, with a body).
-
-    All sensors at once (one product to the world, one sum), the same bits as body by body."""
-    used: list[tuple[SensorState, Matrix4]] = []
+def _newest_of(late_sensors: list[SensorState], pose_of: PoseLookup) -> Gathered:
+    """The late sensors that are connected and calibrated and have a body, each with its pose
+    and its newest frame's bodies."""
+    newest: Gathered = []
     for sensor in late_sensors:
         pose = pose_of(sensor.sensor_id)
         if (
@@ -304,21 +322,55 @@ def _carried_late(
             and sensor.frames
             and sensor.frames[-1].frame.bodies
         ):
-            used.append((sensor, pose))
-    if not used:
+            newest.append((sensor, pose, sensor.frames[-1].arrays()))
+    return newest
+
+
+def _measured(
+    newest: list[SensorBodies],
+    members: Mapping[ViewKey, tuple[int, bool]],
+    now: list[SensorBodies],
+    then: list[SensorBodies],
+) -> dict[ViewKey, FloatArray]:
+    """:func:`measured_displacements` of the late bodies ``newest`` from the on-time sensors'
+    bodies at the instant (``now``) and at the furthest-late sensor's capture (``then``), on
+    their arrays: rows gathered by key instead of views looked up one by one (the same values)."""
+    now_keys = [(b.sensor.sensor_id, i) for b in now for i in b.bodies.tracking_ids]
+    then_keys = [(b.sensor.sensor_id, i) for b in then for i in b.bodies.tracking_ids]
+    then_row = {key: row for row, key in enumerate(then_keys)}
+    now_row = {key: row for row, key in enumerate(now_keys)}  # a key twice: the last row
+    keys = [k for k in now_row if k in then_row and k in members]
+    if not keys:
         return {}
-    arrays = [sensor.frames[-1].arrays() for sensor, _ in used]
-    counts = [len(a.tracking_ids) for a in arrays]
-    newest_worlds = np.concatenate(
-        bodies_to_world([pose for _, pose in used], [a.joints_m for a in arrays])
-    )
+    rows = [now_row[k] for k in keys]
+    rows += [len(now_keys) + then_row[k] for k in keys]
+    joints = np.concatenate([b.world for b in now] + [b.world for b in then])[rows]
+    states = np.concatenate([b.bodies.states for b in now] + [b.bodies.states for b in then])
+    late_keys = [(b.sensor.sensor_id, i) for b in newest for i in b.bodies.tracking_ids]
+    return _displacements(late_keys, members, keys, joints, states[rows])
+
+
+def _carried_late(
+    newest: list[SensorBodies],
+    late: Mapping[str, float],
+    moved: tuple[float, dict[ViewKey, FloatArray]],
+    predictor: LatePredictor,
+    t_s: float,
+) -> dict[str, list[FloatArray]]:
+    """Every late sensor's newest bodies in the world (``newest``), carried to ``t_s``
+    (seconds): a sensor late by ``h`` by ``h / H`` × what the on-time views measured of each
+    body's person in the ``H`` before the instant (``moved``: ``H`` and :func:`_measured`'s
+    answer), joint by joint where they saw it; the other joints by the person's filtered motion
+    (:func:`carried_by_motion`). (25, 3) world metres per body, per sensor id.
+
+    All sensors at once (one sum), the same bits as body by body."""
+    if not newest:
+        return {}
+    counts = [len(b.bodies.tracking_ids) for b in newest]
+    newest_worlds = np.concatenate([b.world for b in newest])
     reach, measured = moved
-    keys = [
-        (sensor.sensor_id, body_id)
-        for (sensor, _), bodies in zip(used, arrays, strict=True)
-        for body_id in bodies.tracking_ids
-    ]
-    scales = [late[s.sensor_id] / reach if reach > 0.0 else 0.0 for s, _ in used]
+    keys = [(b.sensor.sensor_id, body_id) for b in newest for body_id in b.bodies.tracking_ids]
+    scales = [late[b.sensor.sensor_id] / reach if reach > 0.0 else 0.0 for b in newest]
     # Each body's measurement times its sensor's scale (B, 25, 3): the same products as one
     # body at a time.
     carried = np.repeat(np.array(scales), counts)[:, None, None] * np.array(
@@ -328,50 +380,18 @@ def _carried_late(
     worlds_seen = newest_worlds + np.where(seen, carried, 0.0)
     worlds: list[FloatArray] = list(worlds_seen)
     # Bodies with a joint the on-time views did not see: those joints by the filter's motion.
-    newest_s = np.repeat([sensor.frames[-1].t_server_s for sensor, _ in used], counts).tolist()
-    for row in np.flatnonzero(~seen.all(axis=(1, 2))).tolist():
-        world = carried_by_motion(
-            newest_worlds[row], predictor.motions.get(keys[row]), newest_s[row], t_s
-        )
-        world[seen[row]] = worlds_seen[row][seen[row]]
-        worlds[row] = world
+    unseen = np.flatnonzero(~seen.all(axis=(1, 2))).tolist()
+    if unseen:
+        newest_s = np.repeat([b.sensor.frames[-1].t_server_s for b in newest], counts).tolist()
+        for row in unseen:
+            world = carried_by_motion(
+                newest_worlds[row], predictor.motions.get(keys[row]), newest_s[row], t_s
+            )
+            world[seen[row]] = worlds_seen[row][seen[row]]
+            worlds[row] = world
     out: dict[str, list[FloatArray]] = {}
     lo = 0
-    for (sensor, _), count in zip(used, counts, strict=True):
-        out[sensor.sensor_id] = worlds[lo : lo + count]
+    for b, count in zip(newest, counts, strict=True):
+        out[b.sensor.sensor_id] = worlds[lo : lo + count]
         lo += count
     return out
-
-
-def _moved_meanwhile(
-    sensors: list[SensorState],
-    on_time: list[SensorState],
-    pose_of: PoseLookup,
-    t_s: float,
-    gap_s: float,
-    late: Mapping[str, float],
-    predictor: LatePredictor | None,
-    now: Mapping[str, list[View]],
-) -> tuple[float, dict[ViewKey, FloatArray]]:
-    """The ``views`` predictor's measurement for every late body at once: the horizon ``H`` of
-    the furthest-late sensor (seconds) and what each late body's person's on-time views saw
-    happen in the ``H`` before the instant (:func:`measured_displacements`). A sensor late by
-    ``h`` is carried ``h / H`` of it: exactly its own measurement for the furthest-late
-    sensor, the same line for the others (one more interpolation of the on-time sensors per
-    instant instead of one per late sensor). (0, {}) for the other predictors."""
-    if predictor is None or predictor.members is None or not late:
-        return 0.0, {}
-    reach = max(late.values())
-    late_keys = [
-        (sensor.sensor_id, body.tracking_id)
-        for sensor in sensors
-        if sensor.sensor_id in late and sensor.frames
-        for body in sensor.frames[-1].frame.bodies
-    ]
-    then = views_at(on_time, pose_of, t_s - reach, gap_s)
-    return reach, measured_displacements(
-        late_keys,
-        predictor.members,
-        {(v.sensor_id, v.tracking_id): v for v in then},
-        {(v.sensor_id, v.tracking_id): v for vs in now.values() for v in vs},
-    )

@@ -48,6 +48,21 @@ class _Pending(NamedTuple):
     alpha: float
 
 
+class SensorBodies(NamedTuple):
+    """One sensor's bodies at an instant: the sensor, its pose (``T_world_from_sensor``, a
+    moving sensor's ``T_world_from_space``), the bodies in its own frame (interpolated to the
+    instant) and the same joints in the world, (B, 25, 3) float64 metres, NaN where unknown."""
+
+    sensor: SensorState
+    pose: Matrix4
+    bodies: BodyArrays
+    world: FloatArray
+
+
+Gathered = list[tuple[SensorState, Matrix4, BodyArrays | _Pending]]
+"""What :func:`gather_at` finds of each sensor at one instant, before the array work."""
+
+
 def views_at(
     sensors: Iterable[SensorState],
     pose_of: PoseLookup,
@@ -69,7 +84,17 @@ def views_at(
         One view per body, sensor by sensor in ``sensors``' order, bodies in the nearer frame's
         order; joints (25, 3) float64 world metres, NaN where unknown.
     """
-    used: list[tuple[SensorState, Matrix4, BodyArrays | _Pending]] = []
+    (bodies,) = resolve([gather_at(sensors, pose_of, t_s, gap_s)])
+    return views_of(bodies, t_s)
+
+
+def gather_at(
+    sensors: Iterable[SensorState], pose_of: PoseLookup, t_s: float, gap_s: float
+) -> Gathered:
+    """The connected, calibrated sensors with a body at ``t_s`` (seconds, server clock), in
+    ``sensors``' order, each with its pose and its bodies there or what :func:`resolve`
+    interpolates them from (frames further apart than ``gap_s`` are not interpolated between)."""
+    used: Gathered = []
     for sensor in sensors:
         if not sensor.connected:
             continue
@@ -83,21 +108,44 @@ def views_at(
         if not (bodies.nearer if isinstance(bodies, _Pending) else bodies).tracking_ids:
             continue
         used.append((sensor, pose, bodies))
-    if not used:
-        return []
-    arrays = _interpolate_pending([bodies for _, _, bodies in used])
-    joints = bodies_to_world([pose for _, pose, _ in used], [a.joints_m for a in arrays])
+    return used
+
+
+def resolve(groups: list[Gathered]) -> list[list[SensorBodies]]:
+    """Each group's bodies interpolated and moved to the world: every group's rows in one
+    interpolation pass and one stacked product (rows are computed alone: the same bits as
+    group by group, or sensor by sensor)."""
+    flat = [entry for group in groups for entry in group]
+    if not flat:
+        return [[] for _ in groups]
+    arrays = _interpolate_pending([bodies for _, _, bodies in flat])
+    worlds = bodies_to_world([pose for _, pose, _ in flat], [a.joints_m for a in arrays])
+    resolved = [
+        SensorBodies(sensor, pose, bodies, world)
+        for (sensor, pose, _), bodies, world in zip(flat, arrays, worlds, strict=True)
+    ]
+    out: list[list[SensorBodies]] = []
+    lo = 0
+    for group in groups:
+        out.append(resolved[lo : lo + len(group)])
+        lo += len(group)
+    return out
+
+
+def views_of(bodies: list[SensorBodies], t_s: float) -> list[View]:
+    """One view per body at the instant ``t_s`` (seconds), sensor by sensor (a moving sensor
+    stands where its frames' poses put it at ``t_s``)."""
     views: list[View] = []
-    for (sensor, pose, _), bodies, world in zip(used, arrays, joints, strict=True):
+    for sensor, pose, arrays, world in bodies:
         position: FloatArray | None = pose[:3, 3]
         sensor_id, sensor_type = sensor.sensor_id, sensor.sensor_type
         if sensor.moving:  # its frames are in its space; it stands where its poses say at t_s
             position = world_position(sensor.frames, t_s, pose)
-        hands = bodies.hands or [None] * len(bodies.tracking_ids)
+        hands = arrays.hands or [None] * len(arrays.tracking_ids)
         views.extend(
             View(sensor_id, tracking_id, body, states, position, sensor_type, hand)
             for tracking_id, body, states, hand in zip(
-                bodies.tracking_ids, world, bodies.states, hands, strict=True
+                arrays.tracking_ids, world, arrays.states, hands, strict=True
             )
         )
     return views

@@ -17,7 +17,7 @@ import pytest
 
 from skelfuse.fusion.sensors import SensorState, TimedFrame, body_arrays_at
 from skelfuse.fusion.views import View
-from skelfuse.fusion.world_views import views_at
+from skelfuse.fusion.world_views import gather_at, resolve, views_at, views_of
 from skelfuse.protocol.skeleton import JOINT_COUNT, TrackingState
 from skelfuse.protocol.transform import Matrix4, apply, look_at_pose
 from skelfuse.protocol.wire import Body, Frame
@@ -119,6 +119,33 @@ def test_all_sensors_at_once_give_the_bits_of_sensor_by_sensor(seed: int) -> Non
     same_views(
         views_at(sensors, poses.get, t_s, 0.2), sensor_by_sensor(sensors, poses.get, t_s, 0.2)
     )
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_several_instants_resolved_together_give_the_bits_of_each_alone(seed: int) -> None:
+    """The late path resolves the on-time sensors at two instants and the late sensors' newest
+    frames in one pass and one product (fusion/extrapolation.py): every group's views must be
+    what that group alone gives, and what the rule gives sensor by sensor."""
+    rng = np.random.default_rng(100 + seed)
+    t_s = 1000.0 + rng.uniform(0.0, 1.0)
+    names = [f"s{k}" for k in range(int(rng.integers(1, 12)))]
+    sensors = [random_sensor(rng, name, t_s) for name in names]
+    poses = {
+        name: look_at_pose((3.0, 1.5, float(k)), (0.0, 0.9, 0.0)) for k, name in enumerate(names)
+    }
+    split = int(rng.integers(0, len(sensors) + 1))
+    instants = [
+        (sensors[:split], t_s),
+        (sensors[:split], t_s - 0.02),
+        (sensors[split:], t_s + 0.01),
+    ]
+    together = resolve([gather_at(group, poses.get, t, 0.2) for group, t in instants])
+    assert len(together) == 3
+    for (group, t), resolved in zip(instants, together, strict=True):
+        (alone,) = resolve([gather_at(group, poses.get, t, 0.2)])
+        same_views(views_of(resolved, t), views_of(alone, t))
+        same_views(views_of(resolved, t), sensor_by_sensor(group, poses.get, t, 0.2))
+    assert resolve([[], []]) == [[], []]
 
 
 def test_no_sensor_gives_no_views_and_cached_frames_are_not_written_to() -> None:
