@@ -360,18 +360,18 @@ class Alignment:
         self._next_rephase_s = now_s + REPHASE_EVERY_S
         grid = self.period_s
         periods = np.array([sensor.period_s for sensor in sensors])
-        captures = np.array(
-            [[t % sensor.period_s for t in list(seen.captures)[-frames:]]
-             for sensor, seen in zip(sensors, history, strict=True)]
-        )  # fmt: skip
+        captures = np.array([[t % sensor.period_s for t in list(seen.captures)[-frames:]]
+                             for sensor, seen in zip(sensors, history, strict=True)])  # fmt: skip
         delays = np.array([list(seen.delays)[-frames:] for seen in history])
         # ``horizon`` also tries the grid just after a sensor's phase: that sensor is then late
         # by a hair (extrapolated by under a millisecond) and the others are placed around it.
         signs = (1.0, -1.0) if self.grid == "horizon" else (1.0,)
+        own = [
+            circular_phase(h.captures, p) for p, h in zip(periods.tolist(), history, strict=True)
+        ]
         candidates = [
-            (circular_phase(seen.captures, sensor.period_s) + k * sensor.period_s - sign * margin)
-            % grid
-            for sensor, seen in zip(sensors, history, strict=True)
+            (phase + k * sensor.period_s - sign * margin) % grid
+            for sensor, phase in zip(sensors, own, strict=True)
             for k in range(max(1, round(grid / sensor.period_s)))
             for margin in PHASE_MARGINS_S
             for sign in signs
