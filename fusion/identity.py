@@ -30,6 +30,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.optimize import linear_sum_assignment
 
+from skelfuse.fusion import kernels, kernels_trunks
 from skelfuse.fusion.mirror import PERMUTATION
 from skelfuse.fusion.points import finite_points
 from skelfuse.fusion.settings import FusionSettings
@@ -66,7 +67,10 @@ def trunk_distance(a: npt.ArrayLike, b: npt.ArrayLike) -> float:
 
 
 def trunk_distances(a: FloatArray, b: FloatArray) -> FloatArray:
-    """:func:`trunk_distance` of many pairs: a, b (M, 5, 3) midline joints, metres → (M,)."""
+    """:func:`trunk_distance` of many pairs: a, b (M, 5, 3) midline joints, metres → (M,)
+    (or any two shapes that broadcast: (..., 5, 3) → (...))."""
+    if a.shape == b.shape and a.ndim == 3 and kernels.enabled() and kernels_trunks.warmed():
+        return kernels_trunks.trunk_distances(a, b)  # the same bits in one loop
     both = finite_points(a) & finite_points(b)
     diff = a - b
     square = diff * diff
