@@ -10,9 +10,9 @@ views_at`), late ones carried forward, those beyond the bound left out. Three pr
 - ``views`` (the default): the newest frame moved by what the *on-time* views of the same person
   saw happen between that frame's capture and the instant: each on-time view interpolated at
   both times, the difference averaged over those views per joint (left and right swapped where
-  their mirror labels differ; :func:`measured_displacements`). A measurement, not a model: it
-  neither lags a change of pace as a filter's velocity does nor feeds the fused estimate back
-  into itself. Joints no on-time view saw at both times are carried as ``track`` does.
+  their mirror labels differ; :mod:`skelfuse.fusion.measured_motion`). A measurement, not a
+  model: it neither lags a change of pace as a filter's velocity does nor feeds the fused
+  estimate back into itself. Joints no on-time view saw at both times are carried as ``track`` does.
 - ``track``: the newest frame moved by the motion of the person that body was at the last
   step, as that person's filter estimates it per joint (:mod:`skelfuse.fusion.track_motion`):
   smoother than one sensor's own frame-to-frame difference, but it lags. A body with no such
@@ -30,6 +30,7 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.identity import ViewKey
+from skelfuse.fusion.measured_motion import measured_from_arrays
 from skelfuse.fusion.moving import world_position
 from skelfuse.fusion.pipeline import FusionPipeline, PoseLookup
 from skelfuse.fusion.sensors import SensorState, TimedFrame
@@ -37,16 +38,10 @@ from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.track_motion import PersonMotion, track_members, track_motions
 from skelfuse.fusion.views import View
 from skelfuse.fusion.world_views import Gathered, SensorBodies, gather_at, resolve, views_of
-from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION, TrackingState
 from skelfuse.protocol.transform import apply
 from skelfuse.protocol.wire import Body
 
 FloatArray = npt.NDArray[np.float64]
-_MIRROR = np.array(MIRROR_PERMUTATION)
-_UNSEEN = np.full((JOINT_COUNT, 3), np.nan)
-"""A body none of whose joints the on-time views measured."""
-_TRACKED = int(TrackingState.TRACKED)
-"""Compared as a plain int: numpy compares a uint8 array with an IntEnum member 5× slower."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -160,82 +155,6 @@ def late_motions(pipeline: FusionPipeline, settings: FusionSettings) -> LatePred
     return LatePredictor(motions, track_members(pipeline))
 
 
-def measured_displacements(
-    late_keys: Iterable[ViewKey],
-    members: Mapping[ViewKey, tuple[int, bool]],
-    then: Mapping[ViewKey, View],
-    now: Mapping[ViewKey, View],
-) -> dict[ViewKey, FloatArray]:
-    """How far each late body's person moved between the late frame's capture and the instant,
-    as the on-time views of that person saw it, per joint: the mean over those views of (view
-    at the instant − view at the capture), in the late body's joint order (left and right
-    swapped for a view whose mirror label differs from the late body's), over the views where
-    the joint is Tracked at both times.
-
-    Args:
-        late_keys: the late sensor's bodies (sensor id, tracking id).
-        members: each body's (person id, mirror label) at the last step
-            (:func:`~skelfuse.fusion.track_motion.track_members`).
-        then: the on-time views interpolated at the late frame's capture time.
-        now: the same views at the instant.
-
-    Returns:
-        (25, 3) metres per late body that has a person with an on-time view at both times, NaN
-        where none of those views has the joint Tracked at both times; other bodies are absent.
-    """
-    keys = [k for k in now if k in then and k in members]
-    if not keys:
-        return {}
-    joints = np.array([now[k].joints_world for k in keys] + [then[k].joints_world for k in keys])
-    states = np.array([now[k].states for k in keys] + [then[k].states for k in keys])
-    return _displacements(late_keys, members, keys, joints, states)
-
-
-def _displacements(
-    late_keys: Iterable[ViewKey],
-    members: Mapping[ViewKey, tuple[int, bool]],
-    keys: list[ViewKey],
-    joints: FloatArray,
-    states: npt.NDArray[np.uint8],
-) -> dict[ViewKey, FloatArray]:
-    """:func:`measured_displacements` of the on-time bodies ``keys`` (each with a person), their
-    world joints and states at the instant (rows ``0..K-1``, (2K, 25, 3) and (2K, 25)) and at
-    the late frame's capture (rows ``K..2K-1``)."""
-    # Each person's views, in their order (dicts keep it).
-    rows_of: dict[int, list[int]] = {}
-    for row, key in enumerate(keys):
-        rows_of.setdefault(members[key][0], []).append(row)
-    labels = np.array([members[k][1] for k in keys])
-    count = len(keys)
-    # An Inferred joint is the sensor's guess, not a measurement: its motion is not used.
-    tracked = (states[:count] == _TRACKED) & (states[count:] == _TRACKED)
-    moved_all = np.where(tracked[..., None], joints[:count] - joints[count:], np.nan)
-    # Every view in the joint order of a body labelled False (a view labelled True swapped):
-    # a body labelled True gets its person's mean swapped back (a permutation: the same sums).
-    canonical = np.where(labels[:, None, None], moved_all[:, _MIRROR], moved_all)
-    # Per person, its views in their order, padded with NaN (unseen) to the most views one has,
-    # summed row after row: the sum over the person's rows alone, to the bit (np.add.reduceat
-    # adds in another order).
-    groups = list(rows_of.values())
-    padded = np.full((len(groups), max(map(len, groups)), JOINT_COUNT, 3), np.nan)
-    padded[
-        [g for g, rows in enumerate(groups) for _ in rows],
-        [w for rows in groups for w in range(len(rows))],
-    ] = canonical[[row for rows in groups for row in rows]]
-    finite = np.isfinite(padded)
-    seen = finite.sum(axis=1)
-    total = np.where(finite, padded, 0.0).sum(axis=1)
-    means = np.where(seen > 0, total / np.maximum(seen, 1), np.nan)
-    row_of = {person: k for k, person in enumerate(rows_of)}
-    out: dict[ViewKey, FloatArray] = {}
-    for key in late_keys:
-        person = members.get(key)
-        if person is None or (at := row_of.get(person[0])) is None:
-            continue
-        out[key] = means[at][_MIRROR] if person[1] else means[at]
-    return out
-
-
 def views_with_late(
     sensors: Iterable[SensorState],
     pose_of: PoseLookup,
@@ -281,9 +200,11 @@ def views_with_late(
         now.setdefault(view.sensor_id, []).append(view)
     carried: dict[str, list[FloatArray]] = {}
     if predictor is not None:
-        measured: dict[ViewKey, FloatArray] = {}
+        measured = None
         if measuring and predictor.members is not None:
-            measured = _measured(resolved[-1], predictor.members, resolved[0], resolved[1])
+            measured = measured_from_arrays(
+                resolved[-1], predictor.members, resolved[0], resolved[1]
+            )
         carried = _carried_late(resolved[-1], late, (reach, measured), predictor, t_s)
     views: list[View] = []
     for sensor in sensors:
@@ -326,42 +247,19 @@ def _newest_of(late_sensors: list[SensorState], pose_of: PoseLookup) -> Gathered
     return newest
 
 
-def _measured(
-    newest: list[SensorBodies],
-    members: Mapping[ViewKey, tuple[int, bool]],
-    now: list[SensorBodies],
-    then: list[SensorBodies],
-) -> dict[ViewKey, FloatArray]:
-    """:func:`measured_displacements` of the late bodies ``newest`` from the on-time sensors'
-    bodies at the instant (``now``) and at the furthest-late sensor's capture (``then``), on
-    their arrays: rows gathered by key instead of views looked up one by one (the same values)."""
-    now_keys = [(b.sensor.sensor_id, i) for b in now for i in b.bodies.tracking_ids]
-    then_keys = [(b.sensor.sensor_id, i) for b in then for i in b.bodies.tracking_ids]
-    then_row = {key: row for row, key in enumerate(then_keys)}
-    now_row = {key: row for row, key in enumerate(now_keys)}  # a key twice: the last row
-    keys = [k for k in now_row if k in then_row and k in members]
-    if not keys:
-        return {}
-    rows = [now_row[k] for k in keys]
-    rows += [len(now_keys) + then_row[k] for k in keys]
-    joints = np.concatenate([b.world for b in now] + [b.world for b in then])[rows]
-    states = np.concatenate([b.bodies.states for b in now] + [b.bodies.states for b in then])
-    late_keys = [(b.sensor.sensor_id, i) for b in newest for i in b.bodies.tracking_ids]
-    return _displacements(late_keys, members, keys, joints, states[rows])
-
-
 def _carried_late(
     newest: list[SensorBodies],
     late: Mapping[str, float],
-    moved: tuple[float, dict[ViewKey, FloatArray]],
+    moved: tuple[float, FloatArray | None],
     predictor: LatePredictor,
     t_s: float,
 ) -> dict[str, list[FloatArray]]:
     """Every late sensor's newest bodies in the world (``newest``), carried to ``t_s``
     (seconds): a sensor late by ``h`` by ``h / H`` × what the on-time views measured of each
-    body's person in the ``H`` before the instant (``moved``: ``H`` and :func:`_measured`'s
-    answer), joint by joint where they saw it; the other joints by the person's filtered motion
-    (:func:`carried_by_motion`). (25, 3) world metres per body, per sensor id.
+    body's person in the ``H`` before the instant (``moved``: ``H`` and
+    :func:`~skelfuse.fusion.measured_motion.measured_from_arrays`' answer, None: nothing
+    measured), joint by joint where they saw it; the other joints by the person's filtered
+    motion (:func:`carried_by_motion`). (25, 3) world metres per body, per sensor id.
 
     All sensors at once (one sum), the same bits as body by body."""
     if not newest:
@@ -373,9 +271,9 @@ def _carried_late(
     scales = [late[b.sensor.sensor_id] / reach if reach > 0.0 else 0.0 for b in newest]
     # Each body's measurement times its sensor's scale (B, 25, 3): the same products as one
     # body at a time.
-    carried = np.repeat(np.array(scales), counts)[:, None, None] * np.array(
-        [measured.get(key, _UNSEEN) for key in keys]
-    )
+    if measured is None:
+        measured = np.full(newest_worlds.shape, np.nan)
+    carried = np.repeat(np.array(scales), counts)[:, None, None] * measured
     seen = np.isfinite(carried)
     worlds_seen = newest_worlds + np.where(seen, carried, 0.0)
     worlds: list[FloatArray] = list(worlds_seen)

@@ -12,13 +12,9 @@ import numpy as np
 import pytest
 
 from skelfuse.fusion.alignment import Alignment, SensorTiming, replayed_horizons
-from skelfuse.fusion.extrapolation import (
-    LatePredictor,
-    carried_by_motion,
-    measured_displacements,
-    views_with_late,
-)
+from skelfuse.fusion.extrapolation import LatePredictor, carried_by_motion, views_with_late
 from skelfuse.fusion.hub import FusedFrame, FusionHub
+from skelfuse.fusion.measured_motion import measured_displacements
 from skelfuse.fusion.pipeline import FusionPipeline
 from skelfuse.fusion.sensors import SensorState, TimedFrame
 from skelfuse.fusion.track_motion import PersonMotion, track_motions
