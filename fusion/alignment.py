@@ -18,11 +18,12 @@ when each live sensor's newest frame was captured, whether the next instant can 
   instant, otherwise left out of that instant. Two options tune it to the rig from the sensors'
   observed capture phases and delays: ``grid = "horizon"`` puts the grid where the late sensors'
   extrapolation is shortest (the sum of squared horizons, replayed over the same frames as
-  ``phased``, :func:`replayed_horizons`) instead of where the wait for the last sensor is; with
-  ``skip_expected_late`` an instant does not wait for a sensor whose frame is expected after the
-  deadline anyway (late in most replayed frames): it is fused as soon as the others are in (at
-  the deadline when every sensor is expected late), never before the server clock reaches it:
-  a camera stamping frames after they arrive (an uncalibrated lag) must not leave the rest out.
+  ``phased``, :mod:`skelfuse.fusion.alignment_replay`) instead of where the wait for the last
+  sensor is; with ``skip_expected_late`` an instant does not wait for a sensor whose frame is
+  expected after the deadline anyway (late in most replayed frames): it is fused as soon as
+  the others are in and that sensor's frame from before the instant is (at the deadline when
+  every sensor is expected late), never before the server clock reaches it: a camera stamping
+  frames after they arrive (an uncalibrated lag) must not leave the rest out.
   With ``wait_for_phase`` there is no deadline until the grid's phase is first chosen (about
   a second): the grid the first frames put is anywhere against the sensors' phases, and a
   deadline there carries late sensors by up to a period.
@@ -42,6 +43,7 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
+from skelfuse.fusion.alignment_replay import circular_phase, replayed_horizons, replayed_waits
 from skelfuse.fusion.sensors import SensorState
 from skelfuse.fusion.settings import FusionSettings
 
@@ -120,72 +122,6 @@ class _SensorPhase:
     newest_s: float = -math.inf
     captures: deque[float] = field(default_factory=lambda: deque(maxlen=PHASE_SAMPLES))
     delays: deque[float] = field(default_factory=lambda: deque(maxlen=PHASE_SAMPLES))
-
-
-def circular_phase(times_s: Sequence[float], period_s: float) -> float:
-    """The mean phase of ``times_s`` modulo ``period_s`` (seconds in [0, period)), as the angle
-    of the mean of unit vectors, so that phases either side of 0 average to 0, not period/2.
-
-    Raises:
-        ValueError: ``times_s`` is empty.
-    """
-    if not times_s:
-        raise ValueError("no times to take a phase of")
-    origin = times_s[0]  # Unix seconds are large: take phases of differences (precision)
-    omega = 2.0 * math.pi / period_s
-    c = sum(math.cos(omega * (t - origin)) for t in times_s)
-    s = sum(math.sin(omega * (t - origin)) for t in times_s)
-    return (origin + math.atan2(s, c) / omega) % period_s
-
-
-def replayed_waits(
-    phases_s: FloatArray, captures_s: FloatArray, delays_s: FloatArray, periods_s: FloatArray
-) -> FloatArray:
-    """For each candidate grid phase, the mean wait the sensors' recent frames would have given:
-    per frame (the sensors' i-th newest frames taken as one instant's), the max over sensors of
-    (time from the instant before the capture to the capture) + (its delay until seen).
-
-    Args:
-        phases_s: (C,) candidate grid phases, seconds in [0, grid period).
-        captures_s: (S, L) each sensor's last L capture times modulo its period, seconds.
-        delays_s: (S, L) how long after capture each of those frames was seen, seconds.
-        periods_s: (S,) the sensors' frame periods, seconds.
-
-    Returns:
-        (C,) mean wait per candidate, seconds.
-    """
-    ahead = np.mod(captures_s[None] - phases_s[:, None, None], periods_s[None, :, None])
-    waits: FloatArray = (ahead + delays_s[None]).max(axis=1).mean(axis=1)
-    return waits
-
-
-def replayed_horizons(
-    phases_s: FloatArray,
-    captures_s: FloatArray,
-    delays_s: FloatArray,
-    periods_s: FloatArray,
-    deadline_s: float,
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """For each candidate grid phase, what the ``deadline`` policy would have done with the
-    sensors' recent frames: a sensor whose frame after the instant would have been seen later
-    than ``deadline_s`` after it is late, carried forward from its frame before the instant by
-    its *horizon* (time from that capture to the instant).
-
-    Args: as :func:`replayed_waits`, and the deadline (seconds after the instant).
-
-    Returns:
-        (C,) the mean over frames of the sum over sensors of squared horizons (s²);
-        (C,) the mean wait for the last on-time sensor (seconds; 0 when all are late);
-        (C, S) the share of frames in which each sensor was late.
-    """
-    ahead = np.mod(captures_s[None] - phases_s[:, None, None], periods_s[None, :, None])
-    seen = ahead + delays_s[None]
-    late = seen > deadline_s
-    horizon = np.where(late, periods_s[None, :, None] - ahead, 0.0)
-    cost: FloatArray = (horizon**2).sum(axis=1).mean(axis=1)
-    waits: FloatArray = np.where(late, 0.0, seen).max(axis=1).mean(axis=1)
-    shares: FloatArray = late.mean(axis=2)
-    return cost, waits, shares
 
 
 class Alignment:
@@ -278,9 +214,15 @@ class Alignment:
                 return None
             waited = [s.newest_s for s in sensors if s.sensor_id not in self.expected_late]
             # Never before the deadline, even with every sensor expected late: the frame each
-            # was captured just before the instant is then in, and carried least.
+            # was captured just before the instant is then in, and carried least. Nor, with
+            # others in, before an expected-late sensor's frame from just before the instant
+            # is: without it that sensor is beyond the bound and left out of every instant.
             due = next_t + self.deadline_s
             waited_in = bool(waited) and min(waited) >= next_t
+            bound = next_t - self.max_extrapolation_s
+            waited_in &= all(
+                s.newest_s >= bound for s in sensors if s.sensor_id in self.expected_late
+            )
             # Nor before the clock reaches it (module docstring: a camera stamping frames late).
             if now_s >= due or (waited_in and now_s >= next_t):
                 instant = self._late_instant(next_t, sensors)

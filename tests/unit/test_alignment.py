@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from skelfuse.fusion.alignment import Alignment, SensorTiming, circular_phase, replayed_waits
+from skelfuse.fusion.alignment import Alignment, SensorTiming
+from skelfuse.fusion.alignment_replay import circular_phase, replayed_waits
 from skelfuse.fusion.config import FusionConfigError, fusion_settings_from_mapping
 from skelfuse.fusion.extrapolation import extrapolated_bodies
 from skelfuse.fusion.hub import FusedFrame, FusionHub
@@ -105,6 +106,35 @@ def test_a_sensor_stamped_ahead_of_the_clock_does_not_fuse_the_instant_before_it
     instant = policy.next_instant([timing("a", t - 0.006), ahead], t)
     assert instant is not None and instant.t_s == pytest.approx(t) and not instant.left_out
     assert [s for s, _ in instant.late] == ["a"]
+
+
+def test_an_expected_late_sensor_is_waited_for_until_its_frame_before_the_instant_is_in() -> None:
+    """Not waited for past the instant, an expected-late sensor's frame from just *before* it
+    is: fused as soon as the others were in, a sensor captured 2 ms before the instant whose
+    frame takes 4 ms to arrive had only the frame before that, 35.3 ms behind, beyond the 34 ms
+    bound: left out of every instant (CI's live lag test: 313 of 361 frames without cam-a)."""
+    t = math.floor(T0 / P) * P
+    policy = primed(Alignment("deadline", 30.0, deadline_s=0.007, skip_expected_late=True), t)
+    policy.expected_late = frozenset({"a"})
+    in_time = timing("b", t + 0.001)
+    previous = timing("a", t - 0.002 - P)  # its frame captured at t - 2 ms is on its way
+    assert policy.next_instant([previous, in_time], t + 0.0012) is None, "a is not within reach"
+    assert policy.due_s == pytest.approx(t + 0.007), "at the latest at the deadline"
+    instant = policy.next_instant([timing("a", t - 0.002), in_time], t + 0.002)
+    assert instant is not None and instant.t_s == pytest.approx(t) and not instant.left_out
+    ((sensor, behind),) = instant.late
+    assert sensor == "a" and behind == pytest.approx(0.002, abs=1e-6)
+    # Within the bound already (captured 20 ms before): fused as soon as the others are in.
+    policy = primed(Alignment("deadline", 30.0, deadline_s=0.007, skip_expected_late=True), t)
+    policy.expected_late = frozenset({"a"})
+    instant = policy.next_instant([timing("a", t - 0.020), in_time], t + 0.0012)
+    assert instant is not None and [s for s, _ in instant.late] == ["a"]
+    # Its frame held up past the deadline: left out then, as any sensor beyond the bound.
+    policy = primed(Alignment("deadline", 30.0, deadline_s=0.007, skip_expected_late=True), t)
+    policy.expected_late = frozenset({"a"})
+    assert policy.next_instant([previous, in_time], t + 0.005) is None
+    instant = policy.next_instant([previous, in_time], t + 0.007)
+    assert instant is not None and instant.left_out == ("a",)
 
 
 def test_an_instant_nobody_can_give_waits_for_the_first_frame_not_fused_empty() -> None:

@@ -1,0 +1,82 @@
+"""What a candidate grid phase would have done, replayed over the sensors' recent frames
+(:mod:`skelfuse.fusion.alignment` re-chooses the grid's phase with these every second).
+
+Pure functions on arrays of times (seconds): each sensor's last capture times modulo its frame
+period, and how long after capture each of those frames was first seen by the policy.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import numpy.typing as npt
+
+FloatArray = npt.NDArray[np.float64]
+
+
+def circular_phase(times_s: Sequence[float], period_s: float) -> float:
+    """The mean phase of ``times_s`` modulo ``period_s`` (seconds in [0, period)), as the angle
+    of the mean of unit vectors, so that phases either side of 0 average to 0, not period/2.
+
+    Raises:
+        ValueError: ``times_s`` is empty.
+    """
+    if not times_s:
+        raise ValueError("no times to take a phase of")
+    origin = times_s[0]  # Unix seconds are large: take phases of differences (precision)
+    omega = 2.0 * math.pi / period_s
+    c = sum(math.cos(omega * (t - origin)) for t in times_s)
+    s = sum(math.sin(omega * (t - origin)) for t in times_s)
+    return (origin + math.atan2(s, c) / omega) % period_s
+
+
+def replayed_waits(
+    phases_s: FloatArray, captures_s: FloatArray, delays_s: FloatArray, periods_s: FloatArray
+) -> FloatArray:
+    """For each candidate grid phase, the mean wait the sensors' recent frames would have given:
+    per frame (the sensors' i-th newest frames taken as one instant's), the max over sensors of
+    (time from the instant before the capture to the capture) + (its delay until seen).
+
+    Args:
+        phases_s: (C,) candidate grid phases, seconds in [0, grid period).
+        captures_s: (S, L) each sensor's last L capture times modulo its period, seconds.
+        delays_s: (S, L) how long after capture each of those frames was seen, seconds.
+        periods_s: (S,) the sensors' frame periods, seconds.
+
+    Returns:
+        (C,) mean wait per candidate, seconds.
+    """
+    ahead = np.mod(captures_s[None] - phases_s[:, None, None], periods_s[None, :, None])
+    waits: FloatArray = (ahead + delays_s[None]).max(axis=1).mean(axis=1)
+    return waits
+
+
+def replayed_horizons(
+    phases_s: FloatArray,
+    captures_s: FloatArray,
+    delays_s: FloatArray,
+    periods_s: FloatArray,
+    deadline_s: float,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """For each candidate grid phase, what the ``deadline`` policy would have done with the
+    sensors' recent frames: a sensor whose frame after the instant would have been seen later
+    than ``deadline_s`` after it is late, carried forward from its frame before the instant by
+    its *horizon* (time from that capture to the instant).
+
+    Args: as :func:`replayed_waits`, and the deadline (seconds after the instant).
+
+    Returns:
+        (C,) the mean over frames of the sum over sensors of squared horizons (s²);
+        (C,) the mean wait for the last on-time sensor (seconds; 0 when all are late);
+        (C, S) the share of frames in which each sensor was late.
+    """
+    ahead = np.mod(captures_s[None] - phases_s[:, None, None], periods_s[None, :, None])
+    seen = ahead + delays_s[None]
+    late = seen > deadline_s
+    horizon = np.where(late, periods_s[None, :, None] - ahead, 0.0)
+    cost: FloatArray = (horizon**2).sum(axis=1).mean(axis=1)
+    waits: FloatArray = np.where(late, 0.0, seen).max(axis=1).mean(axis=1)
+    shares: FloatArray = late.mean(axis=2)
+    return cost, waits, shares
