@@ -187,10 +187,10 @@ def views_with_late(
     """
     sensors = list(sensors)
     on_time = [s for s in sensors if s.sensor_id not in late and s.sensor_id not in left_out]
-    measuring = predictor is not None and predictor.members is not None and bool(late)
-    reach = max(late.values()) if measuring else 0.0
+    members = None if predictor is None or not late else predictor.members  # ``views`` only
+    reach = max(late.values()) if members is not None else 0.0
     groups = [gather_at(on_time, pose_of, t_s, gap_s)]
-    if measuring:
+    if members is not None:
         groups.append(gather_at(on_time, pose_of, t_s - reach, gap_s))
     if predictor is not None:
         groups.append(_newest_of([s for s in sensors if s.sensor_id in late], pose_of))
@@ -201,10 +201,8 @@ def views_with_late(
     carried: dict[str, list[FloatArray]] = {}
     if predictor is not None:
         measured = None
-        if measuring and predictor.members is not None:
-            measured = measured_from_arrays(
-                resolved[-1], predictor.members, resolved[0], resolved[1]
-            )
+        if members is not None:
+            measured = measured_from_arrays(resolved[-1], members, resolved[0], resolved[1])
         carried = _carried_late(resolved[-1], late, (reach, measured), predictor, t_s)
     views: list[View] = []
     for sensor in sensors:

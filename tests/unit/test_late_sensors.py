@@ -15,11 +15,12 @@ from skelfuse.fusion.alignment import Alignment, SensorTiming
 from skelfuse.fusion.alignment_replay import replayed_horizons
 from skelfuse.fusion.extrapolation import LatePredictor, carried_by_motion, views_with_late
 from skelfuse.fusion.hub import FusedFrame, FusionHub
-from skelfuse.fusion.measured_motion import measured_displacements
+from skelfuse.fusion.measured_motion import measured_displacements, measured_from_arrays
 from skelfuse.fusion.pipeline import FusionPipeline
-from skelfuse.fusion.sensors import SensorState, TimedFrame
+from skelfuse.fusion.sensors import BodyArrays, SensorState, TimedFrame
 from skelfuse.fusion.track_motion import PersonMotion, track_motions
 from skelfuse.fusion.views import View
+from skelfuse.fusion.world_views import SensorBodies
 from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION
 from skelfuse.protocol.transform import look_at_pose
 from skelfuse.protocol.wire import Body, Frame, Hello, encode
@@ -335,6 +336,59 @@ def test_measured_displacements_for_many_persons_are_each_persons_own_mean_to_th
             count > 0, np.where(finite, stacked, 0.0).sum(axis=0) / np.maximum(count, 1), np.nan
         )
         assert np.array_equal(got, expected, equal_nan=True), key
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_the_live_paths_measurement_on_arrays_is_the_views_rule_to_the_bit(seed: int) -> None:
+    """What views_with_late runs (measured_from_arrays, rows gathered by key from the sensors'
+    arrays) against measured_displacements on the same bodies as views: bodies seen at only
+    one of the two times, bodies of no person, late bodies of nobody, some unseen or Inferred
+    joints; the same numbers, NaN rows for the late bodies without a measurement."""
+    rng = np.random.default_rng(200 + seed)
+
+    def sensor_bodies(sensor: str, ids: list[int], states: np.ndarray) -> SensorBodies:
+        world = rng.normal(size=(len(ids), JOINT_COUNT, 3))
+        world[rng.random(world.shape[:2]) < 0.05] = np.nan
+        arrays = BodyArrays(ids, world.astype(np.float32), states)
+        state = SensorState(sensor, "kinect_v2", "t", b"r", 30.0)
+        return SensorBodies(state, np.eye(4), arrays, world)
+
+    def states_of(count: int) -> np.ndarray:
+        states = np.full((count, JOINT_COUNT), 2, np.uint8)
+        states[rng.random(states.shape) < 0.1] = 1
+        return states
+
+    now, then = [], []
+    for sensor in "acd":
+        ids = [int(i) for i in rng.permutation(8)[: rng.integers(1, 6)]]
+        now.append(sensor_bodies(sensor, ids, states_of(len(ids))))
+        kept = [i for i in ids if rng.random() < 0.8] or ids[:1]  # some only at the instant
+        then.append(sensor_bodies(sensor, kept, states_of(len(kept))))
+    late_ids = [int(i) for i in rng.permutation(9)[:5]]
+    newest = [sensor_bodies("b", late_ids, states_of(len(late_ids)))]
+    members = {
+        (b.sensor.sensor_id, i): (int(rng.integers(0, 4)), bool(rng.random() < 0.4))
+        for b in now + newest
+        for i in b.bodies.tracking_ids
+        if rng.random() < 0.85  # some bodies were nobody at the last step
+    }
+
+    def views(bodies: list[SensorBodies]) -> dict[tuple[str, int], View]:
+        return {
+            (b.sensor.sensor_id, i): View(b.sensor.sensor_id, i, b.world[k], b.bodies.states[k])
+            for b in bodies
+            for k, i in enumerate(b.bodies.tracking_ids)
+        }
+
+    late_keys = [("b", i) for i in late_ids]
+    want = measured_displacements(late_keys, members, views(then), views(now))
+    got = measured_from_arrays(newest, members, now, then)
+    assert got.shape == (len(late_ids), JOINT_COUNT, 3)
+    for row, key in enumerate(late_keys):
+        if key in want:
+            assert got[row].tobytes() == want[key].tobytes(), key
+        else:
+            assert np.isnan(got[row]).all(), key
 
 
 def test_a_late_view_carried_by_the_on_time_views_needs_no_filter() -> None:
