@@ -178,10 +178,17 @@ def warm_up() -> float:
 
     kernels_stages.warm_up()
     # The bone observation's medians and the Kalman correction: they run once warmed.
-    from skelfuse.fusion import kernels_filter, kernels_median, kernels_observe, kernels_trunks
+    from skelfuse.fusion import (
+        kernels_filter,
+        kernels_median,
+        kernels_motion,
+        kernels_observe,
+        kernels_trunks,
+    )
 
     kernels_observe.warm_up()  # callers check warmed() (and enabled())
     kernels_filter.warm_up()
     kernels_median.warm_up()
     kernels_trunks.warm_up()
+    kernels_motion.warm_up()
     return time.perf_counter() - start

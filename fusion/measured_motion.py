@@ -15,6 +15,7 @@ from collections.abc import Iterable, Mapping
 import numpy as np
 import numpy.typing as npt
 
+from skelfuse.fusion import kernels, kernels_motion
 from skelfuse.fusion.identity import ViewKey
 from skelfuse.fusion.views import View
 from skelfuse.fusion.world_views import SensorBodies
@@ -72,11 +73,25 @@ def _displacements(
     world joints and states at the instant (rows ``0..K-1``, (2K, 25, 3) and (2K, 25)) and at
     the late frame's capture (rows ``K..2K-1``): (L, 25, 3) metres, row by row ``late_keys``,
     all NaN for a body without a measurement; and which bodies have one."""
-    # Each person's views, in their order (dicts keep it).
-    rows_of: dict[int, list[int]] = {}
-    for row, key in enumerate(keys):
-        rows_of.setdefault(members[key][0], []).append(row)
+    # Each person's views, in their order (dicts keep it); persons numbered as they appear.
+    group_index: dict[int, int] = {}
+    group_of = [group_index.setdefault(members[key][0], len(group_index)) for key in keys]
+    # Each late body's person's number (len(group_index): none) and whether it is swapped back.
+    unseen = len(group_index)
+    rows: list[int] = []
+    swapped: list[bool] = []
+    for key in late_keys:
+        person = members.get(key)
+        at = None if person is None else group_index.get(person[0])
+        rows.append(unseen if at is None else at)
+        swapped.append(at is not None and person is not None and person[1])
+    has = [at != unseen for at in rows]
     labels = np.array([members[k][1] for k in keys])
+    if kernels.enabled() and kernels_motion.warmed():  # the same bits in one loop
+        moved = kernels_motion.person_displacements(
+            joints, states, np.array(group_of), labels, np.array(rows), np.array(swapped, bool)
+        )
+        return moved, has
     count = len(keys)
     # An Inferred joint is the sensor's guess, not a measurement: its motion is not used.
     tracked = (states[:count] == _TRACKED) & (states[count:] == _TRACKED)
@@ -87,32 +102,25 @@ def _displacements(
     # Per person, its views in their order, padded with NaN (unseen) to the most views one has,
     # summed row after row: the sum over the person's rows alone, to the bit (np.add.reduceat
     # adds in another order).
-    groups = list(rows_of.values())
+    groups: list[list[int]] = [[] for _ in range(unseen)]
+    for row, group in enumerate(group_of):
+        groups[group].append(row)
     padded = np.full((len(groups), max(map(len, groups)), JOINT_COUNT, 3), np.nan)
     padded[
-        [g for g, rows in enumerate(groups) for _ in rows],
-        [w for rows in groups for w in range(len(rows))],
-    ] = canonical[[row for rows in groups for row in rows]]
+        [g for g, members_rows in enumerate(groups) for _ in members_rows],
+        [w for members_rows in groups for w in range(len(members_rows))],
+    ] = canonical[[row for members_rows in groups for row in members_rows]]
     finite = np.isfinite(padded)
     seen = finite.sum(axis=1)
     total = np.where(finite, padded, 0.0).sum(axis=1)
     means = np.where(seen > 0, total / np.maximum(seen, 1), np.nan)
-    row_of = {person: k for k, person in enumerate(rows_of)}
     # Each late body's person's row (an all-NaN row past the persons' for none), gathered at
     # once; a body labelled True takes it swapped back.
-    unseen = len(groups)
-    rows: list[int] = []
-    swapped: list[int] = []
-    for row, key in enumerate(late_keys):
-        person = members.get(key)
-        at = None if person is None else row_of.get(person[0])
-        rows.append(unseen if at is None else at)
-        if at is not None and person is not None and person[1]:
-            swapped.append(row)
     out: FloatArray = np.concatenate([means, _UNSEEN[None]])[rows]
-    if swapped:
-        out[swapped] = out[swapped][:, _MIRROR]
-    return out, [at != unseen for at in rows]
+    flipped = [row for row, swap in enumerate(swapped) if swap]
+    if flipped:
+        out[flipped] = out[flipped][:, _MIRROR]
+    return out, has
 
 
 def measured_from_arrays(

@@ -1,0 +1,130 @@
+"""The ``views`` predictor's measurement as one compiled loop (numba).
+
+:func:`skelfuse.fusion.measured_motion.measured_from_arrays` averages, at every instant with a
+late sensor, how far each person's on-time views moved between the late frame's capture and
+the instant: in numpy some twenty calls on (views, 25, 3) arrays (a mask, a difference, a
+mirror gather, a padded per-person stack and its sums, a gather per late body), 110 µs at
+4 sensors × 6 people, nearly all of it the calls' fixed cost. Here one loop does the same IEEE
+operations in the same order: per joint coordinate, the difference where both times are
+Tracked, added view after view to 0.0 in the person's view order (numpy's sum over the stacked
+views starts from 0.0 and adds them in that order; its padding adds 0.0, which changes no sum
+that starts from 0.0), divided by the count of finite terms. So the same bits
+(tests/unit/test_kernels_motion.py).
+
+As :mod:`skelfuse.fusion.kernels_observe`: the loop runs only once :func:`warm_up` has compiled
+it, so no frame waits for a compilation; until then, and with the kernels off, numpy runs.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from skelfuse.fusion.kernels_jit import Warmed, jit, plain
+from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION, TrackingState
+
+FloatArray = npt.NDArray[np.float64]
+IndexArray = npt.NDArray[np.intp]
+
+_MIRROR = np.array(MIRROR_PERMUTATION, dtype=np.intp)
+_TRACKED = int(TrackingState.TRACKED)
+
+warmed = Warmed()
+"""Whether :func:`warm_up` has run: see :class:`~skelfuse.fusion.kernels_jit.Warmed`."""
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) the loop now; a no-op with the kernels off."""
+    joints = np.zeros((2, JOINT_COUNT, 3))
+    states = np.full((2, JOINT_COUNT), _TRACKED, dtype=np.uint8)
+    one = np.zeros(1, dtype=np.intp)
+    person_displacements(joints, states, one, np.zeros(1, dtype=bool), one, np.ones(1, dtype=bool))
+    warmed.done = True
+
+
+def person_displacements(
+    joints: FloatArray,
+    states: npt.NDArray[np.uint8],
+    group_of: IndexArray,
+    labels: npt.NDArray[np.bool_],
+    late_group: IndexArray,
+    late_swapped: npt.NDArray[np.bool_],
+) -> FloatArray:
+    """Per late body, its person's mean displacement over that person's on-time views.
+
+    Args:
+        joints: (2K, 25, 3) world metres: the K on-time bodies at the instant (rows ``0..K-1``)
+            and at the late frame's capture (rows ``K..2K-1``).
+        states: (2K, 25) tracking states, the same rows.
+        group_of: (K,) each on-time body's person, numbered 0.. in order of first appearance.
+        labels: (K,) each on-time body's mirror label (True: its left and right are swapped
+            into the person's order of a body labelled False).
+        late_group: (L,) each late body's person number, or any number outside
+            ``group_of``'s for a body without a measurement (its row is all NaN).
+        late_swapped: (L,) whether a late body is labelled True (its row is swapped back).
+
+    Returns:
+        (L, 25, 3) metres, NaN where no view of the person has the joint Tracked at both times.
+    """
+    groups = int(group_of.max()) + 1 if len(group_of) else 0
+    out = np.empty((len(late_group), JOINT_COUNT, 3))
+    means = np.empty((groups + 1, JOINT_COUNT, 3))
+    _displacements_loop(
+        plain(joints),
+        plain(states, np.uint8),
+        plain(group_of, np.intp),
+        plain(labels, np.bool_),
+        plain(late_group, np.intp),
+        plain(late_swapped, np.bool_),
+        _MIRROR,
+        _TRACKED,
+        means,
+        out,
+    )
+    return out
+
+
+@jit
+def _displacements_loop(  # pragma: no cover
+    joints: FloatArray,
+    states: npt.NDArray[np.uint8],
+    group_of: IndexArray,
+    labels: npt.NDArray[np.bool_],
+    late_group: IndexArray,
+    late_swapped: npt.NDArray[np.bool_],
+    mirror: IndexArray,
+    tracked: int,
+    means: FloatArray,
+    out: FloatArray,
+) -> None:
+    count = group_of.shape[0]
+    groups = means.shape[0] - 1  # the last row: no measurement
+    joints_n = means.shape[1]
+    for g in range(groups):
+        for j in range(joints_n):
+            for c in range(3):
+                total = 0.0
+                seen = 0
+                for k in range(count):
+                    if group_of[k] != g:
+                        continue
+                    # The view in the joint order of a body labelled False.
+                    source = mirror[j] if labels[k] else j
+                    if states[k, source] != tracked or states[count + k, source] != tracked:
+                        continue  # Inferred at either time: the sensor's guess, not measured
+                    moved = joints[k, source, c] - joints[count + k, source, c]
+                    if np.isfinite(moved):
+                        total += moved
+                        seen += 1
+                means[g, j, c] = total / max(seen, 1) if seen > 0 else np.nan
+    for j in range(joints_n):
+        for c in range(3):
+            means[groups, j, c] = np.nan
+    for row in range(late_group.shape[0]):
+        g = late_group[row]
+        if g < 0 or g >= groups:
+            g = groups
+        for j in range(joints_n):
+            source = mirror[j] if late_swapped[row] else j
+            for c in range(3):
+                out[row, j, c] = means[g, source, c]
