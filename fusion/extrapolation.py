@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from skelfuse.fusion import kernels, kernels_motion
 from skelfuse.fusion.identity import ViewKey
 from skelfuse.fusion.measured_motion import measured_from_arrays
 from skelfuse.fusion.moving import world_position
@@ -265,20 +266,18 @@ def _carried_late(
     counts = [len(b.bodies.tracking_ids) for b in newest]
     newest_worlds = np.concatenate([b.world for b in newest])
     reach, measured = moved
-    keys = [(b.sensor.sensor_id, body_id) for b in newest for body_id in b.bodies.tracking_ids]
     scales = [late[b.sensor.sensor_id] / reach if reach > 0.0 else 0.0 for b in newest]
     # Each body's measurement times its sensor's scale (B, 25, 3): the same products as one
     # body at a time.
     if measured is None:
         measured = np.full(newest_worlds.shape, np.nan)
-    carried = np.repeat(np.array(scales), counts)[:, None, None] * measured
-    seen = np.isfinite(carried)
-    worlds_seen = newest_worlds + np.where(seen, carried, 0.0)
+    worlds_seen, seen, whole = _carry(newest_worlds, np.repeat(np.array(scales), counts), measured)
     worlds: list[FloatArray] = list(worlds_seen)
     # Bodies with a joint the on-time views did not see: those joints by the filter's motion.
-    unseen = np.flatnonzero(~seen.all(axis=(1, 2))).tolist()
+    unseen = np.flatnonzero(~whole).tolist()
     if unseen:
         newest_s = np.repeat([b.sensor.frames[-1].t_server_s for b in newest], counts).tolist()
+        keys = [(b.sensor.sensor_id, body) for b in newest for body in b.bodies.tracking_ids]
         for row in unseen:
             world = carried_by_motion(
                 newest_worlds[row], predictor.motions.get(keys[row]), newest_s[row], t_s
@@ -291,3 +290,18 @@ def _carried_late(
         out[b.sensor.sensor_id] = worlds[lo : lo + count]
         lo += count
     return out
+
+
+def _carry(
+    worlds: FloatArray, scales: FloatArray, measured: FloatArray
+) -> tuple[FloatArray, npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
+    """Late bodies (B, 25, 3) world metres carried by ``scales`` (B,) × ``measured`` (B, 25, 3)
+    where that is finite: the carried joints, where it was finite, and whether it was at every
+    joint of a body ((B, 25, 3), (B, 25, 3), (B,)); the rule of
+    :func:`~skelfuse.fusion.kernels_motion.carried_worlds`, which runs when warmed."""
+    if kernels.enabled() and kernels_motion.warmed():  # the same bits in one loop
+        return kernels_motion.carried_worlds(worlds, scales, measured)
+    carried = scales[:, None, None] * measured
+    seen: npt.NDArray[np.bool_] = np.isfinite(carried)
+    whole = np.asarray(seen.all(axis=(1, 2)))
+    return worlds + np.where(seen, carried, 0.0), seen, whole

@@ -38,7 +38,10 @@ def warm_up() -> None:
     joints = np.zeros((2, JOINT_COUNT, 3))
     states = np.full((2, JOINT_COUNT), _TRACKED, dtype=np.uint8)
     one = np.zeros(1, dtype=np.intp)
-    person_displacements(joints, states, one, np.zeros(1, dtype=bool), one, np.ones(1, dtype=bool))
+    moved = person_displacements(
+        joints, states, one, np.zeros(1, dtype=bool), one, np.ones(1, dtype=bool)
+    )
+    carried_worlds(joints[:1], np.ones(1), moved)
     warmed.done = True
 
 
@@ -128,3 +131,48 @@ def _displacements_loop(  # pragma: no cover
             source = mirror[j] if late_swapped[row] else j
             for c in range(3):
                 out[row, j, c] = means[g, source, c]
+
+
+def carried_worlds(
+    worlds: FloatArray, scales: FloatArray, measured: FloatArray
+) -> tuple[FloatArray, npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
+    """Late bodies carried by their scaled measurement where it is known.
+
+    Args:
+        worlds: (B, 25, 3) the late bodies' newest joints, world metres.
+        scales: (B,) each body's share of the measurement (its sensor's horizon over the
+            furthest-late one's).
+        measured: (B, 25, 3) metres, :func:`person_displacements`' answer (NaN: not measured).
+
+    Returns:
+        The carried joints (B, 25, 3), ``worlds + scale × measured`` where that product is
+        finite and ``worlds + 0.0`` elsewhere; where it is finite, (B, 25, 3); and whether it
+        is finite at every joint of a body, (B,).
+    """
+    out = np.empty(worlds.shape)
+    seen = np.empty(worlds.shape, dtype=np.bool_)
+    whole = np.empty(worlds.shape[0], dtype=np.bool_)
+    _carried_loop(plain(worlds), plain(scales), plain(measured), out, seen, whole)
+    return out, seen, whole
+
+
+@jit
+def _carried_loop(  # pragma: no cover
+    worlds: FloatArray,
+    scales: FloatArray,
+    measured: FloatArray,
+    out: FloatArray,
+    seen: npt.NDArray[np.bool_],
+    whole: npt.NDArray[np.bool_],
+) -> None:
+    for b in range(worlds.shape[0]):
+        every = True
+        for j in range(worlds.shape[1]):
+            for c in range(3):
+                carried = scales[b] * measured[b, j, c]
+                finite = np.isfinite(carried)
+                # + 0.0 where unknown, as numpy's where-then-add does (-0.0 becomes +0.0).
+                out[b, j, c] = worlds[b, j, c] + (carried if finite else 0.0)
+                seen[b, j, c] = finite
+                every = every and finite
+        whole[b] = every

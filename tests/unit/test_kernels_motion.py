@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from skelfuse.fusion import kernels, kernels_motion, measured_motion
+from skelfuse.fusion import extrapolation, kernels, kernels_motion, measured_motion
 from skelfuse.fusion.identity import ViewKey
 from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION, TrackingState
 
@@ -102,3 +102,29 @@ def test_the_rule_body_by_body(numba_kernels: None) -> None:
                     assert got[row, j, c] == pytest.approx(np.mean(finite), rel=1e-12, abs=1e-15)
                 else:
                     assert np.isnan(got[row, j, c])
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_compiled_carry_is_the_numpy_carry(numba_kernels: None, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    bodies = int(rng.integers(1, 80))
+    worlds = rng.normal(0.0, 2.0, (bodies, JOINT_COUNT, 3))
+    worlds[rng.random(worlds.shape) < 0.05] = -0.0  # + 0.0 where unmeasured: +0.0
+    measured = rng.normal(0.0, 0.02, worlds.shape)
+    measured[rng.random(measured.shape) < 0.1] = np.nan
+    measured[rng.random(measured.shape) < 0.02] = np.inf
+    measured[rng.random(measured.shape) < 0.02] = -0.0
+    if bodies > 1:
+        measured[1] = 0.001  # a body measured at every joint
+    scales = rng.uniform(0.0, 1.0, bodies)
+    scales[rng.random(bodies) < 0.2] = 0.0  # 0 × inf: NaN, unmeasured
+    with kernels.forced("numpy"), np.errstate(invalid="ignore"):
+        want = extrapolation._carry(worlds, scales, measured)
+    got = kernels_motion.carried_worlds(worlds, scales, measured)
+    for mine, numpy_s in zip(got, want, strict=True):
+        assert mine.dtype == numpy_s.dtype
+        assert mine.tobytes() == numpy_s.tobytes()
+    assert got[2].any() == (bodies > 1)
+    assert not got[2].all()  # some bodies have an unmeasured joint
+    with np.errstate(invalid="ignore"):  # the kernel ran: the same through the dispatcher
+        assert extrapolation._carry(worlds, scales, measured)[0].tobytes() == want[0].tobytes()
