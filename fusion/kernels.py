@@ -180,6 +180,7 @@ def warm_up() -> float:
     # The bone observation's medians and the Kalman correction: they run once warmed.
     from skelfuse.fusion import (
         kernels_filter,
+        kernels_lerp,
         kernels_median,
         kernels_motion,
         kernels_observe,
@@ -191,4 +192,5 @@ def warm_up() -> float:
     kernels_median.warm_up()
     kernels_trunks.warm_up()
     kernels_motion.warm_up()
+    kernels_lerp.warm_up()
     return time.perf_counter() - start

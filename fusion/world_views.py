@@ -26,6 +26,7 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
+from skelfuse.fusion import kernels, kernels_lerp
 from skelfuse.fusion.moving import world_position
 from skelfuse.fusion.points import finite_points
 from skelfuse.fusion.sensors import BodyArrays, SensorState, TimedFrame, body_arrays_at
@@ -180,11 +181,21 @@ def _interpolate_pending(items: list[BodyArrays | _Pending]) -> list[BodyArrays]
     if not pending:
         return [item for item in items if isinstance(item, BodyArrays)]
     counts = [len(item.nearer.tracking_ids) for item in pending]
-    a = np.concatenate([item.first.joints_m for item in pending], dtype=np.float64)
-    b = np.concatenate([item.second.joints_m for item in pending], dtype=np.float64)
     first_states = np.concatenate([item.first.states for item in pending])
     second_states = np.concatenate([item.second.states for item in pending])
-    alpha = np.repeat(np.array([item.alpha for item in pending]), counts)[:, None, None]
+    alphas = np.repeat(np.array([item.alpha for item in pending]), counts)
+    first = np.concatenate([item.first.joints_m for item in pending])
+    second = np.concatenate([item.second.joints_m for item in pending])
+    # The loop reads float32, as frames hold them (a float64 array from elsewhere takes numpy).
+    exact = first.dtype == second.dtype == np.float32
+    if exact and kernels.enabled() and kernels_lerp.warmed():  # the same bits in one loop
+        joints32, states = kernels_lerp.interpolated_rows(
+            first, second, first_states, second_states, alphas
+        )
+        return _split(items, joints32, states)
+    a = first.astype(np.float64)
+    b = second.astype(np.float64)
+    alpha = alphas[:, None, None]
     joints = (1.0 - alpha) * a + alpha * b
     states = np.minimum(first_states, second_states)
     # Finite only if every position of both frames is (NaN and inf propagate): the usual case
@@ -197,7 +208,16 @@ def _interpolate_pending(items: list[BodyArrays | _Pending]) -> list[BodyArrays]
         joints = np.where(missing[..., None], np.where(later[..., None], b, a), joints)
         states = np.where(missing, np.where(later, second_states, first_states), states)
         states[~finite_points(joints)] = TrackingState.NOT_TRACKED
-    joints32 = joints.astype(np.float32)
+    return _split(items, joints.astype(np.float32), states)
+
+
+def _split(
+    items: list[BodyArrays | _Pending],
+    joints32: npt.NDArray[np.float32],
+    states: npt.NDArray[np.uint8],
+) -> list[BodyArrays]:
+    """``items`` with each pending one replaced by its rows of the interpolated ``joints32``
+    (N, 25, 3) and ``states`` (N, 25), in order."""
     done: list[BodyArrays] = []
     lo = 0
     for item in items:
