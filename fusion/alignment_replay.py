@@ -15,6 +15,24 @@ import numpy.typing as npt
 
 FloatArray = npt.NDArray[np.float64]
 
+REPLAYED_AT_ONCE = 65_536
+"""At most this many (candidate, sensor, frame) elements replayed together, the candidates
+split evenly: the temporaries then stay in the cache. 129 candidates of 16 sensors × 60
+frames (the re-phase of 16 sensors at 30 fps): ``replayed_horizons`` 4.1–5.0 → 2.6 ms in two
+parts, ``replayed_waits`` 1.7–3.0 → 1.8 ms; 4 or 10 sensors stay in one part. The same bits:
+each candidate's sums are its own."""
+
+
+def _parts(phases_s: FloatArray, captures_s: FloatArray) -> list[FloatArray]:
+    """``phases_s`` split evenly into parts of at most :data:`REPLAYED_AT_ONCE` elements (one
+    candidate a part when a single one has more)."""
+    most = max(1, REPLAYED_AT_ONCE // max(captures_s.size, 1))  # candidates in one part
+    count = -(-len(phases_s) // most)
+    if count <= 1:
+        return [phases_s]
+    size = -(-len(phases_s) // count)  # at most ``most``, the parts as even as can be
+    return [phases_s[lo : lo + size] for lo in range(0, len(phases_s), size)]
+
 
 def circular_phase(times_s: Sequence[float], period_s: float) -> float:
     """The mean phase of ``times_s`` modulo ``period_s`` (seconds in [0, period)), as the angle
@@ -48,6 +66,9 @@ def replayed_waits(
     Returns:
         (C,) mean wait per candidate, seconds.
     """
+    parts = _parts(phases_s, captures_s)
+    if len(parts) > 1:
+        return np.concatenate([replayed_waits(p, captures_s, delays_s, periods_s) for p in parts])
     ahead = np.mod(captures_s[None] - phases_s[:, None, None], periods_s[None, :, None])
     waits: FloatArray = (ahead + delays_s[None]).max(axis=1).mean(axis=1)
     return waits
@@ -72,6 +93,13 @@ def replayed_horizons(
         (C,) the mean wait for the last on-time sensor (seconds; 0 when all are late);
         (C, S) the share of frames in which each sensor was late.
     """
+    parts = _parts(phases_s, captures_s)
+    if len(parts) > 1:
+        replayed = [
+            replayed_horizons(p, captures_s, delays_s, periods_s, deadline_s) for p in parts
+        ]
+        costs, waits_, shares_ = zip(*replayed, strict=True)
+        return np.concatenate(costs), np.concatenate(waits_), np.concatenate(shares_)
     ahead = np.mod(captures_s[None] - phases_s[:, None, None], periods_s[None, :, None])
     seen = ahead + delays_s[None]
     late = seen > deadline_s

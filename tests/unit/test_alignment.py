@@ -16,8 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from skelfuse.fusion import alignment_replay
 from skelfuse.fusion.alignment import Alignment, SensorTiming
-from skelfuse.fusion.alignment_replay import circular_phase, replayed_waits
+from skelfuse.fusion.alignment_replay import circular_phase, replayed_horizons, replayed_waits
 from skelfuse.fusion.config import FusionConfigError, fusion_settings_from_mapping
 from skelfuse.fusion.extrapolation import extrapolated_bodies
 from skelfuse.fusion.hub import FusedFrame, FusionHub
@@ -417,3 +418,29 @@ def test_the_toml_settings_are_checked() -> None:
     message = str(caught.value)
     for key in ("alignment:", "alignment_deadline_s:", "alignment_max_extrapolation_s:"):
         assert key in message
+
+
+@pytest.mark.parametrize("budget", [1, 600, 7_000, 65_536])
+def test_replays_in_parts_give_the_bits_of_all_at_once(
+    monkeypatch: pytest.MonkeyPatch, budget: int
+) -> None:
+    """The candidates are replayed a few at a time to keep the arrays in the cache: every part
+    size (down to one candidate, and a last part shorter than the others) gives the same
+    answers as one pass over all of them."""
+    rng = np.random.default_rng(budget)
+    phases = rng.uniform(0.0, 1 / 30, 129)
+    periods = rng.choice([1 / 30, 1 / 15, 1 / 60], 16)
+    captures = rng.uniform(0.0, 1 / 30, (16, 60)) % periods[:, None]
+    delays = rng.uniform(0.0, 0.02, (16, 60))
+    monkeypatch.setattr(alignment_replay, "REPLAYED_AT_ONCE", 10**9)
+    want = (*replayed_horizons(phases, captures, delays, periods, 0.007),)
+    want_waits = replayed_waits(phases, captures, delays, periods)
+    monkeypatch.setattr(alignment_replay, "REPLAYED_AT_ONCE", budget)
+    parts = alignment_replay._parts(phases, captures)
+    assert np.concatenate(parts).tobytes() == phases.tobytes()
+    assert len(parts) == 129 if budget < 960 else len(parts) > 1  # every budget here splits
+    assert all(len(p) * 960 <= max(budget, 960) for p in parts)
+    got = replayed_horizons(phases, captures, delays, periods, 0.007)
+    assert [a.shape for a in got] == [(129,), (129,), (129, 16)]
+    assert all(a.tobytes() == b.tobytes() for a, b in zip(got, want, strict=True))
+    assert replayed_waits(phases, captures, delays, periods).tobytes() == want_waits.tobytes()
