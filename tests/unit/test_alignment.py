@@ -444,3 +444,29 @@ def test_replays_in_parts_give_the_bits_of_all_at_once(
     assert [a.shape for a in got] == [(129,), (129,), (129, 16)]
     assert all(a.tobytes() == b.tobytes() for a, b in zip(got, want, strict=True))
     assert replayed_waits(phases, captures, delays, periods).tobytes() == want_waits.tobytes()
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_replays_are_the_rule_written_plainly(seed: int) -> None:
+    """The replays work two arrays in place; the answers are those of the rule written with a
+    fresh array per step (as it was), to the bit, ties at the deadline and zero phases included."""
+    rng = np.random.default_rng(seed)
+    sensors, frames = int(rng.integers(1, 17)), int(rng.integers(1, 61))
+    periods = rng.choice([1 / 30, 1 / 15, 1 / 60], sensors)
+    captures = rng.uniform(0.0, 0.05, (sensors, frames)) % periods[:, None]
+    delays = rng.uniform(0.0, 0.02, (sensors, frames))
+    phases = np.concatenate([rng.uniform(0.0, 1 / 30, 40), captures[0, :3]])  # ahead = 0
+    delays[0, :3] = 0.007  # seen exactly at the deadline when ahead is 0: on time
+    ahead = np.mod(captures[None] - phases[:, None, None], periods[None, :, None])
+    seen = ahead + delays[None]
+    late = seen > 0.007
+    horizon = np.where(late, periods[None, :, None] - ahead, 0.0)
+    want = (
+        (horizon**2).sum(axis=1).mean(axis=1),
+        np.where(late, 0.0, seen).max(axis=1).mean(axis=1),
+        late.mean(axis=2),
+    )
+    got = replayed_horizons(phases, captures, delays, periods, 0.007)
+    assert all(a.tobytes() == b.tobytes() for a, b in zip(got, want, strict=True))
+    plain_waits = (ahead + delays[None]).max(axis=1).mean(axis=1)
+    assert replayed_waits(phases, captures, delays, periods).tobytes() == plain_waits.tobytes()
