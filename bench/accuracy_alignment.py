@@ -72,6 +72,9 @@ ALL_POLICIES: dict[str, FusionSettings] = {
     "views 12 ms": replace(VIEWS, alignment_deadline_s=0.012),
     "views 15 ms": replace(VIEWS, alignment_deadline_s=0.015),
     "views no skip 10 ms": replace(VIEWS, alignment_skip_expected_late=False),
+    # ... without the fall-back to ``phased``'s wait on a jittery link (before 2026-11-24).
+    "views 7 ms no fallback": replace(VIEWS, alignment_jitter_fallback_s=0.0),
+    "views 7 ms fallback 3 ms": replace(VIEWS, alignment_jitter_fallback_s=0.003),
 }
 """Every policy the bench knows (the extrapolation bound is the default's, 34 ms, for every
 one); ``--policies`` picks some (``aligned`` always runs: the differences are against it)."""

@@ -26,7 +26,10 @@ when each live sensor's newest frame was captured, whether the next instant can 
   frames after they arrive (an uncalibrated lag) must not leave the rest out.
   With ``wait_for_phase`` there is no deadline until the grid's phase is first chosen (about
   a second): the grid the first frames put is anywhere against the sensors' phases, and a
-  deadline there carries late sensors by up to a period.
+  deadline there carries late sensors by up to a period. With ``jitter_fallback_s`` there is
+  none either while the sensors' delivery delays scatter wider than that (a jittery link, such
+  as Wi-Fi): a sensor expected on time then misses the deadline at random and is carried most
+  of a period; the policy waits as ``phased`` does until the scatter settles.
 
 Pure logic on times: nothing here reads a clock (the hub passes ``now_s``, server clock, Unix
 seconds), so tests drive it with a clock of their own.
@@ -68,6 +71,9 @@ mapping is still settling (a grid chosen from them measured worse than phase 0).
 EXPECTED_LATE_SHARE = 0.5
 """``skip_expected_late``: a sensor late in more than this share of the replayed frames is not
 waited for."""
+JITTER_SETTLED_SHARE = 2 / 3
+"""``jitter_fallback_s``: the deadline comes back once the delays' scatter is below this share of
+the threshold that took it away (hysteresis: the scatter of 60 frames is itself noisy)."""
 HORIZON_TIE_S = 1e-4
 """``grid = "horizon"``: the replayed wait (seconds) counts this much (seconds², per second of
 wait) beside the squared horizons, so that among grids as good for extrapolation (every sensor
@@ -137,6 +143,10 @@ class Alignment:
         skip_expected_late: ``deadline``: do not wait for sensors expected late.
         wait_for_phase: ``deadline``: until the grid's phase is first chosen (every sensor has
             :data:`PHASE_MIN_SAMPLES` frames), wait for every sensor as ``phased`` does.
+        jitter_fallback_s: ``deadline``: while the sensors' delivery delays scatter wider than
+            this (seconds; the median over sensors of each one's p90 − p10 over its last
+            :data:`PHASE_SAMPLES` frames, taken at each re-phase), wait for every sensor as
+            ``phased`` does, on ``phased``'s grid; 0: never.
     """
 
     def __init__(
@@ -148,11 +158,18 @@ class Alignment:
         grid: Grid = "wait",
         skip_expected_late: bool = False,
         wait_for_phase: bool = False,
+        jitter_fallback_s: float = 0.0,
     ) -> None:
         self.policy = policy
         self.grid: Grid = grid if policy == "deadline" else "wait"
         self.skip_expected_late = skip_expected_late and policy == "deadline"
         self.wait_for_phase = wait_for_phase
+        self.jitter_fallback_s = jitter_fallback_s if policy == "deadline" else 0.0
+        self.jittery = False
+        """``jitter_fallback_s``: the delays scatter too wide for a deadline (re-judged with the
+        phase): instants wait for every sensor as under ``phased``."""
+        self.delay_spread_s: float | None = None
+        """The delays' scatter at the last re-phase (seconds), once measured."""
         self.expected_late: frozenset[str] = frozenset()
         """``skip_expected_late``: the sensors the pending instants do not wait for (late in
         most replayed frames at the chosen phase); re-chosen with the phase."""
@@ -173,6 +190,7 @@ class Alignment:
         return cls(
             s.alignment, output_hz, s.alignment_deadline_s, s.alignment_max_extrapolation_s,
             s.alignment_grid, s.alignment_skip_expected_late, s.alignment_wait_for_phase,
+            s.alignment_jitter_fallback_s,
         )  # fmt: skip
 
     @property
@@ -201,7 +219,7 @@ class Alignment:
         self._observe(sensors, now_s)
         period = self.period_s
         fusable = ready_until
-        if self.policy == "deadline":
+        if self._deadline_on():
             fusable = max(ready_until, now_s - self.deadline_s)
         next_t = self._grid_point(self._last_t + period)
         if next_t < fusable - 2 * period:  # start, or resync after a stall
@@ -209,7 +227,7 @@ class Alignment:
         if next_t > ready_until:
             # Until the sensors' phases are known the grid is where the first frames put it, and
             # a deadline there carries late sensors by up to a period: wait as ``phased`` does.
-            if self.policy != "deadline" or self._settling():
+            if not self._deadline_on() or self._settling():
                 self._due_s = None
                 return None
             waited = [s.newest_s for s in sensors if s.sensor_id not in self.expected_late]
@@ -261,13 +279,37 @@ class Alignment:
         self._last_t = instant.t_s
         following = self._grid_point(instant.t_s + period)
         self._due_s = None
-        if self.policy == "deadline" and not self._settling():
+        if self._deadline_on() and not self._settling():
             self._due_s = following + self.deadline_s
         return instant
+
+    def _deadline_on(self) -> bool:
+        """``deadline``, and the delays not scattered too wide for one (``jitter_fallback_s``)."""
+        return self.policy == "deadline" and not self.jittery
 
     def _settling(self) -> bool:
         """``wait_for_phase``: the grid's phase has not been chosen yet (no deadline)."""
         return self.wait_for_phase and self._next_rephase_s == -math.inf
+
+    def jitter_report(self) -> str:
+        """What ``jitter_fallback_s`` decided at the last re-phase, in words (for the log)."""
+        spread_ms = 1e3 * (self.delay_spread_s or 0.0)
+        if self.jittery:
+            return (
+                f"delivery delays scatter {spread_ms:.1f} ms (over alignment_jitter_fallback_s): "
+                "waiting for every sensor, as alignment = 'phased', until they settle"
+            )
+        return f"delivery delays settled ({spread_ms:.1f} ms): the deadline is back"
+
+    def _judge_jitter(self, delays: FloatArray) -> None:
+        """``jitter_fallback_s``: whether the delays (S, frames), seconds, scatter too wide for a
+        deadline: the median over sensors of each one's p90 − p10, with hysteresis."""
+        if self.jitter_fallback_s <= 0.0:
+            return
+        spreads = np.percentile(delays, 90, axis=1) - np.percentile(delays, 10, axis=1)
+        self.delay_spread_s = spread = float(np.median(spreads))
+        settled = self.jitter_fallback_s * (JITTER_SETTLED_SHARE if self.jittery else 1.0)
+        self.jittery = spread > settled
 
     def _late_instant(self, t_s: float, sensors: Sequence[SensorTiming]) -> Instant:
         late: list[tuple[str, float]] = []
@@ -319,7 +361,8 @@ class Alignment:
             for sign in signs
         ]
         phases = np.array([*candidates, self.phase_s])
-        if self.grid == "wait":
+        self._judge_jitter(delays)
+        if self.grid == "wait" or self.jittery:
             waits = replayed_waits(phases, captures, delays, periods)
             best = int(np.argmin(waits[:-1]))
             if waits[best] < waits[-1] - REPHASE_GAIN_S:

@@ -364,9 +364,12 @@ class FusionHub:
         rate however many sensors there are; each sensor contributes a sample interpolated (late
         at a deadline: extrapolated) to exactly that instant."""
         s = self.settings
+        jittery = self.alignment.jittery
         instant = self.alignment.next_instant(
             live_timings(self.sensors.values(), now_s, s.max_wait_s), now_s
         )
+        if self.alignment.jittery != jittery:  # judged once a second: each change logged
+            logger.warning(self.alignment.jitter_report())
         if instant is None:
             return None
         t_target = instant.t_s

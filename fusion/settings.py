@@ -216,9 +216,8 @@ class FusionSettings:
     ``alignment_deadline_s`` after the instant, late sensors carried forward: with the
     ``alignment_*`` defaults below +0.19 to +0.67 mm against ``aligned`` in those scenarios
     (mean of 3 runs each), and capture → client 12.0 / 16.6 ms p50 / p99 for 10 sensors at
-    random phases on a quiet machine (``phased`` 33.7 / 43.8; docs/benchmarks.md "Load"). On
-    links with delivery jitter ``phased`` is the safer choice: with 3 ms of jitter the default
-    costs +1.0 to +3.8 mm, ``phased`` +0.0 to +0.2 mm."""
+    random phases on a quiet machine (``phased`` 33.7 / 43.8; docs/benchmarks.md "Load"). On a
+    link with delivery jitter it waits as ``phased`` does (``alignment_jitter_fallback_s``)."""
     alignment_deadline_s: float = 0.007
     """``deadline``: an instant is fused at the latest this long after it (server clock,
     seconds); it must cover the agents' usual delivery delay (capture to the server). 7 ms:
@@ -252,6 +251,15 @@ class FusionSettings:
     second) instants wait for every sensor as under ``phased``; before, the grid is wherever the
     first frames put it and late sensors are carried by up to a period (in the accuracy
     scenarios that first second cost ~0.5 mm of MPJPE over a 6 s run)."""
+    alignment_jitter_fallback_s: float = 0.002
+    """``deadline``: while the sensors' delivery delays scatter wider than this (seconds: the
+    median over sensors of each one's p90 − p10 over its last 60 frames, judged once a second;
+    back under two thirds of it, the deadline returns), instants wait for every sensor as under
+    ``phased``. On such a link (Wi-Fi) a sensor expected on time misses the deadline at random
+    and is carried most of a period: with 1 or 3 ms of exponential delivery jitter the deadline
+    cost +0.2 to +1.6 / +1.0 to +3.7 mm against ``aligned``, with this fall-back +0.0 to +0.3
+    / −0.0 to +0.2 mm (docs/benchmarks.md "Alignment policies"). Loopback scatters ~0.5 ms.
+    0: never."""
 
 
 @dataclass(frozen=True, slots=True)
