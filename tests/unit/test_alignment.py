@@ -7,6 +7,7 @@ fusion loop waking on the deadline (server/ingest.py)."""
 from __future__ import annotations
 
 import asyncio
+import logging
 import math
 import time
 from collections import deque
@@ -565,3 +566,44 @@ def test_the_fallback_has_hysteresis_and_can_be_turned_off() -> None:
 def test_the_jitter_fallback_is_checked(value: float) -> None:
     with pytest.raises(FusionConfigError, match="alignment_jitter_fallback_s"):
         fusion_settings_from_mapping({"alignment_jitter_fallback_s": value})
+
+
+def test_the_hub_falls_back_on_a_jittery_link_says_so_and_comes_back(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """End to end through the hub with the default settings: 3 ms of exponential delivery
+    jitter takes the deadline away (no sensor carried, a warning naming the scatter), steady
+    delivery brings it back (and says so)."""
+    hub = hub_with_sensors(Settings())
+    rng = np.random.default_rng(5)
+    seq = {"a": 0, "b": 0}
+
+    def run(start_s: float, seconds: float, jitter_s: float) -> list[FusedFrame]:
+        arrivals = []
+        for k in range(round(seconds / P)):
+            for name, phase in (("a", 0.002), ("b", 0.020)):
+                capture = start_s + k * P + phase
+                extra = float(rng.exponential(jitter_s)) if jitter_s else 0.0
+                arrivals.append((capture + 0.002 + extra, name, capture))
+        fused: list[FusedFrame] = []
+        for received, name, capture in sorted(arrivals):
+            due = hub.alignment.due_s
+            if due is not None and due <= received and (frame := hub.fuse_step(due)):
+                fused.append(frame)
+            seq[name] += 1
+            send(hub, name, seq[name], capture, received)
+            while frame := hub.fuse_step(received):
+                fused.append(frame)
+        return fused
+
+    steady = run(T0, 3.0, 0.0)
+    assert any(f.extrapolated for f in steady[-30:]), "steady: the deadline carries b"
+    with caplog.at_level(logging.WARNING, logger="skelfuse.fusion.hub"):
+        jittery = run(T0 + 3.0, 4.0, 0.003)
+    assert any("delivery delays scatter" in r.getMessage() for r in caplog.records)
+    assert not any(f.extrapolated for f in jittery[-60:]), "waiting as phased: nobody carried"
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="skelfuse.fusion.hub"):
+        settled = run(T0 + 7.0, 4.0, 0.0)
+    assert any("the deadline is back" in r.getMessage() for r in caplog.records)
+    assert any(f.extrapolated for f in settled[-30:])
