@@ -368,8 +368,8 @@ class FusionHub:
         instant = self.alignment.next_instant(
             live_timings(self.sensors.values(), now_s, s.max_wait_s), now_s
         )
-        if self.alignment.jittery != jittery:  # judged once a second: each change logged
-            logger.warning(self.alignment.jitter_report())
+        if self.alignment.jittery != jittery:  # judged once a second: each change noted
+            logger.info(self.alignment.jitter_report())
         if instant is None:
             return None
         t_target = instant.t_s

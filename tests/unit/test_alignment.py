@@ -572,7 +572,7 @@ def test_the_hub_falls_back_on_a_jittery_link_says_so_and_comes_back(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
     """End to end through the hub with the default settings: 3 ms of exponential delivery
-    jitter takes the deadline away (no sensor carried, a warning naming the scatter), steady
+    jitter takes the deadline away (no sensor carried, a log line naming the scatter), steady
     delivery brings it back (and says so)."""
     hub = hub_with_sensors(Settings())
     rng = np.random.default_rng(5)
@@ -598,12 +598,12 @@ def test_the_hub_falls_back_on_a_jittery_link_says_so_and_comes_back(
 
     steady = run(T0, 3.0, 0.0)
     assert any(f.extrapolated for f in steady[-30:]), "steady: the deadline carries b"
-    with caplog.at_level(logging.WARNING, logger="skelfuse.fusion.hub"):
+    with caplog.at_level(logging.INFO, logger="skelfuse.fusion.hub"):
         jittery = run(T0 + 3.0, 4.0, 0.003)
     assert any("delivery delays scatter" in r.getMessage() for r in caplog.records)
     assert not any(f.extrapolated for f in jittery[-60:]), "waiting as phased: nobody carried"
     caplog.clear()
-    with caplog.at_level(logging.WARNING, logger="skelfuse.fusion.hub"):
+    with caplog.at_level(logging.INFO, logger="skelfuse.fusion.hub"):
         settled = run(T0 + 7.0, 4.0, 0.0)
     assert any("the deadline is back" in r.getMessage() for r in caplog.records)
     assert any(f.extrapolated for f in settled[-30:])
