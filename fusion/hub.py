@@ -369,7 +369,7 @@ class FusionHub:
             live_timings(self.sensors.values(), now_s, s.max_wait_s), now_s
         )
         if self.alignment.jittery != jittery:  # judged once a second: each change noted
-            logger.info(self.alignment.jitter_report())
+            logger.warning(self.alignment.jitter_report())
         if instant is None:
             return None
         t_target = instant.t_s
