@@ -59,6 +59,9 @@ def mode() -> str:
 
 def enabled() -> bool:
     """Whether the compiled kernels run (numba importable and the mode allows it)."""
+    pinned: bool | None = getattr(_state, "enabled", None)  # inside :func:`forced`
+    if pinned is not None:  # (asked ~20 times a step: 0.1 µs instead of 0.6–1.2)
+        return pinned
     return mode() != "numpy" and numba_module() is not None
 
 
@@ -72,12 +75,16 @@ def forced(chosen: str) -> Iterator[None]:
     """
     if chosen not in MODES:
         raise ValueError(f"mode must be one of {', '.join(MODES)}, got {chosen!r}")
-    saved: str | None = getattr(_state, "mode", None)
+    saved: tuple[str | None, bool | None] = (
+        getattr(_state, "mode", None),
+        getattr(_state, "enabled", None),
+    )
     _state.mode = chosen
+    _state.enabled = chosen != "numpy" and numba_module() is not None
     try:
         yield
     finally:
-        _state.mode = saved
+        _state.mode, _state.enabled = saved
 
 
 def rom_factors_and_forward(

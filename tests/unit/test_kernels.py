@@ -87,6 +87,24 @@ def test_forcing_numpy_turns_the_kernels_off(monkeypatch: pytest.MonkeyPatch) ->
         kernels.forced("fortran").__enter__()
 
 
+def test_a_forced_mode_pins_whether_the_kernels_run(monkeypatch: pytest.MonkeyPatch) -> None:
+    """:func:`kernels.enabled` answers from the forced mode (pinned once per step), nested
+    blocks included, and the environment's answer comes back after them."""
+    require_numba()
+    monkeypatch.setenv(kernels.ENV, "auto")
+    assert kernels.enabled()
+    with kernels.forced("numpy"):
+        assert not kernels.enabled()
+        monkeypatch.setenv(kernels.ENV, "auto")  # pinned: the environment is not read
+        assert not kernels.enabled()
+        with kernels.forced("numba"):
+            assert kernels.enabled()
+        assert not kernels.enabled()
+    assert kernels.enabled()
+    monkeypatch.setenv(kernels.ENV, "numpy")
+    assert not kernels.enabled()
+
+
 def test_warm_up_compiles_every_kernel(numba_kernels: None) -> None:
     from skelfuse.fusion import kernels_bones, kernels_rom
 
@@ -189,8 +207,8 @@ def test_a_forced_mode_holds_in_its_own_thread_only(monkeypatch: pytest.MonkeyPa
     worker.start()
     assert inside.wait(5)
     try:
-        assert kernels.mode() == "numpy"
+        assert kernels.mode() == "numpy" and not kernels.enabled()
     finally:
         release.set()
         worker.join(5)
-    assert kernels.mode() == "numpy"
+    assert kernels.mode() == "numpy" and not kernels.enabled()
