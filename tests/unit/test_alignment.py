@@ -476,39 +476,44 @@ def test_replays_are_the_rule_written_plainly(seed: int) -> None:
 # --- the fall-back to phased's wait on a jittery link -------------------------------------------
 
 
-def _drive(
-    policy: Alignment, start_s: float, seconds: float, jitter_s: float, seed: int = 0
-) -> list[Instant]:
+class _Drive:
     """Two 30 fps sensors, captured 2 and 20 ms after the grid's phase 0, their frames seen 2 ms
-    after capture plus an exponential delay of mean ``jitter_s``; the policy asked at every
-    arrival and at its deadline, as the live loop does. The instants fused, in order (each
-    one's wait in ``_test_waits``)."""
-    rng = np.random.default_rng(seed)
-    arrivals: list[tuple[float, str, float]] = []
-    for k in range(round(seconds / P)):
-        for sensor, phase in (("a", 0.002), ("b", 0.020)):
-            capture = start_s + k * P + phase
-            extra = float(rng.exponential(jitter_s)) if jitter_s > 0 else 0.0
-            arrivals.append((capture + 0.002 + extra, sensor, capture))
-    arrivals.sort()
-    newest: dict[str, float] = getattr(policy, "_test_newest", {})
-    policy._test_newest = newest  # type: ignore[attr-defined]  # carried across drives
-    fused: list[Instant] = []
-    waits: list[float] = []
-    policy._test_waits = waits  # type: ignore[attr-defined]
+    after capture plus an exponential delay; ``policy`` asked at every arrival and at its
+    deadline, as the live loop does. What the sensors sent and each fused instant's wait carry
+    over from one :meth:`run` to the next."""
 
-    def ask(now_s: float) -> None:
-        while instant := policy.next_instant([timing(s, t) for s, t in newest.items()], now_s):
-            fused.append(instant)
-            waits.append(now_s - instant.t_s)
+    def __init__(self, policy: Alignment) -> None:
+        self.policy = policy
+        self.newest: dict[str, float] = {}
+        self.waits: list[float] = []
+        """Each fused instant's wait (seconds from the instant to its fusion), in order."""
 
-    for arrival, sensor, capture in arrivals:
-        due = policy.due_s
-        if due is not None and due <= arrival and newest:
-            ask(due)
-        newest[sensor] = max(newest.get(sensor, -math.inf), capture)
-        ask(arrival)
-    return fused
+    def run(self, start_s: float, seconds: float, jitter_s: float, seed: int = 0) -> list[Instant]:
+        """``seconds`` of frames from ``start_s``, each delayed a further exponential amount of
+        mean ``jitter_s``: the instants fused, in order."""
+        rng = np.random.default_rng(seed)
+        arrivals: list[tuple[float, str, float]] = []
+        for k in range(round(seconds / P)):
+            for sensor, phase in (("a", 0.002), ("b", 0.020)):
+                capture = start_s + k * P + phase
+                extra = float(rng.exponential(jitter_s)) if jitter_s > 0 else 0.0
+                arrivals.append((capture + 0.002 + extra, sensor, capture))
+        arrivals.sort()
+        fused: list[Instant] = []
+
+        def ask(now_s: float) -> None:
+            timings = [timing(s, t) for s, t in self.newest.items()]
+            while instant := self.policy.next_instant(timings, now_s):
+                fused.append(instant)
+                self.waits.append(now_s - instant.t_s)
+
+        for arrival, sensor, capture in arrivals:
+            due = self.policy.due_s
+            if due is not None and due <= arrival and self.newest:
+                ask(due)
+            self.newest[sensor] = max(self.newest.get(sensor, -math.inf), capture)
+            ask(arrival)
+        return fused
 
 
 def _deadline_policy(fallback_s: float) -> Alignment:
@@ -521,10 +526,11 @@ def _deadline_policy(fallback_s: float) -> Alignment:
 def test_a_jittery_link_waits_for_every_sensor_and_a_steady_one_gets_its_deadline_back() -> None:
     t = math.floor(T0 / P) * P
     policy = _deadline_policy(0.003)
-    steady = _drive(policy, t, 3.0, 0.0)
+    drive = _Drive(policy)
+    steady = drive.run(t, 3.0, 0.0)
     assert not policy.jittery and policy.delay_spread_s == pytest.approx(0.0, abs=1e-9)
     assert any(i.late for i in steady[-30:]), "steady: the deadline carries the late sensor"
-    jittery = _drive(policy, t + 3.0, 4.0, 0.003, seed=1)
+    jittery = drive.run(t + 3.0, 4.0, 0.003, seed=1)
     assert policy.jittery and policy.delay_spread_s is not None
     assert policy.delay_spread_s > 0.003
     assert f"scatter {1e3 * policy.delay_spread_s:.1f} ms" in policy.jitter_report()
@@ -533,12 +539,11 @@ def test_a_jittery_link_waits_for_every_sensor_and_a_steady_one_gets_its_deadlin
     assert policy.due_s is None, "no deadline timer while jittery"
     # On phased's grid, not the deadline's (which may sit just after a sensor's phase): the
     # same wait as phased on the same arrivals.
-    phased = Alignment("phased", 30.0)
-    _drive(phased, t, 3.0, 0.0)
-    _drive(phased, t + 3.0, 4.0, 0.003, seed=1)
-    mine, theirs = policy._test_waits[-60:], phased._test_waits[-60:]  # type: ignore[attr-defined]
-    assert np.mean(mine) == pytest.approx(np.mean(theirs), abs=0.001)
-    settled = _drive(policy, t + 7.0, 4.0, 0.0)
+    phased = _Drive(Alignment("phased", 30.0))
+    phased.run(t, 3.0, 0.0)
+    phased.run(t + 3.0, 4.0, 0.003, seed=1)
+    assert np.mean(drive.waits[-60:]) == pytest.approx(np.mean(phased.waits[-60:]), abs=0.001)
+    settled = drive.run(t + 7.0, 4.0, 0.0)
     assert not policy.jittery, "60 steady frames later the deadline is back"
     assert "settled (0.0 ms)" in policy.jitter_report()
     assert any(i.late for i in settled[-30:])
@@ -547,17 +552,18 @@ def test_a_jittery_link_waits_for_every_sensor_and_a_steady_one_gets_its_deadlin
 def test_the_fallback_has_hysteresis_and_can_be_turned_off() -> None:
     t = math.floor(T0 / P) * P
     policy = _deadline_policy(0.003)
-    _drive(policy, t, 4.0, 0.003, seed=2)
+    drive = _Drive(policy)
+    drive.run(t, 4.0, 0.003, seed=2)
     assert policy.jittery
     assert policy.delay_spread_s is not None
     # Judged between the two thresholds (2 and 3 ms here): it stays as it is, either way.
     spread = policy.delay_spread_s
     policy.jitter_fallback_s = spread / 0.8  # the scatter is 80 % of the threshold
     policy._next_rephase_s = -1.0  # re-judge at the next call
-    _drive(policy, t + 4.0, 0.1, 0.003, seed=2)
+    drive.run(t + 4.0, 0.1, 0.003, seed=2)
     assert policy.jittery, "above two thirds of the threshold: still waiting"
     off = _deadline_policy(0.0)
-    fused = _drive(off, t, 4.0, 0.003, seed=2)
+    fused = _Drive(off).run(t, 4.0, 0.003, seed=2)
     assert not off.jittery and off.delay_spread_s is None
     assert any(i.late for i in fused[-60:]), "no fall-back: the deadline carries sensors"
 
