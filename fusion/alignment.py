@@ -46,7 +46,12 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.alignment_replay import circular_phase, replayed_horizons, replayed_waits
+from skelfuse.fusion.alignment_replay import (
+    circular_phase,
+    delay_spread,
+    replayed_horizons,
+    replayed_waits,
+)
 from skelfuse.fusion.sensors import SensorState
 from skelfuse.fusion.settings import FusionSettings
 
@@ -306,8 +311,7 @@ class Alignment:
         deadline: the median over sensors of each one's p90 − p10, with hysteresis."""
         if self.jitter_fallback_s <= 0.0:
             return
-        spreads = np.percentile(delays, 90, axis=1) - np.percentile(delays, 10, axis=1)
-        self.delay_spread_s = spread = float(np.median(spreads))
+        self.delay_spread_s = spread = delay_spread(delays)
         settled = self.jitter_fallback_s * (JITTER_SETTLED_SHARE if self.jittery else 1.0)
         self.jittery = spread > settled
 
@@ -362,24 +366,26 @@ class Alignment:
         ]
         phases = np.array([*candidates, self.phase_s])
         self._judge_jitter(delays)
+        shares = None  # (S,) each sensor's late share at the phase kept, when replayed already
         if self.grid == "wait" or self.jittery:
             waits = replayed_waits(phases, captures, delays, periods)
             best = int(np.argmin(waits[:-1]))
             if waits[best] < waits[-1] - REPHASE_GAIN_S:
                 self.phase_s = candidates[best]
         else:
-            cost, waits, _ = replayed_horizons(phases, captures, delays, periods, self.deadline_s)
+            replayed = replayed_horizons(phases, captures, delays, periods, self.deadline_s)
+            cost, waits, late = replayed
             score = cost + HORIZON_TIE_S * waits
             best = int(np.argmin(score[:-1]))
             # Hysteresis as for waits: a gain worth a millisecond of wait.
-            if score[best] < score[-1] - HORIZON_TIE_S * REPHASE_GAIN_S:
-                self.phase_s = candidates[best]
+            kept = best if score[best] < score[-1] - HORIZON_TIE_S * REPHASE_GAIN_S else -1
+            self.phase_s, shares = float(phases[kept]), late[kept]  # each row replayed alone
         if self.skip_expected_late:
-            _, _, shares = replayed_horizons(
-                np.array([self.phase_s]), captures, delays, periods, self.deadline_s
-            )
+            if shares is None:
+                one = np.array([self.phase_s])
+                shares = replayed_horizons(one, captures, delays, periods, self.deadline_s)[2][0]
             self.expected_late = frozenset(
                 sensor.sensor_id
-                for sensor, share in zip(sensors, shares[0].tolist(), strict=True)
+                for sensor, share in zip(sensors, shares.tolist(), strict=True)
                 if share > EXPECTED_LATE_SHARE
             )

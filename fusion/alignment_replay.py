@@ -8,6 +8,7 @@ period, and how long after capture each of those frames was first seen by the po
 from __future__ import annotations
 
 import math
+import statistics
 from collections.abc import Sequence
 
 import numpy as np
@@ -44,9 +45,37 @@ def circular_phase(times_s: Sequence[float], period_s: float) -> float:
         raise ValueError("no times to take a phase of")
     origin = times_s[0]  # Unix seconds are large: take phases of differences (precision)
     omega = 2.0 * math.pi / period_s
-    c = sum(math.cos(omega * (t - origin)) for t in times_s)
-    s = sum(math.sin(omega * (t - origin)) for t in times_s)
+    # Each angle once, both sums left to right as a generator's: the same floats, in half the
+    # time (25 → 11 µs for 60 frames; once a second per sensor).
+    angles = [omega * (t - origin) for t in times_s]
+    c = sum(map(math.cos, angles))
+    s = sum(map(math.sin, angles))
     return (origin + math.atan2(s, c) / omega) % period_s
+
+
+def delay_spread(delays_s: FloatArray) -> float:
+    """How widely the sensors' delivery delays scatter: the median over sensors of each one's
+    p90 − p10 (seconds), from ``delays_s`` (S, L), S ≥ 1, L ≥ 2.
+
+    The percentiles are ``np.percentile``'s (its default, linear interpolation), the same
+    floats from one sort instead of two of its calls (330 → 15 µs for 4 sensors × 60 frames:
+    once a second, inside a fusion step)."""
+    ordered = np.sort(delays_s, axis=1)
+    spreads = _linear_percentile(ordered, 0.9) - _linear_percentile(ordered, 0.1)
+    return float(statistics.median(spreads.tolist()))  # np.median's floats: (a + b) / 2
+
+
+def _linear_percentile(ordered: FloatArray, q: float) -> FloatArray:
+    """The ``q`` quantile (0..1) of each row of ``ordered`` (S, L), rows sorted: numpy's
+    ``linear`` method step by step (its virtual index, and its two-sided interpolation)."""
+    n = ordered.shape[1]
+    index = (n - 1) * q
+    below = math.floor(index)
+    gamma = index - below
+    a, b = ordered[:, below], ordered[:, min(below + 1, n - 1)]
+    # From the nearer end, as numpy interpolates.
+    value: FloatArray = b - (b - a) * (1.0 - gamma) if gamma >= 0.5 else a + (b - a) * gamma
+    return value
 
 
 def replayed_waits(

@@ -19,7 +19,12 @@ import pytest
 
 from skelfuse.fusion import alignment_replay
 from skelfuse.fusion.alignment import Alignment, Instant, SensorTiming
-from skelfuse.fusion.alignment_replay import circular_phase, replayed_horizons, replayed_waits
+from skelfuse.fusion.alignment_replay import (
+    circular_phase,
+    delay_spread,
+    replayed_horizons,
+    replayed_waits,
+)
 from skelfuse.fusion.config import FusionConfigError, fusion_settings_from_mapping
 from skelfuse.fusion.extrapolation import extrapolated_bodies
 from skelfuse.fusion.hub import FusedFrame, FusionHub
@@ -476,6 +481,33 @@ def test_replays_are_the_rule_written_plainly(seed: int) -> None:
 # --- the fall-back to phased's wait on a jittery link -------------------------------------------
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_circular_phase_is_the_plain_sums_to_the_bit(seed: int) -> None:
+    """Each angle once and the sums taken by map: the floats of the generator sums it was."""
+    rng = np.random.default_rng(seed)
+    times = (T0 + np.cumsum(rng.uniform(0.03, 0.037, 60)) + rng.normal(0, 0.002, 60)).tolist()
+    omega = 2.0 * math.pi / P
+    c = sum(math.cos(omega * (t - times[0])) for t in times)
+    s = sum(math.sin(omega * (t - times[0])) for t in times)
+    plain = (times[0] + math.atan2(s, c) / omega) % P
+    assert circular_phase(times, P) == plain
+
+
+def test_the_delay_spread_is_numpys_percentiles_to_the_bit() -> None:
+    """500 random windows (1–16 sensors, 2–60 frames, steady runs and exponential tails): the
+    same floats as ``np.percentile`` and ``np.median``; about one in sixty tells numpy's
+    two-sided interpolation from the one-sided one."""
+    rng = np.random.default_rng(0)
+    for _ in range(500):
+        sensors, frames = int(rng.integers(1, 17)), int(rng.integers(2, 61))
+        delays = 0.002 + rng.exponential(rng.uniform(0.0, 0.005), (sensors, frames))
+        if rng.random() < 0.3:
+            delays[:, : frames // 2] = 0.002  # ties, as a steady link gives
+        spreads = np.percentile(delays, 90, axis=1) - np.percentile(delays, 10, axis=1)
+        assert delay_spread(delays) == float(np.median(spreads))
+        assert delay_spread(delays[:, ::-1]) == delay_spread(delays), "order does not matter"
+
+
 class _Drive:
     """Two 30 fps sensors, captured 2 and 20 ms after the grid's phase 0, their frames seen 2 ms
     after capture plus an exponential delay; ``policy`` asked at every arrival and at its
@@ -514,6 +546,26 @@ class _Drive:
             self.newest[sensor] = max(self.newest.get(sensor, -math.inf), capture)
             ask(arrival)
         return fused
+
+
+def test_the_sensors_not_waited_for_are_those_late_at_the_phase_kept() -> None:
+    """One sensor, captured at 2 ms, seen 2 ms later. Just after its phase (late by 0.5 ms:
+    0.5² ms² of horizon) and just before it (0.5 + 2 ms of wait at the tie-break's weight)
+    score the same, so the grid stays where it is; the sensor is expected late there, though
+    not at the candidate that scored a hair better."""
+    t = math.floor(T0 / P) * P
+    policy = Alignment("deadline", 30.0, deadline_s=0.007, grid="horizon", skip_expected_late=True)
+    policy.phase_s = 0.0025
+    for k in range(40):
+        capture = t + k * P + 0.002
+        policy.next_instant([timing("a", capture)], capture + 0.002)
+    assert policy.phase_s == 0.0025, "within the hysteresis: kept"
+    assert policy.expected_late == {"a"}
+    policy.phase_s = 0.0015  # just before its phase: on time there
+    policy._next_rephase_s = -1.0
+    capture = t + 40 * P + 0.002
+    policy.next_instant([timing("a", capture)], capture + 0.002)
+    assert policy.phase_s == 0.0015 and policy.expected_late == set()
 
 
 def _deadline_policy(fallback_s: float) -> Alignment:
