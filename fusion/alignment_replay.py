@@ -14,6 +14,8 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
+from skelfuse.fusion import kernels
+
 FloatArray = npt.NDArray[np.float64]
 
 REPLAYED_AT_ONCE = 65_536
@@ -122,6 +124,14 @@ def replayed_horizons(
         (C,) the mean wait for the last on-time sensor (seconds; 0 when all are late);
         (C, S) the share of frames in which each sensor was late.
     """
+    if kernels.enabled():
+        from skelfuse.fusion import kernels_replay  # imports numba: only when used
+
+        # The same floats in one loop, once warmed (no re-phase waits for a compilation).
+        frames = captures_s.shape[1]
+        taken = kernels_replay.FEWEST_FRAMES <= frames <= kernels_replay.MOST_FRAMES
+        if taken and kernels_replay.warmed():
+            return kernels_replay.horizons(phases_s, captures_s, delays_s, periods_s, deadline_s)
     parts = _parts(phases_s, captures_s)
     if len(parts) > 1:
         replayed = [

@@ -191,6 +191,7 @@ def warm_up() -> float:
         kernels_median,
         kernels_motion,
         kernels_observe,
+        kernels_replay,
         kernels_trunks,
     )
 
@@ -200,4 +201,5 @@ def warm_up() -> float:
     kernels_trunks.warm_up()
     kernels_motion.warm_up()
     kernels_lerp.warm_up()
+    kernels_replay.warm_up()
     return time.perf_counter() - start
