@@ -3,12 +3,12 @@
 :func:`skelfuse.fusion.alignment_replay.replayed_horizons` replays every candidate grid phase
 over the sensors' last frames, once a second inside the fusion step that triggers it: in numpy
 a few passes over a (candidates × sensors × frames) array, 3.1 ms for 129 candidates of 16
-sensors × 60 frames (timed alone), which set the step's p99; 0.16 ms here, where one loop per
-candidate does the same IEEE
-operations: the modulo as ``np.mod`` takes it (``fmod``, then the divisor's sign), the sum over
-sensors element after element from 0 as numpy reduces a middle axis, the mean over frames as
-numpy's pairwise sum (:func:`~skelfuse.fusion.kernels_mirror.pairwise`) over the count; so the
-same floats, and the same phase chosen (tests/unit/test_kernels_replay.py).
+sensors × 60 frames (timed alone), which set the step's p99; 0.16 ms here. One loop per
+candidate does the same IEEE operations: the modulo as ``np.mod`` takes it (``fmod``, then the
+divisor's sign), the sum over sensors element after element from 0 as numpy reduces a middle
+axis, the mean over frames as numpy's pairwise sum
+(:func:`~skelfuse.fusion.kernels_mirror.pairwise`) over the count; so the same floats, and the
+same phase chosen (tests/unit/test_kernels_replay.py).
 
 As :mod:`skelfuse.fusion.kernels_observe`: the loop runs only once :func:`warm_up` has compiled
 it, so no frame waits for a compilation; until then, and with the kernels off, numpy runs.
