@@ -373,8 +373,9 @@ class Alignment:
             if waits[best] < waits[-1] - REPHASE_GAIN_S:
                 self.phase_s = candidates[best]
         else:
-            replayed = replayed_horizons(phases, captures, delays, periods, self.deadline_s)
-            cost, waits, late = replayed
+            cost, waits, late = replayed_horizons(
+                phases, captures, delays, periods, self.deadline_s
+            )
             score = cost + HORIZON_TIE_S * waits
             best = int(np.argmin(score[:-1]))
             # Hysteresis as for waits: a gain worth a millisecond of wait.

@@ -95,7 +95,7 @@ def _horizons_loop(  # pragma: no cover - compiled
     shares: FloatArray,
 ) -> None:
     sensors, frames = captures.shape
-    squared = np.zeros(frames)  # per frame, the sum over sensors of squared horizons
+    squared = np.empty(frames)  # per frame, the sum over sensors of squared horizons
     last = np.empty(frames)  # per frame, the latest on-time sensor's wait
     # Each sensor's earliest and latest capture phase (NaN: the general modulo throughout).
     lowest, highest = np.empty(sensors), np.empty(sensors)
