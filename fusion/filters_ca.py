@@ -65,25 +65,37 @@ class DampedAccelerationKalman(KalmanState):
         p[..., 0, 0], p[..., 1, 1], p[..., 2, 2] = self.r, 1.0, 100.0
         return x, p
 
+    def _step(
+        self, z: FloatArray, last_x: FloatArray, last_p: FloatArray, last_t: FloatArray, t_s: float
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """:meth:`KalmanState._step`; with the kernels on and warmed, its usual case (every
+        coordinate measured, stepped, all by the same length) as one compiled loop, which
+        gives up without writing anything when the case does not hold (the same bits,
+        tests/unit/test_kernels_filter.py)."""
+        if z.size and kernels.enabled() and kernels_filter.warmed():
+            h = t_s - float(last_t.flat[0])
+            if 0.0 < h <= self.reset_gap_s:
+                f, q = self._kept_transition(np.array([h]))
+                noise = (self.jerk_std, self.jerk_per_speed, self.r)
+                lead = (self.predict_s, self.predict_s * self.predict_s / 2)
+                stepped = kernels_filter.step_all(
+                    z, last_x, last_p, last_t, t_s, (f, q), noise, self.reset_gap_s, lead
+                )
+                if stepped is not None:
+                    out, new_x, new_p = stepped
+                    return out, new_x, new_p, np.full(z.shape, t_s)
+        return super()._step(z, last_x, last_p, last_t, t_s)
+
     def _update(
         self, z: FloatArray, last_x: FloatArray, last_p: FloatArray, h: FloatArray, step: BoolArray
     ) -> tuple[FloatArray, FloatArray]:
         if (h == h.flat[0]).all():
             # One step length for every coordinate (the usual case): one F and one Q, which
-            # the products below broadcast, the same values as a stack of equal ones; the
-            # frame period takes only a few distinct float values, so they are kept.
-            one = h.reshape(-1)[:1]
-            key = one.tobytes()
-            transition = self._transitions.get(key)
-            if transition is None:
-                if len(self._transitions) >= _KEPT_TRANSITIONS:
-                    self._transitions.clear()
-                transition = self._transitions[key] = self._transition(one)
-            f, q = transition
+            # the products below broadcast, the same values as a stack of equal ones.
+            f, q = self._kept_transition(h.reshape(-1)[:1])
         else:
             f, q = self._transition(h)
-        x_p = np.einsum("...ij,...j->...i", f, last_x)
-        predicted_p = _sandwich(f, last_p)
+        x_p, predicted_p = predicted(f, last_x, last_p)
         if kernels.enabled() and kernels_filter.warmed():  # the same bits in one loop
             noise = (self.jerk_std, self.jerk_per_speed, self.r)
             return kernels_filter.correct(predicted_p, q, last_x, z, x_p, step, noise)
@@ -96,6 +108,17 @@ class DampedAccelerationKalman(KalmanState):
         new_x: FloatArray = x_p + gain * innovation[..., None]
         new_p: FloatArray = p_p - gain[..., :, None] * p_p[..., 0, None, :]
         return new_x, new_p
+
+    def _kept_transition(self, one: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """F and Q (1, 3, 3) for the one step length ``one`` (1,): the frame period takes
+        only a few distinct float values, so they are kept."""
+        key = one.tobytes()
+        transition = self._transitions.get(key)
+        if transition is None:
+            if len(self._transitions) >= _KEPT_TRANSITIONS:
+                self._transitions.clear()
+            transition = self._transitions[key] = self._transition(one)
+        return transition
 
     def _transition(self, h: FloatArray) -> tuple[FloatArray, FloatArray]:
         """F and the unscaled Q over ``h`` seconds: (..., 3, 3) each for ``h`` (...)."""
@@ -125,20 +148,27 @@ class DampedAccelerationKalman(KalmanState):
                 self.reset_gap_s)  # fmt: skip
 
 
-def _sandwich(f: FloatArray, p: FloatArray) -> FloatArray:
-    """``f @ p @ fᵀ`` for a stack of covariances ``p`` (..., 3, 3): the same floats.
+def predicted(f: FloatArray, x: FloatArray, p: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The predicted state ``F x`` (..., 3) and covariance ``F P Fᵀ`` (..., 3, 3) of a stack
+    of coordinates, for one ``f`` (1, 3, 3) for all or one each (..., 3, 3).
 
-    With one ``f`` (1, 3, 3) for all (the usual case), both products are two matrix products
-    of all the stack's rows at once, ``(3K, 3) @ (3, 3)``, instead of 2K products of 3 × 3:
-    each output element is the same dot product, taken in the same order (row by row, BLAS
-    computes a product's rows alone), 83 → 35 µs for 6 persons. Any other ``f``: the stack.
+    Each element is its three products summed in index order, ``(a + b) + c``, element-wise:
+    the floats of :mod:`skelfuse.fusion.kernels_filter`'s loop, and the same on every machine
+    (a BLAS product's floats are its kernel's: with fused multiply-adds or not, in its order).
     """
-    if f.shape != (1, 3, 3):
-        stacked: FloatArray = f @ p @ np.swapaxes(f, -1, -2)
-        return stacked
-    turn = f[0].T
-    # Row j of p_kᵀ times fᵀ is column j of f·p_k: (f p_k)ᵀ, row by row.
-    columns = np.swapaxes(p.reshape(-1, 3, 3), 1, 2).reshape(-1, 3) @ turn
-    rows = np.swapaxes(columns.reshape(-1, 3, 3), 1, 2).reshape(-1, 3)
-    result: FloatArray = (rows @ turn).reshape(p.shape)
-    return result
+    x_p = (
+        f[..., :, 0] * x[..., 0, None]
+        + f[..., :, 1] * x[..., 1, None]
+        + f[..., :, 2] * x[..., 2, None]
+    )
+    fp = (  # F P: row a, column b is sum over k of F[a, k] P[k, b]
+        f[..., :, 0, None] * p[..., 0, None, :]
+        + f[..., :, 1, None] * p[..., 1, None, :]
+        + f[..., :, 2, None] * p[..., 2, None, :]
+    )
+    p_p = (  # (F P) Fᵀ: row a, column b is sum over k of (F P)[a, k] F[b, k]
+        fp[..., :, 0, None] * f[..., None, :, 0]
+        + fp[..., :, 1, None] * f[..., None, :, 1]
+        + fp[..., :, 2, None] * f[..., None, :, 2]
+    )
+    return x_p, p_p
