@@ -30,7 +30,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.optimize import linear_sum_assignment
 
-from skelfuse.fusion import kernels, kernels_trunks
+from skelfuse.fusion import kernels, kernels_tracks, kernels_trunks
 from skelfuse.fusion.mirror import PERMUTATION
 from skelfuse.fusion.points import finite_points
 from skelfuse.fusion.settings import FusionSettings
@@ -158,15 +158,35 @@ class PersonTracker:
     def move_all(self, person_ids: list[int], fused: FloatArray, t_s: float) -> None:
         """:meth:`move` for many persons at once: ``fused`` (P, 25, 3), row p is ``person_ids[p]``.
 
-        Element by element the arithmetic of one person alone (the speed clip's norm is the
-        dot product ``np.linalg.norm`` takes), so the same floats.
+        Element by element the arithmetic of one person alone, so the same floats (the speed
+        clip's norm is ``√((x² + y²) + z²)``: the same on every machine, which a BLAS dot
+        product is not); with the kernels on, one loop (:mod:`skelfuse.fusion.kernels_tracks`).
         """
         tracks = [self.tracks[person_id] for person_id in person_ids]
         if not tracks:
             return
         joints = np.array([t.joints for t in tracks], dtype=np.float64)
-        # t_s − last_seen_s as each person's own Python float subtraction gives it.
-        dts = t_s - np.array([t.last_seen_s for t in tracks])
+        last_seen = np.array([t.last_seen_s for t in tracks])
+        if kernels.enabled() and kernels_tracks.warmed():  # the same bits in one loop
+            velocities = np.array([t.velocity for t in tracks], dtype=np.float64)
+            fused_once = np.array([t.fused_once for t in tracks])
+            kept, velocity, moved = kernels_tracks.moved(
+                joints, last_seen, fused_once, velocities, fused, t_s, MAX_SPEED_MPS
+            )
+            for p in np.flatnonzero(moved).tolist():
+                tracks[p].velocity = velocity[p]
+        else:
+            kept = self._moved(tracks, joints, t_s - last_seen, fused)
+        for track, row in zip(tracks, kept, strict=True):
+            track.joints = row
+            track.last_seen_s = t_s
+            track.fused_once = True
+
+    @staticmethod
+    def _moved(
+        tracks: list[Track], joints: FloatArray, dts: FloatArray, fused: FloatArray
+    ) -> FloatArray:
+        """:meth:`move_all` in numpy: each moving track's velocity set, the skeletons kept."""
         moving = np.flatnonzero(
             np.array([t.fused_once for t in tracks])
             & (dts > 0)
@@ -182,8 +202,8 @@ class PersonTracker:
             velocity[:, 1] = 0.0
             old = np.array([tracks[p].velocity for p in moving], dtype=np.float64)
             smoothed = 0.6 * old + 0.4 * velocity
-            # np.vecdot is the dot product np.linalg.norm takes of one vector (the same bits).
-            speeds = np.sqrt(np.vecdot(smoothed, smoothed))
+            x, y, z = smoothed[:, 0], smoothed[:, 1], smoothed[:, 2]
+            speeds = np.sqrt((x * x + y * y) + z * z)
             fast = speeds > MAX_SPEED_MPS
             if fast.any():
                 with np.errstate(divide="ignore"):
@@ -191,11 +211,8 @@ class PersonTracker:
                 smoothed = np.where(fast[:, None], smoothed * scale[:, None], smoothed)
             for p, row in zip(moving, smoothed, strict=True):
                 tracks[p].velocity = row
-        kept = np.where(np.isfinite(fused), fused, joints)
-        for track, row in zip(tracks, kept, strict=True):
-            track.joints = row
-            track.last_seen_s = t_s
-            track.fused_once = True
+        kept: FloatArray = np.where(np.isfinite(fused), fused, joints)
+        return kept
 
     def swap_sides(self, person_id: int) -> None:
         """Swap left and right in a person's skeleton (the whole track was mirrored)."""

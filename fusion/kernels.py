@@ -192,6 +192,7 @@ def warm_up() -> float:
         kernels_motion,
         kernels_observe,
         kernels_replay,
+        kernels_tracks,
         kernels_trunks,
     )
 
@@ -199,6 +200,7 @@ def warm_up() -> float:
     kernels_filter.warm_up()
     kernels_median.warm_up()
     kernels_trunks.warm_up()
+    kernels_tracks.warm_up()
     kernels_motion.warm_up()
     kernels_lerp.warm_up()
     kernels_replay.warm_up()

@@ -8,10 +8,13 @@ distance must be the float :func:`~skelfuse.fusion.identity.trunk_distance` give
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
 import numpy.typing as npt
 import pytest
 
+from skelfuse.fusion import kernels, kernels_tracks
 from skelfuse.fusion.identity import (
     TRUNK_JOINTS,
     PersonTracker,
@@ -23,6 +26,7 @@ from skelfuse.fusion.identity import (
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.views import View
 from skelfuse.protocol.skeleton import JOINT_COUNT
+from tests.support import require_numba
 
 
 def skeletons(rng: np.random.Generator, count: int) -> npt.NDArray[np.float64]:
@@ -94,7 +98,8 @@ def move_alone(track: Track, fused: npt.NDArray[np.float64], t_s: float) -> None
         velocity = (fused[0] - track.joints[0]) / dt
         velocity[1] = 0.0
         track.velocity = 0.6 * track.velocity + 0.4 * velocity
-        speed = float(np.linalg.norm(track.velocity))
+        x, y, z = track.velocity
+        speed = float(np.sqrt((x * x + y * y) + z * z))  # the norm summed in index order
         if speed > 3.0:
             track.velocity *= 3.0 / speed
     track.joints = np.where(np.isfinite(fused), fused, track.joints)
@@ -102,12 +107,26 @@ def move_alone(track: Track, fused: npt.NDArray[np.float64], t_s: float) -> None
     track.fused_once = True
 
 
-def test_moving_persons_together_gives_each_persons_own_motion() -> None:
+@pytest.fixture(params=["numpy", "numba"])
+def kernel_mode(request: pytest.FixtureRequest) -> Iterator[str]:
+    """Each test once in numpy and once with the compiled loops (kernels_tracks) warmed."""
+    mode: str = request.param
+    if mode == "numba":
+        require_numba()
+    with kernels.forced(mode):
+        kernels.warm_up()
+        assert (kernels.enabled() and kernels_tracks.warmed()) == (mode == "numba")
+        yield mode
+
+
+def test_moving_persons_together_gives_each_persons_own_motion(kernel_mode: str) -> None:
     rng = np.random.default_rng(8)
     tracker, alone = PersonTracker(FusionSettings()), PersonTracker(FusionSettings())
     for k, joints in enumerate(skeletons(rng, 8)):
         # Some seen long ago or never fused, some without a SpineBase, some far too fast.
         seen = 10.0 - [0.03, 0.03, 0.6, 0.03, 0.03, 0.1, 0.0, 0.03][k]
+        if k == 2:  # seen too long ago, with a SpineBase: only its age keeps it still
+            joints[0] = 0.0
         track = Track(k + 1, joints, seen, 0.0, velocity=rng.normal(0, 1, 3), fused_once=k != 3)
         tracker.tracks[k + 1] = track
         alone.tracks[k + 1] = Track(k + 1, joints.copy(), seen, 0.0, velocity=track.velocity.copy(),
@@ -127,7 +146,7 @@ def test_moving_persons_together_gives_each_persons_own_motion() -> None:
     assert any(np.linalg.norm(t.velocity) == pytest.approx(3.0) for t in alone.tracks.values())
 
 
-def test_moving_everyone_at_once_gives_each_persons_own_motion() -> None:
+def test_moving_everyone_at_once_gives_each_persons_own_motion(kernel_mode: str) -> None:
     # Every person moves (the usual step): move_all's path without gathers, same bits.
     rng = np.random.default_rng(9)
     tracker, alone = PersonTracker(FusionSettings()), PersonTracker(FusionSettings())
