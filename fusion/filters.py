@@ -142,9 +142,19 @@ def filter_all(
             those rows came from instead of stacking the rows again (the same values, without
             ~2 × P copies of each person's covariances).
     """
+    if stacks is not None and len(stacks) == 1 and len(filters) == len(joints):
+        # The usual step: the very filters of the last call, one group, none stepped alone or
+        # restarted since (their states are still the rows it gave them, in order).
+        last_rows, stacked = next(iter(stacks.values()))
+        if (
+            len(last_rows) == len(filters)
+            and stacked[2].shape[1:] == joints.shape[1:]
+            and all(_holds(f, row) for f, row in zip(filters, last_rows, strict=True))
+        ):
+            return _step_group(filters, joints, t_s, stacked, stacks)
     out: list[FloatArray | None] = [None] * len(filters)
     groups: dict[tuple[type, tuple[float, ...]], list[int]] = {}
-    stackable = (OneEuroFilter, ConstantVelocityKalman, DampedAccelerationKalman)
+    stackable = _STACKABLE
     for i, f in enumerate(filters):
         if isinstance(f, stackable) and f._t is not None and f._t.shape == joints.shape[1:]:
             groups.setdefault((type(f), f._params()), []).append(i)
@@ -176,6 +186,30 @@ def filter_all(
         stacks.clear()
         stacks.update(kept)
     return [o for o in out if o is not None]
+
+
+def _holds(f: JointFilter, row: StateRows) -> bool:
+    """Whether ``f`` is a stackable filter whose state arrays are the very ones of ``row``."""
+    if not isinstance(f, _STACKABLE):
+        return False
+    return all(a is b for a, b in zip(f._state(), row, strict=True)) if f._t is not None else False
+
+
+def _step_group(
+    filters: list[JointFilter], joints: FloatArray, t_s: float, stacked: StateRows, stacks: Stacks
+) -> list[FloatArray]:
+    """:func:`filter_all`'s usual step: the one group of every filter, stepped from the arrays
+    its states are rows of (``stacked``); ``stacks`` keeps the new ones."""
+    chosen = [f for f in filters if isinstance(f, _STACKABLE)]  # all of them (_holds)
+    result, *new = chosen[0]._step(np.asarray(joints, dtype=np.float64), *stacked, t_s)
+    rows: list[StateRows] = []
+    for k, f in enumerate(chosen):
+        row = (new[0][k], new[1][k], new[2][k])
+        f._set_state(*row)
+        rows.append(row)
+    key = next(iter(stacks))
+    stacks[key] = (rows, (new[0], new[1], new[2]))
+    return list(result)
 
 
 def _same_rows(last: list[StateRows], states: list[StateRows]) -> bool:
@@ -236,6 +270,10 @@ class ConstantVelocityKalman(KalmanState):
 
     def _params(self) -> tuple[float, float, float, float]:
         return (self.q, self.r, self.predict_s, self.reset_gap_s)
+
+
+_STACKABLE = (OneEuroFilter, ConstantVelocityKalman, DampedAccelerationKalman)
+"""The filters :func:`filter_all` steps together (their ``_step`` takes any stack of states)."""
 
 
 def make_filter(

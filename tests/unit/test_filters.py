@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -146,6 +147,50 @@ def test_filter_all_with_stacks_matches_separate_calls_as_groups_change() -> Non
         for i, x, y in zip(chosen, sample, got, strict=True):
             np.testing.assert_array_equal(apart[i](x, t_s), y)
     assert stacks  # the stacks were kept and used
+
+
+@pytest.mark.parametrize("kind", ["kalman_ca", "kalman", "one_euro"])
+def test_filter_all_one_group_with_stacks_matches_separate_calls(
+    kind: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The usual step (one group, the last call's filters) takes the short path, which steps
+    the kept stacks as they are: the same bits as separate calls, and the long path whenever
+    the filters are reordered, restarted, stepped alone or one is left out."""
+    from skelfuse.fusion import filters
+
+    short: list[int] = []
+    step_group = filters._step_group
+
+    def counted(*args: Any) -> Any:
+        short.append(len(args[0]))
+        return step_group(*args)
+
+    monkeypatch.setattr(filters, "_step_group", counted)
+    rng = np.random.default_rng(6)
+    together = [filters.make_filter(kind) for _ in range(6)]
+    apart = [filters.make_filter(kind) for _ in range(6)]
+    stacks: filters.Stacks = {}
+    order = list(range(6))
+    changed = {8, 14, 15, 20, 24, 25}  # a restarted filter starts alone, then joins; one left
+    # out and back: both calls stack afresh
+    for k in range(30):
+        t_s = k / 30
+        if k == 8:
+            order = order[::-1]
+        if k == 14:
+            together[1], apart[1] = filters.make_filter(kind), filters.make_filter(kind)
+        if k == 20:
+            lone = rng.normal(size=(25, 3))
+            np.testing.assert_array_equal(together[5](lone, t_s - 0.01), apart[5](lone, t_s - 0.01))
+        chosen = [i for i in order if not (k == 24 and i == 4)]
+        sample = rng.normal(size=(len(chosen), 25, 3))
+        before = len(short)
+        got = filters.filter_all([together[i] for i in chosen], sample, t_s, stacks)
+        for i, x, y in zip(chosen, sample, got, strict=True):
+            np.testing.assert_array_equal(apart[i](x, t_s), y)
+        if k >= 2:  # started, and stacked once
+            assert (len(short) > before) == (k not in changed), k
+    assert len(short) == 28 - len(changed)
 
 
 def test_kalman_with_lead_leads_a_ramp_by_its_horizon_and_smooths_a_still_joint() -> None:
