@@ -18,7 +18,13 @@ COPY --from=wheel /wheels /wheels
 RUN pip install --no-cache-dir "skelfuse[server] @ file://$(echo /wheels/skelfuse-*.whl)" \
     && rm -rf /wheels
 
-RUN useradd --create-home --uid 10001 skelfuse && mkdir /data && chown skelfuse /data
+# The fusion kernels (numba) compiled once here, into a cache the server reads at every start
+# (~0.5 s instead of ~17 s); on a CPU other than the build machine's numba compiles again and
+# keeps that in the same folder, which is the server user's for that reason.
+ENV NUMBA_CACHE_DIR=/var/cache/skelfuse-numba
+RUN useradd --create-home --uid 10001 skelfuse && mkdir /data && chown skelfuse /data \
+    && python -c "from skelfuse.fusion import kernels; assert kernels.warm_up() > 0" \
+    && chown -R skelfuse "$NUMBA_CACHE_DIR"
 USER skelfuse
 WORKDIR /home/skelfuse
 VOLUME ["/data"]

@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # What the Docker image does, without a Docker engine: build the wheel, install it with the
 # server extras into a clean virtualenv outside the checkout, check that the install adds one
-# top-level import package (skelfuse), then start `skelfuse server` from an empty folder and
-# expect 200 from /api/health. The folder holds decoys named like the old top-level packages
+# top-level import package (skelfuse), compile the fusion kernels into a cache folder, then
+# start `skelfuse server` from an empty folder and expect 200 from /api/health and the kernels
+# loaded from that cache. The folder holds decoys named like the old top-level packages
 # (server.py, protocol/), which would run if anything still imported them by those names.
 #
 # Dependencies are installed offline from a wheelhouse (build/wheelhouse, or
@@ -85,6 +86,15 @@ for name in names:
 print(f"    {len(files)} files under skelfuse/ and its dist-info; {len(names)} modules import")
 ' || fail "the installed distribution is not what it should be"
 
+echo "==> wheel smoke: the fusion kernels compiled once, as the image's build does"
+# The Dockerfile's command, with its cache folder (NUMBA_CACHE_DIR) in the work folder: the
+# server started below must find the machine code there instead of compiling again.
+export NUMBA_CACHE_DIR="$work/numba-cache"
+started=$SECONDS
+"$work/venv/bin/python" -c "from skelfuse.fusion import kernels; assert kernels.warm_up() > 0" ||
+  fail "the installed server extras do not compile the fusion kernels (numba)"
+echo "    compiled in $((SECONDS - started)) s"
+
 echo "==> wheel smoke: skelfuse server from an empty folder"
 ports="$("$work/venv/bin/python" -c '
 import socket
@@ -115,6 +125,13 @@ with urllib.request.urlopen(sys.argv[1], timeout=2) as reply:
   sleep 0.5
 done
 echo "    200 from $url"
+ready="$(grep -o 'fusion kernels ready in [0-9.]* s' "$work/server.log" || true)"
+[ -n "$ready" ] || fail "the server did not report its fusion kernels ready"
+seconds="${ready#fusion kernels ready in }"
+seconds="${seconds% s}"
+"$work/venv/bin/python" -c 'import sys; sys.exit(float(sys.argv[1]) >= 5.0)' "$seconds" ||
+  fail "the server took $seconds s to load the fusion kernels: it compiled them again"
+echo "    $ready (from the cache)"
 
 kill -TERM "$server_pid"
 for _ in $(seq 50); do

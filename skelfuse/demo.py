@@ -54,9 +54,18 @@ def sensor_layout(count: int) -> list[tuple[str, str]]:
     return layout
 
 
-def _wait_healthy(url: str, server: subprocess.Popen[bytes], timeout_s: float) -> bool:
+_SERVER_START_S = 120.0
+"""How long the server may take to answer: its first start compiles the fusion kernels (~17 s
+on an idle 2-core machine, more while pip or the agents load it), later ones take ~1 s."""
+
+
+def _wait_healthy(
+    url: str, server: subprocess.Popen[bytes], stop: threading.Event, timeout_s: float
+) -> bool:
+    """Whether the server answers healthy within ``timeout_s``; False once it exits or the demo
+    is stopped (Ctrl-C) meanwhile."""
     deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
+    while time.monotonic() < deadline and not stop.is_set():
         if server.poll() is not None:
             return False
         try:
@@ -65,7 +74,7 @@ def _wait_healthy(url: str, server: subprocess.Popen[bytes], timeout_s: float) -
                     return True
         except (urllib.error.URLError, OSError, ValueError):
             pass
-        time.sleep(0.2)
+        stop.wait(0.2)
     return False
 
 
@@ -300,7 +309,9 @@ def run_demo(
     previous = {s: signal.signal(s, on_signal) for s in stop_signals}
     url = f"http://{agent_host}:{port}"
     try:
-        if not _wait_healthy(url, server, timeout_s=30.0):
+        if not _wait_healthy(url, server, stop, timeout_s=_SERVER_START_S):
+            if stop.is_set():
+                return 0
             if server.poll() is not None:
                 logger.error(
                     "the server exited with code %s before it was ready (its message is above; "
@@ -310,7 +321,7 @@ def run_demo(
                     zmq_port,
                 )
             else:
-                logger.error("the server did not answer on %s within 30 s", url)
+                logger.error("the server did not answer on %s within %.0f s", url, _SERVER_START_S)
             return 1
         for sensor_id, pose in layout:
             processes.append(
