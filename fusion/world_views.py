@@ -11,9 +11,10 @@ spends its time on:
   operations as one sensor alone, and the same rule where a frame misses a joint; a sensor
   whose bodies came, went or changed order takes
   :func:`~skelfuse.fusion.sensors.body_arrays_at` as before;
-- the move to the world frame is one stacked product, ``(S, B·25, 3) @ (S, 3, 3)``: BLAS
-  computes each output row from that row and the rotation alone, so the rows come out as
-  ``apply`` gives them body by body (tests/unit/test_world_views.py checks the bits).
+- the move to the world frame is one element-wise pass over every row with its own sensor's
+  pose, each coordinate ``((x·r₀ + y·r₁) + z·r₂) + t`` as ``apply`` computes it body by body
+  (tests/unit/test_world_views.py checks the bits); with the compiled kernels, one loop does
+  both (:mod:`skelfuse.fusion.kernels_lerp`).
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from skelfuse.fusion.moving import world_position
 from skelfuse.fusion.points import finite_points
 from skelfuse.fusion.sensors import BodyArrays, SensorState, TimedFrame, body_arrays_at
 from skelfuse.fusion.views import View
-from skelfuse.protocol.skeleton import JOINT_COUNT, TrackingState
+from skelfuse.protocol.skeleton import TrackingState
 from skelfuse.protocol.transform import Matrix4
 
 FloatArray = npt.NDArray[np.float64]
@@ -114,16 +115,20 @@ def gather_at(
 
 def resolve(groups: list[Gathered]) -> list[list[SensorBodies]]:
     """Each group's bodies interpolated and moved to the world: every group's rows in one
-    interpolation pass and one stacked product (rows are computed alone: the same bits as
-    group by group, or sensor by sensor)."""
+    interpolation pass and one move (rows are computed alone: the same bits as group by group,
+    or sensor by sensor)."""
     flat = [entry for group in groups for entry in group]
     if not flat:
         return [[] for _ in groups]
-    arrays = _interpolate_pending([bodies for _, _, bodies in flat])
-    worlds = bodies_to_world([pose for _, pose, _ in flat], [a.joints_m for a in arrays])
+    items = [bodies for _, _, bodies in flat]
+    poses = [pose for _, pose, _ in flat]
+    done = _compiled(items, poses) if kernels.enabled() and kernels_lerp.warmed() else None
+    if done is None:
+        arrays = _interpolate_pending(items)
+        done = arrays, bodies_to_world(poses, [a.joints_m for a in arrays])
     resolved = [
         SensorBodies(sensor, pose, bodies, world)
-        for (sensor, pose, _), bodies, world in zip(flat, arrays, worlds, strict=True)
+        for (sensor, pose, _), bodies, world in zip(flat, *done, strict=True)
     ]
     out: list[list[SensorBodies]] = []
     lo = 0
@@ -131,6 +136,57 @@ def resolve(groups: list[Gathered]) -> list[list[SensorBodies]]:
         out.append(resolved[lo : lo + len(group)])
         lo += len(group)
     return out
+
+
+def _compiled(
+    items: list[BodyArrays | _Pending], poses: list[Matrix4]
+) -> tuple[list[BodyArrays], list[FloatArray]] | None:
+    """:func:`_interpolate_pending` then :func:`bodies_to_world`, in one compiled loop
+    (:func:`~skelfuse.fusion.kernels_lerp.to_world`, the same bits); None when a body is not
+    float32 (frames hold float32; one from elsewhere takes numpy)."""
+    firsts: list[npt.NDArray[np.float32]] = []
+    seconds: list[npt.NDArray[np.float32]] = []
+    first_states: list[npt.NDArray[np.uint8]] = []
+    second_states: list[npt.NDArray[np.uint8]] = []
+    alphas: list[float] = []
+    counts: list[int] = []
+    for item in items:
+        if isinstance(item, _Pending):
+            first, second, alpha = item.first, item.second, item.alpha
+        else:  # as it is: the loop copies it (its second and α unread)
+            first, second, alpha = item, item, -1.0
+        firsts.append(first.joints_m)
+        seconds.append(second.joints_m)
+        first_states.append(first.states)
+        second_states.append(second.states)
+        alphas.append(alpha)
+        counts.append(len(first.tracking_ids))
+    a, b = np.concatenate(firsts), np.concatenate(seconds)
+    if not a.dtype == b.dtype == np.float32:
+        return None
+    row_alphas = np.repeat(np.array(alphas), counts)
+    joints32, states, world = kernels_lerp.to_world(
+        a,
+        b,
+        np.concatenate(first_states),
+        np.concatenate(second_states),
+        row_alphas,
+        row_alphas >= 0.0,
+        np.repeat(np.arange(len(items)), counts),
+        np.array(poses, dtype=np.float64),
+    )
+    arrays: list[BodyArrays] = []
+    worlds: list[FloatArray] = []
+    lo = 0
+    for item, count in zip(items, counts, strict=True):
+        hi = lo + count
+        if isinstance(item, _Pending):
+            nearer = item.nearer
+            item = BodyArrays(nearer.tracking_ids, joints32[lo:hi], states[lo:hi], nearer.hands)
+        arrays.append(item)
+        worlds.append(world[lo:hi])
+        lo = hi
+    return arrays, worlds
 
 
 def views_of(bodies: list[SensorBodies], t_s: float) -> list[View]:
@@ -176,7 +232,8 @@ def _bodies_or_pending(
 
 def _interpolate_pending(items: list[BodyArrays | _Pending]) -> list[BodyArrays]:
     """Every pending interpolation done, all sensors' rows in one pass: :func:`_lerp`'s rule
-    and arithmetic element by element, with each row's own ``α`` (its sensor's)."""
+    and arithmetic element by element, with each row's own ``α`` (its sensor's); numpy's
+    (:func:`_compiled` is the loop)."""
     pending = [item for item in items if isinstance(item, _Pending)]
     if not pending:
         return [item for item in items if isinstance(item, BodyArrays)]
@@ -186,13 +243,6 @@ def _interpolate_pending(items: list[BodyArrays | _Pending]) -> list[BodyArrays]
     alphas = np.repeat(np.array([item.alpha for item in pending]), counts)
     first = np.concatenate([item.first.joints_m for item in pending])
     second = np.concatenate([item.second.joints_m for item in pending])
-    # The loop reads float32, as frames hold them (a float64 array from elsewhere takes numpy).
-    exact = first.dtype == second.dtype == np.float32
-    if exact and kernels.enabled() and kernels_lerp.warmed():  # the same bits in one loop
-        joints32, states = kernels_lerp.interpolated_rows(
-            first, second, first_states, second_states, alphas
-        )
-        return _split(items, joints32, states)
     a = first.astype(np.float64)
     b = second.astype(np.float64)
     alpha = alphas[:, None, None]
@@ -236,29 +286,20 @@ def _split(
 def bodies_to_world(
     poses: list[Matrix4], joints: list[npt.NDArray[np.float32]]
 ) -> list[FloatArray]:
-    """Each sensor's (B, 25, 3) joints moved by its pose: ``apply(pose, joints)``'s floats.
-
-    One stacked product over the sensors (padded with zero rows to the most bodies): BLAS
-    computes each row from that row alone, so padding and stacking change no bit.
-    """
+    """Each sensor's (B, 25, 3) joints moved by its pose: ``apply(pose, joints)``'s floats
+    (each coordinate ``((x·r₀ + y·r₁) + z·r₂) + t``), every row at once with its own pose."""
     counts = [len(rows) for rows in joints]
-    widest = max(counts)
     points = np.concatenate(joints, dtype=np.float64)
-    if min(counts) == widest:
-        stacked = points.reshape(len(joints), widest * JOINT_COUNT, 3)
-    else:
-        stacked = np.zeros((len(joints), widest * JOINT_COUNT, 3))
-        lo = 0
-        for k, count in enumerate(counts):
-            stacked[k, : count * JOINT_COUNT] = points[lo : lo + count].reshape(-1, 3)
-            lo += count
-    # The rotations transposed as views, as apply passes them (pts @ R.T); the poses stacked
-    # once and sliced (22.7 → 4.1 µs for 4 sensors against a np.stack of each part).
-    stacked_poses = np.array(poses, dtype=np.float64)
-    rotations = stacked_poses[:, :3, :3].transpose(0, 2, 1)
-    shifts = stacked_poses[:, None, :3, 3]
-    world = stacked @ rotations + shifts
-    return [
-        world[k, : count * JOINT_COUNT].reshape(count, JOINT_COUNT, 3)
-        for k, count in enumerate(counts)
-    ]
+    stacked = np.array(poses, dtype=np.float64)[np.repeat(np.arange(len(poses)), counts)]
+    rotation, shift = stacked[:, None, :3, :3], stacked[:, None, :3, 3]  # (N, 1, 3, 3), (N, 1, 3)
+    world = (
+        (points[..., 0:1] * rotation[..., 0] + points[..., 1:2] * rotation[..., 1])
+        + points[..., 2:3] * rotation[..., 2]
+        + shift
+    )
+    out: list[FloatArray] = []
+    lo = 0
+    for count in counts:
+        out.append(world[lo : lo + count])
+        lo += count
+    return out

@@ -58,9 +58,20 @@ def invert(transform: Matrix4) -> Matrix4:
 
 
 def apply(transform: Matrix4, points: npt.ArrayLike) -> npt.NDArray[np.float64]:
-    """Apply ``transform`` to (..., 3) points; NaN stays NaN."""
+    """Apply ``transform`` to (..., 3) points; NaN stays NaN.
+
+    Each output coordinate is ``((x·r₀ + y·r₁) + z·r₂) + t`` with ``r`` its row of the rotation,
+    element-wise: the same floats on every machine, and the ones the fusion step's compiled
+    kernels give (skelfuse.fusion.kernels_lerp); a BLAS product's depend on its kernel (fused
+    multiply-adds or not, in its order).
+    """
     pts = np.asarray(points, dtype=np.float64)
-    out: npt.NDArray[np.float64] = pts @ transform[:3, :3].T + transform[:3, 3]
+    rotation, shift = transform[:3, :3], transform[:3, 3]
+    out: npt.NDArray[np.float64] = (
+        (pts[..., 0:1] * rotation[:, 0] + pts[..., 1:2] * rotation[:, 1])
+        + pts[..., 2:3] * rotation[:, 2]
+        + shift
+    )
     return out
 
 
