@@ -8,8 +8,8 @@ mirror gather, a padded per-person stack and its sums, a gather per late body), 
 operations in the same order: per joint coordinate, the difference where both times are
 Tracked, added view after view to 0.0 in the person's view order (numpy's sum over the stacked
 views starts from 0.0 and adds them in that order; its padding adds 0.0, which changes no sum
-that starts from 0.0), divided by the count of finite terms. So the same bits
-(tests/unit/test_kernels_motion.py).
+that starts from 0.0), divided by the count of finite terms; each late body's row straight
+from its person's views, found by id. So the same bits (tests/unit/test_kernels_motion.py).
 
 As :mod:`skelfuse.fusion.kernels_observe`: the loop runs only once :func:`warm_up` has compiled
 it, so no frame waits for a compilation; until then, and with the kernels off, numpy runs.
@@ -48,9 +48,9 @@ def warm_up() -> None:
 def person_displacements(
     joints: FloatArray,
     states: npt.NDArray[np.uint8],
-    group_of: IndexArray,
+    person_of: IndexArray,
     labels: npt.NDArray[np.bool_],
-    late_group: IndexArray,
+    late_person: IndexArray,
     late_swapped: npt.NDArray[np.bool_],
 ) -> FloatArray:
     """Per late body, its person's mean displacement over that person's on-time views.
@@ -59,29 +59,26 @@ def person_displacements(
         joints: (2K, 25, 3) world metres: the K on-time bodies at the instant (rows ``0..K-1``)
             and at the late frame's capture (rows ``K..2K-1``).
         states: (2K, 25) tracking states, the same rows.
-        group_of: (K,) each on-time body's person, numbered 0.. in order of first appearance.
+        person_of: (K,) each on-time body's person id.
         labels: (K,) each on-time body's mirror label (True: its left and right are swapped
             into the person's order of a body labelled False).
-        late_group: (L,) each late body's person number, or any number outside
-            ``group_of``'s for a body without a measurement (its row is all NaN).
+        late_person: (L,) each late body's person id, or −1 for nobody (its row is all NaN,
+            as is the row of a person no on-time body is of).
         late_swapped: (L,) whether a late body is labelled True (its row is swapped back).
 
     Returns:
         (L, 25, 3) metres, NaN where no view of the person has the joint Tracked at both times.
     """
-    groups = int(group_of.max()) + 1 if len(group_of) else 0
-    out = np.empty((len(late_group), JOINT_COUNT, 3))
-    means = np.empty((groups + 1, JOINT_COUNT, 3))
+    out = np.empty((len(late_person), JOINT_COUNT, 3))
     _displacements_loop(
         plain(joints),
         plain(states, np.uint8),
-        plain(group_of, np.intp),
+        plain(person_of, np.intp),
         plain(labels, np.bool_),
-        plain(late_group, np.intp),
+        plain(late_person, np.intp),
         plain(late_swapped, np.bool_),
         _MIRROR,
         _TRACKED,
-        means,
         out,
     )
     return out
@@ -91,46 +88,35 @@ def person_displacements(
 def _displacements_loop(  # pragma: no cover
     joints: FloatArray,
     states: npt.NDArray[np.uint8],
-    group_of: IndexArray,
+    person_of: IndexArray,
     labels: npt.NDArray[np.bool_],
-    late_group: IndexArray,
+    late_person: IndexArray,
     late_swapped: npt.NDArray[np.bool_],
     mirror: IndexArray,
     tracked: int,
-    means: FloatArray,
     out: FloatArray,
 ) -> None:
-    count = group_of.shape[0]
-    groups = means.shape[0] - 1  # the last row: no measurement
-    joints_n = means.shape[1]
-    for g in range(groups):
-        for j in range(joints_n):
+    count = person_of.shape[0]
+    for row in range(late_person.shape[0]):
+        person = late_person[row]
+        for j in range(out.shape[1]):
+            # The late body's joint j is the person's joint ``wanted`` in the order of a body
+            # labelled False; each view's own joint for it is swapped if the view is labelled True.
+            wanted = mirror[j] if late_swapped[row] else j
             for c in range(3):
                 total = 0.0
                 seen = 0
                 for k in range(count):
-                    if group_of[k] != g:
+                    if person < 0 or person_of[k] != person:
                         continue
-                    # The view in the joint order of a body labelled False.
-                    source = mirror[j] if labels[k] else j
+                    source = mirror[wanted] if labels[k] else wanted
                     if states[k, source] != tracked or states[count + k, source] != tracked:
                         continue  # Inferred at either time: the sensor's guess, not measured
                     moved = joints[k, source, c] - joints[count + k, source, c]
                     if np.isfinite(moved):
                         total += moved
                         seen += 1
-                means[g, j, c] = total / max(seen, 1) if seen > 0 else np.nan
-    for j in range(joints_n):
-        for c in range(3):
-            means[groups, j, c] = np.nan
-    for row in range(late_group.shape[0]):
-        g = late_group[row]
-        if g < 0 or g >= groups:
-            g = groups
-        for j in range(joints_n):
-            source = mirror[j] if late_swapped[row] else j
-            for c in range(3):
-                out[row, j, c] = means[g, source, c]
+                out[row, j, c] = total / max(seen, 1) if seen > 0 else np.nan
 
 
 def carried_worlds(

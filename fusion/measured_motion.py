@@ -73,25 +73,29 @@ def _displacements(
     world joints and states at the instant (rows ``0..K-1``, (2K, 25, 3) and (2K, 25)) and at
     the late frame's capture (rows ``K..2K-1``): (L, 25, 3) metres, row by row ``late_keys``,
     all NaN for a body without a measurement; and which bodies have one."""
-    # Each person's views, in their order (dicts keep it); persons numbered as they appear.
-    group_index: dict[int, int] = {}
-    group_of = [group_index.setdefault(members[key][0], len(group_index)) for key in keys]
-    # Each late body's person's number (len(group_index): none) and whether it is swapped back.
-    unseen = len(group_index)
-    rows: list[int] = []
-    swapped: list[bool] = []
-    for key in late_keys:
-        person = members.get(key)
-        at = None if person is None else group_index.get(person[0])
-        rows.append(unseen if at is None else at)
-        swapped.append(at is not None and person is not None and person[1])
-    has = [at != unseen for at in rows]
+    unknown = (-1, False)  # a late body of nobody (person ids start at 1)
+    late = [members.get(key, unknown) for key in late_keys]
+    persons = [members[key][0] for key in keys]
+    present = set(persons)
+    has = [person in present for person, _ in late]
     labels = np.array([members[k][1] for k in keys])
     if kernels.enabled() and kernels_motion.warmed():  # the same bits in one loop
         moved = kernels_motion.person_displacements(
-            joints, states, np.array(group_of), labels, np.array(rows), np.array(swapped, bool)
+            joints,
+            states,
+            np.array(persons),
+            labels,
+            np.array([person for person, _ in late]),
+            np.array([swap for _, swap in late], bool),
         )
         return moved, has
+    # Each person's views, in their order (dicts keep it); persons numbered as they appear.
+    group_index: dict[int, int] = {}
+    group_of = [group_index.setdefault(person, len(group_index)) for person in persons]
+    # Each late body's person's number (len(group_index): none) and whether it is swapped back.
+    unseen = len(group_index)
+    rows = [group_index.get(person, unseen) for person, _ in late]
+    swapped = [at != unseen and swap for at, (_, swap) in zip(rows, late, strict=True)]
     count = len(keys)
     # An Inferred joint is the sensor's guess, not a measurement: its motion is not used.
     tracked = (states[:count] == _TRACKED) & (states[count:] == _TRACKED)
@@ -136,6 +140,15 @@ def measured_from_arrays(
     late_keys = [(b.sensor.sensor_id, i) for b in newest for i in b.bodies.tracking_ids]
     now_keys = [(b.sensor.sensor_id, i) for b in now for i in b.bodies.tracking_ids]
     then_keys = [(b.sensor.sensor_id, i) for b in then for i in b.bodies.tracking_ids]
+    if (
+        now_keys
+        and now_keys == then_keys
+        and len(set(now_keys)) == len(now_keys)
+        and all(key in members for key in now_keys)
+    ):  # the usual instant: the same bodies at both times, each of a person: rows as they are
+        joints = np.concatenate([b.world for b in now] + [b.world for b in then])
+        states = np.concatenate([b.bodies.states for b in now] + [b.bodies.states for b in then])
+        return _displacements(late_keys, members, now_keys, joints, states)[0]
     then_row = {key: row for row, key in enumerate(then_keys)}
     now_row = {key: row for row, key in enumerate(now_keys)}  # a key twice: the last row
     keys = [k for k in now_row if k in then_row and k in members]

@@ -11,6 +11,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from skelfuse.fusion import kernels
 from skelfuse.fusion.alignment import Alignment, SensorTiming
 from skelfuse.fusion.alignment_replay import replayed_horizons
 from skelfuse.fusion.extrapolation import LatePredictor, carried_by_motion, views_with_late
@@ -25,6 +26,7 @@ from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION
 from skelfuse.protocol.transform import look_at_pose
 from skelfuse.protocol.wire import Body, Frame, Hello, encode
 from skelfuse.server.settings import FusionSettings, Settings
+from tests.support import require_numba
 
 P = 1 / 30
 T0 = 1_800_000_000.0
@@ -338,12 +340,17 @@ def test_measured_displacements_for_many_persons_are_each_persons_own_mean_to_th
         assert np.array_equal(got, expected, equal_nan=True), key
 
 
+@pytest.mark.parametrize("mode", ["numpy", "numba"])
+@pytest.mark.parametrize("usual", [False, True])
 @pytest.mark.parametrize("seed", range(12))
-def test_the_live_paths_measurement_on_arrays_is_the_views_rule_to_the_bit(seed: int) -> None:
+def test_the_live_paths_measurement_on_arrays_is_the_views_rule_to_the_bit(
+    seed: int, usual: bool, mode: str
+) -> None:
     """What views_with_late runs (measured_from_arrays, rows gathered by key from the sensors'
     arrays) against measured_displacements on the same bodies as views: bodies seen at only
     one of the two times, bodies of no person, late bodies of nobody, some unseen or Inferred
-    joints; the same numbers, NaN rows for the late bodies without a measurement."""
+    joints; the same numbers, NaN rows for the late bodies without a measurement. ``usual``:
+    every on-time body at both times and of a person (the rows taken as they are)."""
     rng = np.random.default_rng(200 + seed)
 
     def sensor_bodies(sensor: str, ids: list[int], states: np.ndarray) -> SensorBodies:
@@ -362,7 +369,7 @@ def test_the_live_paths_measurement_on_arrays_is_the_views_rule_to_the_bit(seed:
     for sensor in "acd":
         ids = [int(i) for i in rng.permutation(8)[: rng.integers(1, 6)]]
         now.append(sensor_bodies(sensor, ids, states_of(len(ids))))
-        kept = [i for i in ids if rng.random() < 0.8] or ids[:1]  # some only at the instant
+        kept = [i for i in ids if usual or rng.random() < 0.8] or ids[:1]  # some only now
         then.append(sensor_bodies(sensor, kept, states_of(len(kept))))
     late_ids = [int(i) for i in rng.permutation(9)[:5]]
     newest = [sensor_bodies("b", late_ids, states_of(len(late_ids)))]
@@ -370,7 +377,7 @@ def test_the_live_paths_measurement_on_arrays_is_the_views_rule_to_the_bit(seed:
         (b.sensor.sensor_id, i): (int(rng.integers(0, 4)), bool(rng.random() < 0.4))
         for b in now + newest
         for i in b.bodies.tracking_ids
-        if rng.random() < 0.85  # some bodies were nobody at the last step
+        if rng.random() < 0.85 or (usual and b.sensor.sensor_id != "b")  # some were nobody
     }
 
     def views(bodies: list[SensorBodies]) -> dict[tuple[str, int], View]:
@@ -381,8 +388,12 @@ def test_the_live_paths_measurement_on_arrays_is_the_views_rule_to_the_bit(seed:
         }
 
     late_keys = [("b", i) for i in late_ids]
-    want = measured_displacements(late_keys, members, views(then), views(now))
-    got = measured_from_arrays(newest, members, now, then)
+    if mode == "numba":
+        require_numba()
+    with kernels.forced(mode):
+        kernels.warm_up()  # the compiled measurement runs once warmed
+        want = measured_displacements(late_keys, members, views(then), views(now))
+        got = measured_from_arrays(newest, members, now, then)
     assert got.shape == (len(late_ids), JOINT_COUNT, 3)
     for row, key in enumerate(late_keys):
         if key in want:
