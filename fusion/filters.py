@@ -142,24 +142,18 @@ def filter_all(
             those rows came from instead of stacking the rows again (the same values, without
             ~2 × P copies of each person's covariances).
     """
-    if stacks is not None and len(stacks) == 1 and len(filters) == len(joints):
-        # The usual step: the very filters of the last call, one group, none stepped alone or
-        # restarted since (their states are still the rows it gave them, in order).
-        last_rows, stacked = next(iter(stacks.values()))
-        if (
-            len(last_rows) == len(filters)
-            and stacked[2].shape[1:] == joints.shape[1:]
-            and all(_holds(f, row) for f, row in zip(filters, last_rows, strict=True))
-        ):
-            return _step_group(filters, joints, t_s, stacked, stacks)
     out: list[FloatArray | None] = [None] * len(filters)
     groups: dict[tuple[type, tuple[float, ...]], list[int]] = {}
     stackable = _STACKABLE
-    for i, f in enumerate(filters):
-        if isinstance(f, stackable) and f._t is not None and f._t.shape == joints.shape[1:]:
-            groups.setdefault((type(f), f._params()), []).append(i)
-        else:
-            out[i] = f(joints[i], t_s)
+    if _same_group(filters, joints, stacks):  # the usual step: no regrouping
+        assert stacks is not None
+        groups[next(iter(stacks))] = list(range(len(filters)))
+    else:
+        for i, f in enumerate(filters):
+            if isinstance(f, stackable) and f._t is not None and f._t.shape == joints.shape[1:]:
+                groups.setdefault((type(f), f._params()), []).append(i)
+            else:
+                out[i] = f(joints[i], t_s)
     kept: Stacks = {}
     for key, members in groups.items():
         chosen = [f for i in members if isinstance(f := filters[i], stackable)]
@@ -188,28 +182,21 @@ def filter_all(
     return [o for o in out if o is not None]
 
 
-def _holds(f: JointFilter, row: StateRows) -> bool:
-    """Whether ``f`` is a stackable filter whose state arrays are the very ones of ``row``."""
-    if not isinstance(f, _STACKABLE):
+def _same_group(filters: list[JointFilter], joints: FloatArray, stacks: Stacks | None) -> bool:
+    """Whether the last call stepped one group, the very filters of this call in this order,
+    none stepped alone or restarted since (each one's time array is still the row that call
+    gave it, so its kind and parameters are that group's): then they are that group again."""
+    if stacks is None or len(stacks) != 1 or len(filters) != len(joints):
         return False
-    return all(a is b for a, b in zip(f._state(), row, strict=True)) if f._t is not None else False
-
-
-def _step_group(
-    filters: list[JointFilter], joints: FloatArray, t_s: float, stacked: StateRows, stacks: Stacks
-) -> list[FloatArray]:
-    """:func:`filter_all`'s usual step: the one group of every filter, stepped from the arrays
-    its states are rows of (``stacked``); ``stacks`` keeps the new ones."""
-    chosen = [f for f in filters if isinstance(f, _STACKABLE)]  # all of them (_holds)
-    result, *new = chosen[0]._step(np.asarray(joints, dtype=np.float64), *stacked, t_s)
-    rows: list[StateRows] = []
-    for k, f in enumerate(chosen):
-        row = (new[0][k], new[1][k], new[2][k])
-        f._set_state(*row)
-        rows.append(row)
-    key = next(iter(stacks))
-    stacks[key] = (rows, (new[0], new[1], new[2]))
-    return list(result)
+    last_rows, stacked = next(iter(stacks.values()))
+    return (
+        len(last_rows) == len(filters)
+        and stacked[2].shape[1:] == joints.shape[1:]
+        and all(
+            isinstance(f, _STACKABLE) and f._t is row[2]
+            for f, row in zip(filters, last_rows, strict=True)
+        )
+    )
 
 
 def _same_rows(last: list[StateRows], states: list[StateRows]) -> bool:

@@ -175,18 +175,7 @@ def _compiled(
         np.repeat(np.arange(len(items)), counts),
         np.array(poses, dtype=np.float64),
     )
-    arrays: list[BodyArrays] = []
-    worlds: list[FloatArray] = []
-    lo = 0
-    for item, count in zip(items, counts, strict=True):
-        hi = lo + count
-        if isinstance(item, _Pending):
-            nearer = item.nearer
-            item = BodyArrays(nearer.tracking_ids, joints32[lo:hi], states[lo:hi], nearer.hands)
-        arrays.append(item)
-        worlds.append(world[lo:hi])
-        lo = hi
-    return arrays, worlds
+    return _split(items, joints32, states, every_row=True), _rows_of(world, counts)
 
 
 def views_of(bodies: list[SensorBodies], t_s: float) -> list[View]:
@@ -265,9 +254,11 @@ def _split(
     items: list[BodyArrays | _Pending],
     joints32: npt.NDArray[np.float32],
     states: npt.NDArray[np.uint8],
+    every_row: bool = False,
 ) -> list[BodyArrays]:
     """``items`` with each pending one replaced by its rows of the interpolated ``joints32``
-    (N, 25, 3) and ``states`` (N, 25), in order."""
+    (N, 25, 3) and ``states`` (N, 25), in order; rows for the pending items only, or with
+    ``every_row`` for every item (the others' rows unread)."""
     done: list[BodyArrays] = []
     lo = 0
     for item in items:
@@ -280,7 +271,18 @@ def _split(
             lo = hi
         else:
             done.append(item)
+            lo += len(item.tracking_ids) if every_row else 0
     return done
+
+
+def _rows_of(array: FloatArray, counts: list[int]) -> list[FloatArray]:
+    """``array``'s consecutive rows, ``counts[k]`` of them for the k-th part."""
+    out: list[FloatArray] = []
+    lo = 0
+    for count in counts:
+        out.append(array[lo : lo + count])
+        lo += count
+    return out
 
 
 def bodies_to_world(
@@ -297,9 +299,4 @@ def bodies_to_world(
         + points[..., 2:3] * rotation[..., 2]
         + shift
     )
-    out: list[FloatArray] = []
-    lo = 0
-    for count in counts:
-        out.append(world[lo : lo + count])
-        lo += count
-    return out
+    return _rows_of(world, counts)

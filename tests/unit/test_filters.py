@@ -159,13 +159,15 @@ def test_filter_all_one_group_with_stacks_matches_separate_calls(
     from skelfuse.fusion import filters
 
     short: list[int] = []
-    step_group = filters._step_group
+    same_group = filters._same_group
 
-    def counted(*args: Any) -> Any:
-        short.append(len(args[0]))
-        return step_group(*args)
+    def counted(*args: Any) -> bool:
+        same = same_group(*args)
+        if same:
+            short.append(len(args[0]))
+        return same
 
-    monkeypatch.setattr(filters, "_step_group", counted)
+    monkeypatch.setattr(filters, "_same_group", counted)
     rng = np.random.default_rng(6)
     together = [filters.make_filter(kind) for _ in range(6)]
     apart = [filters.make_filter(kind) for _ in range(6)]
