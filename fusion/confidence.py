@@ -93,6 +93,9 @@ J = JointId
 _BONE_CHILD: Final = np.array([child for _, child in BONES])
 _BONE_PARENT: Final = np.array([parent for parent, _ in BONES])
 _CHAIN: Final = (np.array(CHAIN_ORDER[1:]), np.array([PARENTS[j] for j in CHAIN_ORDER[1:]]))
+BODY_TABLES: Final = ((_BONE_PARENT, _BONE_CHILD), _CHAIN)
+"""The body terms' index tables: each bone's parent and child joint; the joints below
+SpineBase, parents first, and their parents (what the compiled body terms take)."""
 """The joints below SpineBase, parents first, and their parents (the compiled propagate)."""
 
 
@@ -286,7 +289,7 @@ def body_weights(
     s = settings
     # Each distinct prior's values once, gathered per view (the same floats as view by view).
     distinct, of_view = distinct_priors(priors) if priors is not None else ([], None)
-    if all(_as_settings(p, s) for p in distinct):  # Kinect v2 alike: the shared table's floats
+    if all(as_settings(p, s) for p in distinct):  # Kinect v2 alike: the shared table's floats
         of_view = None
     if of_view is None and kernels.enabled():  # the same bits in one compiled loop
         with_rom = s.use_range_of_motion
@@ -329,7 +332,7 @@ def body_weights(
     return out
 
 
-def _as_settings(prior: SensorPrior, settings: FusionSettings) -> bool:
+def as_settings(prior: SensorPrior, settings: FusionSettings) -> bool:
     """Whether ``prior`` changes nothing in :func:`body_weights` (the settings' table, no
     fixed-length body model, range-of-motion scale and noise 1)."""
     return (

@@ -194,6 +194,7 @@ def warm_up() -> float:
         kernels_replay,
         kernels_tracks,
         kernels_trunks,
+        kernels_weigh,
     )
 
     kernels_observe.warm_up()  # callers check warmed() (and enabled())
@@ -204,4 +205,5 @@ def warm_up() -> float:
     kernels_motion.warm_up()
     kernels_lerp.warm_up()
     kernels_replay.warm_up()
+    kernels_weigh.warm_up()
     return time.perf_counter() - start

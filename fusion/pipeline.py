@@ -21,6 +21,7 @@
 
 Step 5 runs twice around step 6: facing and distance need to know where the person stands and
 faces, which the first fusion (with the body terms alone) tells for a person seen the first time.
+Both are :func:`skelfuse.fusion.weigh.weigh_and_fuse`'s, one compiled call in the usual step.
 
 Every step is a pure function on arrays except the state each person carries from one instant
 to the next: its identity and motion (:class:`~skelfuse.fusion.identity.PersonTracker`) and what
@@ -37,7 +38,7 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion import kernels
-from skelfuse.fusion.anatomy import corrected_yaw, facing_directions
+from skelfuse.fusion.anatomy import facing_directions
 from skelfuse.fusion.batch import ViewBatch
 from skelfuse.fusion.bones import (
     BoneModel,
@@ -45,17 +46,15 @@ from skelfuse.fusion.bones import (
     observe_bone_lengths,
     references_of,
 )
-from skelfuse.fusion.confidence import body_weights, facing_cosines, view_factors
 from skelfuse.fusion.filters import JointFilter, Stacks, filter_all, make_filter
 from skelfuse.fusion.identity import PersonTracker, Track
 from skelfuse.fusion.labels import LabelDoubt, Labels, label_views, walking_backwards
 from skelfuse.fusion.mirror_labellings import MAX_VIEWS
 from skelfuse.fusion.priors import priors_of
-from skelfuse.fusion.reliability import reliability_factors
 from skelfuse.fusion.sensors import SensorState
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.views import FusedPerson, View, fused_persons
-from skelfuse.fusion.weighted import cauchy_reweight, confidence_and_carriers
+from skelfuse.fusion.weigh import weigh_and_fuse
 from skelfuse.fusion.world_views import PoseLookup, views_at
 
 __all__ = ["FusionPipeline", "PersonMemory", "PoseLookup", "views_at"]
@@ -142,60 +141,19 @@ class FusionPipeline:
                     self._swap_person(ids[p], relabel=False)
                     track_facing[p] = facing_directions(tracks[p].joints[None])[0]
 
-            # 5. Per-joint confidence from each view's body alone, 6. a first fusion.
-            references = references_of([m.bones for m in memories])
+            # 5. Per-joint confidence, 6. weighted fusion (fusion/weigh.py).
             types = [v.sensor_type for v in batch.views]
-            priors = priors_of(types) if s.use_sensor_priors else None  # fusion/priors.py
-            weights = body_weights(
-                batch.joints,
-                batch.states,
-                references[batch.person_of] if np.isfinite(references).any() else None,
+            weighed = weigh_and_fuse(
+                batch,
                 rom,
+                references_of([m.bones for m in memories]),
+                track_facing,
+                [t.fused_once for t in tracks],
                 s,
-                priors,
+                priors_of(types) if s.use_sensor_priors else None,  # fusion/priors.py
             )
-            fused = batch.fuse(weights)
-
-            # 5. Facing and distance: each view's factor from where the person stands and faces.
-            facing = track_facing
-            if not all(t.fused_once for t in tracks):
-                fused_once = np.array([t.fused_once for t in tracks])
-                facing = np.where(fused_once[:, None], track_facing, facing_directions(fused))
-            stands = batch.body_positions(fused)[batch.person_of]
-            cosines = facing_cosines(facing[batch.person_of], stands, batch.sensors)
-            if s.correct_view_yaw:
-                for lo, hi in zip(batch.starts[:-1], batch.starts[1:], strict=True):
-                    if hi - lo > 1:
-                        batch.joints[lo:hi] = corrected_yaw(
-                            batch.joints[lo:hi], cosines[lo:hi], s.yaw_max_deg
-                        )
-            if s.use_facing or s.use_distance or s.correct_view_yaw:
-                weights = weights * view_factors(cosines, stands, batch.sensors, s, priors)[:, None]
-                fused = batch.fuse(weights)  # 6. weighted fusion
-            if s.use_view_reliability:  # 5. how well each view sees each joint
-                weights = weights * reliability_factors(
-                    batch.joints,
-                    cosines,
-                    batch.sensors,
-                    batch.starts.tolist(),
-                    s.view_lean_fraction,
-                    s.view_error_m,
-                    s.view_jitter_per_m2,
-                    s.view_occlusion_m,
-                    batch.states,
-                )
-                fused = batch.fuse(weights)
-
-            if s.outlier_scale_m > 0:  # 6. one Cauchy pass where a person has several views
-                several = np.array(batch.counts)[batch.person_of] > 1
-                if several.any():
-                    reweighted = cauchy_reweight(
-                        batch.joints, fused[batch.person_of], weights, s.outlier_scale_m
-                    )
-                    weights = np.where(several[:, None], reweighted, weights)
-                    fused = batch.fuse(weights)
-            padded_joints, padded_weights = batch.pad(batch.joints, np.nan), batch.pad(weights, 0.0)
-            confidence, carried = confidence_and_carriers(padded_joints, padded_weights)
+            fused, cosines = weighed.fused, weighed.cosines
+            confidence, carried = weighed.confidence, weighed.carried
 
             observe_bone_lengths(
                 [m.bones for m in memories],
