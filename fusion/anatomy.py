@@ -185,7 +185,8 @@ _ANGLE_HIGH: Final = np.array(
     [ROM_LIMITS_DEG[name][1] for name, _ in _SIDED_ANGLES for _side in range(2)]
     + [ROM_LIMITS_DEG["neck_flexion"][1]]
 )
-
+ANGLE_LIMITS: Final = (_ANGLE_LOW, _ANGLE_HIGH)
+"""The angle table's limits, low and high (13,), degrees: what the compiled kernels take."""
 
 _KNEE_COLUMNS: Final = (2, 3, 4, 5)
 """Columns of the angle table landing on the knees (hip flexion L/R, hip abduction L/R)."""

@@ -187,6 +187,7 @@ def warm_up() -> float:
     # The bone observation's medians and the Kalman correction: they run once warmed.
     from skelfuse.fusion import (
         kernels_filter,
+        kernels_label_stage,
         kernels_lerp,
         kernels_median,
         kernels_motion,
@@ -206,4 +207,5 @@ def warm_up() -> float:
     kernels_lerp.warm_up()
     kernels_replay.warm_up()
     kernels_weigh.warm_up()
+    kernels_label_stage.warm_up()
     return time.perf_counter() - start

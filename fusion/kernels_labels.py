@@ -1,10 +1,10 @@
 """The mirror labels' bookkeeping as loops, for a compiled kernel: each view's anatomical
 evidence against its labelling, and the mirrored views swapped back in place.
 
-:func:`evidence_loop` is :func:`skelfuse.fusion.labels.view_evidence` with its sum per person,
-:func:`swap_loop` the swap in :func:`skelfuse.fusion.labels.label_views`, written as scalar code:
-:mod:`skelfuse.fusion.kernels` compiles them with numba (the same bits: sums as numpy's
-pairwise sum, copies as copies).
+:func:`evidence_loop` is :func:`skelfuse.fusion.label_scores.view_evidence` with its sum per
+person, :func:`swap_loop` the swap in :func:`skelfuse.fusion.labels.label_views`, written as
+scalar code: :mod:`skelfuse.fusion.kernels` compiles them with numba (the same bits: sums as
+numpy's pairwise sum, copies as copies).
 
 Imported only by :mod:`skelfuse.fusion.kernels_stages` when the kernels run; without numba
 :func:`~skelfuse.fusion.kernels_jit.jit` leaves the functions plain Python (slow, same results).
@@ -36,8 +36,8 @@ def evidence_loop(
     per_view: FloatArray,
     evidence: FloatArray,
 ) -> None:
-    """Fill ``per_view`` (N,) and ``evidence`` (P,) as ``labels.view_evidence`` and its sum per
-    person (``np.bincount``: view after view from 0).
+    """Fill ``per_view`` (N,) and ``evidence`` (P,) as ``label_scores.view_evidence`` and its
+    sum per person (``np.bincount``: view after view from 0).
 
     factors: (N, 2, 25) range-of-motion factors as reported and swapped; mirrored: (N,) the
     labelling chosen; person_of: (N,) each view's person.

@@ -93,7 +93,7 @@ def mirror_scores(
 def view_evidence(
     factors: FloatArray, mirrored: npt.NDArray[np.bool_], person_of: IntArray, persons: int
 ) -> tuple[FloatArray, FloatArray]:
-    """The compiled :func:`skelfuse.fusion.labels.view_evidence` and its sum per person (the
+    """The compiled :func:`skelfuse.fusion.label_scores.view_evidence` and its sum per person (the
     same bits as ``np.bincount``).
 
     Args:

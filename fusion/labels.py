@@ -23,7 +23,8 @@ import numpy.typing as npt
 
 from skelfuse.fusion import kernels, kernels_stages
 from skelfuse.fusion.anatomy import facing_direction, facing_directions, facings_of_forward
-from skelfuse.fusion.mirror import PERMUTATION, choose_labellings_and_forward
+from skelfuse.fusion.label_scores import scored_labels
+from skelfuse.fusion.mirror import PERMUTATION
 from skelfuse.fusion.mirror_labellings import slots
 from skelfuse.fusion.settings import FusionSettings
 
@@ -104,30 +105,22 @@ def label_views(
         remembered = np.array([d.facing for d in doubts], dtype=np.float64)
         known = np.isfinite(remembered).all(axis=1, keepdims=True)
         reference_facings = np.where(known, remembered, reference_facings)
-    mirrored, both_rom, forward = choose_labellings_and_forward(
+    redeciding = s.mirror_redecide and doubts is not None
+    mirrored, both_rom, forward, per_view, summed = scored_labels(
         joints,
         sensor_positions,
         counts,
         references,
         reference_facings,
         previous,
-        geometry_weight_m=s.mirror_geometry_weight_m,
-        hysteresis_m=s.mirror_hysteresis_m,
-        track_weight=s.mirror_track_weight,
-        anatomy_weight_m=s.mirror_anatomy_weight_m,
-        rom_scale_deg=s.rom_scale_deg,
-        need_rom=s.use_range_of_motion or (s.mirror_redecide and doubts is not None),
+        s,
+        need_rom=s.use_range_of_motion or redeciding,
+        want_evidence=redeciding,
     )
     swapped = np.zeros(len(counts), dtype=bool)
-    if s.mirror_redecide and doubts is not None and both_rom is not None:
+    if redeciding and per_view is not None and summed is not None:
+        assert doubts is not None
         sensors = [frozenset(k[0] for k in keys[lo:hi]) for lo, hi in pairwise(starts)]
-        if kernels.enabled():  # the same bits in one compiled loop
-            per_view, summed = kernels_stages.view_evidence(
-                both_rom, mirrored, person_of, len(counts)
-            )
-        else:
-            per_view = view_evidence(both_rom, mirrored)
-            summed = np.bincount(person_of, per_view, len(counts)).astype(np.float64)
         evidence = summed.tolist()
         for p, doubt in enumerate(doubts):
             if not redecide(doubt, evidence[p], sensors[p], t_s, s):
@@ -175,42 +168,6 @@ def label_views(
     return mirrored, rom, swapped
 
 
-def evidence_against(
-    both_rom: FloatArray, mirrored: npt.NDArray[np.bool_], counts: Sequence[int]
-) -> FloatArray:
-    """(P,) each person's anatomical evidence against its labelling, in joints.
-
-    Σ over the person's views of (joints out of range of motion as labelled) − (as swapped),
-    a joint counting 1 − its range-of-motion factor. Agreement between views and the geometry
-    term cannot tell a labelling from its reverse (turning every view over keeps the views in
-    agreement and reverses the facing they imply); anatomy can: with left and right swapped,
-    feet point backwards and bent knees look hyperextended. A view that does not see the legs
-    (close to a sensor behind the person) adds next to nothing, however it was labelled.
-
-    Args:
-        both_rom: (N, 2, 25) range-of-motion factors of each view as reported (0) and swapped
-            (1), as :func:`~skelfuse.fusion.mirror.choose_labellings` gives them.
-        mirrored: (N,) the labelling chosen.
-        counts: views per person.
-    """
-    person_of = np.repeat(np.arange(len(counts)), counts)
-    per_view = view_evidence(both_rom, mirrored)
-    evidence: FloatArray = np.bincount(person_of, per_view, len(counts)).astype(np.float64)
-    return evidence
-
-
-def view_evidence(both_rom: FloatArray, mirrored: npt.NDArray[np.bool_]) -> FloatArray:
-    """(N,) each view's anatomical evidence against its labelling, in joints
-    (:func:`evidence_against` before the sum over a person's views; 0 where unknown)."""
-    out_of_range = (1.0 - both_rom).sum(axis=2)  # (N, 2)
-    rows = np.arange(len(mirrored))
-    chosen = mirrored.astype(np.intp)
-    per_view: FloatArray = out_of_range[rows, chosen] - out_of_range[rows, 1 - chosen]
-    if not np.isfinite(per_view).all():  # (the factors are finite: kept for safety)
-        per_view = np.nan_to_num(per_view)
-    return per_view
-
-
 def views_alone(
     per_view: FloatArray, doubt: LabelDoubt, t_s: float, s: FusionSettings
 ) -> npt.NDArray[np.bool_] | None:
@@ -246,11 +203,11 @@ def redecide(
 ) -> bool:
     """Whether a person's labels are turned over now; updates its running ``doubt``.
 
-    The evidence of each step (:func:`evidence_against`) is summed, decaying with
-    ``mirror_redecide_tau_s``; past ``mirror_redecide_evidence`` the person is swapped and the
-    sum starts over. A person younger than ``mirror_redecide_young_s`` that a sensor has just
-    joined re-decides on this step's evidence alone, against half the threshold: its labels
-    were a guess from fewer views.
+    The evidence of each step (:func:`~skelfuse.fusion.label_scores.evidence_against`) is
+    summed, decaying with ``mirror_redecide_tau_s``; past ``mirror_redecide_evidence`` the
+    person is swapped and the sum starts over. A person younger than
+    ``mirror_redecide_young_s`` that a sensor has just joined re-decides on this step's
+    evidence alone, against half the threshold: its labels were a guess from fewer views.
     """
     if doubt.born_s is None:
         doubt.born_s = t_s

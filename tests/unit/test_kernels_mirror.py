@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pytest
 
-from skelfuse.fusion import anatomy, kernels, kernels_stages, labels, mirror
+from skelfuse.fusion import anatomy, kernels, kernels_stages, label_scores, labels, mirror
 from skelfuse.fusion.mirror_distances import LATERAL_JOINTS, LATERAL_SWAP, lateral_terms
 from skelfuse.fusion.mirror_labellings import layout
 from tests.unit.test_kernels import _numpy_uses_svml, _same_bits, _views
@@ -177,7 +177,7 @@ def test_evidence_kernel_gives_the_numpy_bits(numba_kernels: None, seed: int) ->
     factors[2, 1, 4] = -np.inf  # a sum of +inf against the labelling: the largest float
     person_of = layout(COUNTS, tuple((True, True) for _ in COUNTS)).person_of
     per_view, evidence = kernels_stages.view_evidence(factors, mirrored, person_of, len(COUNTS))
-    expected = labels.view_evidence(factors, mirrored)
+    expected = label_scores.view_evidence(factors, mirrored)
     assert _same_bits(per_view, expected)
     assert _same_bits(evidence, np.bincount(person_of, expected, len(COUNTS)))
     assert per_view[1] == 0.0 and abs(per_view[2]) == np.finfo(np.float64).max
