@@ -1,4 +1,5 @@
-"""The mirror labels' scoring in the usual step as one compiled call (numba).
+"""The mirror labels' scoring in the usual step as one compiled call (numba), and what follows
+the choice as another.
 
 :func:`skelfuse.fusion.label_scores.scored_labels` chooses every view's labelling and measures
 each view's anatomical evidence against it. With every person's last skeleton and facing known
@@ -9,7 +10,9 @@ same loops (:func:`~skelfuse.fusion.kernels_rom.rom_loop`,
 :func:`~skelfuse.fusion.kernels_mirror.lateral_loop`,
 :func:`~skelfuse.fusion.kernels_mirror.score_loop`,
 :func:`~skelfuse.fusion.kernels_labels.evidence_loop`) on the same values, so the same bits
-and the same choices (tests/unit/test_label_scores.py).
+and the same choices (tests/unit/test_label_scores.py). :func:`settled` does, once the choice is
+made (and re-decided), the swap back, the unbiased facings and the gather of the factors as
+labelled in one call too.
 
 The loop runs only once :func:`warm_up` has compiled it (or loaded it from numba's cache), so
 no frame waits for a compilation; until then, and with the kernels off, the calls one by one
@@ -23,8 +26,9 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
+from skelfuse.fusion.kernels_facing import unbiased_loop
 from skelfuse.fusion.kernels_jit import Warmed, jit, plain
-from skelfuse.fusion.kernels_labels import evidence_loop
+from skelfuse.fusion.kernels_labels import evidence_loop, swap_loop
 from skelfuse.fusion.kernels_mirror import Terms, lateral_loop, score_loop
 from skelfuse.fusion.kernels_rom import rom_loop
 
@@ -165,6 +169,67 @@ def _scored_loop(  # pragma: no cover - compiled
     evidence_loop(factors, mirrored, person_of, per_view, evidence)
 
 
+def settled(
+    joints: FloatArray,
+    states: npt.NDArray[np.uint8],
+    mirrored: BoolArray,
+    permutation: IntArray,
+    facing_terms: tuple[FloatArray, FloatArray, IntArray, float],
+    factors: FloatArray,
+) -> tuple[FloatArray, FloatArray]:
+    """After the choice: the mirrored views swapped back in place, each person's unbiased
+    facing and each view's range-of-motion factors as labelled, in one call (the loops of
+    :func:`~skelfuse.fusion.kernels_stages.swap_mirrored` and
+    :func:`~skelfuse.fusion.kernels_stages.unbiased_facings`, and the gather of ``factors``).
+
+    Args:
+        joints: (N, 25, 3) float64, states: (N, 25) uint8, both C-ordered and writable: the
+            views, swapped in place where ``mirrored`` (N,); permutation: (25,) left/right.
+        facing_terms: sensor positions (N, 3), each view's forward axis as reported and swapped
+            (N, 2, 3), (P + 1,) each person's first view then N, and the sensors' lean in [0, 1).
+        factors: (N, 2, 25) range-of-motion factors as reported and swapped.
+
+    Returns:
+        facings (P, 3) horizontal unit vectors (NaN rows: unknown), rom (N, 25).
+    """
+    sensor_positions, forward, starts, lean = facing_terms
+    facings = np.empty((len(starts) - 1, 3))
+    rom = np.empty((joints.shape[0], joints.shape[1]))
+    _settled_loop(
+        joints,
+        states,
+        plain(mirrored, np.bool_),
+        plain(permutation, np.intp),
+        (plain(sensor_positions), plain(forward), plain(starts, np.intp), float(lean)),
+        plain(factors),
+        (facings, rom),
+    )
+    return facings, rom
+
+
+@jit
+def _settled_loop(  # pragma: no cover - compiled
+    joints: FloatArray,
+    states: npt.NDArray[np.uint8],
+    mirrored: BoolArray,
+    permutation: IntArray,
+    facing_terms: tuple[FloatArray, FloatArray, IntArray, float],
+    factors: FloatArray,
+    out: tuple[FloatArray, FloatArray],
+) -> None:
+    sensor_positions, forward, starts, lean = facing_terms
+    facings, rom = out
+    swap_loop(joints, states, mirrored, permutation)
+    origins = np.empty((joints.shape[0], 3))
+    for v in range(joints.shape[0]):
+        chosen = 1 if mirrored[v] else 0
+        for c in range(3):
+            origins[v, c] = joints[v, 0, c]
+        for j in range(joints.shape[1]):
+            rom[v, j] = factors[v, chosen, j]
+    unbiased_loop(origins, sensor_positions, forward, mirrored, starts, lean, facings)
+
+
 def warm_up() -> None:
     """Compile (or load from numba's cache) the loop now; a no-op with the kernels off."""
     views = np.zeros((2, 25, 3))
@@ -180,4 +245,8 @@ def warm_up() -> None:
         (6, 1e-9),
         (15.0, np.zeros(13), np.zeros(13)),
     )
+    settled(
+        views, np.zeros((2, 25), np.uint8), np.ones(2, np.bool_), np.arange(25, dtype=np.intp),
+        (np.ones((2, 3)), np.ones((2, 2, 3)), np.array([0, 2]), 0.5), np.ones((2, 2, 25)),
+    )  # fmt: skip
     warmed.done = True

@@ -21,7 +21,7 @@ from itertools import pairwise
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion import kernels, kernels_stages
+from skelfuse.fusion import kernels, kernels_label_stage, kernels_stages
 from skelfuse.fusion.anatomy import facing_direction, facing_directions, facings_of_forward
 from skelfuse.fusion.label_scores import scored_labels
 from skelfuse.fusion.mirror import PERMUTATION
@@ -137,6 +137,25 @@ def label_views(
     for p, (lo, hi) in enumerate(pairwise(starts)):
         memories[p].clear()
         memories[p].update(zip(keys[lo:hi], flags[lo:hi], strict=True))
+    if (
+        unbiased
+        and forward is not None
+        and both_rom is not None
+        and (s.use_range_of_motion or s.mirror_anatomy_weight_m > 0)
+        and 0.0 <= s.view_lean_fraction < 1.0
+        and kernels.enabled()
+        and kernels_label_stage.warmed()
+        and _plain(joints, np.float64)
+        and _plain(states, np.uint8)
+    ):  # the usual step: the swap, the facings and the factors as labelled in one call
+        assert doubts is not None
+        facings, as_labelled = kernels_label_stage.settled(
+            joints, states, mirrored, PERMUTATION,
+            (sensor_positions, forward, places.starts, s.view_lean_fraction), both_rom,
+        )  # fmt: skip
+        for doubt, facing in zip(doubts, facings, strict=True):
+            doubt.facing = facing
+        return mirrored, as_labelled, swapped
     swapped_here = kernels.enabled() and kernels_stages.swap_mirrored(
         joints, states, mirrored, PERMUTATION
     )
@@ -196,6 +215,11 @@ def views_alone(
         return None
     result: npt.NDArray[np.bool_] = against
     return result
+
+
+def _plain(array: npt.NDArray[np.generic], dtype: type) -> bool:
+    """Whether ``array`` is C-ordered, writable and of ``dtype`` (swapped in place as it is)."""
+    return array.dtype == dtype and array.flags.c_contiguous and array.flags.writeable
 
 
 def redecide(

@@ -1,4 +1,5 @@
-"""The mirror labels' scoring in one compiled call gives the bits of the calls one by one.
+"""The mirror labels' scoring, and what follows the choice, in one compiled call each give the
+bits of the calls one by one.
 
 skelfuse.fusion.label_scores.scored_labels runs the usual step (every person's last skeleton
 and facing known) as one call (skelfuse.fusion.kernels_label_stage); anything else runs
@@ -11,12 +12,14 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import replace
+from itertools import pairwise
 from typing import Any
 
 import numpy as np
 import pytest
 
 from skelfuse.fusion import kernels, kernels_label_stage, label_scores
+from skelfuse.fusion.labels import LabelDoubt, label_views
 from skelfuse.fusion.settings import FusionSettings
 from tests.unit.test_kernels import _numpy_uses_svml, _same_bits
 from tests.unit.test_kernels_mirror import Frame, _frame
@@ -133,3 +136,55 @@ def test_the_compiled_call_waits_for_its_warm_up(
     got = _scored(_frame(0), FusionSettings(), "numba")
     assert calls == []  # no frame waits for a compilation
     _same(got, _scored(_frame(0), FusionSettings(), "numpy"))
+
+
+def _label(frame: Frame, mode: str, states_order: str = "C") -> tuple[Any, ...]:
+    """label_views on a copy of ``frame`` with remembered labels and running doubts."""
+    rng = np.random.default_rng(7)
+    joints = frame.views.copy()
+    states = np.asarray(rng.integers(0, 3, joints.shape[:2]), dtype=np.uint8, order=states_order)
+    keys = [(f"s{i % 4}", i) for i in range(len(joints))]
+    starts = np.cumsum((0, *frame.counts))
+    memories = [
+        {k: bool(rng.integers(0, 2)) for k in keys[lo:hi]} for lo, hi in pairwise(starts.tolist())
+    ]
+    doubts = [LabelDoubt(against=1.4, born_s=-5.0, last_s=-1 / 30) for _ in frame.counts]
+    doubts[1].facing = np.array([0.0, 0.0, 1.0])  # a remembered unbiased facing
+    with kernels.forced(mode):
+        mirrored, rom, swapped = label_views(
+            joints, states, frame.sensor_positions, keys, frame.counts, frame.references,
+            frame.reference_facings, memories, FusionSettings(), doubts, 0.0,
+        )  # fmt: skip
+    facings = np.array([d.facing for d in doubts])
+    return mirrored, rom, swapped, joints, states, facings, memories, [d.against for d in doubts]
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("states_order", ["C", "F"])
+def test_the_labels_after_the_choice_in_one_call_give_the_numpy_bits(
+    numba_kernels: None, monkeypatch: pytest.MonkeyPatch, seed: int, states_order: str
+) -> None:
+    calls: list[int] = []
+    original: Callable[..., Any] = kernels_label_stage.settled
+
+    def spied(*args: Any) -> Any:
+        calls.append(1)
+        return original(*args)
+
+    monkeypatch.setattr(kernels_label_stage, "settled", spied)
+    frame = _frame(seed)
+    got = _label(frame, "numba", states_order)
+    # The swap, the facings and the factors as labelled: one call, unless the states cannot be
+    # swapped in place as they are (Fortran order).
+    assert calls == ([1] if states_order == "C" else [])
+    expected = _label(frame, "numpy", states_order)
+    for a, b in zip(got, expected, strict=True):
+        if isinstance(a, np.ndarray) and not (_numpy_uses_svml() and a.dtype == np.float64):
+            assert _same_bits(np.ascontiguousarray(a), np.ascontiguousarray(b))
+        elif isinstance(a, np.ndarray):  # numpy's own trigonometry on AVX-512
+            np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12)
+        else:
+            assert a == b
+    mirrored, _, _, joints, _, facings, _, _ = got
+    assert mirrored.any() and np.isfinite(facings).all()
+    assert not np.array_equal(joints, frame.views, equal_nan=True)  # views were swapped back
