@@ -96,9 +96,10 @@ def label_views(
     places = slots(tuple(counts))
     person_of = places.person_of
     starts = places.starts.tolist()
-    previous = np.array(
-        [int(memories[p].get(k, -1)) for p, k in zip(person_of.tolist(), keys, strict=True)]
-    )
+    last: list[bool | int] = [
+        memories[p].get(k, -1) for p, k in zip(person_of.tolist(), keys, strict=True)
+    ]
+    previous = np.array(last, dtype=np.intp)  # 1, 0, or −1 (unknown)
     unbiased = s.mirror_unbiased_facing and doubts is not None
     if unbiased:  # the last step's facing without the sensors' turn, where known
         assert doubts is not None
@@ -135,8 +136,11 @@ def label_views(
             mirrored ^= swapped[person_of]
     flags = mirrored.tolist()
     for p, (lo, hi) in enumerate(pairwise(starts)):
-        memories[p].clear()
-        memories[p].update(zip(keys[lo:hi], flags[lo:hi], strict=True))
+        memory = memories[p]
+        if flags[lo:hi] == last[lo:hi] and len(memory) == hi - lo:
+            continue  # every view remembered, as decided again, and nothing else: as it is
+        memory.clear()
+        memory.update(zip(keys[lo:hi], flags[lo:hi], strict=True))
     if (
         unbiased
         and forward is not None

@@ -188,3 +188,23 @@ def test_the_labels_after_the_choice_in_one_call_give_the_numpy_bits(
     mirrored, _, _, joints, _, facings, _, _ = got
     assert mirrored.any() and np.isfinite(facings).all()
     assert not np.array_equal(joints, frame.views, equal_nan=True)  # views were swapped back
+
+
+def test_each_person_remembers_exactly_this_steps_labels() -> None:
+    """Kept as they are when decided again, replaced otherwise, and a body gone is forgotten."""
+    frame = _frame(3)
+    keys = [(f"s{i % 4}", i) for i in range(len(frame.views))]
+    starts = np.cumsum((0, *frame.counts)).tolist()
+    memories: list[dict[tuple[str, int], bool]] = [{} for _ in frame.counts]
+    for step in range(3):
+        if step == 2:
+            memories[0][("gone", 99)] = True  # a body no view shows any more
+            memories[1] = {k: not m for k, m in memories[1].items()}  # labels turned over
+        mirrored, _, _ = label_views(
+            frame.views.copy(), np.full(frame.views.shape[:2], 2, np.uint8),
+            frame.sensor_positions, keys, frame.counts, frame.references,
+            frame.reference_facings, memories, FusionSettings(), None, step / 30,
+        )  # fmt: skip
+        flags = mirrored.tolist()
+        for p, (lo, hi) in enumerate(pairwise(starts)):
+            assert memories[p] == dict(zip(keys[lo:hi], flags[lo:hi], strict=True)), (step, p)
