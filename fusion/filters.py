@@ -145,7 +145,8 @@ def filter_all(
     out: list[FloatArray | None] = [None] * len(filters)
     groups: dict[tuple[type, tuple[float, ...]], list[int]] = {}
     stackable = _STACKABLE
-    if _same_group(filters, joints, stacks):  # the usual step: no regrouping
+    same = _same_group(filters, joints, stacks)
+    if same:  # the usual step: no regrouping
         assert stacks is not None
         groups[next(iter(stacks))] = list(range(len(filters)))
     else:
@@ -158,12 +159,15 @@ def filter_all(
     for key, members in groups.items():
         chosen = [f for i in members if isinstance(f := filters[i], stackable)]
         first = chosen[0]
-        states = [f._state() for f in chosen]
         last = None if stacks is None else stacks.get(key)
-        if last is not None and _same_rows(last[0], states):
+        if same and last is not None:  # every state still the rows of those very arrays
             x, second, t = last[1]
         else:
-            x, second, t = (np.stack([s[k] for s in states]) for k in range(3))
+            states = [f._state() for f in chosen]
+            if last is not None and _same_rows(last[0], states):
+                x, second, t = last[1]
+            else:
+                x, second, t = (np.stack([s[k] for s in states]) for k in range(3))
         # Every filter in one group (the usual step): the samples as they are, not a gathered
         # copy (_step only reads them).
         whole = len(members) == len(joints)
@@ -185,7 +189,9 @@ def filter_all(
 def _same_group(filters: list[JointFilter], joints: FloatArray, stacks: Stacks | None) -> bool:
     """Whether the last call stepped one group, the very filters of this call in this order,
     none stepped alone or restarted since (each one's time array is still the row that call
-    gave it, so its kind and parameters are that group's): then they are that group again."""
+    gave it, so its kind and parameters are that group's): then they are that group again, and
+    their states are still that call's rows (a filter's three state arrays are only ever set
+    together: a step alone or ``_set_state``, and a restart is a new filter)."""
     if stacks is None or len(stacks) != 1 or len(filters) != len(joints):
         return False
     last_rows, stacked = next(iter(stacks.values()))
