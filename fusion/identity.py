@@ -233,10 +233,8 @@ class PersonTracker:
         remaining: list[View] = []
         # Midline joints of every view and every track's prediction, stacked once: the distances
         # below are computed for many pairs at a time (trunk_distances, the same floats).
-        trunks = _trunks(views)
         tracks = list(self.tracks.values())
         row_of = {t.person_id: k for k, t in enumerate(tracks)}
-        predicted = _predicted_trunks(tracks, t_s)
 
         # 1. Sticky membership (every view's distance to its track in one pass).
         owner: dict[ViewKey, Track] = {}
@@ -246,9 +244,28 @@ class PersonTracker:
         sticky = [owner.get((view.sensor_id, view.tracking_id)) for view in views]
         with_track = [i for i, t in enumerate(sticky) if t is not None]
         rows = [row_of[t.person_id] for t in sticky if t is not None]
-        if len(with_track) == len(views):  # every body still tracked: no gather, no scatter
-            distances: list[float] = trunk_distances(trunks, predicted[rows]).tolist()
+        # The views' and the tracks' predicted midline joints, (N, 5, 3) and (T, 5, 3): built
+        # unless the compiled call below does without them and no view is left to place.
+        trunks = predicted = _NO_TRUNKS
+        compiled = kernels.enabled() and kernels_trunks.warmed()
+        if views and len(with_track) == len(views) and compiled:
+            # Every body still tracked (the usual step): the distances in one compiled call.
+            distances: list[float] = kernels_trunks.sticky_distances(
+                np.array([v.joints_world for v in views], dtype=np.float64),
+                (
+                    np.array([t.joints for t in tracks], dtype=np.float64),
+                    np.array([t.velocity for t in tracks], dtype=np.float64),
+                    np.array([t.last_seen_s for t in tracks], dtype=np.float64),
+                ),
+                np.array(rows, dtype=np.intp),
+                t_s,
+                TRUNK_JOINTS,
+            ).tolist()
+        elif len(with_track) == len(views):  # every body still tracked: no gather, no scatter
+            trunks, predicted = _trunks(views), _predicted_trunks(tracks, t_s)
+            distances = trunk_distances(trunks, predicted[rows]).tolist()
         else:
+            trunks, predicted = _trunks(views), _predicted_trunks(tracks, t_s)
             spread = np.full(len(views), np.inf)
             if with_track:
                 spread[with_track] = trunk_distances(trunks[with_track], predicted[rows])
@@ -271,6 +288,8 @@ class PersonTracker:
                 sensors.add(view.sensor_id)
 
         # 2. Hungarian assignment to existing tracks, sensor by sensor.
+        if remaining and trunks is _NO_TRUNKS:
+            trunks, predicted = _trunks(views), _predicted_trunks(tracks, t_s)
         index_of = {id(view): i for i, view in enumerate(views)} if remaining else {}
         leftovers: list[View] = []
         for sensor_id in sorted({v.sensor_id for v in remaining}):
@@ -338,6 +357,10 @@ class PersonTracker:
                     if young.published and not old.published:
                         old.published = True
                     del self.tracks[younger]
+
+
+_NO_TRUNKS: Final = np.empty((0, len(TRUNK_JOINTS), 3))
+"""What :meth:`PersonTracker._assign` holds before it builds the trunks it needs."""
 
 
 def _trunks(views: list[View]) -> FloatArray:
