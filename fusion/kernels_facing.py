@@ -172,3 +172,22 @@ def facing_factors_loop(
         clipped = -1.0 if cos < -1.0 else (1.0 if cos > 1.0 else cos)
         value = floor + (1.0 - floor) * _power(abs(clipped), power)
         out[v] = value * back_factor if cos < 0 else value
+
+
+@jit
+def backwards_loop(
+    velocities: FloatArray, facings: FloatArray, min_speed: float, out: BoolArray
+) -> None:
+    """Fill ``out`` (P,) with whether each person walks backwards now, as
+    :func:`skelfuse.fusion.labels.walking_backwards` decides it before its timing: at least
+    ``min_speed`` (m/s) with a finite facing (P, 3) against the velocity (P, 3) by more than
+    half the speed (``(a₀b₀ + a₁b₁) + a₂b₂`` as there, on Python floats)."""
+    for p in range(len(out)):
+        v0, v1, v2 = velocities[p, 0], velocities[p, 1], velocities[p, 2]
+        speed = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+        backwards = False
+        if speed >= min_speed:
+            f0, f1, f2 = facings[p, 0], facings[p, 1], facings[p, 2]
+            finite = math.isfinite(f0) and math.isfinite(f1) and math.isfinite(f2)
+            backwards = finite and f0 * v0 + f1 * v1 + f2 * v2 < -0.5 * speed
+        out[p] = backwards

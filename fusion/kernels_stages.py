@@ -179,6 +179,16 @@ def facing_directions(skeletons: FloatArray) -> FloatArray:
     return out
 
 
+def walking_backwards(velocities: FloatArray, facings: FloatArray, min_speed: float) -> BoolArray:
+    """The compiled first half of :func:`skelfuse.fusion.labels.walking_backwards` for P persons:
+    whether each walks backwards now (velocities and facings (P, 3); the same decisions)."""
+    from skelfuse.fusion import kernels_facing  # imports numba: only when used
+
+    out = np.empty(len(velocities), dtype=np.bool_)
+    kernels_facing.backwards_loop(plain(velocities), plain(facings), float(min_speed), out)
+    return out
+
+
 def facing_cosines(facings: FloatArray, bodies: FloatArray, sensors: FloatArray) -> FloatArray:
     """The compiled :func:`skelfuse.fusion.confidence.facing_cosines`, one facing and body
     position per view (the same bits).
@@ -284,6 +294,7 @@ def warm_up() -> None:
         np.zeros(2, dtype=np.intp), (1.0, 0.1, 0.1, 0.01, 0.05), lateral, (6, 1e-9),
     )  # fmt: skip
     facing_directions(views)
+    walking_backwards(np.ones((2, 3)), np.ones((2, 3)), 0.3)
     swap_mirrored(views, np.zeros((2, 25), np.uint8), np.ones(2, bool), np.arange(25))
     facing_factors(facing_cosines(views[0], views[1], views[0]), 2.0, 0.1, 0.5)
     view_evidence(np.ones((2, 2, 25)), np.zeros(2, bool), np.zeros(2, dtype=np.intp), 1)

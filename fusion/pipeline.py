@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion import kernels
+from skelfuse.fusion import kernels, kernels_stages
 from skelfuse.fusion.anatomy import facing_directions
 from skelfuse.fusion.batch import ViewBatch
 from skelfuse.fusion.bones import (
@@ -253,6 +253,7 @@ class FusionPipeline:
         s = self.settings
         tracks = [self.tracker.tracks[person_id] for person_id in ids]
         facings: list[FloatArray | None] = [None] * len(ids)
+        computed: FloatArray | None = None
         self._facings = {}
         if tracks and s.mirror_walk_check_s > 0 and s.use_mirror_correction:
             joints = [track.joints for track in tracks]
@@ -261,8 +262,18 @@ class FusionPipeline:
             self._facings = {
                 pid: (row, facing) for pid, row, facing in zip(ids, joints, computed, strict=True)
             }
-        for person_id, track, facing in zip(ids, tracks, facings, strict=True):
+        ahead = [False] * len(ids)  # walking forwards (or standing) for sure: nothing to time
+        if computed is not None and kernels.enabled():  # one compiled call
+            velocities = np.array([t.velocity for t in tracks], dtype=np.float64)
+            backwards = kernels_stages.walking_backwards(
+                velocities, computed, s.mirror_walk_min_speed_mps
+            )
+            ahead = (~backwards).tolist()
+        for person_id, track, facing, forwards in zip(ids, tracks, facings, ahead, strict=True):
             memory = self.memories[person_id]
+            if forwards:  # what walking_backwards gives then
+                memory.backward_since_s = None
+                continue
             swap, memory.backward_since_s = walking_backwards(
                 track.joints, track.velocity, t_s, memory.backward_since_s, s, facing
             )

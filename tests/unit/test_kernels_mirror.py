@@ -208,6 +208,33 @@ def test_walking_check_decides_as_numpy_at_the_boundary() -> None:
     assert 0 < decided < 2000
 
 
+def test_walking_backwards_kernel_decides_as_the_python_check(numba_kernels: None) -> None:
+    """On the threshold of speed and of direction (cos −0.5, to rounding), unknown facings."""
+    from skelfuse.fusion.settings import FusionSettings
+
+    rng = np.random.default_rng(5)
+    settings = FusionSettings(mirror_walk_check_s=0.5, mirror_walk_min_speed_mps=0.5)
+    count = 3000
+    angle = rng.uniform(0, 2 * np.pi, count)
+    facings = np.stack([np.sin(angle), np.zeros(count), np.cos(angle)], axis=1)
+    side = np.stack([np.cos(angle), np.zeros(count), -np.sin(angle)], axis=1)
+    up = rng.uniform(-0.5, 0.5, count)
+    along = -0.5 + rng.normal(0, 1e-16, count)
+    direction = along[:, None] * facings + np.sqrt(0.75 - up**2)[:, None] * side
+    direction[:, 1] += up
+    velocities = rng.uniform(0.45, 0.55, count)[:, None] * direction
+    velocities[:5] = 0.5 * facings[:5] * [[-1.0, 1.0, -1.0]]  # backwards at exactly the speed
+    facings[rng.random(count) < 0.05, rng.integers(0, 3)] = np.nan  # unknown facings
+    got = kernels_stages.walking_backwards(velocities, facings, 0.5)
+    joints = _views(0)[0]
+    expected = [
+        labels.walking_backwards(joints, v, 1.0, 0.0, settings, f)[0]
+        for v, f in zip(velocities, facings, strict=True)
+    ]
+    assert got.tolist() == expected
+    assert 0 < sum(expected) < count
+
+
 def test_swap_kernel_swaps_as_numpy(numba_kernels: None) -> None:
     rng = np.random.default_rng(2)
     joints = _views(2)
