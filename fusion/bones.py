@@ -165,8 +165,10 @@ def project_bone_lengths(
     """
     original = np.asarray(joints, dtype=np.float64)
     ref = np.asarray(reference, dtype=np.float64)
-    move = np.ones(original.shape[:-1]) if mobility is None else np.asarray(mobility, np.float64)
-    move = np.maximum(move, 1e-6)
+    if mobility is None:  # all alike: ones, which the floor below leaves as they are
+        move = np.ones(original.shape[:-1])
+    else:
+        move = np.maximum(np.asarray(mobility, np.float64), 1e-6)
     if kernels.enabled():  # the same bits in one compiled loop; the code below is the reference
         return kernels.project_bone_lengths(original, ref, move, iterations, BONE_TABLES)
     missing = np.asarray(~np.isfinite(original).all(axis=-1))  # (..., 25)
