@@ -135,7 +135,7 @@ def project_bone_lengths(
         move = np.broadcast_to(move, shape[:-1])
     mobility = plain(move.reshape(-1, 25))
     out = np.empty_like(flat)
-    grouped, parents, children, order, parent_of, bone_to = _writable(tables)
+    grouped, parents, children, order, parent_of, bone_to = (plain(t, np.intp) for t in tables)
     kernels_bones.project_loop(
         flat,
         ref,
@@ -151,20 +151,6 @@ def project_bone_lengths(
     )
     result: FloatArray = out.reshape(shape)
     return result
-
-
-_kept_tables: dict[int, tuple[tuple[IntArray, ...], tuple[IntArray, ...]]] = {}
-
-
-def _writable(tables: tuple[IntArray, ...]) -> tuple[IntArray, ...]:
-    """``tables`` as writable intp arrays (the compiled signature; shared index tables are
-    read-only), copied once per tuple and kept with it (so that its id is not reused)."""
-    kept = _kept_tables.get(id(tables))
-    if kept is None or kept[0] is not tables:
-        if len(_kept_tables) >= 8:  # (a warm-up's own tables, tests' tables)
-            _kept_tables.clear()
-        kept = _kept_tables[id(tables)] = (tables, tuple(plain(t, np.intp) for t in tables))
-    return kept[1]
 
 
 def weighted_mean(joints: FloatArray, weights: FloatArray) -> FloatArray:

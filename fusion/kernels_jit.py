@@ -51,9 +51,28 @@ def jit_inline(function: F) -> F:
 def plain(array: npt.ArrayLike, dtype: type = np.float64) -> Any:
     """``array`` as a writable C-contiguous array of ``dtype`` (copied only when it is not):
     every call then has the argument types the warm-up compiled for, so no frame waits for a
-    second compilation (a read-only or strided array is another numba signature)."""
+    second compilation (a read-only or strided array is another numba signature).
+
+    A read-only array that owns its data (the shared index tables and layouts: their values
+    never change) is copied once and the copy kept with it; the kernels only read such
+    arguments."""
     if isinstance(array, np.ndarray) and array.dtype == dtype and array.flags.c_contiguous:
         # The usual cases, without np.require's cost (several µs a call): as it is, or a copy
-        # of a read-only array (shared index tables).
-        return array if array.flags.writeable else array.copy()
+        # of a read-only array.
+        if array.flags.writeable:
+            return array
+        if array.base is not None:  # a read-only view: its base may change, copy each time
+            return array.copy()
+        kept = _copies.get(id(array))
+        if kept is None or kept[0] is not array:
+            if len(_copies) >= _COPIES_KEPT:
+                _copies.clear()
+            kept = _copies[id(array)] = (array, array.copy())
+        return kept[1]
     return np.require(array, dtype=dtype, requirements=("C", "W"))
+
+
+_COPIES_KEPT = 256
+_copies: dict[int, tuple[npt.NDArray[Any], npt.NDArray[Any]]] = {}
+"""Writable copies of read-only arrays that own their data, by the original's id (the original
+kept, so that its id is not reused meanwhile)."""

@@ -212,3 +212,22 @@ def test_a_forced_mode_holds_in_its_own_thread_only(monkeypatch: pytest.MonkeyPa
         release.set()
         worker.join(5)
     assert kernels.mode() == "numpy" and not kernels.enabled()
+
+
+def test_plain_gives_kernels_writable_arrays_and_copies_a_table_once() -> None:
+    from skelfuse.fusion.kernels_jit import plain
+
+    writable = np.arange(6.0)
+    assert plain(writable) is writable  # as it is
+    table = np.arange(6)
+    table.flags.writeable = False  # a shared index table: owns its data, never changes
+    copy = plain(table, np.intp)
+    assert copy is not table and copy.flags.writeable and np.array_equal(copy, table)
+    assert plain(table, np.intp) is copy  # kept: copied once
+    base = np.arange(4.0)
+    view = np.broadcast_to(base, (2, 4))  # read-only, over data that may change
+    assert np.array_equal(plain(view), [[0, 1, 2, 3]] * 2)
+    base[0] = 9.0
+    assert plain(view)[1, 0] == 9.0  # a view is copied afresh every time
+    ints = plain([1, 2], np.float64)
+    assert ints.dtype == np.float64 and ints.flags.writeable and ints.flags.c_contiguous
