@@ -43,6 +43,8 @@ from skelfuse.protocol.transform import apply
 from skelfuse.protocol.wire import Body
 
 FloatArray = npt.NDArray[np.float64]
+Rows = list[FloatArray] | FloatArray
+"""Bodies' (25, 3) joints, one per body: a list, or the rows of one (B, 25, 3) array."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -199,7 +201,7 @@ def views_with_late(
     now: dict[str, list[View]] = {}
     for view in views_of(resolved[0], t_s):
         now.setdefault(view.sensor_id, []).append(view)
-    carried: dict[str, list[FloatArray]] = {}
+    carried: dict[str, Rows] = {}
     if predictor is not None:
         measured = None
         if members is not None:
@@ -218,7 +220,7 @@ def views_with_late(
         bodies = sensor.frames[-1].frame.bodies
         if predictor is None:
             bodies = extrapolated_bodies(sensor.frames, t_s, gap_s)
-            worlds = [apply(pose, body.joints_m) for body in bodies]
+            worlds: Rows = [apply(pose, body.joints_m) for body in bodies]
         else:
             worlds = carried.get(sensor.sensor_id, [])
         position = world_position(sensor.frames, t_s, pose) if sensor.moving else pose[:3, 3]
@@ -252,7 +254,7 @@ def _carried_late(
     moved: tuple[float, FloatArray | None],
     predictor: LatePredictor,
     t_s: float,
-) -> dict[str, list[FloatArray]]:
+) -> dict[str, Rows]:
     """Every late sensor's newest bodies in the world (``newest``), carried to ``t_s``
     (seconds): a sensor late by ``h`` by ``h / H`` × what the on-time views measured of each
     body's person in the ``H`` before the instant (``moved``: ``H`` and
@@ -271,7 +273,12 @@ def _carried_late(
     # body at a time.
     if measured is None:
         measured = np.full(newest_worlds.shape, np.nan)
-    worlds_seen, seen, whole = _carry(newest_worlds, np.repeat(np.array(scales), counts), measured)
+    row_scales = np.array(
+        [scale for scale, n in zip(scales, counts, strict=True) for _ in range(n)]
+    )
+    worlds_seen, seen, whole = _carry(newest_worlds, row_scales, measured)
+    if whole.all():  # every joint of every body measured (the usual instant): rows as they are
+        return _by_sensor(newest, counts, worlds_seen)
     worlds: list[FloatArray] = list(worlds_seen)
     # Bodies with a joint the on-time views did not see: those joints by the filter's motion.
     unseen = np.flatnonzero(~whole).tolist()
@@ -284,12 +291,17 @@ def _carried_late(
             )
             world[seen[row]] = worlds_seen[row][seen[row]]
             worlds[row] = world
-    out: dict[str, list[FloatArray]] = {}
+    return _by_sensor(newest, counts, worlds)
+
+
+def _by_sensor(newest: list[SensorBodies], counts: list[int], rows: Rows) -> dict[str, Rows]:
+    """``rows`` (one per body, sensor after sensor) split by sensor id, ``counts`` each."""
+    split: dict[str, Rows] = {}
     lo = 0
     for b, count in zip(newest, counts, strict=True):
-        out[b.sensor.sensor_id] = worlds[lo : lo + count]
+        split[b.sensor.sensor_id] = rows[lo : lo + count]
         lo += count
-    return out
+    return split
 
 
 def _carry(

@@ -58,8 +58,13 @@ def measured_displacements(
     joints = np.array([now[k].joints_world for k in keys] + [then[k].joints_world for k in keys])
     states = np.array([now[k].states for k in keys] + [then[k].states for k in keys])
     late_keys = list(late_keys)
-    moved, has = _displacements(late_keys, members, keys, joints, states)
-    return {key: moved[row] for row, key in enumerate(late_keys) if has[row]}
+    moved = _displacements(late_keys, members, keys, joints, states)
+    present = {members[key][0] for key in keys}
+    return {
+        key: moved[row]
+        for row, key in enumerate(late_keys)
+        if members.get(key, (-1, False))[0] in present
+    }
 
 
 def _displacements(
@@ -68,27 +73,25 @@ def _displacements(
     keys: list[ViewKey],
     joints: FloatArray,
     states: npt.NDArray[np.uint8],
-) -> tuple[FloatArray, list[bool]]:
+) -> FloatArray:
     """:func:`measured_displacements` of the on-time bodies ``keys`` (each with a person), their
     world joints and states at the instant (rows ``0..K-1``, (2K, 25, 3) and (2K, 25)) and at
     the late frame's capture (rows ``K..2K-1``): (L, 25, 3) metres, row by row ``late_keys``,
-    all NaN for a body without a measurement; and which bodies have one."""
+    all NaN for a body without a measurement."""
     unknown = (-1, False)  # a late body of nobody (person ids start at 1)
     late = [members.get(key, unknown) for key in late_keys]
-    persons = [members[key][0] for key in keys]
-    present = set(persons)
-    has = [person in present for person, _ in late]
-    labels = np.array([members[k][1] for k in keys])
+    of_keys = [members[key] for key in keys]
+    persons = [person for person, _ in of_keys]
     if kernels.enabled() and kernels_motion.warmed():  # the same bits in one loop
-        moved = kernels_motion.person_displacements(
+        return kernels_motion.person_displacements(
             joints,
             states,
             np.array(persons),
-            labels,
+            np.array([label for _, label in of_keys]),
             np.array([person for person, _ in late]),
             np.array([swap for _, swap in late], bool),
         )
-        return moved, has
+    labels = np.array([label for _, label in of_keys])
     # Each person's views, in their order (dicts keep it); persons numbered as they appear.
     group_index: dict[int, int] = {}
     group_of = [group_index.setdefault(person, len(group_index)) for person in persons]
@@ -124,7 +127,7 @@ def _displacements(
     flipped = [row for row, swap in enumerate(swapped) if swap]
     if flipped:
         out[flipped] = out[flipped][:, _MIRROR]
-    return out, has
+    return out
 
 
 def measured_from_arrays(
@@ -139,16 +142,19 @@ def measured_from_arrays(
     (B, 25, 3) metres in ``newest``'s body order, all NaN for a body without a measurement."""
     late_keys = [(b.sensor.sensor_id, i) for b in newest for i in b.bodies.tracking_ids]
     now_keys = [(b.sensor.sensor_id, i) for b in now for i in b.bodies.tracking_ids]
-    then_keys = [(b.sensor.sensor_id, i) for b in then for i in b.bodies.tracking_ids]
     if (
         now_keys
-        and now_keys == then_keys
+        # The same sensors with the same bodies at both times (compared sensor by sensor:
+        # the same keys in the same order)
+        and [(b.sensor.sensor_id, b.bodies.tracking_ids) for b in now]
+        == [(b.sensor.sensor_id, b.bodies.tracking_ids) for b in then]
         and len(set(now_keys)) == len(now_keys)
         and all(key in members for key in now_keys)
     ):  # the usual instant: the same bodies at both times, each of a person: rows as they are
         joints = np.concatenate([b.world for b in now] + [b.world for b in then])
         states = np.concatenate([b.bodies.states for b in now] + [b.bodies.states for b in then])
-        return _displacements(late_keys, members, now_keys, joints, states)[0]
+        return _displacements(late_keys, members, now_keys, joints, states)
+    then_keys = [(b.sensor.sensor_id, i) for b in then for i in b.bodies.tracking_ids]
     then_row = {key: row for row, key in enumerate(then_keys)}
     now_row = {key: row for row, key in enumerate(now_keys)}  # a key twice: the last row
     keys = [k for k in now_row if k in then_row and k in members]
@@ -158,4 +164,4 @@ def measured_from_arrays(
     rows += [len(now_keys) + then_row[k] for k in keys]
     joints = np.concatenate([b.world for b in now] + [b.world for b in then])[rows]
     states = np.concatenate([b.bodies.states for b in now] + [b.bodies.states for b in then])
-    return _displacements(late_keys, members, keys, joints, states[rows])[0]
+    return _displacements(late_keys, members, keys, joints, states[rows])
