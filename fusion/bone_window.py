@@ -61,6 +61,7 @@ class SampleWindow:
 
     def __init__(self, window: int) -> None:
         self._data = np.full((BONE_COUNT, max(window, 0)), np.nan)
+        self._window = max(window, 0)
         self._size = 0
         self._next = 0
 
@@ -69,12 +70,13 @@ class SampleWindow:
 
     def append(self, lengths: FloatArray) -> None:
         """Add one observation, (24,) metres (NaN: bone not observed), dropping the oldest."""
-        window = self._data.shape[1]
+        window = self._window
         if window == 0:
             return
         self._data[:, self._next] = lengths
         self._next = (self._next + 1) % window
-        self._size = min(self._size + 1, window)
+        if self._size < window:
+            self._size += 1
 
     def mirror(self) -> None:
         """Swap left and right bones in every observation."""

@@ -35,7 +35,7 @@ from skelfuse.fusion.mirror import PERMUTATION
 from skelfuse.fusion.points import finite_points
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.views import View
-from skelfuse.protocol.skeleton import JointId
+from skelfuse.protocol.skeleton import JOINT_COUNT, JointId
 
 FloatArray = npt.NDArray[np.float64]
 ViewKey = tuple[str, int]
@@ -155,16 +155,22 @@ class PersonTracker:
         """Keep a person's fused skeleton (25, 3) and its trunk velocity for prediction."""
         self.move_all([person_id], fused[None], t_s)
 
-    def move_all(self, person_ids: list[int], fused: FloatArray, t_s: float) -> None:
+    def move_all(
+        self, person_ids: list[int], fused: FloatArray, t_s: float
+    ) -> tuple[FloatArray, FloatArray]:
         """:meth:`move` for many persons at once: ``fused`` (P, 25, 3), row p is ``person_ids[p]``.
 
         Element by element the arithmetic of one person alone, so the same floats (the speed
         clip's norm is ``√((x² + y²) + z²)``: the same on every machine, which a BLAS dot
         product is not); with the kernels on, one loop (:mod:`skelfuse.fusion.kernels_tracks`).
+
+        Returns:
+            The tracks' new skeletons (P, 25, 3) and trunk velocities (P, 3), stacked (each
+            track's own are those rows' values).
         """
         tracks = [self.tracks[person_id] for person_id in person_ids]
         if not tracks:
-            return
+            return np.empty((0, JOINT_COUNT, 3)), np.empty((0, 3))
         joints = np.array([t.joints for t in tracks], dtype=np.float64)
         last_seen = np.array([t.last_seen_s for t in tracks])
         if kernels.enabled() and kernels_tracks.warmed():  # the same bits in one loop
@@ -177,10 +183,12 @@ class PersonTracker:
                 tracks[p].velocity = velocity[p]
         else:
             kept = self._moved(tracks, joints, t_s - last_seen, fused)
+            velocity = np.array([t.velocity for t in tracks], dtype=np.float64)
         for track, row in zip(tracks, kept, strict=True):
             track.joints = row
             track.last_seen_s = t_s
             track.fused_once = True
+        return kept, velocity
 
     @staticmethod
     def _moved(

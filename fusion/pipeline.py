@@ -164,8 +164,8 @@ class FusionPipeline:
                 batch.slot_of,
                 batch.widest,
             )
-            self.tracker.move_all(ids, fused, t_s)
-            self._check_walking_directions(ids, t_s)  # each only looks at its own person
+            moved = self.tracker.move_all(ids, fused, t_s)
+            self._check_walking_directions(ids, t_s, moved)  # each looks at its own person only
 
             # 7. Filter, 8. bone-length fit.
             alive = np.flatnonzero(np.isfinite(fused).any(axis=(1, 2))).tolist()
@@ -242,13 +242,17 @@ class FusionPipeline:
             jerk_per_speed=s.kalman_ca_jerk_per_speed,
         )
 
-    def _check_walking_directions(self, ids: list[int], t_s: float) -> None:
+    def _check_walking_directions(
+        self, ids: list[int], t_s: float, moved: tuple[FloatArray, FloatArray] | None = None
+    ) -> None:
         """Swap each whole person that walks backwards for too long (labels.walking_backwards).
 
         The swap takes effect from the next step: the person's skeleton and every view's
         remembered label are swapped, the filter restarts (it would otherwise sweep the limbs
         across), the online bone samples swap sides. The persons' facings come from one
-        batched call (each skeleton's own, the same bits as one by one).
+        batched call (each skeleton's own, the same bits as one by one). ``moved``: the
+        tracks' skeletons and velocities stacked, as ``PersonTracker.move_all`` just left them
+        (None: stacked here).
         """
         s = self.settings
         tracks = [self.tracker.tracks[person_id] for person_id in ids]
@@ -257,14 +261,19 @@ class FusionPipeline:
         self._facings = {}
         if tracks and s.mirror_walk_check_s > 0 and s.use_mirror_correction:
             joints = [track.joints for track in tracks]
-            computed = facing_directions(np.array(joints, dtype=np.float64))
+            stacked = moved[0] if moved is not None else np.array(joints, dtype=np.float64)
+            computed = facing_directions(stacked)
             facings = list(computed)
             self._facings = {
                 pid: (row, facing) for pid, row, facing in zip(ids, joints, computed, strict=True)
             }
         ahead = [False] * len(ids)  # walking forwards (or standing) for sure: nothing to time
         if computed is not None and kernels.enabled():  # one compiled call
-            velocities = np.array([t.velocity for t in tracks], dtype=np.float64)
+            velocities = (
+                moved[1]
+                if moved is not None
+                else np.array([t.velocity for t in tracks], dtype=np.float64)
+            )
             backwards = kernels_stages.walking_backwards(
                 velocities, computed, s.mirror_walk_min_speed_mps
             )

@@ -135,9 +135,12 @@ def test_moving_persons_together_gives_each_persons_own_motion(kernel_mode: str)
     fused[4] += 1.0  # 30 m/s
     fused[5, 0] = np.nan
     ids = [3, 1, 2, 4, 5, 6, 7, 8]
-    tracker.move_all(ids, fused, 10.0)
+    joints, velocities = tracker.move_all(ids, fused, 10.0)
     for p, person_id in enumerate(ids):
         move_alone(alone.tracks[person_id], fused[p], 10.0)
+        # What it returns stacked: each track's own, as it left them.
+        assert joints[p].tobytes() == tracker.tracks[person_id].joints.tobytes()
+        assert velocities[p].tobytes() == tracker.tracks[person_id].velocity.tobytes()
     for person_id, want in alone.tracks.items():
         got = tracker.tracks[person_id]
         assert got.joints.tobytes() == want.joints.tobytes()
