@@ -56,15 +56,16 @@ def _same(got: label_scores.Scored, expected: label_scores.Scored) -> None:
             assert _same_bits(a, b), name
 
 
-def _spy(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+def _spy(monkeypatch: pytest.MonkeyPatch, name: str = "scored") -> list[int]:
+    """Count the calls of ``kernels_label_stage.<name>`` (one 1 per call)."""
     calls: list[int] = []
-    original: Callable[..., Any] = kernels_label_stage.scored
+    original: Callable[..., Any] = getattr(kernels_label_stage, name)
 
     def spied(*args: Any) -> Any:
         calls.append(1)
         return original(*args)
 
-    monkeypatch.setattr(kernels_label_stage, "scored", spied)
+    monkeypatch.setattr(kernels_label_stage, name, spied)
     return calls
 
 
@@ -164,14 +165,7 @@ def _label(frame: Frame, mode: str, states_order: str = "C") -> tuple[Any, ...]:
 def test_the_labels_after_the_choice_in_one_call_give_the_numpy_bits(
     numba_kernels: None, monkeypatch: pytest.MonkeyPatch, seed: int, states_order: str
 ) -> None:
-    calls: list[int] = []
-    original: Callable[..., Any] = kernels_label_stage.settled
-
-    def spied(*args: Any) -> Any:
-        calls.append(1)
-        return original(*args)
-
-    monkeypatch.setattr(kernels_label_stage, "settled", spied)
+    calls = _spy(monkeypatch, "settled")
     frame = _frame(seed)
     got = _label(frame, "numba", states_order)
     # The swap, the facings and the factors as labelled: one call, unless the states cannot be
