@@ -19,7 +19,7 @@ RUN pip install --no-cache-dir "skelfuse[server] @ file://$(echo /wheels/skelfus
     && rm -rf /wheels
 
 # The fusion kernels (numba) compiled once here, into a cache the server reads at every start
-# (~0.5 s instead of ~17 s); on a CPU other than the build machine's numba compiles again and
+# (~0.5 s instead of ~25 s); on a CPU other than the build machine's numba compiles again and
 # keeps that in the same folder, which is the server user's for that reason.
 ENV NUMBA_CACHE_DIR=/var/cache/skelfuse-numba
 RUN useradd --create-home --uid 10001 skelfuse && mkdir /data && chown skelfuse /data \

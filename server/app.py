@@ -86,7 +86,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         # The fusion kernels compile (or load numba's cache) now, not in the first fusion step
         # on the event loop (fusion/kernels.py; 0 s without numba or with SKELFUSE_KERNELS=numpy).
         if kernels.enabled():  # the first start compiles: say why nothing answers yet
-            logger.info("fusion kernels: loading numba's cache (a first start compiles, ~20 s)")
+            logger.info("fusion kernels: loading numba's cache (a first start compiles, ~25 s)")
         else:
             logger.info("fusion kernels off (numba not installed, or SKELFUSE_KERNELS=numpy)")
         warm_up_s = await asyncio.to_thread(kernels.warm_up)

@@ -55,7 +55,7 @@ def sensor_layout(count: int) -> list[tuple[str, str]]:
 
 
 _SERVER_START_S = 120.0
-"""How long the server may take to answer: its first start compiles the fusion kernels (~17 s
+"""How long the server may take to answer: its first start compiles the fusion kernels (~25 s
 on an idle 2-core machine, more while pip or the agents load it), later ones take ~1 s."""
 
 
