@@ -269,15 +269,15 @@ class PersonTracker:
                 t_s,
                 TRUNK_JOINTS,
             ).tolist()
-        elif len(with_track) == len(views):  # every body still tracked: no gather, no scatter
-            trunks, predicted = _trunks(views), _predicted_trunks(tracks, t_s)
-            distances = trunk_distances(trunks, predicted[rows]).tolist()
         else:
             trunks, predicted = _trunks(views), _predicted_trunks(tracks, t_s)
-            spread = np.full(len(views), np.inf)
-            if with_track:
-                spread[with_track] = trunk_distances(trunks[with_track], predicted[rows])
-            distances = spread.tolist()
+            if len(with_track) == len(views):  # every body still tracked: no gather, no scatter
+                distances = trunk_distances(trunks, predicted[rows]).tolist()
+            else:
+                spread = np.full(len(views), np.inf)
+                if with_track:
+                    spread[with_track] = trunk_distances(trunks[with_track], predicted[rows])
+                distances = spread.tolist()
         sticky_gate = 2 * gate
         seen: dict[int, set[str]] = {}  # the sensors each cluster has a view from
         for view, track, distance in zip(views, sticky, distances, strict=True):

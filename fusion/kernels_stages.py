@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.kernels_jit import plain
+from skelfuse.fusion.kernels_jit import in_place, plain
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
@@ -121,9 +121,8 @@ def swap_mirrored(
     """
     from skelfuse.fusion import kernels_labels  # imports numba: only when used
 
-    for array, dtype in ((joints, np.float64), (states, np.uint8)):
-        if array.dtype != dtype or not (array.flags.c_contiguous and array.flags.writeable):
-            return False
+    if not (in_place(joints, np.float64) and in_place(states, np.uint8)):
+        return False
     kernels_labels.swap_loop(joints, states, plain(mirrored, np.bool_), plain(permutation, np.intp))
     return True
 

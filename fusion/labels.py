@@ -23,6 +23,7 @@ import numpy.typing as npt
 
 from skelfuse.fusion import kernels, kernels_label_stage, kernels_stages
 from skelfuse.fusion.anatomy import facing_direction, facing_directions, facings_of_forward
+from skelfuse.fusion.kernels_jit import in_place
 from skelfuse.fusion.label_scores import scored_labels
 from skelfuse.fusion.mirror import PERMUTATION
 from skelfuse.fusion.mirror_labellings import slots
@@ -149,8 +150,8 @@ def label_views(
         and 0.0 <= s.view_lean_fraction < 1.0
         and kernels.enabled()
         and kernels_label_stage.warmed()
-        and _plain(joints, np.float64)
-        and _plain(states, np.uint8)
+        and in_place(joints, np.float64)
+        and in_place(states, np.uint8)
     ):  # the usual step: the swap, the facings and the factors as labelled in one call
         assert doubts is not None
         facings, as_labelled = kernels_label_stage.settled(
@@ -219,11 +220,6 @@ def views_alone(
         return None
     result: npt.NDArray[np.bool_] = against
     return result
-
-
-def _plain(array: npt.NDArray[np.generic], dtype: type) -> bool:
-    """Whether ``array`` is C-ordered, writable and of ``dtype`` (swapped in place as it is)."""
-    return array.dtype == dtype and array.flags.c_contiguous and array.flags.writeable
 
 
 def redecide(
