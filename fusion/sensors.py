@@ -128,10 +128,14 @@ class TimedFrame:
     _arrays: BodyArrays | None = field(default=None, repr=False, compare=False)
 
     def arrays(self) -> BodyArrays:
-        """The frame's bodies stacked, built on first use (a frame serves ~2 fused instants)."""
+        """The frame's bodies stacked on first use (a frame serves ~2 fused instants): the
+        decoder's arrays (``Frame.stacked``, the bodies' rows: no copy) when it left them."""
         if self._arrays is None:
             bodies = self.frame.bodies
-            if bodies:
+            stacked = self.frame.stacked
+            if stacked is not None:
+                joints, states = stacked
+            elif bodies:
                 joints = np.array([b.joints_m for b in bodies])  # np.stack's result, 3× faster
                 states = np.array([b.states for b in bodies])
             else:

@@ -109,6 +109,10 @@ class Welcome:
     features: tuple[str, ...] = ()
 
 
+StackedBodies = tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]
+"""A frame's bodies' joints (B, 25, 3) float32 metres and states (B, 25) uint8, stacked."""
+
+
 @dataclass(frozen=True, slots=True)
 class Frame:
     """One captured sensor frame.
@@ -119,6 +123,10 @@ class Frame:
         with (a, b, c) a unit normal pointing up, or None.
     pose: the sensor's pose in its tracking space at ``t_capture_ns`` (moving sensors only),
         or None.
+    stacked: set by the decoder only (not an argument: a frame built or replaced otherwise has
+        None): the bodies' joints (B, 25, 3) float32 and states (B, 25) uint8 as the two
+        arrays whose rows *are* the bodies' ``joints_m`` and ``states``, in body order, so
+        fusion stacks them without copying (:meth:`skelfuse.fusion.sensors.TimedFrame.arrays`).
     """
 
     seq: int
@@ -126,6 +134,7 @@ class Frame:
     bodies: tuple[Body, ...]
     floor: tuple[float, float, float, float] | None = None
     pose: SensorPose | None = None
+    stacked: StackedBodies | None = field(default=None, init=False, repr=False, compare=False)
 
 
 _set_seq = cast(Any, Frame).seq.__set__
@@ -133,6 +142,7 @@ _set_t_capture_ns = cast(Any, Frame).t_capture_ns.__set__
 _set_bodies = cast(Any, Frame).bodies.__set__
 _set_floor = cast(Any, Frame).floor.__set__
 _set_pose = cast(Any, Frame).pose.__set__
+_set_stacked = cast(Any, Frame).stacked.__set__
 
 
 def checked_frame(
@@ -141,15 +151,18 @@ def checked_frame(
     bodies: tuple[Body, ...],
     floor: tuple[float, float, float, float] | None,
     pose: SensorPose | None = None,
+    stacked: StackedBodies | None = None,
 ) -> Frame:
     """``Frame(seq, t_capture_ns, bodies, floor, pose)`` for checked values, as
-    :func:`checked_body`."""
+    :func:`checked_body`; ``stacked``: the arrays ``bodies``' rows are views of, in order
+    (the decoder's), or None."""
     frame: Frame = _new_object(Frame)
     _set_seq(frame, seq)
     _set_t_capture_ns(frame, t_capture_ns)
     _set_bodies(frame, bodies)
     _set_floor(frame, floor)
     _set_pose(frame, pose)
+    _set_stacked(frame, stacked)
     return frame
 
 

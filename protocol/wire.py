@@ -219,9 +219,9 @@ def _decode_frame(raw: dict[str, Any]) -> Frame:
 
 
 def _frame_of(bulk: BulkFrame) -> Frame:
-    seq, t_capture_ns, tracking_ids, joints_m, states, floor, hands, pose = bulk
+    seq, t_capture_ns, tracking_ids, joints_m, states, floor, hands, pose, stacked = bulk
     bodies = tuple(map(checked_body, tracking_ids, joints_m, states, hands))
-    return checked_frame(seq, t_capture_ns, bodies, floor, pose)
+    return checked_frame(seq, t_capture_ns, bodies, floor, pose, stacked)
 
 
 def decode_frame_precisely(raw: dict[str, Any]) -> Frame:

@@ -26,7 +26,7 @@ import numpy.typing as npt
 
 from skelfuse.protocol.constants import MAX_BODIES, MAX_COORDINATE_M
 from skelfuse.protocol.hands import Hands, hands_quickly
-from skelfuse.protocol.messages import SensorPose
+from skelfuse.protocol.messages import SensorPose, StackedBodies
 from skelfuse.protocol.skeleton import JOINT_COUNT
 from skelfuse.protocol.wire_checks import INT64_MAX, UINT64_MAX
 
@@ -60,6 +60,8 @@ class BulkFrame(NamedTuple):
     (Sequences: lists from the msgpack paths, tuples from :func:`frame_of_blobs`.)
     hands: B hand states (None where the body has none).
     pose: the sensor's checked pose (moving sensors), or None.
+    stacked: the (B, 25, 3) and (B, 25) arrays ``joints_m`` and ``states`` are the rows of, or
+        None (no bodies, or paths that build bodies one by one).
     """
 
     seq: int
@@ -70,6 +72,7 @@ class BulkFrame(NamedTuple):
     floor: tuple[float, float, float, float] | None
     hands: list[Hands | None]
     pose: SensorPose | None = None
+    stacked: StackedBodies | None = None
 
 
 def frame_in_bulk(raw: dict[str, Any]) -> BulkFrame | None:
@@ -164,7 +167,9 @@ def frame_of_blobs(
         return None
     states = np.ndarray((count, JOINT_COUNT), np.uint8, bytearray(all_states))
     rows = _ROWS[count]
-    return BulkFrame(seq, t_capture_ns, ids, rows(joints), rows(states), floor, hands, pose)
+    return BulkFrame(
+        seq, t_capture_ns, ids, rows(joints), rows(states), floor, hands, pose, (joints, states)
+    )
 
 
 def _joints_valid(all_joints: bytes, all_states: bytes, joints: npt.NDArray[np.float32]) -> bool:

@@ -18,7 +18,7 @@ from skelfuse.fusion.pipeline import views_at
 from skelfuse.fusion.sensors import SensorState, TimedFrame, bodies_at, body_arrays_at
 from skelfuse.protocol.skeleton import JOINT_COUNT, TrackingState
 from skelfuse.protocol.transform import Matrix4, apply, look_at_pose
-from skelfuse.protocol.wire import Body, Frame
+from skelfuse.protocol.wire import Body, Frame, decode, encode
 
 
 def lerp_body(first: Body, second: Body, alpha: float) -> Body:
@@ -142,3 +142,22 @@ def test_views_move_every_body_as_the_transform_moves_it_alone() -> None:
         assert view.states.tobytes() == body.states.tobytes()
         assert view.sensor_position is not None
         assert view.sensor_position.tobytes() == poses[view.sensor_id][:3, 3].tobytes()
+
+
+def test_a_decoded_frames_arrays_are_the_decoders_without_a_copy() -> None:
+    """A frame from the wire is stacked once, by the decoder: ``arrays()`` hands out those
+    arrays (the bodies' own memory); a frame built here is stacked from its bodies. The values
+    are the same either way."""
+    built = random_frame(np.random.default_rng(5), 1.0, [3, 9, 4]).frame
+    decoded = decode(encode(built))
+    assert isinstance(decoded, Frame) and decoded.stacked is not None
+    for frame in (built, decoded):
+        arrays = TimedFrame(1.0, frame).arrays()
+        assert arrays.tracking_ids == [3, 9, 4]
+        np.testing.assert_array_equal(arrays.joints_m, np.array([b.joints_m for b in frame.bodies]))
+        np.testing.assert_array_equal(arrays.states, np.array([b.states for b in frame.bodies]))
+    decoded_arrays = TimedFrame(1.0, decoded).arrays()
+    assert decoded_arrays.joints_m is decoded.stacked[0]
+    assert decoded_arrays.states is decoded.stacked[1]
+    built_arrays = TimedFrame(1.0, built).arrays()
+    assert not np.shares_memory(built_arrays.joints_m, built.bodies[0].joints_m)

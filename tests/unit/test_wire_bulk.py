@@ -14,6 +14,7 @@ bulk path declines. These tests hold the two together:
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 from collections.abc import Callable
 from typing import Any
@@ -268,3 +269,38 @@ def test_accepted_edges_stay_accepted() -> None:
     assert isinstance(frame, Frame) and frame_in_bulk(raw) is not None
     assert_identical(frame, decode_frame_precisely(raw))
     assert np.isnan(frame.bodies[1].joints_m[[21, 23]]).all()
+
+
+# --- the decoder's stacked arrays (Frame.stacked) ---------------------------------------------
+
+
+@given(frame=frames())
+def test_a_decoded_frame_keeps_the_arrays_its_bodies_are_rows_of(frame: Frame) -> None:
+    """``stacked`` is the bodies' own memory, row by row in body order: fusion reads it as the
+    stack of the bodies' arrays without copying (fusion.sensors.TimedFrame.arrays)."""
+    decoded = decode(encode(frame))
+    assert isinstance(decoded, Frame)
+    if not decoded.bodies:
+        assert decoded.stacked is None
+        return
+    assert decoded.stacked is not None
+    joints, states = decoded.stacked
+    assert joints.shape == (len(decoded.bodies), JOINT_COUNT, 3) and joints.dtype == np.float32
+    assert states.shape == (len(decoded.bodies), JOINT_COUNT) and states.dtype == np.uint8
+    for row, body in enumerate(decoded.bodies):
+        assert body.joints_m.base is joints and body.states.base is states
+        assert np.shares_memory(joints[row], body.joints_m)
+        np.testing.assert_array_equal(joints[row], body.joints_m)
+        np.testing.assert_array_equal(states[row], body.states)
+
+
+def test_frames_built_or_changed_otherwise_have_no_stacked_arrays() -> None:
+    """Only the decoder sets ``stacked``: a frame built by hand, or replaced from a decoded one
+    with other bodies, has None (the arrays would no longer be its bodies')."""
+    raw = _valid_raw()
+    decoded = decode(msgpack.packb(raw, use_bin_type=True))
+    assert isinstance(decoded, Frame) and decoded.stacked is not None
+    assert Frame(1, 2, decoded.bodies).stacked is None
+    assert dataclasses.replace(decoded, bodies=decoded.bodies[:1]).stacked is None
+    assert decoded == dataclasses.replace(decoded)  # not compared: equal frames stay equal
+    assert decode_frame_precisely(raw).stacked is None
