@@ -38,7 +38,13 @@ from skelfuse.fusion.sensors import SensorState, TimedFrame
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.track_motion import PersonMotion, track_members, track_motions
 from skelfuse.fusion.views import View
-from skelfuse.fusion.world_views import Gathered, SensorBodies, gather_at, resolve, views_of
+from skelfuse.fusion.world_views import (
+    Gathered,
+    SensorBodies,
+    gather_at,
+    resolve_with_rows,
+    views_of,
+)
 from skelfuse.protocol.transform import apply
 from skelfuse.protocol.wire import Body
 
@@ -197,16 +203,26 @@ def views_with_late(
         groups.append(gather_at(on_time, pose_of, t_s - reach, gap_s))
     if predictor is not None:
         groups.append(_newest_of([s for s in sensors if s.sensor_id in late], pose_of))
-    resolved = resolve(groups)
+    resolved, stacked = resolve_with_rows(groups)
     now: dict[str, list[View]] = {}
     for view in views_of(resolved[0], t_s):
         now.setdefault(view.sensor_id, []).append(view)
     carried: dict[str, Rows] = {}
     if predictor is not None:
+        # The rows of each group in the stacked arrays (groups in order: now, then, newest).
+        rows = sum(len(b.bodies.tracking_ids) for b in resolved[0])
+        if members is not None:
+            rows += sum(len(b.bodies.tracking_ids) for b in resolved[1])
         measured = None
         if members is not None:
-            measured = measured_from_arrays(resolved[-1], members, resolved[0], resolved[1])
-        carried = _carried_late(resolved[-1], late, (reach, measured), predictor, t_s)
+            measured = measured_from_arrays(
+                resolved[-1], members, resolved[0], resolved[1],
+                None if stacked is None else (stacked[0][:rows], stacked[1][:rows]),
+            )  # fmt: skip
+        newest_worlds = None if stacked is None else stacked[0][rows:]
+        carried = _carried_late(
+            resolved[-1], late, (reach, measured), predictor, t_s, newest_worlds
+        )
     views: list[View] = []
     for sensor in sensors:
         if sensor.sensor_id in left_out:
@@ -254,6 +270,7 @@ def _carried_late(
     moved: tuple[float, FloatArray | None],
     predictor: LatePredictor,
     t_s: float,
+    newest_worlds: FloatArray | None = None,
 ) -> dict[str, Rows]:
     """Every late sensor's newest bodies in the world (``newest``), carried to ``t_s``
     (seconds): a sensor late by ``h`` by ``h / H`` × what the on-time views measured of each
@@ -262,20 +279,20 @@ def _carried_late(
     measured), joint by joint where they saw it; the other joints by the person's filtered
     motion (:func:`carried_by_motion`). (25, 3) world metres per body, per sensor id.
 
-    All sensors at once (one sum), the same bits as body by body."""
+    All sensors at once (one sum), the same bits as body by body. ``newest_worlds``: the
+    bodies' world joints stacked in ``newest``'s order (B, 25, 3), or None to stack them here."""
     if not newest:
         return {}
     counts = [len(b.bodies.tracking_ids) for b in newest]
-    newest_worlds = np.concatenate([b.world for b in newest])
+    if newest_worlds is None:
+        newest_worlds = np.concatenate([b.world for b in newest])
     reach, measured = moved
     scales = [late[b.sensor.sensor_id] / reach if reach > 0.0 else 0.0 for b in newest]
     # Each body's measurement times its sensor's scale (B, 25, 3): the same products as one
     # body at a time.
     if measured is None:
         measured = np.full(newest_worlds.shape, np.nan)
-    row_scales = np.array(
-        [scale for scale, n in zip(scales, counts, strict=True) for _ in range(n)]
-    )
+    row_scales = np.repeat(scales, counts)
     worlds_seen, seen, whole = _carry(newest_worlds, row_scales, measured)
     if whole.all():  # every joint of every body measured (the usual instant): rows as they are
         return _by_sensor(newest, counts, worlds_seen)

@@ -37,9 +37,8 @@ def warm_up() -> None:
     """Compile (or load from numba's cache) the loop now; a no-op with the kernels off."""
     joints = np.zeros((2, JOINT_COUNT, 3))
     states = np.full((2, JOINT_COUNT), _TRACKED, dtype=np.uint8)
-    one = np.zeros(1, dtype=np.intp)
     moved = person_displacements(
-        joints, states, one, np.zeros(1, dtype=bool), one, np.ones(1, dtype=bool)
+        joints, states, np.zeros((1, 2), dtype=np.intp), np.array([[0, 1]], dtype=np.intp)
     )
     carried_worlds(joints[:1], np.ones(1), moved)
     warmed.done = True
@@ -48,10 +47,8 @@ def warm_up() -> None:
 def person_displacements(
     joints: FloatArray,
     states: npt.NDArray[np.uint8],
-    person_of: IndexArray,
-    labels: npt.NDArray[np.bool_],
-    late_person: IndexArray,
-    late_swapped: npt.NDArray[np.bool_],
+    members: IndexArray,
+    late: IndexArray,
 ) -> FloatArray:
     """Per late body, its person's mean displacement over that person's on-time views.
 
@@ -59,24 +56,21 @@ def person_displacements(
         joints: (2K, 25, 3) world metres: the K on-time bodies at the instant (rows ``0..K-1``)
             and at the late frame's capture (rows ``K..2K-1``).
         states: (2K, 25) tracking states, the same rows.
-        person_of: (K,) each on-time body's person id.
-        labels: (K,) each on-time body's mirror label (True: its left and right are swapped
-            into the person's order of a body labelled False).
-        late_person: (L,) each late body's person id, or −1 for nobody (its row is all NaN,
-            as is the row of a person no on-time body is of).
-        late_swapped: (L,) whether a late body is labelled True (its row is swapped back).
+        members: (K, 2) each on-time body's person id and mirror label (1: its left and right
+            are swapped into the person's order of a body labelled 0).
+        late: (L, 2) each late body's person id, or −1 for nobody (its row is all NaN, as is
+            the row of a person no on-time body is of), and its label (1: its row is swapped
+            back).
 
     Returns:
         (L, 25, 3) metres, NaN where no view of the person has the joint Tracked at both times.
     """
-    out = np.empty((len(late_person), JOINT_COUNT, 3))
+    out = np.empty((late.shape[0], JOINT_COUNT, 3))
     _displacements_loop(
         plain(joints),
         plain(states, np.uint8),
-        plain(person_of, np.intp),
-        plain(labels, np.bool_),
-        plain(late_person, np.intp),
-        plain(late_swapped, np.bool_),
+        plain(members, np.intp),
+        plain(late, np.intp),
         _MIRROR,
         _TRACKED,
         out,
@@ -88,28 +82,26 @@ def person_displacements(
 def _displacements_loop(  # pragma: no cover
     joints: FloatArray,
     states: npt.NDArray[np.uint8],
-    person_of: IndexArray,
-    labels: npt.NDArray[np.bool_],
-    late_person: IndexArray,
-    late_swapped: npt.NDArray[np.bool_],
+    members: IndexArray,
+    late: IndexArray,
     mirror: IndexArray,
     tracked: int,
     out: FloatArray,
 ) -> None:
-    count = person_of.shape[0]
-    for row in range(late_person.shape[0]):
-        person = late_person[row]
+    count = members.shape[0]
+    for row in range(late.shape[0]):
+        person = late[row, 0]
         for j in range(out.shape[1]):
             # The late body's joint j is the person's joint ``wanted`` in the order of a body
-            # labelled False; each view's own joint for it is swapped if the view is labelled True.
-            wanted = mirror[j] if late_swapped[row] else j
+            # labelled 0; each view's own joint for it is swapped if the view is labelled 1.
+            wanted = mirror[j] if late[row, 1] != 0 else j
             for c in range(3):
                 total = 0.0
                 seen = 0
                 for k in range(count):
-                    if person < 0 or person_of[k] != person:
+                    if person < 0 or members[k, 0] != person:
                         continue
-                    source = mirror[wanted] if labels[k] else wanted
+                    source = mirror[wanted] if members[k, 1] != 0 else wanted
                     if states[k, source] != tracked or states[count + k, source] != tracked:
                         continue  # Inferred at either time: the sensor's guess, not measured
                     moved = joints[k, source, c] - joints[count + k, source, c]

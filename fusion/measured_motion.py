@@ -18,7 +18,7 @@ import numpy.typing as npt
 from skelfuse.fusion import kernels, kernels_motion
 from skelfuse.fusion.identity import ViewKey
 from skelfuse.fusion.views import View
-from skelfuse.fusion.world_views import SensorBodies
+from skelfuse.fusion.world_views import SensorBodies, StackedRows
 from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION, TrackingState
 
 FloatArray = npt.NDArray[np.float64]
@@ -81,16 +81,14 @@ def _displacements(
     unknown = (-1, False)  # a late body of nobody (person ids start at 1)
     late = [members.get(key, unknown) for key in late_keys]
     of_keys = [members[key] for key in keys]
-    persons = [person for person, _ in of_keys]
     if kernels.enabled() and kernels_motion.warmed():  # the same bits in one loop
         return kernels_motion.person_displacements(
             joints,
             states,
-            np.array(persons),
-            np.array([label for _, label in of_keys]),
-            np.array([person for person, _ in late]),
-            np.array([swap for _, swap in late], bool),
+            np.array(of_keys, dtype=np.intp).reshape(-1, 2),  # (person, label) rows
+            np.array(late, dtype=np.intp).reshape(-1, 2),
         )
+    persons = [person for person, _ in of_keys]
     labels = np.array([label for _, label in of_keys])
     # Each person's views, in their order (dicts keep it); persons numbered as they appear.
     group_index: dict[int, int] = {}
@@ -135,11 +133,16 @@ def measured_from_arrays(
     members: Mapping[ViewKey, tuple[int, bool]],
     now: list[SensorBodies],
     then: list[SensorBodies],
+    stacked: StackedRows | None = None,
 ) -> FloatArray:
     """:func:`measured_displacements` of the late bodies ``newest`` from the on-time sensors'
     bodies at the instant (``now``) and at the furthest-late sensor's capture (``then``), on
     their arrays: rows gathered by key instead of views looked up one by one (the same values).
-    (B, 25, 3) metres in ``newest``'s body order, all NaN for a body without a measurement."""
+    (B, 25, 3) metres in ``newest``'s body order, all NaN for a body without a measurement.
+
+    ``stacked``: ``now``'s then ``then``'s world joints and states in one array each, row after
+    row (what :func:`~skelfuse.fusion.world_views.resolve_with_rows` computed them in), or None
+    to stack them here."""
     late_keys = [(b.sensor.sensor_id, i) for b in newest for i in b.bodies.tracking_ids]
     now_keys = [(b.sensor.sensor_id, i) for b in now for i in b.bodies.tracking_ids]
     if (
@@ -151,9 +154,12 @@ def measured_from_arrays(
         and len(set(now_keys)) == len(now_keys)
         and all(key in members for key in now_keys)
     ):  # the usual instant: the same bodies at both times, each of a person: rows as they are
-        joints = np.concatenate([b.world for b in now] + [b.world for b in then])
-        states = np.concatenate([b.bodies.states for b in now] + [b.bodies.states for b in then])
-        return _displacements(late_keys, members, now_keys, joints, states)
+        if stacked is None:
+            stacked = (
+                np.concatenate([b.world for b in now] + [b.world for b in then]),
+                np.concatenate([b.bodies.states for b in now] + [b.bodies.states for b in then]),
+            )
+        return _displacements(late_keys, members, now_keys, *stacked)
     then_keys = [(b.sensor.sensor_id, i) for b in then for i in b.bodies.tracking_ids]
     then_row = {key: row for row, key in enumerate(then_keys)}
     now_row = {key: row for row, key in enumerate(now_keys)}  # a key twice: the last row

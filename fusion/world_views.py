@@ -61,6 +61,9 @@ class SensorBodies(NamedTuple):
     world: FloatArray
 
 
+StackedRows = tuple[FloatArray, npt.NDArray[np.uint8]]
+"""Bodies' world joints (N, 25, 3) float64 metres and their states (N, 25), stacked."""
+
 Gathered = list[tuple[SensorState, Matrix4, BodyArrays | _Pending]]
 """What :func:`gather_at` finds of each sensor at one instant, before the array work."""
 
@@ -117,15 +120,28 @@ def resolve(groups: list[Gathered]) -> list[list[SensorBodies]]:
     """Each group's bodies interpolated and moved to the world: every group's rows in one
     interpolation pass and one move (rows are computed alone: the same bits as group by group,
     or sensor by sensor)."""
+    return resolve_with_rows(groups)[0]
+
+
+def resolve_with_rows(
+    groups: list[Gathered],
+) -> tuple[list[list[SensorBodies]], StackedRows | None]:
+    """:func:`resolve`, and with the compiled kernels its rows as computed: every body's world
+    joints (N, 25, 3) float64 and states (N, 25), group after group and sensor after sensor
+    (the arrays each :class:`SensorBodies`' ``world`` and states are the rows of, or hold
+    the same values); None from numpy, which computes them apart."""
     flat = [entry for group in groups for entry in group]
     if not flat:
-        return [[] for _ in groups]
+        return [[] for _ in groups], None
     items = [bodies for _, _, bodies in flat]
     poses = [pose for _, pose, _ in flat]
-    done = _compiled(items, poses) if kernels.enabled() and kernels_lerp.warmed() else None
-    if done is None:
+    compiled = _compiled(items, poses) if kernels.enabled() and kernels_lerp.warmed() else None
+    rows: StackedRows | None = None
+    if compiled is None:
         arrays = _interpolate_pending(items)
         done = arrays, bodies_to_world(poses, [a.joints_m for a in arrays])
+    else:
+        done, rows = compiled
     resolved = [
         SensorBodies(sensor, pose, bodies, world)
         for (sensor, pose, _), bodies, world in zip(flat, *done, strict=True)
@@ -135,15 +151,16 @@ def resolve(groups: list[Gathered]) -> list[list[SensorBodies]]:
     for group in groups:
         out.append(resolved[lo : lo + len(group)])
         lo += len(group)
-    return out
+    return out, rows
 
 
 def _compiled(
     items: list[BodyArrays | _Pending], poses: list[Matrix4]
-) -> tuple[list[BodyArrays], list[FloatArray]] | None:
+) -> tuple[tuple[list[BodyArrays], list[FloatArray]], StackedRows] | None:
     """:func:`_interpolate_pending` then :func:`bodies_to_world`, in one compiled loop
-    (:func:`~skelfuse.fusion.kernels_lerp.to_world`, the same bits); None when a body is not
-    float32 (frames hold float32; one from elsewhere takes numpy)."""
+    (:func:`~skelfuse.fusion.kernels_lerp.to_world`, the same bits), and every row's world
+    joints and states in one array each; None when a body is not float32 (frames hold
+    float32; one from elsewhere takes numpy)."""
     firsts: list[npt.NDArray[np.float32]] = []
     seconds: list[npt.NDArray[np.float32]] = []
     first_states: list[npt.NDArray[np.uint8]] = []
@@ -175,7 +192,8 @@ def _compiled(
         np.repeat(np.arange(len(items)), counts),
         np.array(poses, dtype=np.float64),
     )
-    return _split(items, joints32, states, every_row=True), _rows_of(world, counts)
+    done = _split(items, joints32, states, every_row=True), _rows_of(world, counts)
+    return done, (world, states)
 
 
 def views_of(bodies: list[SensorBodies], t_s: float) -> list[View]:

@@ -58,8 +58,11 @@ def test_compiled_rows_are_the_numpy_rows(numba_kernels: None, seed: int) -> Non
         want_worlds = world_views.bodies_to_world(poses, [a.joints_m for a in want])
     done = world_views._compiled(items, poses)
     assert done is not None
-    got, worlds = done
+    (got, worlds), (world_rows, state_rows) = done
     assert len(got) == len(want) == len(worlds) == len(items)
+    # The stacked rows are every item's, in order: what measured_from_arrays reads.
+    assert world_rows.tobytes() == np.concatenate(worlds).tobytes()
+    assert state_rows.tobytes() == np.concatenate([a.states for a in got]).tobytes()
     for mine, numpy_s, world, numpy_world, item, pose in zip(
         got, want, worlds, want_worlds, items, poses, strict=True
     ):

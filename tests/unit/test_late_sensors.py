@@ -394,6 +394,12 @@ def test_the_live_paths_measurement_on_arrays_is_the_views_rule_to_the_bit(
         kernels.warm_up()  # the compiled measurement runs once warmed
         want = measured_displacements(late_keys, members, views(then), views(now))
         got = measured_from_arrays(newest, members, now, then)
+        # As views_with_late passes them: the rows resolve computed, now's then then's.
+        stacked = (
+            np.concatenate([b.world for b in now + then]),
+            np.concatenate([b.bodies.states for b in now + then]),
+        )
+        assert measured_from_arrays(newest, members, now, then, stacked).tobytes() == got.tobytes()
     assert got.shape == (len(late_ids), JOINT_COUNT, 3)
     for row, key in enumerate(late_keys):
         if key in want:
