@@ -292,9 +292,9 @@ def _carried_late(
     # body at a time.
     if measured is None:
         measured = np.full(newest_worlds.shape, np.nan)
-    row_scales = np.repeat(scales, counts)
+    row_scales = np.array(scales).repeat(counts)  # the method: np.repeat's wrapper costs more
     worlds_seen, seen, whole = _carry(newest_worlds, row_scales, measured)
-    if whole.all():  # every joint of every body measured (the usual instant): rows as they are
+    if all(whole.tolist()):  # every joint of every body measured (the usual instant): as they are
         return _by_sensor(newest, counts, worlds_seen)
     worlds: list[FloatArray] = list(worlds_seen)
     # Bodies with a joint the on-time views did not see: those joints by the filter's motion.

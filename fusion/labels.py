@@ -124,16 +124,17 @@ def label_views(
         assert doubts is not None
         sensors = [frozenset(k[0] for k in keys[lo:hi]) for lo, hi in pairwise(starts)]
         evidence = summed.tolist()
+        turned = False  # whether any person was: most steps none, and no array is asked
         for p, doubt in enumerate(doubts):
             if not redecide(doubt, evidence[p], sensors[p], t_s, s):
                 continue
-            swapped[p] = True
+            swapped[p] = turned = True
             if s.mirror_redecide_views > 1:
                 alone = views_alone(per_view[starts[p] : starts[p + 1]], doubt, t_s, s)
                 if alone is not None:  # a view or two, not the person: they turn, not the track
                     mirrored[starts[p] : starts[p + 1]] ^= alone
                     swapped[p] = False
-        if swapped.any():
+        if turned and swapped.any():
             mirrored ^= swapped[person_of]
     flags = mirrored.tolist()
     for p, (lo, hi) in enumerate(pairwise(starts)):

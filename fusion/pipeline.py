@@ -168,7 +168,9 @@ class FusionPipeline:
             self._check_walking_directions(ids, t_s, moved)  # each looks at its own person only
 
             # 7. Filter, 8. bone-length fit.
-            alive = np.flatnonzero(np.isfinite(fused).any(axis=(1, 2))).tolist()
+            # The ufunc's own reduce: what .any() calls after a Python wrapper's checks.
+            seen: list[bool] = np.logical_or.reduce(np.isfinite(fused), axis=(1, 2)).tolist()
+            alive = [p for p, any_joint in enumerate(seen) if any_joint]
             # Everyone alive (the usual step): the arrays as they are, not copies by a gather.
             everyone = len(alive) == len(ids)
             filtered = filter_all(
@@ -181,8 +183,8 @@ class FusionPipeline:
             if s.enforce_bone_lengths and alive:
                 # The references as they are now: this step's observations are in.
                 lengths = references_of([memories[p].bones for p in alive])
-                known = np.isfinite(lengths).any(axis=1)
-                usable: list[bool] = np.asarray(known).tolist()
+                known = np.logical_or.reduce(np.isfinite(lengths), axis=1)
+                usable: list[bool] = known.tolist()
                 fitted = [p for p, k in zip(alive, usable, strict=True) if k]
                 if fitted:
                     fit = fit_bone_lengths(

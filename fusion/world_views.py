@@ -181,7 +181,7 @@ def _compiled(
     a, b = np.concatenate(firsts), np.concatenate(seconds)
     if not a.dtype == b.dtype == np.float32:
         return None
-    row_alphas = np.repeat(np.array(alphas), counts)
+    row_alphas = np.array(alphas).repeat(counts)  # the method: np.repeat's wrapper costs more
     joints32, states, world = kernels_lerp.to_world(
         a,
         b,
@@ -189,7 +189,7 @@ def _compiled(
         np.concatenate(second_states),
         row_alphas,
         row_alphas >= 0.0,
-        np.repeat(np.arange(len(items)), counts),
+        np.arange(len(items)).repeat(counts),
         np.array(poses, dtype=np.float64),
     )
     done = _split(items, joints32, states, every_row=True), _rows_of(world, counts)
