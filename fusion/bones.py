@@ -339,7 +339,7 @@ def observe_bone_lengths(
             joints, states, cosines, person_of, slot_of, len(models), widest
         )
     # (persons, 2): whether any good view, and any view at all, shows some bone
-    seen: list[list[bool]] = np.asarray(np.isfinite(per_bone).any(axis=2)).tolist()
+    seen: list[list[bool]] = np.logical_or.reduce(np.isfinite(per_bone), axis=2).tolist()
     for p, ((good, spare), wanted) in enumerate(zip(seen, estimating, strict=True)):
         if spare and wanted:  # a person with no usable view at all adds nothing
             models[p]._add(per_bone[p, 0] if good else None, per_bone[p, 1])

@@ -179,7 +179,7 @@ class PersonTracker:
             kept, velocity, moved = kernels_tracks.moved(
                 joints, last_seen, fused_once, velocities, fused, t_s, MAX_SPEED_MPS
             )
-            for p in np.flatnonzero(moved).tolist():
+            for p in moved.nonzero()[0].tolist():
                 tracks[p].velocity = velocity[p]
         else:
             kept = self._moved(tracks, joints, t_s - last_seen, fused)

@@ -61,7 +61,7 @@ def scored_labels(
         and len(counts)
         and (need_rom or s.mirror_anatomy_weight_m > 0)
         and all(reference is not None for reference in references)
-        and np.isfinite(reference_facings).all()
+        and np.logical_and.reduce(np.isfinite(reference_facings), axis=None)
     ):  # the usual step: one compiled call
         lay = layout(tuple(counts), ((True, True),) * len(counts))
         anatomy = s.mirror_anatomy_weight_m if s.mirror_anatomy_weight_m > 0 else 0.0

@@ -105,7 +105,7 @@ def label_views(
     if unbiased:  # the last step's facing without the sensors' turn, where known
         assert doubts is not None
         remembered = np.array([d.facing for d in doubts], dtype=np.float64)
-        known = np.isfinite(remembered).all(axis=1, keepdims=True)
+        known = np.logical_and.reduce(np.isfinite(remembered), axis=1, keepdims=True)
         reference_facings = np.where(known, remembered, reference_facings)
     redeciding = s.mirror_redecide and doubts is not None
     mirrored, both_rom, forward, per_view, summed = scored_labels(

@@ -137,7 +137,7 @@ class FusionPipeline:
                     else None,
                     t_s,
                 )
-                for p in np.flatnonzero(swapped).tolist():  # turned over: the track goes too
+                for p in swapped.nonzero()[0].tolist():  # turned over: the track goes too
                     self._swap_person(ids[p], relabel=False)
                     track_facing[p] = facing_directions(tracks[p].joints[None])[0]
 
