@@ -89,8 +89,14 @@ def _displacements_loop(  # pragma: no cover
     out: FloatArray,
 ) -> None:
     count = members.shape[0]
+    own = np.empty(count, dtype=np.intp)  # the row's person's on-time bodies, in their order
     for row in range(late.shape[0]):
         person = late[row, 0]
+        views = 0
+        for k in range(count):
+            if person >= 0 and members[k, 0] == person:
+                own[views] = k
+                views += 1
         for j in range(out.shape[1]):
             # The late body's joint j is the person's joint ``wanted`` in the order of a body
             # labelled 0; each view's own joint for it is swapped if the view is labelled 1.
@@ -98,9 +104,8 @@ def _displacements_loop(  # pragma: no cover
             for c in range(3):
                 total = 0.0
                 seen = 0
-                for k in range(count):
-                    if person < 0 or members[k, 0] != person:
-                        continue
+                for v in range(views):
+                    k = own[v]
                     source = mirror[wanted] if members[k, 1] != 0 else wanted
                     if states[k, source] != tracked or states[count + k, source] != tracked:
                         continue  # Inferred at either time: the sensor's guess, not measured
