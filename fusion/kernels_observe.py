@@ -104,12 +104,19 @@ def _medians_loop(
                     length = np.nan
             lengths[i, b] = length
     values = np.empty(max(views, 1))
+    own = np.empty(max(views, 1), dtype=np.intp)  # the person's views, in their order
     for p in range(out.shape[0]):
+        count_own = 0
+        for i in range(views):
+            if person_of[i] == p:
+                own[count_own] = i
+                count_own += 1
         for kind in range(2):
             for b in range(bones):
                 count = 0
-                for i in range(views):
-                    if person_of[i] != p or (kind == 0 and not good[i]):
+                for k in range(count_own):
+                    i = own[k]
+                    if kind == 0 and not good[i]:
                         continue
                     v = lengths[i, b]
                     if v != v:  # NaN: not shown
