@@ -23,3 +23,31 @@ def test_every_stage_is_timed_and_the_library_is_restored() -> None:
     for name, function in originals.items():
         assert getattr(module, name) is function
     assert hub.views_with_late is late
+
+
+def test_stage_timers_wrap_only_inside_the_block_and_keep_one_clock() -> None:
+    from bench.fusion_stages import StageClock, stage_timers
+    from skelfuse.fusion.pipeline import FusionPipeline
+    from skelfuse.fusion.settings import FusionSettings
+
+    pipeline = FusionPipeline(FusionSettings())
+    filter_all = module.filter_all
+    clock = StageClock()
+    for _ in range(2):  # the bench's periods by stage: the same clock each time
+        with stage_timers(pipeline, clock) as inside:
+            assert inside is clock
+            assert "update" in pipeline.__dict__ and module.filter_all is not filter_all
+            pipeline.update([], 0.0)
+            clock.finish(1.0)
+        # Between them the library runs untouched.
+        assert "update" not in pipeline.__dict__ and "associate" not in pipeline.tracker.__dict__
+        assert module.filter_all is filter_all
+    assert len(clock.steps) == 2 and len(clock.updates) == 2
+    assert all(0.0 < seconds < 1.0 for seconds in clock.updates)
+
+
+def test_the_step_figures_and_the_stage_figures_come_from_different_periods() -> None:
+    timing = fusion_timing(sensors=2, bodies=2, steps=6, warmup=40)
+    assert math.isfinite(timing.tracker_ms) and timing.tracker_ms > 0.0
+    # The step as the library runs it holds the tracker's update and more.
+    assert 0.0 < timing.tracker_ms < 2 * timing.fuse_step_ms
