@@ -76,6 +76,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.fusion_timing import fusion_timing
+from bench.host_speed import host_speed
 from bench.load_decode import decode_timing, print_decode
 from bench.load_encode import encode_timing, print_encode
 from bench.load_report import median_result, print_fusion, print_main, print_scaling
@@ -158,12 +159,15 @@ def main(argv: Sequence[str] | None = None) -> int:
                                args.clients, args.stalled, args.calibrate,
                                args.calibrate_capture, args.client)  # fmt: skip
             print_main(run_config(config), args.repeat)
+    speeds = [host_speed()]  # the host's state before and after (bench/host_speed.py)
     timings = [
         fusion_timing(s, b, args.fusion_steps, drive=args.fusion_drive)
         for s, b in ((4, 6), (10, 6), (16, 6))
     ]
+    speeds.append(host_speed())
     raw["fusion"] = [asdict(t) for t in timings]
-    print_fusion(timings)
+    raw["host_speed"] = [asdict(speed) for speed in speeds]
+    print_fusion(timings, speeds)
     print_encode(encode)
     print_decode(decodes)
     print(

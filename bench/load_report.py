@@ -7,6 +7,7 @@ import statistics
 from dataclasses import asdict, replace
 
 from bench.fusion_timing import FusionTiming
+from bench.host_speed import HostSpeed
 from bench.load_agents import FPS
 from bench.load_run import RunResult
 
@@ -221,8 +222,9 @@ def print_scaling(results: list[RunResult], repeat: int) -> None:
         print(f"\nNote: {note}")
 
 
-def print_fusion(timings: list[FusionTiming]) -> None:
-    """The in-process fusion cost, one row per sensors × bodies."""
+def print_fusion(timings: list[FusionTiming], speeds: list[HostSpeed] | None = None) -> None:
+    """The in-process fusion cost, one row per sensors × bodies; ``speeds``: the host's
+    reference workloads timed before and after (bench/host_speed.py)."""
     drive = timings[0].drive if timings else "arrivals"
     print(
         "\nIn-process fusion cost (production classes, simulated time), median over steps; "
@@ -240,6 +242,12 @@ def print_fusion(timings: list[FusionTiming]) -> None:
             f"| {f.sensors} × {f.bodies} | {f.fuse_step_ms:.2f} ({f.fuse_step_p99_ms:.2f}) | "
             f"{f.fuse_step_cpu_ms:.2f} | {target} | {f.late_per_frame:.2f} | {f.tracker_ms:.2f} | "
             f"{f.encode_json_ms:.3f} | {f.handle_message_ms:.3f} |"
+        )
+    if speeds:
+        cells = ", ".join(f"{s.python_us:.0f} / {s.memory_us:.0f}" for s in speeds)
+        print(
+            f"\nHost speed before, after (bench/host_speed.py: small Python work / a 16 MB sum, "
+            f"µs; quiet host ~212 / 530–680): {cells}"
         )
     print_stages(timings)
 

@@ -1,0 +1,65 @@
+"""How fast the host runs right now: two fixed reference workloads, timed.
+
+This machine is shared, and its speed changes for minutes at a time without the load average
+inside it showing anything. Two kinds of slow minutes were seen on 2026-11-24, with the 4 × 6
+fusion step (bench/fusion_timing.py) timed between these probes:
+
+- the memory is slower: summing 16 MB takes 850–950 µs instead of 530–670 (a neighbour sharing
+  the caches or the memory bus), small Python work runs as fast as ever, and the fusion step,
+  whose arrays and code are evicted from the caches between steps, takes 1.0–1.15 ms instead of
+  0.90–0.93;
+- everything is about twice as slow (the small Python workload 470–485 µs instead of 233): the
+  step then takes ~2 ms.
+
+A figure in microseconds then says as much about those minutes as about the code. A bench
+reports :func:`host_speed` next to its figures so that a slow run can be told from slow code.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+_ROUNDS = 200
+_MEMORY_VALUES = 2_000_000  # 16 MB of float64: more than the caches hold
+
+
+@dataclass(frozen=True)
+class HostSpeed:
+    """Median µs of the two reference workloads (:func:`host_speed`)."""
+
+    python_us: float
+    """Small numpy calls on one (25, 3) skeleton, dict and list work: ~233 µs on a quiet host."""
+    memory_us: float
+    """One sum over 16 MB of float64: ~530–670 µs on a quiet host."""
+
+
+def _python_work() -> None:
+    """What the fusion step does most, on data that stays in the caches."""
+    joints = np.arange(75.0).reshape(25, 3)
+    kept: dict[int, np.ndarray] = {}
+    rows: list[float] = []
+    for k in range(_ROUNDS):
+        moved = joints + float(k)
+        kept[k % 7] = moved
+        rows.append(float(moved[3, 1]))
+
+
+def _median_us(work: Callable[[], object], repeats: int) -> float:
+    work()  # warm
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        work()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times) * 1e6
+
+
+def host_speed(repeats: int = 15) -> HostSpeed:
+    """Time both workloads, ``repeats`` runs each (medians)."""
+    values = np.random.default_rng(0).random(_MEMORY_VALUES)
+    return HostSpeed(_median_us(_python_work, repeats), _median_us(values.sum, repeats))

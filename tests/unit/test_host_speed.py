@@ -1,0 +1,40 @@
+"""The bench's host speed probes (bench/host_speed.py) and where the load report shows them."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+
+import pytest
+
+from bench import host_speed as module
+from bench.host_speed import HostSpeed, host_speed
+
+
+def test_the_median_of_the_timed_runs_is_reported(monkeypatch: pytest.MonkeyPatch) -> None:
+    # An injected clock: the runs take 5, 1, 3 ms (start and end readings in turn).
+    readings: Iterator[float] = iter([0.0, 0.005, 1.0, 1.001, 2.0, 2.003])
+    monkeypatch.setattr(module.time, "perf_counter", lambda: next(readings))
+    calls: list[int] = []
+    assert module._median_us(lambda: calls.append(1), repeats=3) == pytest.approx(3000.0)
+    assert len(calls) == 4  # one warm-up run, untimed, then the three
+
+
+def test_both_workloads_are_timed() -> None:
+    speed = host_speed(repeats=3)
+    for value in (speed.python_us, speed.memory_us):
+        assert math.isfinite(value) and value > 0.0
+
+
+def test_the_fusion_table_shows_the_host_speed_before_and_after(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from bench.fusion_timing import fusion_timing
+    from bench.load_report import print_fusion
+
+    timing = fusion_timing(sensors=2, bodies=2, steps=3, warmup=10)
+    print_fusion([timing], [HostSpeed(211.6, 640.2), HostSpeed(480.0, 901.0)])
+    out = capsys.readouterr().out
+    assert "212 / 640, 480 / 901" in out
+    print_fusion([timing])
+    assert "Host speed" not in capsys.readouterr().out
