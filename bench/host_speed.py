@@ -1,18 +1,19 @@
 """How fast the host runs right now: two fixed reference workloads, timed.
 
 This machine is shared, and its speed changes for minutes at a time without the load average
-inside it showing anything. Two kinds of slow minutes were seen on 2026-11-24, with the 4 × 6
-fusion step (bench/fusion_timing.py) timed between these probes:
+inside it showing anything. Two kinds of slow minutes were seen on 2026-11-24 (docs/benchmarks.md,
+"Load", 14:00–14:57), with the 4 × 6 fusion step (bench/fusion_timing.py) timed between probes:
 
-- the memory is slower: summing 16 MB takes 850–950 µs instead of 530–670 (a neighbour sharing
+- the memory is slower: summing 16 MB takes 850–950 µs instead of 460–690 (a neighbour sharing
   the caches or the memory bus), small Python work runs as fast as ever, and the fusion step,
-  whose arrays and code are evicted from the caches between steps, takes 1.0–1.15 ms instead of
-  0.90–0.93;
-- everything is about twice as slow (the small Python workload 470–485 µs instead of 233): the
-  step then takes ~2 ms.
+  whose code and arrays the rest of each period evicts from the caches, takes 1.0–1.15 ms
+  instead of 0.90–0.94;
+- everything runs at about half speed (small Python work twice its quiet time): the step then
+  takes ~2 ms.
 
 A figure in microseconds then says as much about those minutes as about the code. A bench
-reports :func:`host_speed` next to its figures so that a slow run can be told from slow code.
+reports :func:`host_speed` next to its figures so that a slow run can be told from slow code
+(a slow spell inside a run, between two quiet probes, still goes unseen).
 """
 
 from __future__ import annotations
@@ -33,9 +34,9 @@ class HostSpeed:
     """Median µs of the two reference workloads (:func:`host_speed`)."""
 
     python_us: float
-    """Small numpy calls on one (25, 3) skeleton, dict and list work: ~233 µs on a quiet host."""
+    """Small numpy calls on one (25, 3) skeleton, dict and list work: ~212 µs on a quiet host."""
     memory_us: float
-    """One sum over 16 MB of float64: ~530–670 µs on a quiet host."""
+    """One sum over 16 MB of float64: ~460–690 µs on a quiet host."""
 
 
 def _python_work() -> None:

@@ -247,7 +247,7 @@ def print_fusion(timings: list[FusionTiming], speeds: list[HostSpeed] | None = N
         cells = ", ".join(f"{s.python_us:.0f} / {s.memory_us:.0f}" for s in speeds)
         print(
             f"\nHost speed before, after (bench/host_speed.py: small Python work / a 16 MB sum, "
-            f"µs; quiet host ~212 / 530–680): {cells}"
+            f"µs; quiet host ~212 / 460–690): {cells}"
         )
     print_stages(timings)
 
