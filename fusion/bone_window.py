@@ -26,6 +26,11 @@ _PAIRS: Final = np.array(sorted({min(b, int(m)) for b, m in enumerate(BONE_MIRRO
 """One bone of each left/right pair (midline bones are their own pair)."""
 _PAIR_OF: Final = np.searchsorted(_PAIRS, np.minimum(np.arange(BONE_COUNT), BONE_MIRROR))
 """Per bone, its pair's row among :data:`_PAIRS`."""
+_MIRROR_OF_PAIRS: Final = BONE_MIRROR[_PAIRS]
+"""Each pair's other bone (a midline bone: itself, read twice as numpy's pooling does)."""
+_BONES: Final = np.arange(BONE_COUNT)
+_NO_ROWS: Final = np.full(BONE_COUNT, -1)
+"""No second row per bone (:func:`~skelfuse.fusion.kernels_median.window_medians`)."""
 
 
 def nanmedian_axis(data: FloatArray, axis: int) -> FloatArray:
@@ -88,6 +93,12 @@ class SampleWindow:
         counterpart pool their observations (the count is the mean of the two sides')."""
         if not self._size:
             return np.full(BONE_COUNT, np.nan), np.zeros(BONE_COUNT)
+        if kernels.enabled() and kernels_median.warmed():  # the same bits in one call
+            second = _MIRROR_OF_PAIRS if symmetric else _NO_ROWS
+            median, counts = kernels_median.window_medians(
+                self._data, self._size, _PAIRS if symmetric else _BONES, second, min_samples
+            )
+            return (median[_PAIR_OF], counts[_PAIR_OF]) if symmetric else (median, counts)
         data = self._data[:, : self._size]
         if not symmetric:
             counts = np.isfinite(data).sum(axis=1) / 1

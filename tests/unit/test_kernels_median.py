@@ -3,7 +3,8 @@
 skelfuse.fusion.kernels_median.row_medians against bone_window.nanmedian_last's numpy code on
 rows of one to 700 values with NaN, ties, zeros, infinities, a row of NaN only and a row of
 one finite value; then two SampleWindows fed the same observations through both paths give
-the same estimates and counts.
+the same estimates and counts; then the window kernel (``window_medians``, the whole of
+``SampleWindow.median`` in one call) against numpy's path on windows of every shape.
 """
 
 from __future__ import annotations
@@ -61,3 +62,48 @@ def test_both_paths_give_the_same_window_estimates(numba_kernels: None) -> None:
                     got[path] = window.median(10, symmetric=step % 20 == 0)
             assert got["numba"][0].tobytes() == got["numpy"][0].tobytes()
             assert got["numba"][1].tobytes() == got["numpy"][1].tobytes()
+
+
+@pytest.mark.parametrize("seed", range(30))
+def test_the_window_kernel_gives_the_numpy_window_medians(
+    numba_kernels: None, seed: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Windows of 1 to 40 observations, part full or wrapped, mirrored or not, with ties, NaN,
+    # infinities; symmetric or not, any min_samples: the window kernel against numpy's path.
+    rng = np.random.default_rng(seed)
+    window = bone_window.SampleWindow(int(rng.integers(1, 40)))
+    for _ in range(int(rng.integers(1, 60))):
+        lengths = rng.choice([0.3, 0.31, 0.32, 0.5], 24)
+        if seed % 2:
+            lengths = lengths + rng.normal(0.0, 0.01, 24)
+        lengths[rng.random(24) < rng.random()] = np.nan
+        if seed % 5 == 0:
+            lengths[rng.integers(24)] = np.inf
+        window.append(lengths)
+    if seed % 3 == 0:
+        window.mirror()
+    calls: list[int] = []
+    compiled = kernels_median.window_medians
+    monkeypatch.setattr(
+        kernels_median, "window_medians", lambda *a: calls.append(1) or compiled(*a)
+    )
+    for symmetric in (True, False):
+        min_samples = int(rng.integers(0, 8))
+        got = window.median(min_samples, symmetric)
+        with kernels.forced("numpy"):
+            want = window.median(min_samples, symmetric)
+        assert got[0].tobytes() == want[0].tobytes()
+        assert got[1].tobytes() == want[1].tobytes()
+    assert len(calls) == 2  # the kernel ran, both times
+
+
+def test_the_window_kernel_reads_one_or_two_rows_per_output() -> None:
+    window = np.array([[0.1, 0.2, 0.9, np.nan], [0.3, np.nan, np.nan, 5.0], [0.5, 0.5, 0.5, 0.5]])
+    first = np.array([0, 0, 2], dtype=np.intp)
+    second = np.array([1, -1, -1], dtype=np.intp)
+    medians, counts = kernels_median.window_medians(window, 3, first, second, 2)
+    # Row 0 with row 1 over 3 columns: 0.1, 0.2, 0.9, 0.3 (4 values from 2 rows: count 2).
+    np.testing.assert_array_equal(counts, [2.0, 3.0, 3.0])
+    np.testing.assert_array_equal(medians, [(0.2 + 0.3) / 2, 0.2, 0.5])
+    medians, _ = kernels_median.window_medians(window, 3, first, second, 3)
+    assert np.isnan(medians[0]) and medians[1] == 0.2  # below min_samples: NaN
