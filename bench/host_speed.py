@@ -18,12 +18,11 @@ reports :func:`host_speed` next to its figures so that a slow run can be told fr
 
 from __future__ import annotations
 
-import statistics
-import time
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+
+from bench.load_encode import median_us
 
 _ROUNDS = 200
 _MEMORY_VALUES = 2_000_000  # 16 MB of float64: more than the caches hold
@@ -50,17 +49,7 @@ def _python_work() -> None:
         rows.append(float(moved[3, 1]))
 
 
-def _median_us(work: Callable[[], object], repeats: int) -> float:
-    work()  # warm
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        work()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times) * 1e6
-
-
 def host_speed(repeats: int = 15) -> HostSpeed:
-    """Time both workloads, ``repeats`` runs each (medians)."""
+    """Time both workloads, ``repeats`` runs each after as many to warm up (medians)."""
     values = np.random.default_rng(0).random(_MEMORY_VALUES)
-    return HostSpeed(_median_us(_python_work, repeats), _median_us(values.sum, repeats))
+    return HostSpeed(median_us(_python_work, repeats), median_us(values.sum, repeats))

@@ -15,7 +15,8 @@ count is of finite values, the two middle places are taken among the values that
 :func:`window_medians` does the whole of ``SampleWindow.median`` in one call: each row's values
 read where the window keeps them (a left bone's and its right counterpart's together), counted
 and their median selected, with no pooled copy of the window, no count pass and no masks in
-numpy between them (75 → ~35 µs a person at 2026-11-24 15:10; six persons refresh together).
+numpy between them (75 → 34 µs a person on one 300-sample window, 2026-11-24 15:01; six
+persons refresh together).
 
 As :mod:`skelfuse.fusion.kernels_observe`: the loop runs only once :func:`warm_up` has compiled
 it, so no frame waits for a compilation; until then, and with the kernels off, numpy runs.

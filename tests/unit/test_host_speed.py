@@ -7,17 +7,27 @@ from collections.abc import Iterator
 
 import pytest
 
-from bench import host_speed as module
+from bench import host_speed as module, load_encode
 from bench.host_speed import HostSpeed, host_speed
 
 
 def test_the_median_of_the_timed_runs_is_reported(monkeypatch: pytest.MonkeyPatch) -> None:
-    # An injected clock: the runs take 5, 1, 3 ms (start and end readings in turn).
+    # An injected clock: the timed runs take 5, 1, 3 ms (start and end readings in turn); the
+    # warm-up runs before them read no clock.
     readings: Iterator[float] = iter([0.0, 0.005, 1.0, 1.001, 2.0, 2.003])
-    monkeypatch.setattr(module.time, "perf_counter", lambda: next(readings))
+    monkeypatch.setattr(load_encode.time, "perf_counter", lambda: next(readings))
     calls: list[int] = []
-    assert module._median_us(lambda: calls.append(1), repeats=3) == pytest.approx(3000.0)
-    assert len(calls) == 4  # one warm-up run, untimed, then the three
+    assert load_encode.median_us(lambda: calls.append(1), runs=3) == pytest.approx(3000.0)
+    assert len(calls) == 6  # three to warm up, untimed, then the three
+
+
+def test_host_speed_times_its_workloads_with_the_shared_timer(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    timed: list[int] = []
+    monkeypatch.setattr(module, "median_us", lambda work, runs: timed.append(runs) or 7.0)
+    assert host_speed(repeats=4) == HostSpeed(7.0, 7.0)
+    assert timed == [4, 4]
 
 
 def test_both_workloads_are_timed() -> None:
