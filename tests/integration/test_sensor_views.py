@@ -110,8 +110,8 @@ def test_cloud_in_sensor_frame_then_world_bounded_shared_and_refused_as_document
     placed = httpx.get(url + "/api/sensors/cam-b/bodies").json()
     assert placed["pose"] == "stored"
     pelvis = placed["bodies"][0]["joints_world"][0]
-    # SpineBase above the floor, in the world frame (in cam-b's frame it would be below 0):
-    # the performer squats, so its true height runs 0.47-0.98 m over the routine.
+    # SpineBase above the floor, in the world frame. The performer squats: over its routine its
+    # true height runs 0.51-0.98 m, while in cam-b's own frame it runs -0.59 to +0.10 m.
     assert pelvis is not None and 0.3 < pelvis[1] < 1.3
 
     offline = agents["cam-c"]
