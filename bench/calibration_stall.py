@@ -226,6 +226,16 @@ def main() -> None:
         f"median max stall {median(r['max_ms'] for r in rows):.1f} ms (worst {worst:.1f}); "
         f"'server silent' {sum(r['server_silent'] for r in rows)} in all; logs {out['logs']}"
     )
+    without_icp = sum(not r["icp_applied"] for r in rows)
+    if without_icp:
+        # Seen on a fresh machine whose open3d could not load libusb: the runs finished in the
+        # skeleton solve and the figures above say nothing of the stall ICP used to cause.
+        print(
+            f"warning: ICP did not run in {without_icp} of {len(rows)} runs (is open3d "
+            "importable? scripts/venv.sh installs the libraries it needs); these figures do "
+            "not cover ICP",
+            file=sys.stderr,
+        )
     if args.json:
         args.json.write_text(json.dumps(out, indent=1))
 

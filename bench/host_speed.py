@@ -11,6 +11,10 @@ inside it showing anything. Two kinds of slow minutes were seen on 2026-11-24 (d
 - everything runs at about half speed (small Python work twice its quiet time): the step then
   takes ~2 ms.
 
+The machine itself changes too: from 2026-11-24 20:00 the sessions ran on a host whose small
+Python work takes half the time (~100 µs) and whose 16 MB sum takes about as long (540–630 µs);
+the 4 × 6 step took 0.57–0.58 ms there.
+
 A figure in microseconds then says as much about those minutes as about the code. A bench
 reports :func:`host_speed` next to its figures so that a slow run can be told from slow code
 (a slow spell inside a run, between two quiet probes, still goes unseen).
@@ -33,9 +37,11 @@ class HostSpeed:
     """Median µs of the two reference workloads (:func:`host_speed`)."""
 
     python_us: float
-    """Small numpy calls on one (25, 3) skeleton, dict and list work: ~212 µs on a quiet host."""
+    """Small numpy calls on one (25, 3) skeleton, dict and list work: ~212 µs on the host of
+    2026-11-22 to 24 when quiet, ~100 µs on the host of 2026-11-24 20:00."""
     memory_us: float
-    """One sum over 16 MB of float64: ~460–690 µs on a quiet host."""
+    """One sum over 16 MB of float64: ~460–690 µs on the host of 2026-11-22 to 24 when quiet,
+    540–630 µs on the host of 2026-11-24 20:00."""
 
 
 def _python_work() -> None:

@@ -247,7 +247,8 @@ def print_fusion(timings: list[FusionTiming], speeds: list[HostSpeed] | None = N
         cells = ", ".join(f"{s.python_us:.0f} / {s.memory_us:.0f}" for s in speeds)
         print(
             f"\nHost speed before, after (bench/host_speed.py: small Python work / a 16 MB sum, "
-            f"µs; quiet host ~212 / 460–690): {cells}"
+            f"µs; the host of 2026-11-22 to 24 when quiet ~212 / 460–690, the faster host of "
+            f"2026-11-24 20:00 ~100 / 540–630): {cells}"
         )
     print_stages(timings)
 
