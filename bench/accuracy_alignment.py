@@ -75,6 +75,10 @@ ALL_POLICIES: dict[str, FusionSettings] = {
     # ... without the fall-back to ``phased``'s wait on a jittery link (before 2026-11-24).
     "views 7 ms no fallback": replace(VIEWS, alignment_jitter_fallback_s=0.0),
     "views 7 ms fallback 3 ms": replace(VIEWS, alignment_jitter_fallback_s=0.003),
+    # ... without the grace for a sensor expected on time that missed the deadline (before
+    # 2026-11-24 20:30), and with a longer one.
+    "views 7 ms no grace": replace(VIEWS, alignment_deadline_grace_s=0.0),
+    "views 7 ms grace 10 ms": replace(VIEWS, alignment_deadline_grace_s=0.010),
 }
 """Every policy the bench knows (the extrapolation bound is the default's, 34 ms, for every
 one); ``--policies`` picks some (``aligned`` always runs: the differences are against it)."""

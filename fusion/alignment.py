@@ -29,7 +29,9 @@ when each live sensor's newest frame was captured, whether the next instant can 
   deadline there carries late sensors by up to a period. With ``jitter_fallback_s`` there is
   none either while the sensors' delivery delays scatter wider than that (a jittery link, such
   as Wi-Fi): a sensor expected on time then misses the deadline at random and is carried most
-  of a period; the policy waits as ``phased`` does until the scatter settles.
+  of a period; the policy waits as ``phased`` does until the scatter settles. With a
+  scatter below that, ``deadline_grace_s`` gives a sensor expected on time whose frame missed
+  the deadline by a hair a few milliseconds more before it is carried.
 
 Pure logic on times: nothing here reads a clock (the hub passes ``now_s``, server clock, Unix
 seconds), so tests drive it with a clock of their own.
@@ -49,6 +51,8 @@ import numpy.typing as npt
 from skelfuse.fusion.alignment_replay import (
     circular_phase,
     delay_spread,
+    jitter_report,
+    judged_jittery,
     replayed_horizons,
     replayed_waits,
 )
@@ -76,9 +80,6 @@ mapping is still settling (a grid chosen from them measured worse than phase 0).
 EXPECTED_LATE_SHARE = 0.5
 """``skip_expected_late``: a sensor late in more than this share of the replayed frames is not
 waited for."""
-JITTER_SETTLED_SHARE = 2 / 3
-"""``jitter_fallback_s``: the deadline comes back once the delays' scatter is below this share of
-the threshold that took it away (hysteresis: the scatter of 60 frames is itself noisy)."""
 HORIZON_TIE_S = 1e-4
 """``grid = "horizon"``: the replayed wait (seconds) counts this much (seconds², per second of
 wait) beside the squared horizons, so that among grids as good for extrapolation (every sensor
@@ -152,6 +153,9 @@ class Alignment:
             this (seconds; the median over sensors of each one's p90 − p10 over its last
             :data:`PHASE_SAMPLES` frames, taken at each re-phase), wait for every sensor as
             ``phased`` does, on ``phased``'s grid; 0: never.
+        deadline_grace_s: ``deadline`` with ``skip_expected_late``: at the deadline, while a
+            sensor expected on time (not in :attr:`expected_late`) has no frame at or after
+            the instant, wait up to this much longer (seconds; module docstring); 0: never.
     """
 
     def __init__(
@@ -164,7 +168,9 @@ class Alignment:
         skip_expected_late: bool = False,
         wait_for_phase: bool = False,
         jitter_fallback_s: float = 0.0,
+        deadline_grace_s: float = 0.0,
     ) -> None:
+        self.deadline_grace_s = deadline_grace_s if policy == "deadline" else 0.0
         self.policy = policy
         self.grid: Grid = grid if policy == "deadline" else "wait"
         self.skip_expected_late = skip_expected_late and policy == "deadline"
@@ -195,7 +201,7 @@ class Alignment:
         return cls(
             s.alignment, output_hz, s.alignment_deadline_s, s.alignment_max_extrapolation_s,
             s.alignment_grid, s.alignment_skip_expected_late, s.alignment_wait_for_phase,
-            s.alignment_jitter_fallback_s,
+            s.alignment_jitter_fallback_s, s.alignment_deadline_grace_s,
         )  # fmt: skip
 
     @property
@@ -246,6 +252,13 @@ class Alignment:
             waited_in &= all(
                 s.newest_s >= bound for s in sensors if s.sensor_id in self.expected_late
             )
+            # A sensor expected on time whose frame missed the deadline by a hair (jitter)
+            # gets the grace: carried, it would be extrapolated most of a period.
+            grace_until = due + self.deadline_grace_s
+            missing = min(waited, default=next_t) < next_t  # none expected on time: no grace
+            if self.skip_expected_late and due <= now_s < grace_until and missing:
+                self._due_s = grace_until
+                return None
             # Nor before the clock reaches it (module docstring: a camera stamping frames late).
             if now_s >= due or (waited_in and now_s >= next_t):
                 instant = self._late_instant(next_t, sensors)
@@ -298,22 +311,15 @@ class Alignment:
 
     def jitter_report(self) -> str:
         """What ``jitter_fallback_s`` decided at the last re-phase, in words (for the log)."""
-        spread_ms = 1e3 * (self.delay_spread_s or 0.0)
-        if self.jittery:
-            return (
-                f"delivery delays scatter {spread_ms:.1f} ms (over alignment_jitter_fallback_s): "
-                "waiting for every sensor, as alignment = 'phased', until they settle"
-            )
-        return f"delivery delays settled ({spread_ms:.1f} ms): the deadline is back"
+        return jitter_report(self.jittery, self.delay_spread_s or 0.0)
 
     def _judge_jitter(self, delays: FloatArray) -> None:
         """``jitter_fallback_s``: whether the delays (S, frames), seconds, scatter too wide for a
-        deadline: the median over sensors of each one's p90 − p10, with hysteresis."""
+        deadline (:func:`~skelfuse.fusion.alignment_replay.judged_jittery`)."""
         if self.jitter_fallback_s <= 0.0:
             return
         self.delay_spread_s = spread = delay_spread(delays)
-        settled = self.jitter_fallback_s * (JITTER_SETTLED_SHARE if self.jittery else 1.0)
-        self.jittery = spread > settled
+        self.jittery = judged_jittery(spread, self.jitter_fallback_s, self.jittery)
 
     def _late_instant(self, t_s: float, sensors: Sequence[SensorTiming]) -> Instant:
         late: list[tuple[str, float]] = []

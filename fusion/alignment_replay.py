@@ -67,6 +67,29 @@ def delay_spread(delays_s: FloatArray) -> float:
     return float(statistics.median(spreads.tolist()))  # np.median's floats: (a + b) / 2
 
 
+JITTER_SETTLED_SHARE = 2 / 3
+"""``jitter_fallback_s``: the deadline comes back once the delays' scatter is below this share of
+the threshold that took it away (hysteresis: the scatter of 60 frames is itself noisy)."""
+
+
+def judged_jittery(spread_s: float, threshold_s: float, was_jittery: bool) -> bool:
+    """Whether delays scattering ``spread_s`` (:func:`delay_spread`) are too wide for a deadline
+    at ``threshold_s`` (seconds): over it, or, judged so before, over
+    :data:`JITTER_SETTLED_SHARE` of it."""
+    return spread_s > threshold_s * (JITTER_SETTLED_SHARE if was_jittery else 1.0)
+
+
+def jitter_report(jittery: bool, spread_s: float) -> str:
+    """What the jitter fall-back decided, in words (for the log); ``spread_s`` in seconds."""
+    spread_ms = 1e3 * spread_s
+    if jittery:
+        return (
+            f"delivery delays scatter {spread_ms:.1f} ms (over alignment_jitter_fallback_s): "
+            "waiting for every sensor, as alignment = 'phased', until they settle"
+        )
+    return f"delivery delays settled ({spread_ms:.1f} ms): the deadline is back"
+
+
 def _linear_percentile(ordered: FloatArray, q: float) -> FloatArray:
     """The ``q`` quantile (0..1) of each row of ``ordered`` (S, L), rows sorted: numpy's
     ``linear`` method step by step (its virtual index, and its two-sided interpolation)."""

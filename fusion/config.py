@@ -116,14 +116,18 @@ that never fires, and beyond it a sensor's motion is no longer a straight line."
 def _alignment_problems(changes: Mapping[str, object]) -> list[str]:
     """The alignment bounds (fusion/alignment.py) out of range: the deadline in (0, 0.1]
     seconds, the extrapolation in [0, 0.1] (0: a late sensor is always left out), the jitter
-    fallback in [0, 0.1] (0: never)."""
+    fallback and the deadline's grace in [0, 0.1] (0: never)."""
     problems = []
     deadline = changes.get("alignment_deadline_s")
     if isinstance(deadline, float) and not 0.0 < deadline <= MAX_ALIGNMENT_S:
         problems.append(
             f"alignment_deadline_s: expected seconds in (0, {MAX_ALIGNMENT_S}], got {deadline!r}"
         )
-    for name in ("alignment_max_extrapolation_s", "alignment_jitter_fallback_s"):
+    for name in (
+        "alignment_max_extrapolation_s",
+        "alignment_jitter_fallback_s",
+        "alignment_deadline_grace_s",
+    ):
         bound = changes.get(name)
         if isinstance(bound, float) and bound > MAX_ALIGNMENT_S:
             problems.append(f"{name}: expected seconds in [0, {MAX_ALIGNMENT_S}], got {bound!r}")

@@ -144,6 +144,65 @@ def test_an_expected_late_sensor_is_waited_for_until_its_frame_before_the_instan
     assert instant is not None and instant.left_out == ("a",)
 
 
+def test_a_sensor_expected_on_time_gets_the_grace_after_the_deadline() -> None:
+    """On a link with a little jitter a sensor expected on time misses the deadline by a hair
+    at random; carried from its frame before, it would be extrapolated most of a period. The
+    instant waits up to the grace for it, and no longer."""
+    t = math.floor(T0 / P) * P
+
+    def policy_with(grace_s: float) -> Alignment:
+        policy = Alignment(
+            "deadline", 30.0, deadline_s=0.007, skip_expected_late=True, deadline_grace_s=grace_s
+        )
+        policy = primed(policy, t)
+        policy.expected_late = frozenset({"c"})
+        return policy
+
+    on_time, expected_late = timing("a", t + 0.001), timing("c", t - 0.010)
+    behind = timing("b", t + 0.004 - P)  # its frame captured at t + 4 ms is on its way
+    sensors = [on_time, behind, expected_late]
+    policy = policy_with(0.003)
+    assert policy.next_instant(sensors, t + 0.005) is None
+    assert policy.due_s == pytest.approx(t + 0.007)
+    assert policy.next_instant(sensors, t + 0.007) is None, "the deadline: b gets the grace"
+    assert policy.due_s == pytest.approx(t + 0.010), "the loop's timer: the grace's end"
+    # b's frame comes 1 ms after the deadline: fused at once, b interpolated, not carried.
+    instant = policy.next_instant([on_time, timing("b", t + 0.004), expected_late], t + 0.008)
+    assert instant is not None and instant.t_s == pytest.approx(t)
+    assert [s for s, _ in instant.late] == ["c"], "only the sensor expected late is carried"
+    # b's frame held up past the grace as well: carried then, as at a deadline.
+    policy = policy_with(0.003)
+    assert policy.next_instant(sensors, t + 0.007) is None
+    assert policy.next_instant(sensors, t + 0.0099) is None
+    instant = policy.next_instant(sensors, t + 0.010)
+    assert instant is not None and sorted(s for s, _ in instant.late) == ["b", "c"]
+    assert policy.due_s == pytest.approx(t + P + 0.007), "the next instant's deadline"
+    # Only sensors expected late missing: not waited for at all, as before.
+    policy = policy_with(0.003)
+    policy.expected_late = frozenset({"b", "c"})
+    instant = policy.next_instant(sensors, t + 0.005)
+    assert instant is not None and sorted(s for s, _ in instant.late) == ["b", "c"]
+    # Without skip_expected_late nobody is judged expected on time: no grace.
+    policy = primed(Alignment("deadline", 30.0, deadline_s=0.007, deadline_grace_s=0.003), t)
+    assert policy.next_instant(sensors, t + 0.005) is None
+    instant = policy.next_instant(sensors, t + 0.007)
+    assert instant is not None and sorted(s for s, _ in instant.late) == ["b", "c"]
+    # 0: no grace (the rule before).
+    policy = policy_with(0.0)
+    instant = policy.next_instant(sensors, t + 0.007)
+    assert instant is not None and sorted(s for s, _ in instant.late) == ["b", "c"]
+
+
+def test_the_grace_is_a_deadline_setting_and_checked() -> None:
+    assert FusionSettings().alignment_deadline_grace_s == 0.003
+    phased = Alignment.of(replace(FusionSettings(), alignment="phased"), 30.0)
+    assert phased.deadline_grace_s == 0.0, "phased has no deadline to extend"
+    assert Alignment.of(FusionSettings(), 30.0).deadline_grace_s == 0.003
+    for value in (-0.001, 0.2):
+        with pytest.raises(FusionConfigError, match="alignment_deadline_grace_s"):
+            fusion_settings_from_mapping({"alignment_deadline_grace_s": value})
+
+
 def test_an_instant_nobody_can_give_waits_for_the_first_frame_not_fused_empty() -> None:
     """Every sensor's frames held up beyond the bound (a busy machine delaying every agent):
     the instant is neither published empty nor skipped; it waits, with no timer (the loop
