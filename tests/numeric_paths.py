@@ -53,6 +53,8 @@ def pin_numeric_paths() -> None:
     """
     if not has_avx512():
         return
+    if "NPY_DISABLE_CPU_FEATURES" in os.environ and "OPENBLAS_CORETYPE" in os.environ:
+        return  # set already: by the user, or inherited (a worker process a test started)
     if "numpy" in sys.modules:
         raise RuntimeError(
             "numpy was imported before tests/__init__.py could pin its code paths "
@@ -62,7 +64,5 @@ def pin_numeric_paths() -> None:
         report = subprocess.run(
             [sys.executable, "-c", _REPORT], capture_output=True, text=True, check=True
         )
-        targets = report.stdout.strip()
-        if targets:
-            os.environ["NPY_DISABLE_CPU_FEATURES"] = targets
+        os.environ["NPY_DISABLE_CPU_FEATURES"] = report.stdout.strip()  # "": none to disable
     os.environ.setdefault("OPENBLAS_CORETYPE", "Haswell")
