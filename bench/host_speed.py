@@ -13,7 +13,7 @@ inside it showing anything. Two kinds of slow minutes were seen on 2026-11-24 (d
 
 The machine itself changes too: from 2026-11-24 20:00 the sessions ran on a host whose small
 Python work takes half the time (~100 µs) and whose 16 MB sum takes about as long (540–630 µs);
-the 4 × 6 step took 0.57–0.58 ms there.
+the 4 × 6 step took 0.57–0.59 ms there.
 
 A figure in microseconds then says as much about those minutes as about the code. A bench
 reports :func:`host_speed` next to its figures so that a slow run can be told from slow code

@@ -215,8 +215,9 @@ class FusionSettings:
     policies"); ``deadline`` (the default) as ``phased``, but at the latest
     ``alignment_deadline_s`` after the instant, late sensors carried forward: with the
     ``alignment_*`` defaults below +0.19 to +0.67 mm against ``aligned`` in those scenarios
-    (mean of 3 runs each), and capture → client 12.0 / 16.6 ms p50 / p99 for 10 sensors at
-    random phases on a quiet machine (``phased`` 33.7 / 43.8; docs/benchmarks.md "Load"). On a
+    (mean of 3 runs each), and capture → client 8.7 / 10.3 ms p50 / p99 for 10 sensors at
+    random phases (2026-11-24 20:26, raw clients; ``phased`` 33.7 / 43.8 on a slower day;
+    docs/benchmarks.md "Load"). On a
     link with delivery jitter it waits as ``phased`` does (``alignment_jitter_fallback_s``)."""
     alignment_deadline_s: float = 0.007
     """``deadline``: an instant is fused at the latest this long after it (server clock,

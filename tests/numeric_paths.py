@@ -15,7 +15,9 @@ the names numpy itself reports, which change between numpy versions) and selects
 Haswell kernels (``OPENBLAS_CORETYPE``); subprocesses the tests start inherit both. Outside the
 tests nothing is pinned: there the numpy fallback and the kernels may differ in the last bits on
 such a host (docs/fusion.md "Compiled kernels"). A variable already set is left as it is. On a
-host without AVX-512 nothing is set.
+host without AVX-512 nothing is set. The mono source's environment (`.venv-mono`, numpy 1.26,
+started by its integration test) inherits the numpy variable too; it disables the names it
+knows (``AVX512_ICL``) and passes over the others with an ``ImportWarning``.
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ this one must not load numpy before the variables are set)."""
 
 
 def has_avx512() -> bool:
+    """Whether this host's CPU reports AVX-512F (Linux's /proc/cpuinfo; elsewhere: no)."""
     try:
         flags = Path("/proc/cpuinfo").read_text(encoding="utf-8")
     except OSError:
