@@ -31,6 +31,28 @@ def numba_module() -> Any | None:
     return _found["numba"]
 
 
+def require_fusion_dependencies() -> None:
+    """Return when numba and numpy 2 are importable, as fusion needs them.
+
+    Raises:
+        ImportError: naming what is missing and the install that brings it (the ``fusion``
+            extra, part of ``server``).
+    """
+    import numpy as np
+
+    missing = []
+    if numba_module() is None:
+        missing.append("numba (not installed)")
+    if int(np.__version__.split(".")[0]) < 2:
+        missing.append(f"numpy 2 (this environment has numpy {np.__version__})")
+    if missing:
+        raise ImportError(
+            f"skelfuse's fusion needs {' and '.join(missing)}: install it with "
+            "pip install 'skelfuse[fusion]' (the server extra includes it); the mono source's "
+            "environment (numpy<2) runs the agent only"
+        )
+
+
 def jit(function: F) -> F:
     """``function`` for numba's nopython mode, or ``function`` itself without numba.
 

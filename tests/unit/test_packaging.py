@@ -130,3 +130,31 @@ def test_no_source_imports_a_layer_by_its_bare_name() -> None:
         for line, name in _bare_layer_imports(path.read_text(encoding="utf-8"))
     ]
     assert not offenders, "import these as skelfuse.<layer>...:\n" + "\n".join(offenders)
+
+
+def test_fusion_declares_what_it_needs_so_the_resolver_refuses_the_mono_mix() -> None:
+    """numpy 2 and numba wherever fusion runs (the server includes the fusion extra), numpy<2 in
+    the mono extra: pip then refuses ``[server,mono]`` with a conflict instead of installing a
+    fusion that fails on numpy 1's missing functions."""
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    extras: dict[str, list[str]] = project["optional-dependencies"]
+    assert {"numpy>=2", "numba>=0.60"} <= set(extras["fusion"])
+    assert "skelfuse[fusion]" in extras["server"]
+    assert "numpy>=1.26,<2" in extras["mono"]
+
+
+def test_fusion_refuses_to_import_without_numba_or_numpy_2(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import numpy as np
+
+    from skelfuse import jit
+
+    jit.require_fusion_dependencies()  # this environment has both
+    monkeypatch.setitem(jit._found, "numba", None)
+    with pytest.raises(ImportError, match=r"numba \(not installed\).*skelfuse\[fusion\]"):
+        jit.require_fusion_dependencies()
+    monkeypatch.undo()
+    monkeypatch.setattr(np, "__version__", "1.26.4")
+    with pytest.raises(ImportError, match=r"numpy 2 \(this environment has numpy 1\.26\.4\)"):
+        jit.require_fusion_dependencies()
