@@ -17,9 +17,9 @@ from pythonosc.osc_bundle import OscBundle
 from pythonosc.osc_message import OscMessage
 
 from skelfuse.fusion.hub import FusedFrame
+from skelfuse.geometry.quaternion import quaternion_multiply, quaternion_rotate
 from skelfuse.protocol import osc
 from skelfuse.protocol.feed import persons_json
-from skelfuse.protocol.quaternion import quaternion_multiply, quaternion_rotate
 from skelfuse.protocol.skeleton import JOINT_NAMES
 from skelfuse.recording.replay import replay
 from skelfuse.server.output_osc import OscSink, VmcSink, persons_orientations
