@@ -23,11 +23,11 @@ Steps (:func:`body_from_landmarks` does all three):
    landmark: Tracked at ``visibility >= tracked_min`` inside the image, else Inferred (MediaPipe
    always guesses a position), NotTracked only below ``inferred_min`` or where not finite.
 3. :func:`to_kinect_v2`: the 25 joints (:data:`JOINTS_FROM_LANDMARKS`) with their states, axes
-   turned to the wire's sensor frame (+X left, +Y up, +Z forward: :data:`pinhole.CV_TO_SENSOR`).
-   A joint made of several landmarks takes the worst of their states. Joints MediaPipe does not
-   have are synthesised and never better than Inferred: SpineMid (halfway up the trunk), Neck
-   (a third of the way from SpineShoulder to Head), and the hand tips (MediaPipe's "index" is a
-   knuckle, not the fingertip Kinect means).
+   turned to the wire's sensor frame (+X left, +Y up, +Z forward:
+   :data:`~skelfuse.geometry.pinhole.CV_TO_SENSOR`). A joint made of several landmarks takes the
+   worst of their states. Joints MediaPipe does not have are synthesised and never better than
+   Inferred: SpineMid (halfway up the trunk), Neck (a third of the way from SpineShoulder to
+   Head), and the hand tips (MediaPipe's "index" is a knuckle, not the fingertip Kinect means).
 
 Left and right are the person's in both MediaPipe and Kinect, so no side swap happens here.
 """
@@ -41,7 +41,7 @@ from typing import Final, Literal
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.protocol.pinhole import CV_TO_SENSOR, Intrinsics
+from skelfuse.geometry.pinhole import CV_TO_SENSOR, Intrinsics
 from skelfuse.protocol.pnp import Placement, solve_pose, solve_translation
 from skelfuse.protocol.skeleton import JOINT_COUNT, JointId, TrackingState
 
