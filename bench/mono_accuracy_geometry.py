@@ -17,7 +17,7 @@ import numpy.typing as npt
 
 from skelfuse.calibration.camera import SENSOR_FROM_OPENCV, Camera
 from skelfuse.calibration.camera_files import read_camera_file
-from skelfuse.protocol.pinhole import Intrinsics
+from skelfuse.geometry.pinhole import Intrinsics
 
 FloatArray = npt.NDArray[np.float64]
 

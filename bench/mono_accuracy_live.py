@@ -39,9 +39,9 @@ from skelfuse.agent.sources.base import Capture, wait_for_due
 from skelfuse.calibration.camera import Camera
 from skelfuse.calibration.store import CalibrationStore, SensorCalibration
 from skelfuse.client.sync import SyncFeedClient
+from skelfuse.geometry.pnp import Placement
 from skelfuse.parent_watch import child_environment
 from skelfuse.protocol.mediapipe_pose import body_from_landmarks
-from skelfuse.protocol.pnp import Placement
 from skelfuse.protocol.transform import Matrix4
 from skelfuse.protocol.wire import SENSOR_TYPES, Body
 

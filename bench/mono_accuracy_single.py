@@ -33,8 +33,8 @@ from bench.mono_accuracy_metrics import (
 from skelfuse.calibration.camera import Camera
 from skelfuse.calibration.motion_sync import lags_from_epipolar
 from skelfuse.calibration.triangulation import triangulate
+from skelfuse.geometry.pnp import Placement
 from skelfuse.protocol.mediapipe_pose import place_landmarks
-from skelfuse.protocol.pnp import Placement
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURE: Final = ROOT / "tests" / "data" / "mono_landmarks.npz"

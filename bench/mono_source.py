@@ -42,9 +42,9 @@ if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from skelfuse.agent.sources.mono_camera import Landmarks, PoseDetector, VideoFrames
+from skelfuse.geometry.pinhole import Intrinsics
+from skelfuse.geometry.pnp import Placement, solve_pose
 from skelfuse.protocol.mediapipe_pose import body_from_landmarks
-from skelfuse.protocol.pinhole import Intrinsics
-from skelfuse.protocol.pnp import Placement, solve_pose
 
 ROOT = Path(__file__).resolve().parents[1]
 CAMERAS = ("cam01", "cam02", "cam03", "cam04")

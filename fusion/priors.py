@@ -114,7 +114,7 @@ RGB_MONO: Final = SensorPrior(
     # 3-D shape MediaPipe guesses is 80-90 mm off after Procrustes alignment on the clip:
     # about twice a Kinect v2's joint noise, a quarter of its weight.
     noise_scale=2.0,
-    # Along the ray the body's distance comes from its apparent size (PnP, protocol/pnp.py):
+    # Along the ray the body's distance comes from its apparent size (PnP, geometry/pnp.py):
     # 131-317 mm absolute against 80-90 mm aligned on the clip: about 3 times the noise across.
     depth_noise_ratio=3.0,
     # Seen from behind MediaPipe can swap sides like a Kinect: the mirror step checks it.

@@ -14,7 +14,7 @@ MediaPipe gives per landmark (``shared/conventions.md`` §1.4, the legacy ``solu
 Steps (:func:`body_from_landmarks` does all three):
 
 1. :func:`place_landmarks`: the world landmarks placed in the camera frame by perspective-n-point
-   against the image landmarks with the camera's intrinsics (:mod:`skelfuse.protocol.pnp`;
+   against the image landmarks with the camera's intrinsics (:mod:`skelfuse.geometry.pnp`;
    ``mode="pose"`` fits rotation and translation, ``"translation"`` translation only). Each
    landmark's weight is its visibility. The depth this gives rests on MediaPipe's guess of the
    body's size, so its error lies mostly along the camera's viewing ray: the ``rgb`` sensor
@@ -23,11 +23,11 @@ Steps (:func:`body_from_landmarks` does all three):
    landmark: Tracked at ``visibility >= tracked_min`` inside the image, else Inferred (MediaPipe
    always guesses a position), NotTracked only below ``inferred_min`` or where not finite.
 3. :func:`to_kinect_v2`: the 25 joints (:data:`JOINTS_FROM_LANDMARKS`) with their states, axes
-   turned to the wire's sensor frame (+X left, +Y up, +Z forward: :data:`pinhole.CV_TO_SENSOR`).
-   A joint made of several landmarks takes the worst of their states. Joints MediaPipe does not
-   have are synthesised and never better than Inferred: SpineMid (halfway up the trunk), Neck
-   (a third of the way from SpineShoulder to Head), and the hand tips (MediaPipe's "index" is a
-   knuckle, not the fingertip Kinect means).
+   turned to the wire's sensor frame (+X left, +Y up, +Z forward:
+   :data:`~skelfuse.geometry.pinhole.CV_TO_SENSOR`). A joint made of several landmarks takes the
+   worst of their states. Joints MediaPipe does not have are synthesised and never better than
+   Inferred: SpineMid (halfway up the trunk), Neck (a third of the way from SpineShoulder to
+   Head), and the hand tips (MediaPipe's "index" is a knuckle, not the fingertip Kinect means).
 
 Left and right are the person's in both MediaPipe and Kinect, so no side swap happens here.
 """
@@ -41,8 +41,8 @@ from typing import Final, Literal
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.protocol.pinhole import CV_TO_SENSOR, Intrinsics
-from skelfuse.protocol.pnp import Placement, solve_pose, solve_translation
+from skelfuse.geometry.pinhole import CV_TO_SENSOR, Intrinsics
+from skelfuse.geometry.pnp import Placement, solve_pose, solve_translation
 from skelfuse.protocol.skeleton import JOINT_COUNT, JointId, TrackingState
 
 FloatArray = npt.NDArray[np.float64]
@@ -267,7 +267,7 @@ def place_landmarks(
         (33, 3) float64 metres in the OpenCV camera frame, and the :class:`Placement`.
 
     Raises:
-        skelfuse.protocol.pnp.PnPError: too few usable landmarks, or none in front of the camera.
+        skelfuse.geometry.pnp.PnPError: too few usable landmarks, or none in front of the camera.
         ValueError: on wrong shapes or an unknown mode.
     """
     px = np.asarray(image_px, dtype=np.float64)[:, :2]
@@ -296,7 +296,7 @@ def body_from_landmarks(
     Args: as :func:`place_landmarks` and :func:`landmark_states`.
 
     Raises:
-        skelfuse.protocol.pnp.PnPError: too few usable landmarks, or none in front of the camera.
+        skelfuse.geometry.pnp.PnPError: too few usable landmarks, or none in front of the camera.
         ValueError: on wrong shapes.
     """
     points, placement = place_landmarks(image_px, world_m, visibility, intrinsics, mode, initial)

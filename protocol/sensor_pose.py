@@ -17,12 +17,12 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.protocol.messages import SensorPose
-from skelfuse.protocol.quaternion import (
+from skelfuse.geometry.quaternion import (
     matrix_to_quaternion,
     quaternion_slerp,
     quaternion_to_matrix,
 )
+from skelfuse.protocol.messages import SensorPose
 from skelfuse.protocol.transform import Matrix4
 
 F64 = npt.NDArray[np.float64]

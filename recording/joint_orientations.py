@@ -35,7 +35,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.protocol.quaternion import matrix_to_quaternion
+from skelfuse.geometry.quaternion import matrix_to_quaternion
 from skelfuse.protocol.skeleton import CHILDREN, JOINT_COUNT, MIRROR_PERMUTATION, PARENTS
 from skelfuse.recording.bvh_rig import (
     DEFAULT_BONE_M,

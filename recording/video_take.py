@@ -30,6 +30,8 @@ import numpy.typing as npt
 from skelfuse.calibration.camera import SENSOR_FROM_OPENCV, Camera
 from skelfuse.calibration.floor import FloorFit
 from skelfuse.calibration.floor_depth import FloorDepthSettings, place_on_floor
+from skelfuse.geometry.pinhole import Intrinsics
+from skelfuse.geometry.pnp import Placement, PnPError
 from skelfuse.protocol.mediapipe_pose import (
     LANDMARK_COUNT,
     PlacementMode,
@@ -38,8 +40,6 @@ from skelfuse.protocol.mediapipe_pose import (
     place_landmarks,
     to_kinect_v2,
 )
-from skelfuse.protocol.pinhole import Intrinsics
-from skelfuse.protocol.pnp import Placement, PnPError
 from skelfuse.protocol.recording_file import Header, Record, SensorPose
 from skelfuse.protocol.wire import Body, Frame, Hello, encode
 

@@ -2,7 +2,7 @@
 
 Both send the numbers the WebSocket feed sends (``protocol/feed.py``'s rounding: positions to
 0.1 mm, rotations to 1e-5), as OSC float32; every datagram is one bundle of at most
-:data:`~skelfuse.protocol.osc.MAX_DATAGRAM` bytes. The socket is non-blocking: a datagram the
+:data:`~skelfuse.server.osc_encoding.MAX_DATAGRAM` bytes. The socket is non-blocking: a datagram the
 kernel cannot take at once is not sent, and counted (``Sink.send``'s return).
 """
 
@@ -20,10 +20,10 @@ import numpy as np
 
 from skelfuse.fusion.hub import FusedFrame
 from skelfuse.fusion.views import FusedPerson
-from skelfuse.protocol import osc
 from skelfuse.protocol.feed import persons_json
 from skelfuse.protocol.skeleton import JOINT_NAMES
 from skelfuse.recording.joint_orientations import Orientations, orientations
+from skelfuse.server import osc_encoding as osc
 from skelfuse.server.vmc import HUMANOID, humanoid_pose
 
 OSC_PREFIX = "/skelfuse"

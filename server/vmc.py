@@ -27,7 +27,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.protocol.quaternion import quaternion_multiply, quaternion_rotate
+from skelfuse.geometry.quaternion import quaternion_multiply, quaternion_rotate
 from skelfuse.protocol.skeleton import PARENTS, JointId
 
 F64 = npt.NDArray[np.float64]

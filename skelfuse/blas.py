@@ -6,9 +6,9 @@ take a whole core of a small machine (issue 11: 166 % server CPU and 306 lost ou
 in 120 s on two cores, against 86 % and 2 with one thread). Nothing in skelfuse gains from BLAS
 threads, so every process pins them to one.
 
-This module is a process setting, not part of a layer: the command line
-(:func:`skelfuse.cli.main`) calls :func:`pin_blas_threads` before any command runs, so
-``skelfuse server``, ``replay``, ``export``, ``demo`` and ``agent`` are all covered. A program
+This module is a process setting in the bottom layer (it imports nothing of skelfuse): the
+command line (:func:`skelfuse.cli.main`) calls :func:`pin_blas_threads` before any command runs,
+so ``skelfuse server``, ``replay``, ``export``, ``demo`` and ``agent`` are all covered. A program
 that embeds ``FusionHub`` or the server app itself calls it once at start.
 """
 

@@ -20,8 +20,8 @@ from typing import Final, Protocol
 import numpy as np
 
 from skelfuse.agent.sources.base import SensorError
+from skelfuse.geometry.quaternion import quaternion_to_matrix
 from skelfuse.protocol.messages import SensorPose
-from skelfuse.protocol.quaternion import quaternion_to_matrix
 from skelfuse.protocol.transform import Matrix4
 
 # Sensor-convention axes (+X left, +Y up, +Z forward) in OpenVR's device axes (+X right, +Y up,

@@ -49,14 +49,14 @@ from skelfuse.agent.sources.mono_camera import (
     PoseDetector,
     VideoFrames,
 )
+from skelfuse.geometry.pinhole import Intrinsics
+from skelfuse.geometry.pnp import Placement, PnPError
 from skelfuse.protocol.mediapipe_pose import (
     MonoBody,
     PlacementMode,
     StatePolicy,
     body_from_landmarks,
 )
-from skelfuse.protocol.pinhole import Intrinsics
-from skelfuse.protocol.pnp import Placement, PnPError
 from skelfuse.protocol.transform import Matrix4
 from skelfuse.protocol.wire import Body
 

@@ -214,7 +214,7 @@ def make_source(kind: str, options: dict[str, Any]) -> SkeletonSource:
 
 def _mono_source(options: dict[str, Any]) -> SkeletonSource:
     from skelfuse.agent.sources.mono import DEFAULT_FOV_DEG, MonoSource
-    from skelfuse.protocol.pinhole import Intrinsics
+    from skelfuse.geometry.pinhole import Intrinsics
 
     text = options.get("intrinsics")
     try:

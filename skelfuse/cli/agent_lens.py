@@ -18,7 +18,7 @@ import numpy.typing as npt
 from skelfuse.agent.sources.base import SensorError
 from skelfuse.agent.sources.mono import LensFor, Undistort
 from skelfuse.cli.values import UsageError
-from skelfuse.protocol.pinhole import Intrinsics
+from skelfuse.geometry.pinhole import Intrinsics
 from skelfuse.protocol.transform import Matrix4
 
 _log = logging.getLogger("skelfuse.agent")

@@ -233,7 +233,7 @@ def _uncalibrated(
     from skelfuse.calibration.camera import Camera, CameraIntrinsics
     from skelfuse.calibration.errors import InvalidInput
     from skelfuse.calibration.floor_depth import level_camera_height
-    from skelfuse.protocol.pinhole import Intrinsics
+    from skelfuse.geometry.pinhole import Intrinsics
     from skelfuse.recording.video_take import place_video
 
     width, height = video.size_wh

@@ -14,7 +14,7 @@ from pathlib import Path, PurePosixPath
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-LAYERS = ("protocol", "agent", "calibration", "fusion", "recording", "server")
+LAYERS = ("geometry", "protocol", "agent", "calibration", "fusion", "recording", "server")
 
 
 def _run(command: list[str]) -> None:

@@ -21,8 +21,8 @@ from skelfuse.calibration.camera_files import read_camera_file
 from skelfuse.calibration.triangulation import triangulate
 from skelfuse.cli import main
 from skelfuse.cli.mocap_stages import mono_python
+from skelfuse.geometry.pinhole import CV_TO_SENSOR
 from skelfuse.protocol.mediapipe_pose import to_kinect_v2
-from skelfuse.protocol.pinhole import CV_TO_SENSOR
 from skelfuse.protocol.skeleton import JOINT_NAMES
 from tests.support import require_blender, unavailable
 from tests.support_blender import blender_bvh_positions

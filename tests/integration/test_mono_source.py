@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 import pytest
 
+from skelfuse.geometry.pinhole import Intrinsics
 from skelfuse.protocol.mediapipe_pose import body_from_landmarks
-from skelfuse.protocol.pinhole import Intrinsics
 from tests.integration.conftest import LiveServer
 from tests.support import unavailable, wait_until
 

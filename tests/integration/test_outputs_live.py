@@ -10,8 +10,8 @@ from collections.abc import Callable
 import httpx
 import numpy as np
 
-from skelfuse.protocol import osc
 from skelfuse.protocol.skeleton import JOINT_NAMES
+from skelfuse.server import osc_encoding as osc
 from skelfuse.server.settings import OutputSpec
 from tests.integration.conftest import AgentThread, LiveServer, collect_feed
 from tests.unit.test_outputs_osc import Receiver

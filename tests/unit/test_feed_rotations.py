@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from skelfuse.fusion.hub import FusedFrame
+from skelfuse.geometry.quaternion import quaternion_multiply
 from skelfuse.protocol.feed import frame_json, persons_json
 from skelfuse.protocol.hands import HandConfidence, Hands, HandState
-from skelfuse.protocol.quaternion import quaternion_multiply
 from skelfuse.protocol.skeleton import PARENTS
 from skelfuse.recording.replay import replay
 from skelfuse.server import broadcast

@@ -10,7 +10,7 @@ import pytest
 
 from skelfuse.agent.sim.mocap import load_asf_amc, load_bvh
 from skelfuse.agent.sim.performer import ProceduralPerformer
-from skelfuse.protocol.quaternion import (
+from skelfuse.geometry.quaternion import (
     matrix_to_quaternion,
     quaternion_multiply,
     quaternion_rotate,

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-LAYERS = ("protocol", "agent", "calibration", "fusion", "recording", "server")
+LAYERS = ("geometry", "protocol", "agent", "calibration", "fusion", "recording", "server")
 SOURCE_FOLDERS = (*LAYERS, "skelfuse", "bench")
 MAX_LINES = 400
 DATA_TABLES: frozenset[str] = frozenset()

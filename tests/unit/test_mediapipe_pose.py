@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from skelfuse.geometry.pinhole import CV_TO_SENSOR, Intrinsics
 from skelfuse.protocol.mediapipe_pose import (
     AT_MOST_INFERRED,
     LANDMARK_COUNT,
@@ -18,7 +19,6 @@ from skelfuse.protocol.mediapipe_pose import (
     place_landmarks,
     to_kinect_v2,
 )
-from skelfuse.protocol.pinhole import CV_TO_SENSOR, Intrinsics
 from skelfuse.protocol.skeleton import JOINT_COUNT, JointId, TrackingState
 
 FIXTURE = Path(__file__).resolve().parents[1] / "data" / "mono_landmarks.npz"

@@ -17,8 +17,8 @@ from skelfuse.agent.sources.mono_camera import Landmarks, check_mono
 from skelfuse.agent.sources.registry import SOURCE_KINDS, check_sources, make_source
 from skelfuse.cli import agent as agent_cli
 from skelfuse.cli.values import UsageError
+from skelfuse.geometry.pinhole import Intrinsics
 from skelfuse.protocol.mediapipe_pose import body_from_landmarks
-from skelfuse.protocol.pinhole import Intrinsics
 from skelfuse.protocol.skeleton import JointId, TrackingState
 
 FIXTURE = Path(__file__).resolve().parents[1] / "data" / "mono_landmarks.npz"

@@ -17,11 +17,11 @@ from pythonosc.osc_bundle import OscBundle
 from pythonosc.osc_message import OscMessage
 
 from skelfuse.fusion.hub import FusedFrame
-from skelfuse.protocol import osc
+from skelfuse.geometry.quaternion import quaternion_multiply, quaternion_rotate
 from skelfuse.protocol.feed import persons_json
-from skelfuse.protocol.quaternion import quaternion_multiply, quaternion_rotate
 from skelfuse.protocol.skeleton import JOINT_NAMES
 from skelfuse.recording.replay import replay
+from skelfuse.server import osc_encoding as osc
 from skelfuse.server.output_osc import OscSink, VmcSink, persons_orientations
 from skelfuse.server.outputs import Fanout, QueuedOutput
 from skelfuse.server.vmc import _AT, HUMANOID, humanoid_pose, to_unity_points

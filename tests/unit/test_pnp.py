@@ -1,12 +1,12 @@
-"""Pinhole intrinsics and perspective-n-point in numpy (protocol/pinhole.py, protocol/pnp.py)."""
+"""Pinhole intrinsics and perspective-n-point in numpy (geometry/pinhole.py, geometry/pnp.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from skelfuse.protocol.pinhole import CV_TO_SENSOR, Intrinsics
-from skelfuse.protocol.pnp import PnPError, rotation_vector_to_matrix, solve_pose, solve_translation
+from skelfuse.geometry.pinhole import CV_TO_SENSOR, Intrinsics
+from skelfuse.geometry.pnp import PnPError, rotation_vector_to_matrix, solve_pose, solve_translation
 
 K = Intrinsics(1400.0, 1390.0, 540.0, 960.0)
 

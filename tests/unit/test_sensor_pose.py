@@ -7,12 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from skelfuse.protocol.messages import SensorPose
-from skelfuse.protocol.quaternion import (
+from skelfuse.geometry.quaternion import (
     matrix_to_quaternion,
     quaternion_slerp,
     quaternion_to_matrix,
 )
+from skelfuse.protocol.messages import SensorPose
 from skelfuse.protocol.sensor_pose import (
     PoseTrack,
     interpolate_pose,

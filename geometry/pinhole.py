@@ -10,7 +10,7 @@ before they get here (the ``mono`` source's ``--calibration``).
 The sensor frame of the wire (Kinect v2's: +X left, +Y up, +Z forward) is this frame turned
 180° about Z: :data:`CV_TO_SENSOR` (``p_sensor = CV_TO_SENSOR * p_cv``).
 
-Used by :mod:`skelfuse.protocol.pnp` (placing a body in the camera), the ``mono`` agent source
+Used by :mod:`skelfuse.geometry.pnp` (placing a body in the camera), the ``mono`` agent source
 (``--intrinsics fx,fy,cx,cy`` or ``--fov``) and anything else that projects joints into an
 ordinary camera (calibration, benchmarks): it is here, in the lowest layer, so every layer can.
 """

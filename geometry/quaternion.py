@@ -1,7 +1,8 @@
 """Unit quaternions ``(x, y, z, w)`` (Hamilton convention, active rotations: ``v' = q v q*``).
 
-The feed's joint rotations are in this form (docs/api.md, "Rotations"); these are the few
-operations apps and tests need, vectorised over any leading dimensions.
+The feed's joint rotations and the wire's sensor poses are in this form (docs/api.md,
+"Rotations"); these are the few operations the layers, apps and tests need, vectorised over any
+leading dimensions.
 """
 
 from __future__ import annotations

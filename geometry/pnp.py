@@ -13,7 +13,7 @@ the body in the camera frame: the depth comes from the model's body size against
   (compared in bench/mono_source.py in the mono environment, where cv2 is), without needing cv2.
 
 Frames: OpenCV camera frame (+X right, +Y down, +Z forward, metres) for model points and the
-result; pixels as :class:`skelfuse.protocol.pinhole.Intrinsics` has them. Weights (e.g.
+result; pixels as :class:`skelfuse.geometry.pinhole.Intrinsics` has them. Weights (e.g.
 MediaPipe's visibility) scale each point's squared residual; a zero weight drops the point.
 """
 
@@ -25,7 +25,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.protocol.pinhole import Intrinsics
+from skelfuse.geometry.pinhole import Intrinsics
 
 FloatArray = npt.NDArray[np.float64]
 
