@@ -12,7 +12,7 @@ import msgpack
 import numpy as np
 import pytest
 
-from skelfuse.fusion.hub import FusedFrame
+from skelfuse.fusion.engine import FusedFrame
 from skelfuse.protocol.feed import frame_json, persons_json
 from skelfuse.protocol.hands import HandConfidence, Hands, HandState
 from skelfuse.protocol.quaternion import quaternion_multiply
