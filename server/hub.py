@@ -49,6 +49,8 @@ logger = logging.getLogger(__name__)
 
 
 class FusionHub(FusionEngine):
+    """The fusion engine with the agents' sessions in front: raw messages in, replies out."""
+
     def __init__(self, settings: HubSettings, calibration: Calibration | None = None) -> None:
         super().__init__(settings, calibration)
         self._by_routing: dict[bytes, str] = {}
