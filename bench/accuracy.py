@@ -4,7 +4,7 @@ Simulated Kinect v2 sensors (2–4, on a 3 m circle, 1 m high, looking at the mi
 people: CMU mocap walks (``../shared/data/cmu-mocap``, when present) and procedural scenarios
 (walking a circle, turning on the spot, arm raises, squats, two people crossing, one person
 walking in front of others). Each scenario run feeds the *same* sensor frames to one production
-:class:`fusion.hub.FusionHub` per method, in simulated time: frames are encoded to wire bytes and
+:class:`server.hub.FusionHub` per method, in simulated time: frames are encoded to wire bytes and
 go through clock offsets, interpolation, tracking and fusion exactly as on the live server.
 
 Methods (``FusionSettings`` variants, one run):

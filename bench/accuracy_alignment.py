@@ -1,7 +1,7 @@
 """The alignment policies side by side (issue 11 item 1; ``python bench/accuracy.py --alignment``).
 
 Every scenario's captures go, as wire bytes in simulated time, to one production
-:class:`fusion.hub.FusionHub` per policy (the default fusion settings otherwise), exactly as
+:class:`server.hub.FusionHub` per policy (the default fusion settings otherwise), exactly as
 ``accuracy_runner`` feeds them, plus the live fusion loop's timer: before each arrival, every
 deadline (``hub.alignment.due_s``) that has passed gets its fusion step at that moment.
 
@@ -32,7 +32,8 @@ from bench.accuracy_runner import (
 )
 from bench.accuracy_scenarios import Scenario
 from skelfuse.agent.sim.kinect_model import KinectV2Params
-from skelfuse.fusion.hub import FusedFrame, FusionHub
+from skelfuse.fusion.engine import FusedFrame
+from skelfuse.server.hub import FusionHub
 from skelfuse.server.settings import FusionSettings
 
 DEFAULT = FusionSettings()

@@ -13,9 +13,9 @@ from bench.accuracy_scenarios import Scenario
 from skelfuse.agent.sim.kinect_model import KinectV2Params, SimulatedKinect
 from skelfuse.agent.sim.performer import ProceduralPerformer
 from skelfuse.agent.sim.scenarios import Segment, Standing
-from skelfuse.fusion.hub import FusionHub
 from skelfuse.protocol.skeleton import BONES, JointId, TrackingState, bone_lengths
 from skelfuse.protocol.transform import apply
+from skelfuse.server.hub import FusionHub
 
 FloatArray = npt.NDArray[np.float64]
 

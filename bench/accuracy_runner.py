@@ -15,10 +15,11 @@ from bench.accuracy_methods import BASE
 from bench.accuracy_metrics import Log
 from bench.accuracy_scenarios import Scenario
 from skelfuse.agent.sim.kinect_model import KinectV2Params, Observation, SimulatedKinect
-from skelfuse.fusion.hub import FusedFrame, FusionHub
+from skelfuse.fusion.engine import FusedFrame
 from skelfuse.fusion.sensors import TimedFrame
 from skelfuse.protocol.transform import look_at_pose
 from skelfuse.protocol.wire import Body, Frame, Hello, encode
+from skelfuse.server.hub import FusionHub
 from skelfuse.server.settings import FusionSettings, Settings
 
 FPS = 30.0

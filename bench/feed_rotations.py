@@ -23,7 +23,7 @@ import statistics
 import time
 
 from bench.load_encode import sample_frame
-from skelfuse.fusion.hub import FusedFrame
+from skelfuse.fusion.engine import FusedFrame
 from skelfuse.server.broadcast import Broadcaster, Variant, persons_orientations
 
 

@@ -8,7 +8,7 @@ instance. Each wrapper adds the seconds spent inside it to its stage for the cur
 Stages (docs/fusion.md numbering):
 
 - ``views_at``: steps 1–2, each sensor's bodies at the instant, in the world frame (with a
-  sensor late at the deadline, ``views_with_late`` in the hub, which carries it forward);
+  sensor late at the deadline, ``views_with_late`` in the engine, which carries it forward);
 - ``associate``: step 3, ``PersonTracker.associate``;
 - ``labels``: step 4, ``label_views``;
 - ``confidence + fusion``: steps 5–6, from the end of the mirror labels (of the association,
@@ -54,8 +54,8 @@ _MODULE_STAGES = {
     "fit_bone_lengths": "bone fit",
 }
 
-_HUB_STAGES = {"views_with_late": "views_at"}
-"""What ``skelfuse.fusion.hub`` calls instead of the pipeline's step when a sensor is late."""
+_ENGINE_STAGES = {"views_with_late": "views_at"}
+"""What ``skelfuse.fusion.engine`` calls instead of the pipeline's step when a sensor is late."""
 
 _WALKING_CHECKS = ("_check_walking_directions", "_check_walking_direction")
 """The pipeline's walking check, all persons at once (or, before that, one by one)."""
@@ -140,16 +140,16 @@ def stage_timers(pipeline: Any, clock: StageClock | None = None) -> Iterator[Sta
     Args:
         pipeline: a :class:`skelfuse.fusion.pipeline.FusionPipeline`.
     """
-    from skelfuse.fusion import hub, pipeline as module
+    from skelfuse.fusion import engine, pipeline as module
 
     clock = StageClock() if clock is None else clock
     saved = {name: getattr(module, name) for name in _MODULE_STAGES if hasattr(module, name)}
-    saved_hub = {name: getattr(hub, name) for name in _HUB_STAGES if hasattr(hub, name)}
+    saved_engine = {name: getattr(engine, name) for name in _ENGINE_STAGES if hasattr(engine, name)}
     try:
         for name, function in saved.items():
             setattr(module, name, clock.wrap(_MODULE_STAGES[name], function))
-        for name, function in saved_hub.items():
-            setattr(hub, name, clock.wrap(_HUB_STAGES[name], function))
+        for name, function in saved_engine.items():
+            setattr(engine, name, clock.wrap(_ENGINE_STAGES[name], function))
         pipeline.tracker.associate = clock.wrap("associate", pipeline.tracker.associate)
         pipeline.update = clock.wrap_update(pipeline.update)
         for name in _WALKING_CHECKS:
@@ -159,8 +159,8 @@ def stage_timers(pipeline: Any, clock: StageClock | None = None) -> Iterator[Sta
     finally:
         for name, function in saved.items():
             setattr(module, name, function)
-        for name, function in saved_hub.items():
-            setattr(hub, name, function)
+        for name, function in saved_engine.items():
+            setattr(engine, name, function)
         pipeline.tracker.__dict__.pop("associate", None)
         for name in ("update", *_WALKING_CHECKS):
             pipeline.__dict__.pop(name, None)

@@ -65,9 +65,9 @@ def fusion_timing(
     ``deadline`` every sensor is carried forward at every instant (the late path's worst case,
     not what the live server does)."""
     from skelfuse.fusion import kernels
-    from skelfuse.fusion.hub import FusionHub
     from skelfuse.protocol.feed import frame_json
     from skelfuse.server.broadcast import encode_message
+    from skelfuse.server.hub import FusionHub
     from skelfuse.server.settings import Settings
 
     kernels.warm_up()  # as the server does at start: no step compiles, every kernel runs

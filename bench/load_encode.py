@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from skelfuse.agent.sim.performer import ProceduralPerformer
-from skelfuse.fusion.hub import FusedFrame
+from skelfuse.fusion.engine import FusedFrame
 from skelfuse.fusion.views import FusedPerson
 from skelfuse.protocol.feed import frame_json
 from skelfuse.server.broadcast import encode_message

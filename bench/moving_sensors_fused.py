@@ -8,7 +8,7 @@ two; each frame carries the headset's pose of the instant ``t + mismatch``
 
 Two ways to fuse those frames:
 
-- ``server``: the production :class:`~skelfuse.fusion.hub.FusionHub` fed the wire frames (bodies
+- ``server``: the production :class:`~skelfuse.server.hub.FusionHub` fed the wire frames (bodies
   in the sensor frame, pose attached), the three sensors moving in one tracking space ``room``
   whose world transform is the identity; fused persons matched to the truth as the accuracy
   benchmark does (:class:`bench.accuracy_metrics.Log`). Needs the server's moving-sensor support.

@@ -1,4 +1,4 @@
-"""Mutual capture fused by the production :class:`~skelfuse.fusion.hub.FusionHub` (the server's
+"""Mutual capture fused by the production :class:`~skelfuse.server.hub.FusionHub` (the server's
 moving-sensor support): part (b) of bench/moving_sensors.py with ``--fusion server``.
 
 Each wearer's sensor registers as moving in the tracking space ``room`` with the identity as
@@ -21,11 +21,11 @@ import numpy as np
 from bench.accuracy_metrics import Log
 from bench.moving_sensors_fused import FPS, FusedCase
 from bench.moving_sensors_spaces import Spaces, space_id
-from skelfuse.fusion.hub import FusionHub
 from skelfuse.fusion.settings import HubSettings
 from skelfuse.protocol.sensor_pose import pose_from_matrix, pose_matrix
 from skelfuse.protocol.transform import apply, invert
 from skelfuse.protocol.wire import Body, Frame, Hello, encode
+from skelfuse.server.hub import FusionHub
 
 T0 = 1_800_000_000.0
 NETWORK_DELAY_S = 0.002

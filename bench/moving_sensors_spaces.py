@@ -42,7 +42,6 @@ from skelfuse.agent.sim.performer import ProceduralPerformer
 from skelfuse.agent.sim.scenarios import RingWalkers
 from skelfuse.calibration.rigid import pose_error
 from skelfuse.calibration.store import Calibration, CalibrationStore, SpaceCalibration
-from skelfuse.fusion.hub import FusionHub
 from skelfuse.fusion.settings import HubSettings
 from skelfuse.protocol.sensor_pose import pose_from_matrix, pose_matrix
 from skelfuse.protocol.transform import Matrix4, invert, pose_from_position_yaw_pitch
@@ -50,6 +49,7 @@ from skelfuse.protocol.wire import Body, Frame, Hello, encode
 from skelfuse.server.calibration_run import RunSpec, RunState
 from skelfuse.server.calibration_runs import CalibrationService
 from skelfuse.server.errors import AgentRequestFailed
+from skelfuse.server.hub import FusionHub
 from skelfuse.server.solver_pool import ThreadSolvers
 
 CALIBRATION_S = 12.0

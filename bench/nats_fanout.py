@@ -36,7 +36,7 @@ import msgpack
 import nats
 import numpy as np
 
-from skelfuse.fusion.hub import FusedFrame
+from skelfuse.fusion.engine import FusedFrame
 from skelfuse.recording.replay import replay
 from skelfuse.server.output_nats import History, NatsSink, frame_payload, room_subject
 from skelfuse.server.outputs import QueuedOutput

@@ -28,7 +28,7 @@ import numpy as np
 from pythonosc.osc_bundle import OscBundle
 from pythonosc.osc_message import OscMessage
 
-from skelfuse.fusion.hub import FusedFrame
+from skelfuse.fusion.engine import FusedFrame
 from skelfuse.recording.replay import replay
 from skelfuse.server.output_osc import OscSink, VmcSink
 from skelfuse.server.outputs import Fanout, QueuedOutput, Sink

@@ -34,7 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from skelfuse.agent.sim.kinect_model import SimulatedKinect
 from skelfuse.agent.sim.performer import ProceduralPerformer
 from skelfuse.fusion import kernels
-from skelfuse.fusion.hub import FusedFrame
+from skelfuse.fusion.engine import FusedFrame
 from skelfuse.protocol.feed import frame_json
 from skelfuse.protocol.recording_file import Header, pack_record
 from skelfuse.protocol.transform import look_at_pose

@@ -1,4 +1,4 @@
-"""When to fuse the next output instant: the hub's alignment policy (docs/fusion.md §2).
+"""When to fuse the next output instant: the fusion engine's alignment policy (docs/fusion.md §2).
 
 Output instants lie on a grid of ``output_hz`` on the server clock. Each policy decides, given
 when each live sensor's newest frame was captured, whether the next instant can be fused now:
@@ -33,7 +33,7 @@ when each live sensor's newest frame was captured, whether the next instant can 
   scatter below that, ``deadline_grace_s`` gives a sensor expected on time whose frame missed
   the deadline by a hair a few milliseconds more before it is carried.
 
-Pure logic on times: nothing here reads a clock (the hub passes ``now_s``, server clock, Unix
+Pure logic on times: nothing here reads a clock (the engine passes ``now_s``, server clock, Unix
 seconds), so tests drive it with a clock of their own.
 """
 

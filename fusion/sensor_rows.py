@@ -17,9 +17,9 @@ def sensor_rows(
 ) -> list[dict[str, object]]:
     """Session, health counters, clock, calibration and drift of each sensor, sorted by id.
 
-    ``pose_of`` gives a sensor's ``T_world_from_sensor`` and where it comes from (the hub's
-    :meth:`~skelfuse.fusion.hub.FusionHub.pose_of`; a moving sensor's is its tracking space's,
-    and its row names the space: ``pose_space``); ``now_mono``: monotonic seconds.
+    ``pose_of`` gives a sensor's ``T_world_from_sensor`` and where it comes from (the engine's
+    :meth:`~skelfuse.fusion.engine.FusionEngine.pose_of`; a moving sensor's is its tracking
+    space's, and its row names the space: ``pose_space``); ``now_mono``: monotonic seconds.
     """
     rows: list[dict[str, object]] = []
     for sensor in sorted(sensors, key=lambda x: x.sensor_id):

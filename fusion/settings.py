@@ -207,7 +207,7 @@ class FusionSettings:
 
     # --- time alignment: when an output instant is fused (fusion/alignment.py; issue 11 item 1) --
     alignment: Literal["aligned", "phased", "deadline"] = "deadline"
-    """When the hub fuses an output instant (docs/fusion.md §2): ``aligned`` once every live
+    """When the engine fuses an output instant (docs/fusion.md §2): ``aligned`` once every live
     sensor has a frame at or after it, on a grid of phase 0 (the rule before issue 11, and what
     offline replay always uses); ``phased`` the same rule on a grid whose phase follows the
     sensors' capture phases: 4–7 ms less wait on average in the accuracy scenarios (up to 12
@@ -275,7 +275,7 @@ class FusionSettings:
 
 @dataclass(frozen=True, slots=True)
 class HubSettings:
-    """What the fusion hub reads: the method, the output grid and sensor liveness.
+    """What the fusion engine reads: the method, the output grid and sensor liveness.
 
     The server's :class:`skelfuse.server.settings.Settings` extends it with the network's.
     """

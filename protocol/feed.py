@@ -90,7 +90,7 @@ class FeedView(Protocol):
 
 
 class FeedFrame(Protocol):
-    """One fusion step's result (``skelfuse.fusion.hub.FusedFrame``); ``t_s`` in Unix seconds.
+    """One fusion step's result (``skelfuse.fusion.engine.FusedFrame``); ``t_s`` in Unix seconds.
 
     extrapolated: ``(sensor_id, seconds)`` per sensor extrapolated to ``t_s`` (late at the
     ``deadline`` alignment's deadline); empty when every sensor was interpolated.

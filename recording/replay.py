@@ -1,10 +1,12 @@
-"""Offline, deterministic fusion of a recording: the production :class:`FusionHub` in recorded time.
+"""Offline, deterministic fusion of a recording: the production :class:`FusionEngine` in
+recorded time.
 
-Every record goes to a fresh hub (built with the recording's calibration) in file order, with
-its recorded arrival time as "now", exactly like :mod:`bench.accuracy` drives the hub; after each
-frame the fusion step runs at that time, as the live fusion loop does on every arrival. Nothing
-reads the wall clock, so the same file always gives the same fused frames (and the same bytes
-from :func:`write_jsonl`), as fast as the CPU allows.
+Every record is decoded and goes to a fresh engine (built with the recording's calibration) in
+file order, with its recorded arrival time as "now": a ``hello`` registers its sensor, a frame
+is buffered as the server's sessions (:class:`skelfuse.server.hub.FusionHub`) buffer an accepted
+one; after each frame the fusion step runs at that time, as the live fusion loop does on every
+arrival. Nothing reads the wall clock, so the same file always gives the same fused frames (and
+the same bytes from :func:`write_jsonl`), as fast as the CPU allows.
 """
 
 from __future__ import annotations
@@ -17,16 +19,19 @@ from typing import TextIO
 
 from skelfuse.calibration.store import Calibration, SensorCalibration, SpaceCalibration
 from skelfuse.fusion import kernels
-from skelfuse.fusion.hub import FusedFrame, FusionHub
+from skelfuse.fusion.engine import FusedFrame, FusionEngine
 from skelfuse.fusion.settings import HubSettings
+from skelfuse.protocol.errors import DecodeError
 from skelfuse.protocol.feed import frame_json
 from skelfuse.protocol.recording_file import (
     SPACE_KEY_PREFIX,
     Header,
     ReadStatus,
+    Record,
     RecordingReader,
 )
 from skelfuse.protocol.skeleton import skeleton_definition
+from skelfuse.protocol.wire import Frame, Hello, decode
 
 
 @dataclass(slots=True)
@@ -49,7 +54,7 @@ class ReplayStats:
 
 
 def calibration_of(header: Header) -> Calibration | None:
-    """The recording's calibration as the hub takes it (None when nothing was calibrated): its
+    """The recording's calibration as the engine takes it (None when nothing was calibrated): its
     sensors' stored poses, and its tracking spaces' (keys ``space:<id>``, moving sensors)."""
     stored = {key: pose for key, pose in header.calibration.items() if pose.state == "stored"}
     spaces = {
@@ -93,8 +98,8 @@ def replay(
         stats.read = reader.status
         settings = settings or HubSettings()
         offline = replace(settings, fusion=replace(settings.fusion, alignment="aligned"))
-        hub = FusionHub(offline, calibration_of(reader.header))
-        liveness_every_s = hub.settings.heartbeat_interval_s / 2
+        engine = FusionEngine(offline, calibration_of(reader.header))
+        liveness_every_s = offline.heartbeat_interval_s / 2
         next_liveness: float | None = None
         t0: float | None = None
         for record in reader.records():
@@ -108,16 +113,33 @@ def replay(
             if next_liveness is None:
                 next_liveness = now_mono + liveness_every_s
             while now_mono >= next_liveness:
-                hub.check_liveness(next_liveness)
+                engine.mark_silent_offline(next_liveness)
                 next_liveness += liveness_every_s
-            hub.handle_message(record.sensor_id.encode(), [record.payload], now_s, now_mono)
+            feed(engine, record, now_s, now_mono)
             if record.kind != "frame":
                 continue
             stats.frames_in += 1
-            fused = hub.fuse_step(now_s)
+            fused = engine.fuse_step(now_s)
             if fused is not None:
                 stats.fused_frames += 1
                 yield fused
+
+
+def feed(engine: FusionEngine, record: Record, now_s: float, now_mono: float) -> None:
+    """Hand one recorded message to ``engine`` as the live server's sessions handled it when it
+    arrived: a ``hello`` registers its sensor (the connection is named by the sensor id), a
+    frame counts only from a sensor registered and online (one marked offline must say hello
+    again, as live). What the server accepted decodes; anything else is skipped, as refused."""
+    try:
+        message = decode(record.payload)
+    except DecodeError:
+        return
+    sensor = engine.sensors.get(record.sensor_id)
+    if isinstance(message, Hello):
+        engine.register(message, record.sensor_id.encode(), now_mono)
+    elif isinstance(message, Frame) and sensor is not None and sensor.connected:
+        sensor.last_heard_mono = now_mono  # heard: what the liveness check goes by
+        engine.add_frame(sensor, message, now_s, now_mono)
 
 
 def write_jsonl(frames: Iterable[FusedFrame], out: TextIO) -> int:

@@ -79,7 +79,7 @@ class _Builder:
 
 
 def take_from_frames(frames: Iterable[object]) -> Take:
-    """A take from :class:`fusion.hub.FusedFrame` objects (duck-typed: ``t_s``, ``persons``)."""
+    """A take from :class:`fusion.engine.FusedFrame` objects (duck-typed: ``t_s``, ``persons``)."""
     builder = _Builder()
     for frame in frames:
         t_s = float(frame.t_s)  # type: ignore[attr-defined]

@@ -2,7 +2,8 @@
 
 The layers live in top-level folders mapped to ``skelfuse.*`` by setuptools (pyproject.toml);
 mypy cannot follow setuptools' editable import hook, so it reads this tree of links instead.
-Its messages name the link paths (``build/typecheck/skelfuse/fusion/hub.py`` is ``fusion/hub.py``).
+Its messages name the link paths (``build/typecheck/skelfuse/fusion/engine.py`` is
+``fusion/engine.py``).
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 The ingest socket is the only way out, so :class:`AgentRequests` is given the function that sends
 one message to an agent's routing id. Answers come back through the hub, which hands every
 ``response`` message to :meth:`AgentRequests.resolve` (it is attached with
-:meth:`skelfuse.fusion.hub.FusionHub.attach_requests`); the hub also asks
+:meth:`skelfuse.server.hub.FusionHub.attach_requests`); the hub also asks
 :meth:`AgentRequests.awaiting` whether a sensor owes an answer, to accept the larger response
 size and to give a busy agent longer before it counts as gone.
 """
@@ -15,10 +15,10 @@ import itertools
 from collections.abc import Awaitable, Callable
 from typing import Any
 
-from skelfuse.fusion.hub import FusionHub
 from skelfuse.protocol.constants import MAX_RESPONSE_BYTES
 from skelfuse.protocol.wire import Message, Request, Response
 from skelfuse.server.errors import AgentRequestFailed, SensorUnavailable
+from skelfuse.server.hub import FusionHub
 
 SendFunction = Callable[[bytes, Message], Awaitable[None]]
 """Sends one message to the agent with this routing id (never blocks on a slow agent)."""

@@ -22,7 +22,6 @@ from prometheus_client import CollectorRegistry, make_asgi_app
 from skelfuse import __version__
 from skelfuse.calibration.store import CalibrationStore
 from skelfuse.fusion import kernels
-from skelfuse.fusion.hub import FusionHub
 from skelfuse.protocol.feed import persons_json
 from skelfuse.protocol.skeleton import skeleton_definition
 from skelfuse.server import (
@@ -53,6 +52,7 @@ from skelfuse.server.errors import (
     invalid_body_response,
     method_not_allowed_response,
 )
+from skelfuse.server.hub import FusionHub
 from skelfuse.server.ingest import fusion_loop, ingest_loop, liveness_loop, open_router, send_to
 from skelfuse.server.log_redaction import redact_uvicorn_logs
 from skelfuse.server.loop_lag import LoopLagCollector, LoopLagMonitor

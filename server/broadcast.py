@@ -39,7 +39,7 @@ import orjson
 from pydantic import BaseModel, ConfigDict
 from websockets.frames import Frame, Opcode
 
-from skelfuse.fusion.hub import FusedFrame
+from skelfuse.fusion.engine import FusedFrame
 from skelfuse.fusion.views import FusedPerson
 from skelfuse.protocol.feed import frame_json
 from skelfuse.recording.joint_orientations import Orientations, orientations

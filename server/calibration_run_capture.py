@@ -11,11 +11,11 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from skelfuse.calibration.solvers import Samples, SensorTypes
-from skelfuse.fusion.hub import FusionHub
 from skelfuse.fusion.sensors import bodies_at
 from skelfuse.protocol.wire import Body
 from skelfuse.server.calibration_run_progress import RunProgress
 from skelfuse.server.clock import Clock
+from skelfuse.server.hub import FusionHub
 
 SAMPLE_HZ = 30.0
 SAMPLE_DELAY_S = 0.15

@@ -3,9 +3,9 @@ connected, and what each method needs (docs/calibration.md, "REST API": refusals
 
 from __future__ import annotations
 
-from skelfuse.fusion.hub import FusionHub
 from skelfuse.server.calibration_run import RunSpec
 from skelfuse.server.errors import Conflict, InvalidRequest, SensorUnavailable
+from skelfuse.server.hub import FusionHub
 
 METHODS = ("auto", "skeleton", "points", "icp", "sensor")
 

@@ -41,7 +41,6 @@ from skelfuse.calibration.solvers import (
     solve_skeletons,
 )
 from skelfuse.calibration.store import Calibration, CalibrationStore, SensorCalibration, merge
-from skelfuse.fusion.hub import FusionHub
 from skelfuse.fusion.spaces import split_by_space
 from skelfuse.protocol.transform import Matrix4
 from skelfuse.server import calibration_run_progress as stages
@@ -63,6 +62,7 @@ from skelfuse.server.errors import (
     ServerError,
     SolverCrashed,
 )
+from skelfuse.server.hub import FusionHub
 from skelfuse.server.solver_pool import ProcessSolvers, Solvers
 
 logger = logging.getLogger(__name__)

@@ -18,10 +18,10 @@ import zmq
 import zmq.asyncio
 from zmq.utils.monitor import parse_monitor_message
 
-from skelfuse.fusion.hub import FusionHub
 from skelfuse.protocol.constants import MAX_RESPONSE_BYTES
 from skelfuse.protocol.wire import Heartbeat, Message, encode
 from skelfuse.server.auth import secure_router
+from skelfuse.server.hub import FusionHub
 from skelfuse.server.outputs import FramePublisher
 from skelfuse.server.stage_timing import StageTimes
 
@@ -66,7 +66,7 @@ async def send_to(socket: zmq.asyncio.Socket, routing_id: bytes, message: Messag
 
 def connection_probe(socket: zmq.asyncio.Socket) -> Callable[[bytes], bool]:
     """Whether the connection with a routing id is still open, for the hub's registration rule
-    (``skelfuse.fusion.registration``). It sends that connection a heartbeat (agents answer
+    (``skelfuse.server.registration``). It sends that connection a heartbeat (agents answer
     any heartbeat with an echo); with ``ROUTER_MANDATORY`` a closed one refuses it at once."""
     raw: zmq.Socket[bytes] = zmq.Socket.shadow(socket.underlying)
 

@@ -16,8 +16,8 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metri
 from prometheus_client.registry import Collector
 from threadpoolctl import threadpool_info
 
-from skelfuse.fusion.hub import FusionHub
 from skelfuse.server.broadcast import Broadcaster
+from skelfuse.server.hub import FusionHub
 
 
 class SkelfuseCollector(Collector):

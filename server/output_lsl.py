@@ -22,7 +22,7 @@ from typing import Any, cast
 
 import numpy as np
 
-from skelfuse.fusion.hub import FusedFrame
+from skelfuse.fusion.engine import FusedFrame
 from skelfuse.protocol.feed import persons_json
 from skelfuse.protocol.skeleton import JOINT_COUNT, JOINT_NAMES
 

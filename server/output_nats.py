@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING
 
 import msgpack
 
-from skelfuse.fusion.hub import FusedFrame
+from skelfuse.fusion.engine import FusedFrame
 from skelfuse.protocol.feed import frame_json
 from skelfuse.server.output_osc import ROTATIONS
 

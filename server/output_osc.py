@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from skelfuse.fusion.hub import FusedFrame
+from skelfuse.fusion.engine import FusedFrame
 from skelfuse.fusion.views import FusedPerson
 from skelfuse.protocol.feed import persons_json
 from skelfuse.protocol.skeleton import JOINT_NAMES

@@ -23,7 +23,6 @@ from fastapi.responses import FileResponse
 from pydantic import BaseModel, Field, StrictStr
 
 from skelfuse import __version__
-from skelfuse.fusion.hub import FusionHub
 from skelfuse.protocol.recording_file import (
     FILE_SUFFIX,
     SPACE_KEY_PREFIX,
@@ -35,6 +34,7 @@ from skelfuse.protocol.recording_file import (
 from skelfuse.protocol.wire import Hello, encode
 from skelfuse.recording.recorder import Recorder
 from skelfuse.server.errors import Conflict, NotFound, error_responses
+from skelfuse.server.hub import FusionHub
 
 router = APIRouter(prefix="/api/recordings", tags=["recordings"])
 _ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$")

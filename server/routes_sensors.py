@@ -19,13 +19,13 @@ import orjson
 from fastapi import APIRouter, Query, Request, Response
 from pydantic import BaseModel, Field
 
-from skelfuse.fusion.hub import FusionHub
 from skelfuse.fusion.sensors import SensorState
 from skelfuse.fusion.spaces import cloud_at
 from skelfuse.protocol.transform import Matrix4, apply
 from skelfuse.server.calibration_runs import CalibrationService
 from skelfuse.server.depth_clouds import LatestClouds
 from skelfuse.server.errors import CloudUnavailable, NotFound, SensorUnavailable, error_responses
+from skelfuse.server.hub import FusionHub
 
 router = APIRouter(prefix="/api/sensors", tags=["sensors"])
 

@@ -9,7 +9,7 @@ threads, so every process pins them to one.
 This module is a process setting in the bottom layer (it imports nothing of skelfuse): the
 command line (:func:`skelfuse.cli.main`) calls :func:`pin_blas_threads` before any command runs,
 so ``skelfuse server``, ``replay``, ``export``, ``demo`` and ``agent`` are all covered. A program
-that embeds ``FusionHub`` or the server app itself calls it once at start.
+that embeds ``FusionEngine`` or the server app itself calls it once at start.
 """
 
 from __future__ import annotations

@@ -21,11 +21,11 @@ import zmq
 import zmq.asyncio
 
 from skelfuse.agent.link import AgentLink
-from skelfuse.fusion.hub import FusionHub
 from skelfuse.protocol.constants import MAX_RESPONSE_BYTES
 from skelfuse.protocol.wire import Hello, Response, encode
 from skelfuse.server.agent_requests import AgentRequests
 from skelfuse.server.errors import AgentRequestFailed
+from skelfuse.server.hub import FusionHub
 from skelfuse.server.ingest import ingest_loop, liveness_loop, open_router, send_to
 from skelfuse.server.settings import Settings
 from tests.support import free_port

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 from skelfuse.agent.sim.performer import ProceduralPerformer
-from skelfuse.fusion.hub import FusionHub
 from skelfuse.fusion.views import View
 from skelfuse.protocol.skeleton import BONE_NAMES, JOINT_COUNT, TrackingState
 from skelfuse.server.app import create_app
+from skelfuse.server.hub import FusionHub
 from skelfuse.server.routes_fusion import router
 from skelfuse.server.settings import FusionSettings, Settings
 from tests.integration.conftest import LiveServer

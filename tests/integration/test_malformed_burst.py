@@ -23,10 +23,10 @@ import zmq.asyncio
 
 from bench.malformed_burst import malformed
 from skelfuse.agent.link import AgentLink
-from skelfuse.fusion.hub import FusionHub
-from skelfuse.fusion.rejection_budget import REJECTIONS_PER_WINDOW
 from skelfuse.protocol.wire import Frame, Hello
+from skelfuse.server.hub import FusionHub
 from skelfuse.server.ingest import ingest_loop, liveness_loop, open_router
+from skelfuse.server.rejection_budget import REJECTIONS_PER_WINDOW
 from skelfuse.server.settings import Settings
 from tests.support import free_port
 

@@ -14,9 +14,9 @@ import pytest
 import zmq
 
 from skelfuse.agent.link import AgentLink
-from skelfuse.fusion.hub import FusionHub
 from skelfuse.protocol.constants import MOVING_SENSORS
 from skelfuse.protocol.wire import Frame, Hello, SensorPose, Welcome, decode, encode
+from skelfuse.server.hub import FusionHub
 from skelfuse.server.settings import Settings
 
 ENDPOINT = "inproc://moving-server"

@@ -8,10 +8,10 @@ import asyncio
 
 import pytest
 
-from skelfuse.fusion.hub import FusionHub
 from skelfuse.protocol.wire import Hello, Message, Request, Response, decode, encode
 from skelfuse.server.agent_requests import AgentRequests
 from skelfuse.server.errors import AgentRequestFailed, SensorUnavailable
+from skelfuse.server.hub import FusionHub
 from skelfuse.server.settings import Settings
 
 

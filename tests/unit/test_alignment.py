@@ -26,8 +26,8 @@ from skelfuse.fusion.alignment_replay import (
     replayed_waits,
 )
 from skelfuse.fusion.config import FusionConfigError, fusion_settings_from_mapping
+from skelfuse.fusion.engine import FusedFrame
 from skelfuse.fusion.extrapolation import extrapolated_bodies
-from skelfuse.fusion.hub import FusedFrame, FusionHub
 from skelfuse.fusion.sensors import TimedFrame
 from skelfuse.protocol.feed import frame_json
 from skelfuse.protocol.skeleton import JOINT_COUNT
@@ -35,6 +35,7 @@ from skelfuse.protocol.transform import look_at_pose
 from skelfuse.protocol.wire import Body, Frame, Hello, encode
 from skelfuse.recording.replay import replay
 from skelfuse.server.broadcast import Broadcaster
+from skelfuse.server.hub import FusionHub
 from skelfuse.server.ingest import IDLE_WAKE_S, fusion_loop, wake_in_s
 from skelfuse.server.settings import FusionSettings, Settings
 
@@ -715,12 +716,12 @@ def test_the_hub_falls_back_on_a_jittery_link_says_so_and_comes_back(
 
     steady = run(T0, 3.0, 0.0)
     assert any(f.extrapolated for f in steady[-30:]), "steady: the deadline carries b"
-    with caplog.at_level(logging.WARNING, logger="skelfuse.fusion.hub"):
+    with caplog.at_level(logging.WARNING, logger="skelfuse.fusion.engine"):
         jittery = run(T0 + 3.0, 4.0, 0.003)
     assert any("delivery delays scatter" in r.getMessage() for r in caplog.records)
     assert not any(f.extrapolated for f in jittery[-60:]), "waiting as phased: nobody carried"
     caplog.clear()
-    with caplog.at_level(logging.WARNING, logger="skelfuse.fusion.hub"):
+    with caplog.at_level(logging.WARNING, logger="skelfuse.fusion.engine"):
         settled = run(T0 + 7.0, 4.0, 0.0)
     assert any("the deadline is back" in r.getMessage() for r in caplog.records)
     assert any(f.extrapolated for f in settled[-30:])

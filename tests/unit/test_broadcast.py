@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from starlette.websockets import WebSocketDisconnect
 
-from skelfuse.fusion.hub import FusedFrame
+from skelfuse.fusion.engine import FusedFrame
 from skelfuse.fusion.views import FusedPerson, View
 from skelfuse.protocol.skeleton import JOINT_COUNT
 from skelfuse.server.broadcast import (

@@ -12,9 +12,9 @@ import pytest
 from skelfuse.calibration.camera import CameraIntrinsics
 from skelfuse.calibration.store import CalibrationStore, SensorCalibration
 from skelfuse.cli import main
-from skelfuse.fusion.hub import FusionHub
 from skelfuse.protocol.transform import look_at_pose
 from skelfuse.protocol.wire import Hello, encode
+from skelfuse.server.hub import FusionHub
 from skelfuse.server.settings import Settings
 
 POSE = look_at_pose((0.0, 1.0, 3.0), (0.0, 1.0, 0.0))

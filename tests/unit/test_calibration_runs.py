@@ -18,7 +18,6 @@ from skelfuse.agent.sources.sim import SimSource
 from skelfuse.calibration.rigid import pose_error
 from skelfuse.calibration.solvers import PointPairs
 from skelfuse.calibration.store import CalibrationStore, SensorCalibration
-from skelfuse.fusion.hub import FusionHub
 from skelfuse.protocol.depth_cloud import encode_reply
 from skelfuse.protocol.skeleton import JOINT_COUNT, TrackingState
 from skelfuse.protocol.transform import Matrix4, apply, axis_rotation, invert, look_at_pose
@@ -34,6 +33,7 @@ from skelfuse.server.errors import (
     SensorUnavailable,
     SolverCrashed,
 )
+from skelfuse.server.hub import FusionHub
 from skelfuse.server.settings import Settings
 from skelfuse.server.solver_pool import ThreadSolvers
 

@@ -11,9 +11,9 @@ import pytest
 
 from skelfuse.calibration.store import CalibrationStore, SensorCalibration
 from skelfuse.cli import main
-from skelfuse.fusion.hub import FusionHub
 from skelfuse.protocol.transform import pose_from_position_yaw_pitch
 from skelfuse.protocol.wire import Hello, encode
+from skelfuse.server.hub import FusionHub
 from skelfuse.server.settings import Settings
 
 

@@ -21,8 +21,8 @@ import pytest
 
 from skelfuse.calibration import store as store_module
 from skelfuse.calibration.store import Calibration, CalibrationStore, SensorCalibration
-from skelfuse.fusion.hub import FusionHub
 from skelfuse.server.calibration_runs import CalibrationService
+from skelfuse.server.hub import FusionHub
 from skelfuse.server.settings import Settings
 from skelfuse.server.solver_pool import ThreadSolvers
 

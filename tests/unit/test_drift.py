@@ -16,12 +16,12 @@ import pytest
 
 from skelfuse.agent.sim.performer import ProceduralPerformer
 from skelfuse.fusion.drift import DriftMonitor, estimate_correction, trunk_points
-from skelfuse.fusion.hub import FusionHub
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.views import FusedPerson, View
 from skelfuse.protocol.skeleton import JOINT_COUNT, JointId, TrackingState
 from skelfuse.protocol.transform import Matrix4, apply, axis_rotation, invert, look_at_pose
 from skelfuse.protocol.wire import Body, Frame, Hello, encode
+from skelfuse.server.hub import FusionHub
 from skelfuse.server.metrics import _drift_metrics
 from skelfuse.server.settings import Settings
 

@@ -12,7 +12,7 @@ import msgpack
 import numpy as np
 import pytest
 
-from skelfuse.fusion.hub import FusedFrame
+from skelfuse.fusion.engine import FusedFrame
 from skelfuse.geometry.quaternion import quaternion_multiply
 from skelfuse.protocol.feed import frame_json, persons_json
 from skelfuse.protocol.hands import HandConfidence, Hands, HandState

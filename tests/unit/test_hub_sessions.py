@@ -5,8 +5,8 @@ and a second connection for a live sensor is refused unless the holder's connect
 
 from __future__ import annotations
 
-from skelfuse.fusion.hub import FusionHub
 from skelfuse.protocol.wire import ErrorMessage, Frame, Heartbeat, Hello, Welcome, encode
+from skelfuse.server.hub import FusionHub
 from skelfuse.server.settings import Settings
 
 T0 = 1_800_000_000.0  # server wall clock at the start (Unix seconds)

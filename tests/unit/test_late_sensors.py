@@ -14,8 +14,8 @@ import pytest
 from skelfuse.fusion import kernels
 from skelfuse.fusion.alignment import Alignment, SensorTiming
 from skelfuse.fusion.alignment_replay import replayed_horizons
+from skelfuse.fusion.engine import FusedFrame
 from skelfuse.fusion.extrapolation import LatePredictor, carried_by_motion, views_with_late
-from skelfuse.fusion.hub import FusedFrame, FusionHub
 from skelfuse.fusion.measured_motion import measured_displacements, measured_from_arrays
 from skelfuse.fusion.pipeline import FusionPipeline
 from skelfuse.fusion.sensors import BodyArrays, SensorState, TimedFrame
@@ -25,6 +25,7 @@ from skelfuse.fusion.world_views import SensorBodies
 from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION
 from skelfuse.protocol.transform import look_at_pose
 from skelfuse.protocol.wire import Body, Frame, Hello, encode
+from skelfuse.server.hub import FusionHub
 from skelfuse.server.settings import FusionSettings, Settings
 from tests.support import require_numba
 

@@ -24,7 +24,7 @@ from skelfuse.agent.sim.mutual import MovingKinect
 from skelfuse.agent.sim.performer import standing_pose
 from skelfuse.calibration.store import Calibration, SpaceCalibration
 from skelfuse.fusion import extrapolation, world_views
-from skelfuse.fusion.hub import FusedFrame, FusionHub
+from skelfuse.fusion.engine import FusedFrame
 from skelfuse.fusion.settings import HubSettings
 from skelfuse.protocol.sensor_pose import pose_from_matrix
 from skelfuse.protocol.skeleton import JointId
@@ -35,6 +35,7 @@ from skelfuse.protocol.transform import (
     pose_from_position_yaw_pitch,
 )
 from skelfuse.protocol.wire import Body, Frame, Hello, encode
+from skelfuse.server.hub import FusionHub
 
 J = JointId
 T0 = 1_800_000_000.0

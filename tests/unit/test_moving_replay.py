@@ -10,11 +10,12 @@ import numpy as np
 
 from skelfuse.agent.sources.replay import ReplaySource
 from skelfuse.calibration.store import Calibration, SpaceCalibration
-from skelfuse.fusion.hub import FusedFrame, FusionHub
+from skelfuse.fusion.engine import FusedFrame
 from skelfuse.fusion.settings import HubSettings
 from skelfuse.protocol.recording_file import Header, Record, write_recording
 from skelfuse.protocol.wire import Frame, encode
 from skelfuse.recording.replay import calibration_of, replay
+from skelfuse.server.hub import FusionHub
 from skelfuse.server.routes_recordings import _header_from_hub
 from tests.unit.test_moving_sensors import (
     FPS,

@@ -13,7 +13,6 @@ import numpy.typing as npt
 from skelfuse.agent.sim.performer import standing_pose
 from skelfuse.calibration.store import Calibration, SensorCalibration, SpaceCalibration
 from skelfuse.fusion.extrapolation import views_with_late
-from skelfuse.fusion.hub import FusionHub
 from skelfuse.fusion.moving import placed_in_space, world_position
 from skelfuse.fusion.sensors import TimedFrame
 from skelfuse.fusion.settings import HubSettings
@@ -30,6 +29,7 @@ from skelfuse.protocol.transform import (
     pose_from_position_yaw_pitch,
 )
 from skelfuse.protocol.wire import Body, Frame, Hello, SensorPose, Welcome, encode
+from skelfuse.server.hub import FusionHub
 
 T0 = 1_800_000_000.0
 FPS = 30.0

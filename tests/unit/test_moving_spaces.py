@@ -14,7 +14,7 @@ import numpy.typing as npt
 
 from skelfuse.calibration.rigid import pose_error
 from skelfuse.calibration.store import Calibration, SpaceCalibration
-from skelfuse.fusion.hub import FusedFrame, FusionHub
+from skelfuse.fusion.engine import FusedFrame
 from skelfuse.fusion.settings import HubSettings
 from skelfuse.protocol.sensor_pose import pose_from_matrix
 from skelfuse.protocol.skeleton import JOINT_COUNT, TrackingState
@@ -27,6 +27,7 @@ from skelfuse.protocol.transform import (
 )
 from skelfuse.protocol.wire import Body, Frame, Hello, encode
 from skelfuse.server.calibration_run import RunSpec, RunState
+from skelfuse.server.hub import FusionHub
 from tests.unit.test_calibration_runs import PERFORMER, START_S, Rig, finished, floor_plane
 
 HEADS = ("head-0", "head-1")

@@ -16,7 +16,7 @@ import pytest
 from pythonosc.osc_bundle import OscBundle
 from pythonosc.osc_message import OscMessage
 
-from skelfuse.fusion.hub import FusedFrame
+from skelfuse.fusion.engine import FusedFrame
 from skelfuse.geometry.quaternion import quaternion_multiply, quaternion_rotate
 from skelfuse.protocol.feed import persons_json
 from skelfuse.protocol.skeleton import JOINT_NAMES

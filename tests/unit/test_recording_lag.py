@@ -14,7 +14,6 @@ import pytest
 
 from bench.replay import generate_recording
 from skelfuse.calibration.store import Calibration, SensorCalibration
-from skelfuse.fusion.hub import FusionHub
 from skelfuse.protocol.feed import frame_json
 from skelfuse.protocol.recording_file import (
     Header,
@@ -25,6 +24,7 @@ from skelfuse.protocol.recording_file import (
 )
 from skelfuse.protocol.wire import Hello, decode, encode
 from skelfuse.recording.replay import calibration_of, replay
+from skelfuse.server.hub import FusionHub
 from skelfuse.server.routes_recordings import _header_from_hub
 from skelfuse.server.settings import Settings
 

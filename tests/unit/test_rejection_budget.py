@@ -1,11 +1,11 @@
-"""The per-connection rejection budget (fusion/rejection_budget.py), with an injected clock, and
+"""The per-connection rejection budget (server/rejection_budget.py), with an injected clock, and
 the hub dropping a flooding connection's messages unread while a good one is untouched."""
 
 from __future__ import annotations
 
-from skelfuse.fusion.hub import FusionHub
-from skelfuse.fusion.rejection_budget import RejectionBudget
 from skelfuse.protocol.wire import Frame, Hello, encode
+from skelfuse.server.hub import FusionHub
+from skelfuse.server.rejection_budget import RejectionBudget
 from skelfuse.server.settings import Settings
 
 

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from skelfuse.calibration.store import Calibration, SensorCalibration
-from skelfuse.fusion.hub import FusionHub
 from skelfuse.fusion.sensors import calibrated_lag_s
 from skelfuse.protocol.wire import Frame, Heartbeat, Hello, Welcome, encode
+from skelfuse.server.hub import FusionHub
 from skelfuse.server.settings import Settings
 
 T0 = 1_800_000_000.0  # server wall clock at the start (Unix seconds)

@@ -12,7 +12,6 @@ import pytest
 
 from skelfuse.calibration.store import CalibrationFileError, CalibrationStore, SensorCalibration
 from skelfuse.cli.values import UsageError, parse_host_port, parse_pose
-from skelfuse.fusion.hub import FusionHub
 from skelfuse.fusion.sensors import SlidingMinimum, TimedFrame, bodies_at
 from skelfuse.protocol.depth_cloud import decode_reply
 from skelfuse.protocol.errors import DecodeError
@@ -20,6 +19,7 @@ from skelfuse.protocol.feed import frame_json
 from skelfuse.protocol.skeleton import JOINT_COUNT
 from skelfuse.protocol.transform import pose_from_position_yaw_pitch
 from skelfuse.protocol.wire import Body, ErrorMessage, Frame, Heartbeat, Hello, Welcome, encode
+from skelfuse.server.hub import FusionHub
 from skelfuse.server.settings import Settings
 
 STATES = np.full(JOINT_COUNT, 2, np.uint8)

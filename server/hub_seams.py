@@ -1,5 +1,5 @@
-"""What the fusion hub needs from the server around it, as protocols (the hub stays socket-free):
-the recorder's tap and the server's requests to agents.
+"""What the hub's sessions need from the server around them, as protocols (the hub stays
+socket-free): the recorder's tap and the server's requests to agents.
 """
 
 from __future__ import annotations
