@@ -1,8 +1,9 @@
-"""Body-based confidence of each joint of each view: bone length, range of motion, facing, distance.
+"""Body-based confidence of each joint of each view: tracking state, bone length, range of motion.
 
 Report A (``shared/papers.md``) multiplies body-based terms into the tracking-state weight of
 each joint of each view. Everything here is a pure function on arrays;
-:mod:`skelfuse.fusion.pipeline` combines the terms (:func:`body_weights`, :func:`view_factors`)
+:mod:`skelfuse.fusion.weigh` combines the terms (:func:`body_weights`, and the facing and distance
+of :mod:`skelfuse.fusion.view_factors`)
 and :mod:`skelfuse.fusion.weighted` fuses with them. :func:`joint_confidence` is the one place the
 confidence apps receive with each fused joint is computed.
 
@@ -20,7 +21,7 @@ cm off while still Tracked) ends with a weight near 0 (``exp(−10)`` at 30 cm, 
 ``1/(1 + a·|Δl|)`` would still give 0.09 with the same half-weight point).
 
 Each bone's factor lands on its child joint and is propagated multiplicatively outward from
-SpineBase along :data:`PARENTS` (:func:`propagate`): a doubtful elbow makes wrist, hand, hand tip
+SpineBase along :data:`PARENTS` (in :func:`body_loop`): a doubtful elbow makes wrist, hand, hand tip
 and thumb doubtful too (report A: ``C_k(n+1) = C_kn · f(...)``).
 
 Range of motion
@@ -55,38 +56,36 @@ Knee, hip and ankle are *signed* in the body frame, which is what makes the term
 whose left and right are swapped: its forward axis is reversed, so every bent knee looks
 hyperextended and every foot points backwards.
 
-Facing and distance
--------------------
-A Kinect v2 is best when the person faces it at 1.5–3 m: it assumes the person faces it, turns
-the skeleton towards itself by about half the person's yaw relative to it (conventions.md §5),
-and its depth noise grows with distance. ``facing = floor + (1 − floor)·((1 + cos θ)/2)^p``,
-θ the angle between the person's forward direction and the direction to the sensor (1 facing
-it, 0.5^p side-on, ``floor`` from behind); ``distance = exp(−(d_out / scale)²)`` with ``d_out``
-how far the horizontal distance is outside the best band.
+Implementation
+--------------
+Each term is a loop compiled with numba, so a step pays one call per term, not a dozen numpy
+operations on arrays of a few dozen rows: :func:`body_loop` (state table × bone length × range
+of motion, propagated, over noise²) and :func:`confidence_loop` (the confidence and the views
+that carried each joint). A bone length is ``sqrt((dx² + dy²) + dz²)``, products and sums over a
+person's views start from 1 and 0 and take view after view, and ``exp`` and ``pow`` are the C
+library's. Each sensor's prior enters as one row of :func:`sensor_terms` (fusion/priors.py).
+:func:`warm_up` compiles the loops (or loads numba's cache) at start, so no frame waits for a
+compilation.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Final
 
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion import kernels, kernels_stages
-from skelfuse.fusion.anatomy import (
-    CHAIN_LEVELS,
-    CHAIN_ORDER,
-    HORIZONTAL,
-    rom_factors_and_forward,
-    unit,
-)
-from skelfuse.fusion.points import finite_points
+from skelfuse.fusion.anatomy import CHAIN_ORDER, rom_factors_and_forward
+from skelfuse.fusion.kernels_jit import jit, plain
 from skelfuse.fusion.priors import SensorPrior, distinct_priors
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.protocol.skeleton import BONES, PARENTS, JointId
 
 FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.intp]
+BoolArray = npt.NDArray[np.bool_]
 J = JointId
 
 
@@ -95,51 +94,12 @@ _BONE_PARENT: Final = np.array([parent for parent, _ in BONES])
 _CHAIN: Final = (np.array(CHAIN_ORDER[1:]), np.array([PARENTS[j] for j in CHAIN_ORDER[1:]]))
 BODY_TABLES: Final = ((_BONE_PARENT, _BONE_CHILD), _CHAIN)
 """The body terms' index tables: each bone's parent and child joint; the joints below
-SpineBase, parents first, and their parents (what the compiled body terms take)."""
-"""The joints below SpineBase, parents first, and their parents (the compiled propagate)."""
+SpineBase, parents first, and their parents (what :func:`body_loop` takes)."""
 
-
-def propagate(local: npt.ArrayLike) -> FloatArray:
-    """Multiply per-joint factors outward along the kinematic chain from SpineBase.
-
-    Args:
-        local: (..., 25) factor of each joint alone (its bone, its angle).
-
-    Returns:
-        (..., 25) float64: each joint's factor times all its ancestors' factors.
-    """
-    out = np.array(local, dtype=np.float64, copy=True)
-    for children, parents in CHAIN_LEVELS:
-        out[..., children] *= out[..., parents]
-    return out
-
-
-def bone_length_factors(
-    views: npt.ArrayLike, reference: npt.ArrayLike, scale_m: float
-) -> FloatArray:
-    """Local bone-length factor of each joint (not yet propagated).
-
-    Args:
-        views: (S, 25, 3) joints, metres.
-        reference: (24,) reference length of each bone (metres), NaN where unknown; or (S, 24),
-            one row per view.
-        scale_m: length difference that divides the factor by e.
-
-    Returns:
-        (S, 25) float64 in (0, 1]: ``exp(−|l − l_ref| / scale)`` on each bone's child joint;
-        1 on SpineBase and wherever the length or the reference is unknown.
-    """
-    joints = np.asarray(views, dtype=np.float64)
-    ref = np.asarray(reference, dtype=np.float64)
-    lengths = np.linalg.norm(joints[:, _BONE_CHILD] - joints[:, _BONE_PARENT], axis=-1)
-    diff = np.abs(lengths - ref)
-    factor_bones = np.where(np.isfinite(diff), np.exp(-diff / scale_m), 1.0)
-    out = np.ones(joints.shape[:2])
-    out[:, _BONE_CHILD] = factor_bones
-    return out
-
-
-# --- body frame and angles ----------------------------------------------------------------------
+TERM_COLUMNS: Final = 9
+"""Columns of a :func:`sensor_terms` row: the state table (NotTracked, Inferred, Tracked),
+fixed bone lengths (1.0: the bone-length term leaves the view alone), the range-of-motion scale
+k, the noise scale, and the facing term's power, floor and back factor."""
 
 
 def range_of_motion_factors(views: npt.ArrayLike, scale_deg: float) -> FloatArray:
@@ -156,68 +116,51 @@ def range_of_motion_factors(views: npt.ArrayLike, scale_deg: float) -> FloatArra
     return rom_factors_and_forward(views, scale_deg)[0]
 
 
-def facing_cosines(
-    facing: npt.ArrayLike, body_position: npt.ArrayLike, sensor_positions: npt.ArrayLike
-) -> FloatArray:
-    """cos θ per view: θ between the person's facing and the horizontal direction to the sensor.
+def sensor_terms(
+    settings: FusionSettings, priors: Sequence[SensorPrior] | None, count: int
+) -> tuple[FloatArray, IntArray]:
+    """Each distinct sensor prior's terms as one row (:data:`TERM_COLUMNS`), and each view's row.
 
     Args:
-        facing: (3,) horizontal unit vector (NaN if unknown).
-        body_position: (3,) a point on the person (SpineBase), metres, world.
-        sensor_positions: (S, 3) sensor positions, metres, world (NaN if unknown).
+        settings: the values a prior leaves ``None``; priors: (N,) each view's, or None: the
+            settings' for every view; count: N.
 
     Returns:
-        (S,) float64 in [−1, 1]; NaN where unknown.
+        (K, 9) float64 rows (one for the settings when ``priors`` is None) and (N,) intp.
+        Frames repeat the same settings and priors: the rows are kept per pair of objects.
     """
-    sensors = np.asarray(sensor_positions, dtype=np.float64)
-    if kernels.enabled() and sensors.ndim == 2:  # the same bits in one compiled loop
-        one, at = np.asarray(facing, dtype=np.float64), np.asarray(body_position, dtype=np.float64)
-        return kernels_stages.facing_cosines(  # (broadcast only when needed: µs a call)
-            one if one.shape == sensors.shape else np.broadcast_to(one, sensors.shape),
-            at if at.shape == sensors.shape else np.broadcast_to(at, sensors.shape),
-            sensors,
-        )
-    to_sensor = sensors - np.asarray(body_position)
-    to_sensor = to_sensor * HORIZONTAL
-    cos: FloatArray = (unit(to_sensor) * np.asarray(facing, dtype=np.float64)).sum(-1)
-    return cos
+    if priors is None:
+        of_view: IntArray = np.zeros(count, dtype=np.intp)
+        key: tuple[int, ...] = (id(settings),)
+        distinct: list[SensorPrior] = [SensorPrior("settings")]
+    else:
+        distinct, of_view = distinct_priors(priors)
+        key = (id(settings), id(of_view))
+    kept = _terms.get(key)
+    if kept is None or kept[0] is not settings:
+        if len(_terms) >= _KEPT:
+            _terms.clear()
+        rows = np.array([_row(p, settings) for p in distinct], dtype=np.float64)
+        kept = _terms[key] = (settings, of_view, rows)
+    return kept[2], of_view
 
 
-def facing_factors(
-    cosines: npt.ArrayLike, power: float, floor: float, back_factor: float = 1.0
-) -> FloatArray:
-    """Facing term per view, (S,) in (0, 1]; 1 where the facing is unknown (NaN).
-
-    ``floor + (1 − floor)·|cos θ|^power``, times ``back_factor`` when the sensor is behind the
-    person (cos θ < 0). A sensor's own yaw bias grows with how far the person is turned from
-    *its axis*, front or back (a view from behind, once its labels are swapped back by
-    :mod:`fusion.mirror`, is fitted as a front view: conventions.md §5), so side views are the
-    least trusted; a back view also hides the arms in front of the body, hence ``back_factor``.
-    """
-    cos = np.asarray(cosines, dtype=np.float64)
-    if kernels.enabled() and cos.ndim == 1:  # the same bits in one compiled loop
-        return kernels_stages.facing_factors(cos, power, floor, back_factor)
-    value = floor + (1.0 - floor) * np.abs(np.clip(cos, -1.0, 1.0)) ** power
-    value = np.where(cos < 0, value * back_factor, value)
-    return np.where(np.isfinite(cos), value, 1.0)
+def _row(prior: SensorPrior, settings: FusionSettings) -> list[float]:
+    """``prior``'s row of :func:`sensor_terms`."""
+    fixed = 1.0 if prior.fixed_bone_lengths else 0.0
+    return [
+        *prior.table(settings),
+        fixed,
+        prior.rom_scale,
+        prior.noise_scale,
+        *prior.facing(settings),
+    ]
 
 
-def distance_factors(
-    body_position: npt.ArrayLike,
-    sensor_positions: npt.ArrayLike,
-    best_m: tuple[float, float],
-    scale_m: float,
-) -> FloatArray:
-    """Distance term per view, (S,) in (0, 1]: 1 inside ``best_m``, Gaussian fall-off outside.
-
-    Args:
-        body_position: (3,) SpineBase, metres, world.
-        sensor_positions: (S, 3) metres, world; NaN rows give 1.
-    """
-    delta = np.asarray(sensor_positions, dtype=np.float64) - np.asarray(body_position)
-    distance = np.linalg.norm(delta * HORIZONTAL, axis=-1)
-    outside = np.maximum(best_m[0] - distance, 0.0) + np.maximum(distance - best_m[1], 0.0)
-    return np.where(np.isfinite(outside), np.exp(-((outside / scale_m) ** 2)), 1.0)
+_KEPT: Final = 64
+_terms: dict[tuple[int, ...], tuple[FusionSettings, IntArray, FloatArray]] = {}
+""":func:`sensor_terms`' rows by the identities of the settings and of the views' prior indices
+(both kept with them, so that no id is reused meanwhile)."""
 
 
 def state_weights(states: npt.ArrayLike, table: tuple[float, float, float]) -> FloatArray:
@@ -249,12 +192,10 @@ def joint_confidence(joints: FloatArray, weights: FloatArray) -> FloatArray:
     Returns:
         (P, J) float64 in [0, 1].
     """
-    if kernels.enabled():  # the same bits in one compiled loop; the code below is the reference
-        return kernels_stages.confidence_and_carriers(joints, weights, 0.0)[0]
-    usable = finite_points(joints) & (weights > 0)
-    w = np.where(usable, weights, 0.0)
-    confidence: FloatArray = 1.0 - np.prod(1.0 - np.clip(w, 0.0, 1.0), axis=1)
-    confidence[w.sum(axis=1) <= 0] = 0.0
+    w = plain(weights)
+    confidence = np.empty((w.shape[0], w.shape[2]))
+    carried = np.empty(w.shape, dtype=np.bool_)
+    confidence_loop(plain(joints), w, 0.0, confidence, carried)
     return confidence
 
 
@@ -268,11 +209,12 @@ def body_weights(
 ) -> FloatArray:
     """Each joint's weight from its view alone: tracking state × the body terms, propagated.
 
-    ``state weight × propagate(bone length × range of motion)``: a joint is doubted as much as
-    its own bone and angle and every joint between it and SpineBase (module docstring). With
-    ``priors`` each view uses its sensor's state table, range-of-motion scale, noise
-    (``× 1/noise_scale²``) and, for a fixed-length body model, no bone-length term
-    (fusion/priors.py); a Kinect v2 prior gives the same numbers as none.
+    ``state weight × Π (bone length × range of motion) / noise²``, the product over the joint
+    and every joint between it and SpineBase (module docstring): a joint is doubted as much as
+    its own bone and angle and its ancestors'. With ``priors`` each view uses its sensor's
+    state table, range-of-motion scale (``factor^(1/k)``: ``exp(−e/(k·s))``), noise and, for
+    a fixed-length body model, no bone-length term (fusion/priors.py); a Kinect v2 prior gives
+    the same numbers as none.
 
     Args:
         joints: (N, 25, 3) views, metres, world frame, labels already corrected.
@@ -287,98 +229,118 @@ def body_weights(
         (N, 25) float64 weights ≥ 0.
     """
     s = settings
-    # Each distinct prior's values once, gathered per view (the same floats as view by view).
-    distinct, of_view = distinct_priors(priors) if priors is not None else ([], None)
-    if all(as_settings(p, s) for p in distinct):  # Kinect v2 alike: the shared table's floats
-        of_view = None
-    if of_view is None and kernels.enabled():  # the same bits in one compiled loop
-        with_rom = s.use_range_of_motion
-        return kernels_stages.body_weights(
-            joints,
-            states,
-            s.state_weights,
-            references if s.use_bone_length else None,
-            (rom if rom is not None else range_of_motion_factors(joints, s.rom_scale_deg))
-            if with_rom
-            else None,
-            s.bone_length_scale_m,
-            (_BONE_PARENT, _BONE_CHILD),
-            _CHAIN,
-        )
-    if of_view is None:
-        weights = state_weights(states, s.state_weights)
-    else:  # each view's own table, gathered (the same floats as the shared table for v2)
-        tables = np.array([p.table(s) for p in distinct], dtype=np.float64)[of_view]
-        weights = tables[np.arange(len(tables))[:, None], np.asarray(states, dtype=np.intp)]
-    local = np.ones(joints.shape[:2])
-    if s.use_bone_length and references is not None:
-        bones = bone_length_factors(joints, references, s.bone_length_scale_m)
-        if of_view is not None:  # a fixed-length body model's offset is not noise
-            fixed = np.array([p.fixed_bone_lengths for p in distinct])[of_view]
-            bones = np.where(fixed[:, None], 1.0, bones)
-        local *= bones
-    if s.use_range_of_motion:
-        rom_local = rom if rom is not None else range_of_motion_factors(joints, s.rom_scale_deg)
-        if of_view is not None:  # exp(−e/s)^(1/k) = exp(−e/(k·s)): scale k per view
-            k = np.array([p.rom_scale for p in distinct], dtype=np.float64)[of_view]
-            if (k != 1.0).any():
-                rom_local = np.where(k[:, None] == 1.0, rom_local, rom_local ** (1.0 / k[:, None]))
-        local *= rom_local
-    out: FloatArray = weights * propagate(local)
-    if of_view is not None:
-        noise = np.array([p.noise_scale for p in distinct], dtype=np.float64)[of_view]
-        if (noise != 1.0).any():  # inverse-variance weighting against a Kinect v2 view
-            out = out / (noise**2)[:, None]
+    points = plain(joints)
+    terms, of_view = sensor_terms(s, priors, len(points))
+    refs = references if s.use_bone_length else None
+    if s.use_range_of_motion and rom is None:
+        rom = range_of_motion_factors(points, s.rom_scale_deg)
+    factors = rom if s.use_range_of_motion else None
+    out = np.empty(points.shape[:2])
+    body_loop(
+        points, plain(states, np.uint8), terms, plain(of_view, np.intp),
+        _NOT_USED if refs is None else plain(refs),
+        _NOT_USED if factors is None else plain(factors),
+        (refs is not None, factors is not None), float(s.bone_length_scale_m),
+        (plain(_BONE_PARENT, np.intp), plain(_BONE_CHILD, np.intp)),
+        (plain(_CHAIN[0], np.intp), plain(_CHAIN[1], np.intp)), out,
+    )  # fmt: skip
     return out
 
 
-def as_settings(prior: SensorPrior, settings: FusionSettings) -> bool:
-    """Whether ``prior`` changes nothing in :func:`body_weights` (the settings' table, no
-    fixed-length body model, range-of-motion scale and noise 1)."""
-    return (
-        tuple(prior.table(settings)) == tuple(settings.state_weights)
-        and not prior.fixed_bone_lengths
-        and prior.rom_scale == 1.0
-        and prior.noise_scale == 1.0
-    )
+_NOT_USED: Final = np.ones((1, 1))
+"""What a loop gets for a term that is off (it reads nothing of it; never written)."""
 
 
-def view_factors(
-    cosines: FloatArray,
-    body_positions: FloatArray,
-    sensor_positions: FloatArray,
-    settings: FusionSettings,
-    priors: Sequence[SensorPrior] | None = None,
-) -> FloatArray:
-    """Each view's factor from where its sensor stands: facing × distance (the ones switched on).
+@jit
+def body_loop(  # pragma: no cover - compiled
+    joints: FloatArray,
+    states: npt.NDArray[np.uint8],
+    terms: FloatArray,
+    of_view: IntArray,
+    references: FloatArray,
+    rom: FloatArray,
+    flags: tuple[bool, bool],
+    scale_m: float,
+    bones: tuple[IntArray, IntArray],
+    chain: tuple[IntArray, IntArray],
+    out: FloatArray,
+) -> None:
+    """Fill ``out`` (N, 25) with each joint's weight from its view alone (``body_weights``).
 
-    Args:
-        cosines: (N,) :func:`facing_cosines` of each view (NaN: unknown, factor 1).
-        body_positions: (N, 3) where each view's person stands (SpineBase), metres, world.
-        sensor_positions: (N, 3) each view's sensor, metres, world (NaN rows: unknown).
-        priors: (N,) each view's sensor prior (its facing model), or None: the settings'.
-
-    Returns:
-        (N,) float64 in (0, 1].
+    joints: (N, 25, 3); states: (N, 25) tracking states; terms: (K, 9) the
+    :func:`sensor_terms` rows, of_view: (N,) each view's; references: (N, 24) reference bone
+    lengths (read when ``flags[0]``); rom: (N, 25) range-of-motion factors (read when
+    ``flags[1]``); scale_m: the bone-length scale; bones: each bone's parent and child joint;
+    chain: the joints below SpineBase parent first, and their parents.
     """
-    s = settings
-    factors = np.ones(len(cosines))
-    if s.use_facing and priors is None:
-        factors *= facing_factors(cosines, s.facing_power, s.facing_floor, s.facing_back_factor)
-    elif s.use_facing and priors is not None:
-        distinct, of_view = distinct_priors(priors)
-        models = [p.facing(s) for p in distinct]
-        # One call per distinct facing model (a few sensor types): the same arithmetic, hence
-        # the same bits, as the shared model for every Kinect v2 view (an element's factor
-        # depends on its own cosine alone).
-        if len(set(models)) == 1:
-            factors *= facing_factors(cosines, *models[0])
-        else:
-            for model in set(models):
-                rows = np.isin(of_view, [i for i, m in enumerate(models) if m == model])
-                factors[rows] *= facing_factors(np.asarray(cosines)[rows], *model)
-    if s.use_distance:
-        factors *= distance_factors(
-            body_positions, sensor_positions, s.distance_best_m, s.distance_scale_m
-        )
-    return factors
+    parents, children = bones
+    order, parent_of = chain
+    local = np.empty(joints.shape[1])
+    for v in range(joints.shape[0]):
+        row = terms[of_view[v]]
+        for j in range(len(local)):
+            local[j] = 1.0
+        if flags[0] and row[3] == 0.0:  # bone length: exp(−|l − l_ref| / scale) on the child
+            for b in range(len(parents)):
+                a, c = joints[v, children[b]], joints[v, parents[b]]
+                d0, d1, d2 = a[0] - c[0], a[1] - c[1], a[2] - c[2]
+                diff = abs(math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) - references[v, b])
+                local[children[b]] = math.exp(-diff / scale_m) if math.isfinite(diff) else 1.0
+        if flags[1]:  # exp(−e/s)^(1/k) = exp(−e/(k·s)): a prior's own scale k
+            k = row[4]
+            for j in range(len(local)):
+                local[j] *= rom[v, j] if k == 1.0 else rom[v, j] ** (1.0 / k)
+        for i in range(len(order)):  # outward from SpineBase: each parent already final
+            local[order[i]] *= local[parent_of[i]]
+        variance = row[5] * row[5]  # inverse-variance weighting against a Kinect v2 view
+        for j in range(len(local)):
+            out[v, j] = row[states[v, j]] * local[j] / variance
+
+
+@jit
+def confidence_loop(  # pragma: no cover - compiled
+    joints: FloatArray,
+    weights: FloatArray,
+    min_share: float,
+    confidence: FloatArray,
+    carried: BoolArray,
+) -> None:
+    """Fill ``confidence`` (P, J) and ``carried`` (P, S, J) from each person's views as fused.
+
+    joints: (P, S, J, 3) NaN where a view has no position; weights: (P, S, J) the final
+    weights. ``1 − Π (1 − clip(w, 0, 1))`` over the views with a position and a positive weight
+    (0 where none), and which views hold at least ``min_share`` of a joint's weight (of the
+    views with a position).
+    """
+    size, views, count = weights.shape
+    for p in range(size):
+        for j in range(count):
+            product = 1.0
+            usable_total = 0.0
+            total = 0.0
+            for s in range(views):
+                point = joints[p, s, j]
+                finite = math.isfinite(point[0]) and math.isfinite(point[1])
+                finite = finite and math.isfinite(point[2])
+                weight = weights[p, s, j]
+                used = weight if finite and weight > 0 else 0.0
+                clipped = 0.0 if used < 0.0 else (1.0 if used > 1.0 else used)
+                product *= 1.0 - clipped
+                usable_total += used
+                total += weight if finite else 0.0
+            confidence[p, j] = 0.0 if usable_total <= 0 else 1.0 - product
+            for s in range(views):
+                point = joints[p, s, j]
+                finite = math.isfinite(point[0]) and math.isfinite(point[1])
+                finite = finite and math.isfinite(point[2])
+                final = weights[p, s, j] if finite else 0.0
+                share = final / total if total > 0 else 0.0
+                carried[p, s, j] = share >= min_share and final > 0
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) this module's loops now."""
+    views = np.zeros((2, 25, 3))
+    states = np.zeros((2, 25), np.uint8)
+    body_weights(views, states, np.ones((2, 24)), np.ones((2, 25)), FusionSettings())
+    joint_confidence(views[None], np.ones((1, 2, 25)))

@@ -153,23 +153,6 @@ def project_bone_lengths(
     return result
 
 
-def weighted_mean(joints: FloatArray, weights: FloatArray) -> FloatArray:
-    """The compiled :func:`skelfuse.fusion.weighted.weighted_mean` (same bits).
-
-    Args:
-        joints: (P, S, J, 3) positions, NaN where a view has none; weights: (P, S, J).
-
-    Returns:
-        (P, J, 3) float64, NaN where no view has a position with a positive weight.
-    """
-    from skelfuse.fusion import kernels_weighted  # imports numba: only when used
-
-    points = plain(joints)
-    out = np.empty((points.shape[0], points.shape[2], 3))
-    kernels_weighted.weighted_loop(points, plain(weights), out)
-    return out
-
-
 def warm_up() -> float:
     """Compile (or load from numba's cache) every kernel now; returns the seconds it took
     (0.0 when the kernels are off). Call at start, off any latency-bound loop."""
@@ -182,10 +165,13 @@ def warm_up() -> float:
     index = np.zeros(25, dtype=np.intp)  # the index tables' types, any content
     tables = (index, index, index, index, index, np.full(25, -1, dtype=np.intp))
     project_bone_lengths(views, np.ones((2, 24)), np.ones((2, 25)), 1, tables)
-    weighted_mean(views[None], np.ones((1, 2, 25)))
-    from skelfuse.fusion import kernels_stages  # the mirror and confidence stages' kernels
+    from skelfuse.fusion import confidence, kernels_stages, view_factors, weigh, weighted
 
-    kernels_stages.warm_up()
+    kernels_stages.warm_up()  # the mirror stages' kernels
+    weighted.warm_up()
+    confidence.warm_up()
+    view_factors.warm_up()
+    weigh.warm_up()
     # The bone observation's medians and the Kalman correction: they run once warmed.
     from skelfuse.fusion import (
         kernels_filter,
@@ -197,7 +183,6 @@ def warm_up() -> float:
         kernels_replay,
         kernels_tracks,
         kernels_trunks,
-        kernels_weigh,
     )
 
     kernels_observe.warm_up()  # callers check warmed() (and enabled())
@@ -208,6 +193,5 @@ def warm_up() -> float:
     kernels_motion.warm_up()
     kernels_lerp.warm_up()
     kernels_replay.warm_up()
-    kernels_weigh.warm_up()
     kernels_label_stage.warm_up()
     return time.perf_counter() - start

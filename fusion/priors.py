@@ -3,7 +3,7 @@
 The sensor type is what an agent announces in its hello (``protocol.wire.SENSOR_TYPES``) and
 :class:`fusion.sensors.SensorState` keeps; :func:`fusion.pipeline.views_at` copies it onto each
 :class:`fusion.views.View`, and :func:`fusion.confidence.body_weights` /
-:func:`fusion.confidence.view_factors` use each view's prior (when
+:func:`fusion.view_factors.view_factors` use each view's prior (when
 ``FusionSettings.use_sensor_priors`` is on). The table and what each value rests on:
 docs/fusion.md §7, "Priors per sensor type".
 
@@ -44,7 +44,7 @@ class SensorPrior:
     noise_scale: the sensor's joint position noise relative to a Kinect v2 (1: the same). A
         view's weights are multiplied by ``1 / noise_scale²`` (inverse-variance weighting).
     facing_power, facing_floor, facing_back_factor: the facing term
-        (:func:`fusion.confidence.facing_factors`).
+        (:func:`fusion.view_factors.facing_factors`).
     may_mirror: whether the sensor can report a person seen from behind with left and right
         swapped. Informational for now: the mirror step (fusion/mirror.py) checks every view.
     rom_scale: multiplies ``FusionSettings.rom_scale_deg`` for this sensor's views (> 1: its

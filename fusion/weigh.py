@@ -6,40 +6,94 @@ tells where each person stands; then by where its sensor stands (facing, distanc
 sees each joint (``use_view_reliability``) and one Cauchy pass (``outlier_scale_m``), fusing
 after each; last, the confidence apps receive and which views carried each joint.
 
-The usual step (every person fused before, so its facing is known; the facing term alone; one
-facing model and the settings' state table for every sensor; no camera that guesses depth)
-runs as one compiled call with the kernels on (:mod:`skelfuse.fusion.kernels_weigh`: the same
-bits); anything else, and the kernels off, runs the code below.
+In numpy that is a dozen calls with their arguments' gathers and pads, ~140 µs at 4 sensors ×
+6 people for ~20 µs of arithmetic, so the step is one loop compiled with numba (:func:`_weigh_loop`)
+running the stages' own loops in order: :func:`~skelfuse.fusion.confidence.body_loop`,
+:func:`~skelfuse.fusion.weighted.weighted_loop` on the views padded as
+:meth:`~skelfuse.fusion.batch.ViewBatch.pad` pads them (NaN joints, weight 0), the facing and
+:func:`~skelfuse.fusion.view_factors.view_factor_loop`, the Cauchy pass and
+:func:`~skelfuse.fusion.confidence.confidence_loop`. The loop runs in phases (:data:`BODY` …
+:data:`CONFIDENCE`); three terms that are numpy code of their own stage run between two phases
+when they are on: the ray weighting of a camera that guesses depth after each fusion
+(:meth:`~skelfuse.fusion.batch.ViewBatch.fuse`), the yaw correction (``correct_view_yaw``) after
+the facing and the view reliability after the view factors. :func:`warm_up` compiles the loop
+(or loads numba's cache) at start, so no frame waits for a compilation.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
-from typing import Final
+from typing import Final, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion import kernels, kernels_weigh
-from skelfuse.fusion.anatomy import corrected_yaw, facing_directions
+from skelfuse.fusion.anatomy import corrected_yaw
 from skelfuse.fusion.batch import ViewBatch
 from skelfuse.fusion.confidence import (
     BODY_TABLES,
-    as_settings,
-    body_weights,
-    facing_cosines,
+    body_loop,
+    confidence_loop,
     range_of_motion_factors,
-    view_factors,
+    sensor_terms,
 )
-from skelfuse.fusion.kernels_weigh import Weighed
-from skelfuse.fusion.priors import SensorPrior, distinct_priors
+from skelfuse.fusion.kernels_facing import cosines_loop, facing_loop
+from skelfuse.fusion.kernels_jit import jit, plain
+from skelfuse.fusion.priors import SensorPrior
 from skelfuse.fusion.reliability import reliability_factors
 from skelfuse.fusion.settings import FusionSettings
-from skelfuse.fusion.weighted import MIN_SHARE, cauchy_reweight, confidence_and_carriers
+from skelfuse.fusion.view_factors import view_factor_loop
+from skelfuse.fusion.weighted import MIN_SHARE, weighted_loop
 
 FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.intp]
+BoolArray = npt.NDArray[np.bool_]
 
 __all__ = ["Weighed", "weigh_and_fuse"]
+
+BODY: Final = 0
+"""Phase: the body weights and the first fusion."""
+FACING: Final = 1
+"""Phase: each person's facing and where it stands, each view's facing cosine."""
+VIEWS: Final = 2
+"""Phase: the view factors (facing, distance) and the fusion under them."""
+CAUCHY: Final = 3
+"""Phase: the Cauchy pass and the fusion after it."""
+CONFIDENCE: Final = 4
+"""Phase: the confidence and the carriers."""
+_NOT_USED: Final = np.ones((1, 1))
+"""What the loop gets for a term that is off (it reads nothing of it; never written)."""
+_TABLES: Final[tuple[tuple[IntArray, IntArray], tuple[IntArray, IntArray]]] = (
+    (plain(BODY_TABLES[0][0], np.intp), plain(BODY_TABLES[0][1], np.intp)),
+    (plain(BODY_TABLES[1][0], np.intp), plain(BODY_TABLES[1][1], np.intp)),
+)
+""":data:`~skelfuse.fusion.confidence.BODY_TABLES` as the loop takes them."""
+_Body = tuple[
+    FloatArray,
+    IntArray,
+    FloatArray,
+    FloatArray,
+    tuple[bool, bool],
+    float,
+    tuple[tuple[IntArray, IntArray], tuple[IntArray, IntArray]],
+]
+"""The body terms' arguments of :func:`_weigh_loop` (its docstring)."""
+
+
+class Weighed(NamedTuple):
+    """What steps 5–6 give the rest of the step (P persons, N views, S the widest person).
+
+    weights: (N, 25) each view's final per-joint weights; fused: (P, 25, 3) metres, world, NaN
+    where no view counts; cosines: (N,) each view's facing cosine (NaN: unknown); confidence:
+    (P, 25) in [0, 1]; carried: (P, S, 25) which views carried each fused joint.
+    """
+
+    weights: FloatArray
+    fused: FloatArray
+    cosines: FloatArray
+    confidence: FloatArray
+    carried: BoolArray
 
 
 def weigh_and_fuse(
@@ -58,123 +112,82 @@ def weigh_and_fuse(
             turned in place).
         rom: (N, 25) range-of-motion factors of each view as labelled, or None (computed here
             when ``use_range_of_motion``).
-        references: (P, 24) each person's reference bone lengths, metres (NaN: unknown).
-        track_facings: (P, 3) each person's facing from its track, horizontal unit vectors.
+        references: (P, 24) each person's reference bone lengths, metres (NaN: unknown; the
+            bone-length term is off while no person has any).
+        track_facings: (P, 3) each person's facing from its track, horizontal unit vectors
+            (NaN: unknown).
         fused_once: (P,) whether each person was fused before (else its facing is taken from
             this step's first fusion).
         settings: which terms are on, and their scales.
         priors: (N,) each view's sensor prior, or None: the settings' values for every view.
     """
     s = settings
-    model = _one_facing_model(s, priors)
-    if (
-        model is not None
-        and all(fused_once)
-        and batch.depth_ratios is None
-        and not (s.use_distance or s.correct_view_yaw or s.use_view_reliability)
-        and s.outlier_scale_m <= 0
-        and kernels.enabled()
-        and kernels_weigh.warmed()
-    ):
-        weighed = kernels_weigh.weigh_and_fuse(
-            (
-                batch.joints,
-                batch.states,
-                references if s.use_bone_length else None,
-                _rom(batch, rom, s),
-            ),
-            (s.state_weights, s.bone_length_scale_m, BODY_TABLES[0]),
-            BODY_TABLES[1],
-            (batch.starts, batch.widest),
-            track_facings,
-            batch.sensors,
-            model,
-            MIN_SHARE,
-        )
-        if weighed is not None:
-            return weighed
-    known = references[batch.person_of] if np.isfinite(references).any() else None
-    return _weighed(batch, rom, known, track_facings, fused_once, s, priors)
+    count, persons, size = len(batch.joints), len(batch.counts), batch.joints.shape[1]
+    out = Weighed(
+        np.empty((count, size)),
+        np.empty((persons, size, 3)),
+        np.empty(count),
+        np.empty((persons, size)),
+        np.empty((persons, batch.widest, size), dtype=np.bool_),
+    )
+    stands = np.empty((count, 3))
+    terms, of_view = sensor_terms(s, priors, count)
+    if s.use_range_of_motion and rom is None:
+        rom = range_of_motion_factors(batch.joints, s.rom_scale_deg)
+    factors = rom if s.use_range_of_motion else None
+    body: _Body = (
+        terms, plain(of_view, np.intp),
+        plain(references) if s.use_bone_length else _NOT_USED,
+        _NOT_USED if factors is None else plain(factors),
+        (s.use_bone_length, factors is not None), float(s.bone_length_scale_m), _TABLES,
+    )  # fmt: skip
+    views = (
+        plain(track_facings), plain(np.asarray(fused_once, dtype=np.bool_), np.bool_),
+        (s.use_facing, s.use_distance, s.use_facing or s.use_distance or s.correct_view_yaw),
+        (float(s.distance_best_m[0]), float(s.distance_best_m[1]), float(s.distance_scale_m)),
+        float(s.outlier_scale_m),
+    )  # fmt: skip
+    phase = BODY
+    for stop in _stops(batch, s):
+        _weigh_loop(
+            phase, stop, plain(batch.joints), plain(batch.states, np.uint8),
+            plain(batch.sensors), (plain(batch.starts, np.intp), batch.widest), body, views,
+            (*out, stands),
+        )  # fmt: skip
+        _between(stop, batch, out, s)
+        phase = stop + 1
+    return out
 
 
-def _one_facing_model(
-    settings: FusionSettings, priors: Sequence[SensorPrior] | None
-) -> tuple[float, float, float] | None:
-    """The facing term's (power, floor, back factor) when it is the only view factor, every view
-    has the same, and every view's body terms are the settings' (the compiled call's case);
-    else None.
-
-    Steps repeat the same settings and sequence of priors (frozen objects): the answer is kept
-    per sequence by the objects' identities, with the objects (so that no id is reused
-    meanwhile), as :func:`~skelfuse.fusion.priors.distinct_priors` keeps its own."""
+def _stops(batch: ViewBatch, settings: FusionSettings) -> list[int]:
+    """The phases after which :func:`_between` runs a term of its own, then :data:`CONFIDENCE`."""
     s = settings
-    if not s.use_facing:
-        return None
-    if priors is None:
-        return (s.facing_power, s.facing_floor, s.facing_back_factor)
-    key = (id(s), *map(id, priors))
-    kept = _facing_models.get(key)
-    if kept is None:
-        if len(_facing_models) >= _KEPT:
-            _facing_models.clear()
-        distinct = distinct_priors(priors)[0]
-        models = {p.facing(s) for p in distinct}
-        one = len(models) == 1 and all(as_settings(p, s) for p in distinct)
-        kept = _facing_models[key] = (s, tuple(priors), models.pop() if one else None)
-    return kept[2]
-
-
-_facing_models: dict[
-    tuple[int, ...],
-    tuple[FusionSettings, tuple[SensorPrior, ...], tuple[float, float, float] | None],
-] = {}
-_KEPT: Final = 64
-"""Sequences of settings and priors :func:`_one_facing_model` keeps."""
-
-
-def _rom(batch: ViewBatch, rom: FloatArray | None, settings: FusionSettings) -> FloatArray | None:
-    """The range-of-motion factors the body terms use: ``rom``, or computed (None: term off)."""
-    if not settings.use_range_of_motion:
-        return None
-    if rom is not None:
-        return rom
-    return range_of_motion_factors(batch.joints, settings.rom_scale_deg)
-
-
-def _weighed(
-    batch: ViewBatch,
-    rom: FloatArray | None,
-    references: FloatArray | None,
-    track_facings: FloatArray,
-    fused_once: Sequence[bool],
-    settings: FusionSettings,
-    priors: Sequence[SensorPrior] | None,
-) -> Weighed:
-    """:func:`weigh_and_fuse` term by term (any settings); ``references`` per view, or None."""
-    s = settings
-    weights = body_weights(batch.joints, batch.states, references, rom, s, priors)
-    fused = batch.fuse(weights)
-
-    # 5. Facing and distance: each view's factor from where the person stands and faces.
-    facing = track_facings
-    if not all(fused_once):
-        once = np.array(fused_once, dtype=bool)
-        facing = np.where(once[:, None], track_facings, facing_directions(fused))
-    stands = batch.body_positions(fused)[batch.person_of]
-    cosines = facing_cosines(facing[batch.person_of], stands, batch.sensors)
+    stops = {CONFIDENCE}
+    if batch.depth_ratios is not None:
+        stops |= {BODY, VIEWS, CAUCHY}
     if s.correct_view_yaw:
+        stops.add(FACING)
+    if s.use_view_reliability:
+        stops.add(VIEWS)
+    return sorted(stops)
+
+
+def _between(stop: int, batch: ViewBatch, out: Weighed, settings: FusionSettings) -> None:
+    """The terms that run after phase ``stop``: the yaw correction after :data:`FACING`, the view
+    reliability after :data:`VIEWS` and the ray weighting after each fusion (in place in
+    ``out`` and ``batch.joints``)."""
+    s = settings
+    if stop == FACING and s.correct_view_yaw:
         for lo, hi in zip(batch.starts[:-1], batch.starts[1:], strict=True):
             if hi - lo > 1:
                 batch.joints[lo:hi] = corrected_yaw(
-                    batch.joints[lo:hi], cosines[lo:hi], s.yaw_max_deg
+                    batch.joints[lo:hi], out.cosines[lo:hi], s.yaw_max_deg
                 )
-    if s.use_facing or s.use_distance or s.correct_view_yaw:
-        weights = weights * view_factors(cosines, stands, batch.sensors, s, priors)[:, None]
-        fused = batch.fuse(weights)  # 6. weighted fusion
-    if s.use_view_reliability:  # 5. how well each view sees each joint
-        weights = weights * reliability_factors(
+    refuse = batch.depth_ratios is not None and stop in (BODY, VIEWS, CAUCHY)
+    if stop == VIEWS and s.use_view_reliability:  # 5. how well each view sees each joint
+        out.weights[:] *= reliability_factors(
             batch.joints,
-            cosines,
+            out.cosines,
             batch.sensors,
             batch.starts.tolist(),
             s.view_lean_fraction,
@@ -183,16 +196,198 @@ def _weighed(
             s.view_occlusion_m,
             batch.states,
         )
-        fused = batch.fuse(weights)
+        refuse = True
+    if refuse:
+        out.fused[:] = batch.fuse(out.weights)
 
-    if s.outlier_scale_m > 0:  # 6. one Cauchy pass where a person has several views
-        several = np.array(batch.counts)[batch.person_of] > 1
-        if several.any():
-            reweighted = cauchy_reweight(
-                batch.joints, fused[batch.person_of], weights, s.outlier_scale_m
-            )
-            weights = np.where(several[:, None], reweighted, weights)
-            fused = batch.fuse(weights)
-    padded_joints, padded_weights = batch.pad(batch.joints, np.nan), batch.pad(weights, 0.0)
-    confidence, carried = confidence_and_carriers(padded_joints, padded_weights)
-    return Weighed(weights, fused, cosines, confidence, carried)
+
+@jit
+def _weigh_loop(  # pragma: no cover - compiled
+    first: int,
+    last: int,
+    joints: FloatArray,
+    states: npt.NDArray[np.uint8],
+    sensors: FloatArray,
+    places: tuple[IntArray, int],
+    body: _Body,
+    views: tuple[FloatArray, BoolArray, tuple[bool, bool, bool], tuple[float, float, float], float],
+    out: tuple[FloatArray, FloatArray, FloatArray, FloatArray, BoolArray, FloatArray],
+) -> None:
+    """Run the phases ``first`` to ``last`` of :func:`weigh_and_fuse` (module docstring).
+
+    joints (N, 25, 3), states (N, 25), sensors (N, 3): the views; places: (P + 1,) each
+    person's first view, then N, and the widest person; body: the :func:`sensor_terms` rows and
+    each view's, the references (P, 24), the rom factors (N, 25), whether each of these two
+    terms is on, the bone-length scale; views: the track facings (P, 3), whether each person
+    was fused before (P,), the facing and distance terms on and whether they fuse again, the
+    distance band and scale, the Cauchy scale (0: off); out: weights, fused, cosines,
+    confidence, carried (:class:`Weighed`) and where each view's person stands (N, 3).
+    """
+    weights, fused, cosines, confidence, carried, stands = out
+    starts, widest = places
+    facings, once, flags, distance, outlier_scale = views
+    padded = np.empty((len(starts) - 1, widest, joints.shape[1], 3))
+    padded_weights = np.empty(padded.shape[:3])
+    if first <= BODY <= last:
+        _body_phase(joints, states, starts, body, weights)
+        _fuse(joints, weights, starts, padded, padded_weights, fused)
+    if first <= FACING <= last:
+        _facing_phase(joints, sensors, starts, facings, once, fused, stands, cosines)
+    if first <= VIEWS <= last and flags[2]:
+        factors = np.empty(len(cosines))
+        terms, of_view = body[0], body[1]
+        view_factor_loop(
+            cosines, stands, sensors, terms, of_view, (flags[0], flags[1]), distance, factors
+        )
+        for v in range(len(factors)):
+            for j in range(weights.shape[1]):
+                weights[v, j] = weights[v, j] * factors[v]
+        _fuse(joints, weights, starts, padded, padded_weights, fused)
+    several = first <= CAUCHY <= last and outlier_scale > 0
+    if several and _cauchy_phase(joints, starts, fused, outlier_scale, weights):
+        _fuse(joints, weights, starts, padded, padded_weights, fused)
+    if first <= CONFIDENCE <= last:
+        _pad(joints, weights, starts, padded, padded_weights)
+        confidence_loop(padded, padded_weights, MIN_SHARE, confidence, carried)
+
+
+@jit
+def _body_phase(  # pragma: no cover - compiled
+    joints: FloatArray,
+    states: npt.NDArray[np.uint8],
+    starts: IntArray,
+    body: _Body,
+    weights: FloatArray,
+) -> None:
+    """``body_weights`` with each view's person's reference lengths; the bone-length term is
+    off while no person has any."""
+    terms, of_view, references, rom, flags, scale_m, (bones, chain) = body
+    known = False
+    if flags[0]:
+        for p in range(references.shape[0]):
+            for b in range(references.shape[1]):
+                known = known or math.isfinite(references[p, b])
+    per_view = np.empty((joints.shape[0], references.shape[1]))
+    if known:
+        for p in range(len(starts) - 1):
+            for v in range(starts[p], starts[p + 1]):
+                per_view[v] = references[p]
+    body_loop(
+        joints, states, terms, of_view, per_view, rom, (known, flags[1]), scale_m, bones, chain,
+        weights,
+    )  # fmt: skip
+
+
+@jit
+def _pad(  # pragma: no cover - compiled
+    joints: FloatArray,
+    weights: FloatArray,
+    starts: IntArray,
+    padded: FloatArray,
+    padded_weights: FloatArray,
+) -> None:
+    """The views (N, 25, 3) and weights (N, 25) per person as ``ViewBatch.pad`` pads them:
+    (P, S, 25, 3) with NaN joints and (P, S, 25) with weight 0 after each person's views."""
+    for p in range(padded.shape[0]):
+        count = starts[p + 1] - starts[p]
+        for s in range(padded.shape[1]):
+            for j in range(padded.shape[2]):
+                inside = s < count
+                padded_weights[p, s, j] = weights[starts[p] + s, j] if inside else 0.0
+                for c in range(3):
+                    padded[p, s, j, c] = joints[starts[p] + s, j, c] if inside else math.nan
+
+
+@jit
+def _fuse(  # pragma: no cover - compiled
+    joints: FloatArray,
+    weights: FloatArray,
+    starts: IntArray,
+    padded: FloatArray,
+    padded_weights: FloatArray,
+    fused: FloatArray,
+) -> None:
+    """Each person's weighted mean (P, 25, 3) of its views under ``weights``."""
+    _pad(joints, weights, starts, padded, padded_weights)
+    weighted_loop(padded, padded_weights, fused)
+
+
+@jit
+def _facing_phase(  # pragma: no cover - compiled
+    joints: FloatArray,
+    sensors: FloatArray,
+    starts: IntArray,
+    facings: FloatArray,
+    once: BoolArray,
+    fused: FloatArray,
+    stands: FloatArray,
+    cosines: FloatArray,
+) -> None:
+    """Fill ``stands`` (N, 3) with where each view's person stands (``ViewBatch.body_positions``:
+    its fused SpineBase, else the mean of its views' known coordinates) and ``cosines`` (N,)
+    with each view's facing cosine; a person fused the first time faces as its fusion does."""
+    gathered = np.empty((len(cosines), 3))
+    own = np.empty((1, 3))
+    stand = np.empty(3)
+    for p in range(len(starts) - 1):
+        lo, hi = starts[p], starts[p + 1]
+        spine = fused[p, 0]
+        if math.isfinite(spine[0]) and math.isfinite(spine[1]) and math.isfinite(spine[2]):
+            stand[:] = spine
+        else:  # sums over the padded views from 0, as numpy's
+            for c in range(3):
+                total = seen = 0.0
+                for v in range(lo, hi):
+                    if math.isfinite(joints[v, 0, c]):
+                        total += joints[v, 0, c]
+                        seen += 1.0
+                stand[c] = total / seen
+        if once[p]:
+            own[0] = facings[p]
+        else:
+            facing_loop(fused[p : p + 1], own)
+        for v in range(lo, hi):
+            stands[v] = stand
+            gathered[v] = own[0]
+    cosines_loop(gathered, stands, sensors, cosines)
+
+
+@jit
+def _cauchy_phase(  # pragma: no cover - compiled
+    joints: FloatArray, starts: IntArray, fused: FloatArray, scale: float, weights: FloatArray
+) -> bool:
+    """The Cauchy pass on the views of persons seen more than once, in place:
+    ``× 1 / (1 + (d / scale)²)``, d the view's distance to its person's fusion (factor 1 where
+    unknown). Whether any person was."""
+    several = False
+    for p in range(len(starts) - 1):
+        if starts[p + 1] - starts[p] < 2:
+            continue
+        several = True
+        for v in range(starts[p], starts[p + 1]):
+            for j in range(weights.shape[1]):
+                d0 = joints[v, j, 0] - fused[p, j, 0]
+                d1 = joints[v, j, 1] - fused[p, j, 1]
+                d2 = joints[v, j, 2] - fused[p, j, 2]
+                d = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+                q = d / scale
+                factor = 1.0 / (1.0 + q * q) if math.isfinite(d) else 1.0
+                weights[v, j] = weights[v, j] * factor
+    return several
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) the loop now, every phase."""
+    views = np.zeros((2, 25, 3))
+    terms, of_view = sensor_terms(FusionSettings(), None, 2)
+    out = (
+        np.empty((2, 25)), np.empty((1, 25, 3)), np.empty(2), np.empty((1, 25)),
+        np.empty((1, 2, 25), dtype=np.bool_), np.empty((2, 3)),
+    )  # fmt: skip
+    _weigh_loop(
+        BODY, CONFIDENCE, views, np.zeros((2, 25), np.uint8), np.ones((2, 3)),
+        (np.array([0, 2], dtype=np.intp), 2),
+        (terms, of_view, np.ones((1, 24)), np.ones((2, 25)), (True, True), 0.05, _TABLES),
+        (np.ones((1, 3)), np.zeros(1, dtype=np.bool_), (True, True, True), (1.5, 3.0, 1.0), 0.1),
+        out,
+    )  # fmt: skip

@@ -2,23 +2,27 @@
 
 Report A (``shared/papers.md``): sensor k sees joint n at J_kn with confidence C_kn; the fused
 joint is ``J_n = Σ_k C_kn·J_kn / Σ_k C_kn``, C the weights of :mod:`skelfuse.fusion.confidence`.
-:func:`cauchy_reweight` can then discount views far from that consensus (off by default), and
-:func:`carriers` tells which views a fused joint came from.
+:func:`carriers` tells which views a fused joint came from (the Cauchy pass that can discount
+views far from that consensus is :mod:`skelfuse.fusion.weigh`'s).
 
 Shapes: P persons fused at once, each with up to S views (a person with fewer is padded with NaN
 views of weight 0, which changes no sum or product), J = 25 joints. Metres, world frame.
+
+:func:`weighted_mean` is one loop compiled with numba (:func:`weighted_loop`): per joint, the
+sums over the views start from 0 and add view after view, a view counting where its point is
+finite and its weight positive. :func:`warm_up` compiles it (or loads numba's cache) at start.
 """
 
 from __future__ import annotations
 
+import math
 from typing import Final
 
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion import kernels, kernels_stages
-from skelfuse.fusion.confidence import joint_confidence
-from skelfuse.fusion.points import finite_points
+from skelfuse.fusion.confidence import confidence_loop, joint_confidence
+from skelfuse.fusion.kernels_jit import jit, plain
 
 FloatArray = npt.NDArray[np.float64]
 MIN_SHARE: Final = 0.05
@@ -31,21 +35,44 @@ def weighted_mean(joints: FloatArray, weights: FloatArray) -> FloatArray:
     Args:
         joints: (P, S, J, 3) positions; NaN where a view has no position (it contributes
             nothing whatever its weight).
-        weights: (P, S, J) non-negative.
+        weights: (P, S, J) non-negative (negative or NaN counts as 0); broadcast to that shape.
 
     Returns:
         (P, J, 3) float64; NaN where no view has a position with a positive weight.
     """
-    if kernels.enabled():  # the same bits in one compiled loop; the code below is the reference
-        return kernels.weighted_mean(joints, weights)
-    usable = finite_points(joints) & (weights > 0)
-    w = np.where(usable, weights, 0.0)
-    total = w.sum(axis=1)
-    safe_views = np.where(usable[..., None], joints, 0.0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        fused: FloatArray = (w[..., None] * safe_views).sum(axis=1) / total[..., None]
-    fused[total <= 0] = np.nan
-    return fused
+    points = plain(joints)
+    if weights.shape != points.shape[:3]:
+        weights = np.broadcast_to(weights, points.shape[:3])
+    out = np.empty((points.shape[0], points.shape[2], 3))
+    weighted_loop(points, plain(weights), out)
+    return out
+
+
+@jit
+def weighted_loop(joints: FloatArray, weights: FloatArray, out: FloatArray) -> None:
+    """Fill ``out`` (P, J, 3) with the weighted mean of ``joints`` (P, S, J, 3) under
+    ``weights`` (P, S, J): a view counts where its point is finite and its weight positive;
+    NaN where no view counts."""
+    for p in range(joints.shape[0]):
+        for j in range(joints.shape[2]):
+            total = 0.0
+            s0 = s1 = s2 = 0.0
+            for s in range(joints.shape[1]):
+                x0, x1, x2 = joints[p, s, j, 0], joints[p, s, j, 1], joints[p, s, j, 2]
+                weight = weights[p, s, j]
+                usable = (
+                    math.isfinite(x0) and math.isfinite(x1) and math.isfinite(x2) and weight > 0
+                )
+                if not usable:
+                    weight, x0, x1, x2 = 0.0, 0.0, 0.0, 0.0
+                total += weight
+                s0 += weight * x0
+                s1 += weight * x1
+                s2 += weight * x2
+            if total <= 0:
+                out[p, j, 0] = out[p, j, 1] = out[p, j, 2] = math.nan
+            else:
+                out[p, j, 0], out[p, j, 1], out[p, j, 2] = s0 / total, s1 / total, s2 / total
 
 
 def fuse_views(joints: npt.ArrayLike, weights: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
@@ -71,31 +98,11 @@ def fuse_views(joints: npt.ArrayLike, weights: npt.ArrayLike) -> tuple[FloatArra
     return weighted_mean(views[None], w[None])[0], joint_confidence(views[None], w[None])[0]
 
 
-def cauchy_reweight(
-    joints: FloatArray, fused: FloatArray, weights: FloatArray, scale_m: float
-) -> FloatArray:
-    """One Cauchy re-weighting pass: views far from their person's weighted mean count less.
-
-    Args:
-        joints: (N, J, 3) views, metres; fused: (N, J, 3) the fused skeleton of each view's
-            person; weights: (N, J).
-        scale_m: distance at which a view's weight is halved.
-
-    Returns:
-        (N, J) weights × ``1 / (1 + (d / scale)²)``, d the view's distance to ``fused``
-        (unchanged where d is unknown).
-    """
-    d = np.linalg.norm(joints - fused, axis=-1)
-    factor = np.where(np.isfinite(d), 1.0 / (1.0 + (d / scale_m) ** 2), 1.0)
-    result: FloatArray = weights * factor
-    return result
-
-
 def confidence_and_carriers(
     joints: FloatArray, weights: FloatArray
 ) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
     """:func:`~skelfuse.fusion.confidence.joint_confidence` and :func:`carriers` of the same
-    views: with the kernels on, both from one compiled pass (the same bits as the two calls).
+    views, from one pass (:func:`~skelfuse.fusion.confidence.confidence_loop`).
 
     Args:
         joints: (P, S, J, 3) as fused (NaN: no position); weights: (P, S, J) the final weights.
@@ -103,13 +110,16 @@ def confidence_and_carriers(
     Returns:
         confidence (P, J) float64 and carried (P, S, J) bool.
     """
-    if kernels.enabled():
-        return kernels_stages.confidence_and_carriers(joints, weights, MIN_SHARE)
-    return joint_confidence(joints, weights), carriers(joints, weights)
+    w = plain(weights)
+    confidence = np.empty((w.shape[0], w.shape[2]))
+    carried = np.empty(w.shape, dtype=np.bool_)
+    confidence_loop(plain(joints), w, MIN_SHARE, confidence, carried)
+    return confidence, carried
 
 
 def carriers(joints: FloatArray, weights: FloatArray) -> npt.NDArray[np.bool_]:
-    """Which views carried each fused joint: at least :data:`MIN_SHARE` of its weight.
+    """Which views carried each fused joint: at least :data:`MIN_SHARE` of its weight (the
+    weight of the views with a position).
 
     Args:
         joints: (P, S, J, 3) as fused (NaN: no position); weights: (P, S, J) the final weights.
@@ -117,11 +127,9 @@ def carriers(joints: FloatArray, weights: FloatArray) -> npt.NDArray[np.bool_]:
     Returns:
         (P, S, J) bool.
     """
-    if kernels.enabled():  # the same bits in one compiled loop; the code below is the reference
-        return kernels_stages.confidence_and_carriers(joints, weights, MIN_SHARE)[1]
-    final = np.where(finite_points(joints), weights, 0.0)
-    total = final.sum(axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        share = np.where(total[:, None] > 0, final / total[:, None], 0.0)
-    result: npt.NDArray[np.bool_] = (share >= MIN_SHARE) & (final > 0)
-    return result
+    return confidence_and_carriers(joints, weights)[1]
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) the weighted mean's loop now."""
+    weighted_mean(np.zeros((1, 2, 25, 3)), np.ones((1, 2, 25)))

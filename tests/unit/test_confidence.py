@@ -7,14 +7,9 @@ import pytest
 
 from skelfuse.agent.sim.performer import BodyShape, Pose, pose_joints
 from skelfuse.fusion.anatomy import CHAIN_ORDER, facing_direction, joint_angles
-from skelfuse.fusion.confidence import (
-    bone_length_factors,
-    distance_factors,
-    facing_cosines,
-    facing_factors,
-    propagate,
-    range_of_motion_factors,
-)
+from skelfuse.fusion.confidence import body_weights, range_of_motion_factors
+from skelfuse.fusion.settings import FusionSettings
+from skelfuse.fusion.view_factors import distance_factors, facing_cosines, facing_factors
 from skelfuse.protocol.skeleton import BONES, MIRROR_PERMUTATION, PARENTS, JointId, bone_lengths
 
 J = JointId
@@ -31,24 +26,37 @@ def test_chain_order_puts_parents_first() -> None:
         seen.add(joint)
 
 
+def bone_terms(view: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """(25,) the bone-length term alone (scale 5 cm), propagated (state weights 1, no other
+    term)."""
+    settings = FusionSettings(
+        state_weights=(1.0, 1.0, 1.0), use_range_of_motion=False, bone_length_scale_m=0.05
+    )
+    states = np.full((1, 25), 2, dtype=np.uint8)
+    weights: np.ndarray = body_weights(view[None], states, reference[None], None, settings)[0]
+    return weights
+
+
 def test_bone_length_exact_is_one_and_falls_with_the_error() -> None:
     view = body()
     reference = bone_lengths(view)
-    assert np.allclose(bone_length_factors(view[None], reference, 0.05), 1.0)
-    longer = bone_length_factors(view[None], reference - 0.05, 0.05)[0]
-    child = BONES.index((J.ELBOW_RIGHT, J.WRIST_RIGHT))
-    assert longer[J.WRIST_RIGHT] == pytest.approx(np.exp(-1.0))
-    assert child >= 0
+    assert np.allclose(bone_terms(view, reference), 1.0)
+    forearm = BONES.index((J.ELBOW_RIGHT, J.WRIST_RIGHT))
+    longer = reference.copy()
+    longer[forearm] -= 0.05
+    factors = bone_terms(view, longer)
+    assert factors[J.WRIST_RIGHT] == pytest.approx(np.exp(-1.0))
+    assert factors[J.HAND_RIGHT] == pytest.approx(np.exp(-1.0))  # propagated outward
+    assert factors[J.ELBOW_RIGHT] == pytest.approx(1.0)
     # Unknown reference: no evidence either way.
-    assert np.allclose(bone_length_factors(view[None], np.full(24, np.nan), 0.05), 1.0)
+    assert np.allclose(bone_terms(view, np.full(24, np.nan)), 1.0)
 
 
 def test_doubtful_elbow_makes_the_wrist_and_hand_doubtful() -> None:
     view = body()
     reference = bone_lengths(view)
     view[J.ELBOW_RIGHT] += [0.0, -0.10, 0.0]  # upper arm 10 cm longer, forearm 10 cm shorter
-    local = bone_length_factors(view[None], reference, 0.05)
-    chained = propagate(local)[0]
+    chained = bone_terms(view, reference)
     assert chained[J.ELBOW_RIGHT] < 0.5
     for joint in (J.WRIST_RIGHT, J.HAND_RIGHT, J.HAND_TIP_RIGHT, J.THUMB_RIGHT):
         assert chained[joint] <= chained[J.ELBOW_RIGHT] + 1e-12

@@ -1,21 +1,28 @@
-"""The confidence stage's compiled kernels give the numpy path's bits.
+"""The confidence stage's loops against short numpy references written here.
 
-skelfuse.fusion.kernels_confidence (each joint's weight from its view alone, the confidence apps
-receive and the views that carried each joint) against the numpy code it replaces, on simulated
-views with noise, unknown joints and random points, with and without each term.
+skelfuse.fusion.confidence (each joint's weight from its view alone, with and without sensor
+priors; the facing and distance terms; the confidence apps receive) and
+skelfuse.fusion.weighted.carriers, on simulated views with noise, unknown joints and random
+points, with and without each term: weights and factors to 1e-9.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from skelfuse.fusion import anatomy, confidence, kernels, weighted
+from skelfuse.fusion import anatomy, confidence, kernels, view_factors, weighted
+from skelfuse.fusion.priors import AZURE_BODY_TRACKING, KINECT_V2, RGB_MONO, SensorPrior
 from skelfuse.fusion.settings import FusionSettings
-from skelfuse.protocol.skeleton import BONES
-from tests.unit.test_kernels import _numpy_uses_svml, _same_bits, _views
+from skelfuse.protocol.skeleton import BONES, PARENTS
+from tests.support import require_numba
+from tests.unit.test_kernels import _views
+
+TOLERANCE = 1e-9
+"""Weights, factors and confidences: the loops and the references round differently at most."""
 
 
 def _inputs(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -31,31 +38,65 @@ def _inputs(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     return views, states, references, rom
 
 
-@pytest.mark.parametrize("seed", range(5))
+def _body_reference(
+    views: np.ndarray,
+    states: np.ndarray,
+    references: np.ndarray | None,
+    rom: np.ndarray | None,
+    settings: FusionSettings,
+    priors: list[SensorPrior],
+) -> np.ndarray:
+    """state weight × Π over the joint and its ancestors of (bone length × rom) / noise²."""
+    s = settings
+    local = np.ones(views.shape[:2])
+    if s.use_bone_length and references is not None:
+        parent, child = np.array(BONES).T
+        diff = np.abs(np.linalg.norm(views[:, child] - views[:, parent], axis=-1) - references)
+        bones = np.where(np.isfinite(diff), np.exp(-diff / s.bone_length_scale_m), 1.0)
+        fixed = np.array([p.fixed_bone_lengths for p in priors])
+        local[:, child] = np.where(fixed[:, None], 1.0, bones)
+    if s.use_range_of_motion and rom is not None:
+        k = np.array([p.rom_scale for p in priors])[:, None]
+        local = local * rom ** (1.0 / k)
+    chained = local.copy()
+    for joint in range(25):  # each joint times every ancestor's own factor
+        parent = PARENTS[joint]
+        while parent >= 0:
+            chained[:, joint] *= local[:, parent]
+            parent = PARENTS[parent]
+    table = np.array([p.table(s) for p in priors])
+    weights = table[np.arange(len(views))[:, None], states]
+    noise = np.array([p.noise_scale for p in priors])[:, None]
+    result: np.ndarray = weights * chained / noise**2
+    return result
+
+
+@pytest.mark.parametrize("seed", range(3))
 @pytest.mark.parametrize(
     "change",
     [{}, {"use_bone_length": False}, {"use_range_of_motion": False}, {"bone_length_scale_m": 0.2}],
 )
-def test_body_weights_kernel_gives_the_numpy_bits(
-    numba_kernels: None, seed: int, change: dict[str, object]
-) -> None:
+def test_body_weights_match_the_reference(seed: int, change: dict[str, object]) -> None:
     views, states, references, rom = _inputs(seed)
     settings = FusionSettings(**change)  # type: ignore[arg-type]
+    odd = SensorPrior("odd", state_weights=(0.1, 0.4, 0.8), noise_scale=1.5, rom_scale=2.0)
+    kinds = [KINECT_V2, AZURE_BODY_TRACKING, RGB_MONO, odd]
+    mixed = [kinds[i % 4] for i in range(len(views))]
     for refs, factors in ((references, rom), (None, None), (references, None)):
-        got = confidence.body_weights(views, states, refs, factors, settings)
-        with kernels.forced("numpy"):
-            expected = confidence.body_weights(views, states, refs, factors, settings)
-        if _numpy_uses_svml():  # numpy's own exp on AVX-512: a few ulp from the C library's
-            np.testing.assert_allclose(got, expected, rtol=1e-12, atol=0.0)
-        else:
-            assert _same_bits(got, expected)
+        for priors in (None, mixed):
+            got = confidence.body_weights(views, states, refs, factors, settings, priors)
+            own_rom = factors
+            if own_rom is None and settings.use_range_of_motion:
+                own_rom = anatomy.rom_factors_and_forward(views, settings.rom_scale_deg)[0]
+            expected = _body_reference(
+                views, states, refs, own_rom, settings, priors or [KINECT_V2] * len(views)
+            )
+            np.testing.assert_allclose(got, expected, rtol=0.0, atol=TOLERANCE)
     assert ((got > 0.0) & (got < 0.1)).any()  # the terms reach the weights
 
 
-@pytest.mark.parametrize("seed", range(5))
-def test_confidence_and_carriers_kernel_gives_the_numpy_bits(
-    numba_kernels: None, seed: int
-) -> None:
+@pytest.mark.parametrize("seed", range(3))
+def test_confidence_and_carriers_match_the_reference(seed: int) -> None:
     rng = np.random.default_rng(seed)
     joints = _views(seed)[:120].reshape(6, 20, 25, 3)[:, :5].copy()
     weights = rng.uniform(-0.3, 1.4, joints.shape[:3])  # some negative, some above 1
@@ -65,20 +106,26 @@ def test_confidence_and_carriers_kernel_gives_the_numpy_bits(
     joints[3, :, 8] = np.nan  # joints no view sees
     for size in (5, 2, 1):
         points, w = joints[:, :size], weights[:, :size]
-        got = (confidence.joint_confidence(points, w), weighted.carriers(points, w))
-        with kernels.forced("numpy"):
-            expected = (confidence.joint_confidence(points, w), weighted.carriers(points, w))
-        assert _same_bits(got[0], expected[0]) and _same_bits(got[1], expected[1])
-        both = weighted.confidence_and_carriers(points, w)  # one compiled pass for the two
-        with kernels.forced("numpy"):
-            apart = weighted.confidence_and_carriers(points, w)
-        for pair in (both, apart):
-            assert _same_bits(pair[0], expected[0]) and _same_bits(pair[1], expected[1])
-    assert (got[0] == 0).any() and got[1].any() and not got[1].all()
+        seen = np.isfinite(points).all(axis=-1)
+        used = np.where(seen & (w > 0), w, 0.0)
+        expected = 1.0 - np.prod(1.0 - np.clip(used, 0.0, 1.0), axis=1)
+        expected[used.sum(axis=1) <= 0] = 0.0
+        final = np.where(seen, w, 0.0)
+        total = final.sum(axis=1, keepdims=True)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            share = np.where(total > 0, final / total, 0.0)
+        carried = (share >= weighted.MIN_SHARE) & (final > 0)
+        got = confidence.joint_confidence(points, w)
+        np.testing.assert_allclose(got, expected, rtol=0.0, atol=TOLERANCE)
+        both = weighted.confidence_and_carriers(points, w)
+        np.testing.assert_allclose(both[0], expected, rtol=0.0, atol=TOLERANCE)
+        np.testing.assert_array_equal(both[1], carried)
+        np.testing.assert_array_equal(weighted.carriers(points, w), carried)
+    assert (got == 0).any() and carried.any() and not carried.all()
 
 
-@pytest.mark.parametrize("seed", range(5))
-def test_facing_kernels_give_the_numpy_bits(numba_kernels: None, seed: int) -> None:
+@pytest.mark.parametrize("seed", range(3))
+def test_facing_terms_match_the_reference(seed: int) -> None:
     rng = np.random.default_rng(seed)
     count = 200
     angles = rng.uniform(0, 2 * np.pi, count)
@@ -87,39 +134,73 @@ def test_facing_kernels_give_the_numpy_bits(numba_kernels: None, seed: int) -> N
     bodies = rng.normal(0.0, 1.0, (count, 3))
     sensors = rng.normal(0.0, 3.0, (count, 3))
     sensors[5] = np.nan
-    sensors[6] = bodies[6] + [0.0, 1.0, 0.0]  # straight above: direction 0 / 0
-    cosines = confidence.facing_cosines(facings, bodies, sensors)
-    with kernels.forced("numpy"):
-        expected = confidence.facing_cosines(facings, bodies, sensors)
-    assert _same_bits(cosines, expected)
-    one = confidence.facing_cosines(facings[9], bodies[9], sensors[:20])  # one person
-    with kernels.forced("numpy"):
-        assert _same_bits(one, confidence.facing_cosines(facings[9], bodies[9], sensors[:20]))
-    values = np.concatenate([cosines, [-1.5, 1.5, -0.0, 0.0, np.inf], rng.uniform(-1, 1, 5000)])
+    sensors[6] = bodies[6] + [0.0, 1.0, 0.0]  # straight above: no horizontal direction
+    flat = (sensors - bodies) * [1.0, 0.0, 1.0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        expected = (flat / np.linalg.norm(flat, axis=-1, keepdims=True) * facings).sum(-1)
+    cosines = view_factors.facing_cosines(facings, bodies, sensors)
+    np.testing.assert_allclose(cosines, expected, rtol=0.0, atol=TOLERANCE)
+    one = view_factors.facing_cosines(facings[9], bodies[9], sensors[:20])  # one person
+    toward = (sensors[:20] - bodies[9]) * [1.0, 0.0, 1.0]
+    mine = (toward / np.linalg.norm(toward, axis=-1, keepdims=True) * facings[9]).sum(-1)
+    np.testing.assert_allclose(one, mine, rtol=0.0, atol=TOLERANCE)
+    lone = view_factors.facing_cosines(facings[9], bodies[9], sensors[9])  # one view: a scalar
+    assert lone.shape == () and lone == pytest.approx(expected[9], abs=TOLERANCE)
+    values = np.concatenate([cosines, [-1.5, 1.5, -0.0, 0.0, np.inf], rng.uniform(-1, 1, 500)])
     for power, floor, back in ((2.0, 0.1, 0.5), (0.5, 0.2, 1.0), (1.7, 0.0, 0.3), (1.0, 0.4, 0.9)):
-        got = confidence.facing_factors(values, power, floor, back)
-        with kernels.forced("numpy"):
-            want = confidence.facing_factors(values, power, floor, back)
-        if _numpy_uses_svml() and power not in (2.0, 0.5, 1.0):  # SVML's pow on AVX-512
-            np.testing.assert_allclose(got, want, rtol=1e-12, atol=0.0)
-        else:
-            assert _same_bits(got, want)
+        value = floor + (1.0 - floor) * np.abs(np.clip(values, -1.0, 1.0)) ** power
+        want = np.where(np.isfinite(values), np.where(values < 0, value * back, value), 1.0)
+        got = view_factors.facing_factors(values, power, floor, back)
+        np.testing.assert_allclose(got, want, rtol=0.0, atol=TOLERANCE)
+        grid = view_factors.facing_factors(values[:500].reshape(20, 25), power, floor, back)
+        np.testing.assert_allclose(grid.ravel(), want[:500], rtol=0.0, atol=TOLERANCE)
     assert np.isnan(cosines).sum() >= 6 and (cosines < 0).any()
 
 
-def test_warm_up_compiles_every_stage_kernel_once(numba_kernels: None, tmp_path: Path) -> None:
-    """After kernels.warm_up, a whole replay (every stage, every input the pipeline passes)
-    adds no compilation: each loop keeps the signatures the warm-up compiled."""
-    from skelfuse.fusion import kernels_confidence, kernels_facing, kernels_labels, kernels_mirror
+def test_view_factors_are_facing_times_distance() -> None:
+    rng = np.random.default_rng(4)
+    cosines = rng.uniform(-1.0, 1.0, 50)
+    cosines[:3] = np.nan
+    bodies, sensors = rng.normal(0.0, 1.0, (50, 3)), rng.normal(0.0, 4.0, (50, 3))
+    sensors[3] = np.nan
+    settings = FusionSettings(use_distance=True, distance_best_m=(1.5, 3.0), distance_scale_m=1.0)
+    distance = np.linalg.norm((sensors - bodies) * [1.0, 0.0, 1.0], axis=-1)
+    outside = np.maximum(1.5 - distance, 0.0) + np.maximum(distance - 3.0, 0.0)
+    far = np.where(np.isfinite(outside), np.exp(-(outside**2)), 1.0)
+    s = settings
+    facing = view_factors.facing_factors(
+        cosines, s.facing_power, s.facing_floor, s.facing_back_factor
+    )
+    got = view_factors.view_factors(cosines, bodies, sensors, settings)
+    np.testing.assert_allclose(got, facing * far, rtol=0.0, atol=TOLERANCE)
+    for one in range(5):
+        alone = view_factors.distance_factors(bodies[one], sensors[one : one + 1], (1.5, 3.0), 1.0)
+        assert alone[0] == pytest.approx(far[one], abs=TOLERANCE)
+    assert (far < 0.5).any() and (far == 1.0).any()
+    only_facing = dataclasses.replace(settings, use_distance=False)
+    np.testing.assert_allclose(
+        view_factors.view_factors(cosines, bodies, sensors, only_facing), facing, atol=0.0
+    )
+
+
+def test_warm_up_compiles_every_stage_loop_once(tmp_path: Path) -> None:
+    """After the warm-ups, a whole replay (every stage, every input the pipeline passes) adds
+    no compilation: each loop keeps the signatures the warm-up compiled."""
+    from skelfuse.fusion import kernels_facing, kernels_labels, kernels_mirror, weigh
     from tests.unit import test_golden_replay as golden
 
+    require_numba()
     kernels.warm_up()
+    for stage in (weighted, confidence, view_factors, weigh):
+        stage.warm_up()
     loops = [
         kernels_mirror.lateral_loop, kernels_mirror.score_loop, kernels_labels.evidence_loop,
         kernels_facing.facing_loop, kernels_facing.unbiased_loop, kernels_facing.cosines_loop,
-        kernels_facing.facing_factors_loop, kernels_confidence.body_loop,
-        kernels_confidence.confidence_loop, kernels_labels.swap_loop,
+        kernels_facing.facing_factors_loop, confidence.body_loop, view_factors.view_factor_loop,
+        confidence.confidence_loop, weighted.weighted_loop, weigh._weigh_loop,
+        kernels_labels.swap_loop,
     ]  # fmt: skip
     compiled = [len(loop.signatures) for loop in loops]  # (other tests may add their own)
     golden.test_replay_output_is_byte_identical_to_the_golden_digest("", tmp_path)
+    golden.test_replay_output_is_byte_identical_to_the_golden_digest("kalman.toml", tmp_path)
     assert [len(loop.signatures) for loop in loops] == compiled

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from skelfuse.agent.sim.performer import BodyShape, Pose, pose_joints
-from skelfuse.fusion.confidence import body_weights, view_factors
+from skelfuse.fusion.confidence import body_weights
 from skelfuse.fusion.pipeline import FusionPipeline
 from skelfuse.fusion.priors import (
     AZURE_BODY_TRACKING,
@@ -22,6 +22,7 @@ from skelfuse.fusion.priors import (
     priors_of,
 )
 from skelfuse.fusion.settings import FusionSettings
+from skelfuse.fusion.view_factors import view_factors
 from skelfuse.fusion.views import View
 from skelfuse.protocol.skeleton import JOINT_COUNT, JointId, bone_lengths
 from skelfuse.protocol.wire import SENSOR_TYPES

@@ -1,29 +1,35 @@
-"""Steps 5–6 in one compiled call give the bits of the step term by term.
+"""Steps 5–6 in one compiled loop give what the stages give term by term.
 
-skelfuse.fusion.weigh.weigh_and_fuse runs the usual step as one call
-(skelfuse.fusion.kernels_weigh); anything else runs term by term. Both are compared, bit for
-bit, with the numpy code on simulated views with noise, unknown joints, unknown sensor
-positions and facings, persons with different numbers of views, and each rare case that must
-leave the compiled call.
+skelfuse.fusion.weigh.weigh_and_fuse runs the steps as one loop in phases, with the yaw
+correction, the view reliability and the ray weighting between them. It is compared with the
+stages called one after the other (body weights, fusion, facing, view factors, reliability,
+a Cauchy pass written here in numpy, confidence and carriers) on simulated views with noise,
+unknown joints, unknown sensor positions and facings, persons with different numbers of views,
+and every setting that changes the path through the steps.
 """
 
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable
+from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
 
 import numpy as np
 import pytest
 
-from skelfuse.fusion import kernels, kernels_weigh, weigh
+from skelfuse.fusion import weigh
+from skelfuse.fusion.anatomy import corrected_yaw, facing_directions
 from skelfuse.fusion.batch import ViewBatch
+from skelfuse.fusion.confidence import body_weights
 from skelfuse.fusion.priors import SensorPrior, priors_of
+from skelfuse.fusion.reliability import reliability_factors
 from skelfuse.fusion.settings import FusionSettings
+from skelfuse.fusion.view_factors import facing_cosines, view_factors
 from skelfuse.fusion.views import View
+from skelfuse.fusion.weighted import confidence_and_carriers
 from skelfuse.protocol.skeleton import BONES, JointId
-from tests.unit.test_kernels import _numpy_uses_svml, _same_bits, _views
+from tests.unit.test_kernels import _views
 
 COUNTS = (4, 2, 3, 1, 4)
 """Views per person: different widths, so the persons are padded, and a person seen once."""
@@ -61,37 +67,74 @@ def _inputs(seed: int, batch: ViewBatch) -> tuple[Any, ...]:
     return rom, references, facings
 
 
-def _run(
-    batch: ViewBatch, fused_once: list[bool], settings: FusionSettings, seed: int, mode: str
-) -> tuple[weigh.Weighed, ViewBatch]:
-    own = copy.deepcopy(batch)  # (correct_view_yaw turns the joints in place)
-    rom, references, facings = _inputs(seed, own)
-    priors = priors_of([v.sensor_type for v in own.views]) if settings.use_sensor_priors else None
-    with kernels.forced(mode):
-        got = weigh.weigh_and_fuse(own, rom, references, facings, fused_once, settings, priors)
-    return got, own
+def _term_by_term(
+    batch: ViewBatch,
+    rom: np.ndarray,
+    references: np.ndarray,
+    track_facings: np.ndarray,
+    fused_once: Sequence[bool],
+    settings: FusionSettings,
+    priors: Sequence[SensorPrior] | None,
+) -> weigh.Weighed:
+    """Steps 5–6 as the stages called one after the other (the reference)."""
+    s = settings
+    known = references[batch.person_of] if np.isfinite(references).any() else None
+    weights = body_weights(batch.joints, batch.states, known, rom, s, priors)
+    fused = batch.fuse(weights)
+    once = np.array(fused_once, dtype=bool)
+    facing = np.where(once[:, None], track_facings, facing_directions(fused))
+    stands = batch.body_positions(fused)[batch.person_of]
+    cosines = facing_cosines(facing[batch.person_of], stands, batch.sensors)
+    if s.correct_view_yaw:
+        for lo, hi in zip(batch.starts[:-1], batch.starts[1:], strict=True):
+            if hi - lo > 1:
+                batch.joints[lo:hi] = corrected_yaw(
+                    batch.joints[lo:hi], cosines[lo:hi], s.yaw_max_deg
+                )
+    if s.use_facing or s.use_distance or s.correct_view_yaw:
+        weights = weights * view_factors(cosines, stands, batch.sensors, s, priors)[:, None]
+        fused = batch.fuse(weights)
+    if s.use_view_reliability:
+        weights = weights * reliability_factors(
+            batch.joints, cosines, batch.sensors, batch.starts.tolist(), s.view_lean_fraction,
+            s.view_error_m, s.view_jitter_per_m2, s.view_occlusion_m, batch.states,
+        )  # fmt: skip
+        fused = batch.fuse(weights)
+    several = np.array(batch.counts)[batch.person_of] > 1
+    if s.outlier_scale_m > 0 and several.any():  # 1 / (1 + (d / scale)²), 1 where d unknown
+        d = np.linalg.norm(batch.joints - fused[batch.person_of], axis=-1)
+        factor = np.where(np.isfinite(d), 1.0 / (1.0 + (d / s.outlier_scale_m) ** 2), 1.0)
+        weights = np.where(several[:, None], weights * factor, weights)
+        fused = batch.fuse(weights)
+    padded_joints, padded_weights = batch.pad(batch.joints, np.nan), batch.pad(weights, 0.0)
+    confidence, carried = confidence_and_carriers(padded_joints, padded_weights)
+    return weigh.Weighed(weights, fused, cosines, confidence, carried)
 
 
-def _same(got: weigh.Weighed, expected: weigh.Weighed) -> None:
+def _both(
+    batch: ViewBatch, fused_once: list[bool], settings: FusionSettings, seed: int
+) -> tuple[weigh.Weighed, weigh.Weighed]:
+    """The step from :func:`weigh.weigh_and_fuse` and from :func:`_term_by_term`, each on its
+    own copy of ``batch`` (``correct_view_yaw`` turns the joints in place)."""
+    results = []
+    for run in (weigh.weigh_and_fuse, _term_by_term):
+        own = copy.deepcopy(batch)
+        rom, references, facings = _inputs(seed, own)
+        use = settings.use_sensor_priors
+        priors = priors_of([v.sensor_type for v in own.views]) if use else None
+        results.append(run(own, rom, references, facings, fused_once, settings, priors))
+    return results[0], results[1]
+
+
+def _close(got: weigh.Weighed, expected: weigh.Weighed) -> None:
+    """Weights, cosines and confidence to 1e-9, positions to 1e-6 m, the carriers equal."""
     for name, a, b in zip(got._fields, got, expected, strict=True):
-        if _numpy_uses_svml() and a.dtype == np.float64:  # numpy's own exp on AVX-512
-            np.testing.assert_allclose(a, b, rtol=1e-12, atol=0.0, err_msg=name)
+        assert a.shape == b.shape, name
+        if a.dtype == np.bool_:
+            np.testing.assert_array_equal(a, b, err_msg=name)
         else:
-            assert _same_bits(a, b), name
-
-
-def _spy(monkeypatch: pytest.MonkeyPatch) -> list[bool]:
-    """Record each compiled call's outcome (True: it computed the step)."""
-    calls: list[bool] = []
-    original: Callable[..., Any] = kernels_weigh.weigh_and_fuse
-
-    def spied(*args: Any) -> Any:
-        result = original(*args)
-        calls.append(result is not None)
-        return result
-
-    monkeypatch.setattr(kernels_weigh, "weigh_and_fuse", spied)
-    return calls
+            tolerance = 1e-6 if name == "fused" else 1e-9
+            np.testing.assert_allclose(a, b, rtol=0.0, atol=tolerance, err_msg=name)
 
 
 @pytest.mark.parametrize("seed", range(6))
@@ -99,74 +142,71 @@ def _spy(monkeypatch: pytest.MonkeyPatch) -> list[bool]:
     "change",
     [{}, {"use_bone_length": False}, {"use_range_of_motion": False}, {"facing_power": 1.5}],
 )
-def test_the_compiled_step_gives_the_numpy_bits(
-    numba_kernels: None, monkeypatch: pytest.MonkeyPatch, seed: int, change: dict[str, Any]
-) -> None:
+def test_the_step_gives_the_stages_results(seed: int, change: dict[str, Any]) -> None:
     settings = replace(FusionSettings(), **change)
-    batch = _batch(seed)
-    calls = _spy(monkeypatch)
-    got, _ = _run(batch, [True] * len(COUNTS), settings, seed, "numba")
-    assert calls == [True]  # the compiled call ran, and did the step
-    expected, _ = _run(batch, [True] * len(COUNTS), settings, seed, "numpy")
-    _same(got, expected)
+    got, expected = _both(_batch(seed), [True] * len(COUNTS), settings, seed)
+    _close(got, expected)
     # The terms reached the result: weights below the state table's, views that did not carry.
     assert (got.weights[got.weights > 0] < 0.5).any() and not got.carried.all()
     assert np.isnan(got.cosines).any() and np.isfinite(got.fused).any()
 
 
 @pytest.mark.parametrize("seed", range(3))
-def test_a_person_whose_spine_no_view_sees_leaves_the_compiled_call(
-    numba_kernels: None, monkeypatch: pytest.MonkeyPatch, seed: int
-) -> None:
+def test_a_person_whose_spine_no_view_sees_stands_at_its_views_mean(seed: int) -> None:
     batch = _batch(seed)
-    batch.joints[4:6, JointId.SPINE_BASE] = np.nan  # every view of the second person
-    calls = _spy(monkeypatch)
-    got, _ = _run(batch, [True] * len(COUNTS), FusionSettings(), seed, "numba")
-    assert calls == [False]  # it stands at its views' mean SpineBase: the general code's
-    expected, _ = _run(batch, [True] * len(COUNTS), FusionSettings(), seed, "numpy")
-    _same(got, expected)
+    batch.states[4:6, JointId.SPINE_BASE] = 0  # the second person's: positions of weight 0
+    batch.joints[4, JointId.SPINE_BASE, 2] = np.nan  # (one coordinate of one unknown)
+    got, expected = _both(batch, [True] * len(COUNTS), FusionSettings(), seed)
+    _close(got, expected)
     assert np.isnan(got.fused[1, JointId.SPINE_BASE]).all()
+    assert np.isfinite(got.cosines[5])  # it stands at its views' mean SpineBase
 
 
 @pytest.mark.parametrize(
     ("case", "change", "fused_once", "sensor_type"),
     [
-        ("a person fused the first time", {}, [True, False, True, True, True], "kinect_v2"),
+        ("a person fused the first time", {}, [True, False, True, True, False], "kinect_v2"),
         ("the distance term", {"use_distance": True}, [True] * 5, "kinect_v2"),
         ("the yaw correction", {"correct_view_yaw": True}, [True] * 5, "kinect_v2"),
         ("the view reliability", {"use_view_reliability": True}, [True] * 5, "kinect_v2"),
         ("the Cauchy pass", {"outlier_scale_m": 0.05}, [True] * 5, "kinect_v2"),
         ("no facing term", {"use_facing": False}, [True] * 5, "kinect_v2"),
+        ("no view factor at all", {"use_facing": False, "use_view_reliability": True}, [True] * 5,
+         "kinect_v2"),
         ("a camera that guesses depth", {}, [True] * 5, "rgb"),
+        ("depth guessed, every term", {"outlier_scale_m": 0.05, "use_distance": True,
+         "use_view_reliability": True, "correct_view_yaw": True}, [True] * 5, "rgb"),
         ("a sensor prior's own table", {}, [True] * 5, "azure_kinect"),
+        ("priors off", {"use_sensor_priors": False}, [True] * 5, "azure_kinect"),
     ],
-)
-def test_every_other_step_runs_term_by_term_with_the_same_bits(
-    numba_kernels: None,
-    monkeypatch: pytest.MonkeyPatch,
-    case: str,
-    change: dict[str, Any],
-    fused_once: list[bool],
-    sensor_type: str,
+)  # fmt: skip
+def test_every_setting_gives_the_stages_results(
+    case: str, change: dict[str, Any], fused_once: list[bool], sensor_type: str
 ) -> None:
     settings = replace(FusionSettings(), **change)
     batch = _batch(3, sensor_type)
-    priors = priors_of([v.sensor_type for v in batch.views])
     if sensor_type == "azure_kinect":  # (its prior must differ from the settings to count)
-        assert any(p != SensorPrior("kinect_v2") for p in priors)
-    calls = _spy(monkeypatch)
-    got, _ = _run(batch, fused_once, settings, 3, "numba")
-    assert calls == [], case  # not asked at all
-    expected, _ = _run(batch, fused_once, settings, 3, "numpy")
-    _same(got, expected)
+        assert any(
+            p != SensorPrior("kinect_v2") for p in priors_of([v.sensor_type for v in batch.views])
+        )
+    got, expected = _both(batch, fused_once, settings, 3)
+    _close(got, expected)
+    assert np.isfinite(got.fused).any(), case
 
 
-def test_the_compiled_call_waits_for_its_warm_up(
-    numba_kernels: None, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    monkeypatch.setattr(kernels_weigh.warmed, "done", False)
-    calls = _spy(monkeypatch)
-    got, _ = _run(_batch(0), [True] * len(COUNTS), FusionSettings(), 0, "numba")
-    assert calls == []  # no frame waits for a compilation
-    expected, _ = _run(_batch(0), [True] * len(COUNTS), FusionSettings(), 0, "numpy")
-    _same(got, expected)
+def test_the_cauchy_pass_discounts_the_view_far_from_the_others() -> None:
+    """Three views agree, a fourth is 30 cm off: its weight falls by 1 / (1 + (d / scale)²)."""
+    batch = _batch(0)
+    lo = int(batch.starts[0])  # the first person: four views
+    batch.joints[lo : lo + 4] = _views(0)[0]  # a simulated pose, every joint known
+    batch.states[lo : lo + 4] = 2
+    batch.joints[lo + 3, :, 0] += 0.3
+    settings = replace(FusionSettings(), outlier_scale_m=0.1)
+    off = replace(settings, outlier_scale_m=0.0)
+    plain, _ = _both(batch, [True] * len(COUNTS), off, 0)
+    got, _ = _both(batch, [True] * len(COUNTS), settings, 0)
+    joint = JointId.SPINE_MID
+    assert got.weights[lo + 3, joint] < 0.5 * plain.weights[lo + 3, joint]
+    assert abs(got.fused[0, joint, 0] - batch.joints[lo, joint, 0]) < abs(
+        plain.fused[0, joint, 0] - batch.joints[lo, joint, 0]
+    )

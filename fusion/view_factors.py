@@ -1,0 +1,180 @@
+"""Each view's factor from where its sensor stands: facing and distance.
+
+Facing and distance
+-------------------
+A Kinect v2 is best when the person faces it at 1.5–3 m: it assumes the person faces it, turns
+the skeleton towards itself by about half the person's yaw relative to it (conventions.md §5),
+and its depth noise grows with distance. ``facing = floor + (1 − floor)·|cos θ|^p``, θ the
+angle between the person's forward direction and the direction to the sensor (1 facing it or
+with its back to it, ``floor`` side-on), times ``back_factor`` from behind (:func:`facing_factors`);
+``distance = exp(−(d_out / scale)²)`` with ``d_out``
+how far the horizontal distance is outside the best band.
+
+:func:`view_factors` is one loop compiled with numba (:func:`view_factor_loop`, the facing
+factor from :func:`~skelfuse.fusion.kernels_facing.facing_factors_loop`), each view with its
+sensor's facing model (:func:`~skelfuse.fusion.confidence.sensor_terms`); the horizontal distance
+is ``sqrt((x² + y²) + z²)`` and ``exp`` and ``pow`` the C library's. :func:`warm_up` compiles the
+loops (or loads numba's cache) at start, so no frame waits for a compilation.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import numpy.typing as npt
+
+from skelfuse.fusion.confidence import TERM_COLUMNS, sensor_terms
+from skelfuse.fusion.kernels_facing import cosines_loop, facing_factors_loop
+from skelfuse.fusion.kernels_jit import jit, plain
+from skelfuse.fusion.priors import SensorPrior
+from skelfuse.fusion.settings import FusionSettings
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.intp]
+
+
+def facing_cosines(
+    facing: npt.ArrayLike, body_position: npt.ArrayLike, sensor_positions: npt.ArrayLike
+) -> FloatArray:
+    """cos θ per view: θ between the person's facing and the horizontal direction to the sensor.
+
+    Args:
+        facing: (..., 3) horizontal unit vectors (NaN if unknown), e.g. (3,) one person's.
+        body_position: (..., 3) a point on the person (SpineBase), metres, world.
+        sensor_positions: (..., 3) sensor positions, metres, world (NaN if unknown), e.g.
+            (S, 3); the three broadcast together.
+
+    Returns:
+        (...) float64 in [−1, 1], the broadcast shape without its last axis; NaN where unknown.
+    """
+    facings = np.asarray(facing, dtype=np.float64)
+    bodies = np.asarray(body_position, dtype=np.float64)
+    sensors = np.asarray(sensor_positions, dtype=np.float64)
+    shape = np.broadcast_shapes(facings.shape, bodies.shape, sensors.shape)
+    one, at, to = (  # (broadcast only when needed: µs a call)
+        plain((a if a.shape == shape else np.broadcast_to(a, shape)).reshape(-1, 3))
+        for a in (facings, bodies, sensors)
+    )
+    out = np.empty(shape[:-1])
+    cosines_loop(one, at, to, out.reshape(-1))
+    return out
+
+
+def facing_factors(
+    cosines: npt.ArrayLike, power: float, floor: float, back_factor: float = 1.0
+) -> FloatArray:
+    """Facing term per view, in (0, 1] with the shape of ``cosines``; 1 where the facing is
+    unknown (NaN).
+
+    ``floor + (1 − floor)·|cos θ|^power``, times ``back_factor`` when the sensor is behind the
+    person (cos θ < 0). A sensor's own yaw bias grows with how far the person is turned from
+    *its axis*, front or back (a view from behind, once its labels are swapped back by
+    :mod:`fusion.mirror`, is fitted as a front view: conventions.md §5), so side views are the
+    least trusted; a back view also hides the arms in front of the body, hence ``back_factor``.
+    """
+    cos = plain(cosines)
+    out = np.empty(cos.shape)
+    facing_factors_loop(
+        cos.reshape(-1), float(power), float(floor), float(back_factor), out.reshape(-1)
+    )
+    return out
+
+
+def distance_factors(
+    body_position: npt.ArrayLike,
+    sensor_positions: npt.ArrayLike,
+    best_m: tuple[float, float],
+    scale_m: float,
+) -> FloatArray:
+    """Distance term per view, (S,) in (0, 1]: 1 inside ``best_m``, Gaussian fall-off outside.
+
+    Args:
+        body_position: (3,) SpineBase, metres, world.
+        sensor_positions: (S, 3) metres, world; NaN rows give 1.
+    """
+    sensors = plain(np.atleast_2d(np.asarray(sensor_positions, dtype=np.float64)))
+    bodies = plain(np.broadcast_to(np.asarray(body_position, dtype=np.float64), sensors.shape))
+    out = np.empty(len(sensors))
+    terms = np.zeros((1, TERM_COLUMNS))
+    flags = (False, True)
+    view_factor_loop(
+        np.zeros(len(sensors)), bodies, sensors, terms, np.zeros(len(sensors), np.intp),
+        flags, (float(best_m[0]), float(best_m[1]), float(scale_m)), out,
+    )  # fmt: skip
+    return out
+
+
+def view_factors(
+    cosines: FloatArray,
+    body_positions: FloatArray,
+    sensor_positions: FloatArray,
+    settings: FusionSettings,
+    priors: Sequence[SensorPrior] | None = None,
+) -> FloatArray:
+    """Each view's factor from where its sensor stands: facing × distance (the ones switched on).
+
+    Args:
+        cosines: (N,) :func:`facing_cosines` of each view (NaN: unknown, factor 1).
+        body_positions: (N, 3) where each view's person stands (SpineBase), metres, world.
+        sensor_positions: (N, 3) each view's sensor, metres, world (NaN rows: unknown).
+        priors: (N,) each view's sensor prior (its facing model), or None: the settings'.
+
+    Returns:
+        (N,) float64 in (0, 1].
+    """
+    s = settings
+    cos = plain(cosines)
+    terms, of_view = sensor_terms(s, priors, len(cos))
+    out = np.empty(len(cos))
+    view_factor_loop(
+        cos, plain(body_positions), plain(sensor_positions), terms, plain(of_view, np.intp),
+        (s.use_facing, s.use_distance),
+        (float(s.distance_best_m[0]), float(s.distance_best_m[1]), float(s.distance_scale_m)),
+        out,
+    )  # fmt: skip
+    return out
+
+
+@jit
+def view_factor_loop(  # pragma: no cover - compiled
+    cosines: FloatArray,
+    bodies: FloatArray,
+    sensors: FloatArray,
+    terms: FloatArray,
+    of_view: IntArray,
+    flags: tuple[bool, bool],
+    distance: tuple[float, float, float],
+    out: FloatArray,
+) -> None:
+    """Fill ``out`` (N,) with each view's facing × distance factor (``view_factors``).
+
+    cosines: (N,) facing cosines (NaN: factor 1); bodies, sensors: (N, 3) where each view's
+    person and sensor stand (NaN: factor 1); terms, of_view: :func:`sensor_terms` (the facing
+    model in columns 6–8); flags: facing on, distance on; distance: the best band's ends and
+    the fall-off scale, metres.
+    """
+    near, far, scale = distance
+    for v in range(len(out)):
+        factor = 1.0
+        if flags[0]:
+            row = terms[of_view[v]]
+            facing_factors_loop(cosines[v : v + 1], row[6], row[7], row[8], out[v : v + 1])
+            factor *= out[v]
+        if flags[1]:  # |horizontal offset| as np.linalg.norm: (x² + y²) + z²
+            d0 = (sensors[v, 0] - bodies[v, 0]) * 1.0
+            d1 = (sensors[v, 1] - bodies[v, 1]) * 0.0
+            d2 = (sensors[v, 2] - bodies[v, 2]) * 1.0
+            length = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            outside = max(near - length, 0.0) + max(length - far, 0.0)
+            q = outside / scale
+            factor *= math.exp(-(q * q)) if math.isfinite(length) else 1.0
+        out[v] = factor
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) this module's loops now."""
+    views = np.zeros((2, 25, 3))
+    view_factors(np.zeros(2), views[:, 0], views[:, 1], FusionSettings(use_distance=True))
+    facing_factors(facing_cosines(views[0], views[1], views[0]), 2.0, 0.1, 0.5)
