@@ -1,16 +1,12 @@
-"""Facings as loops, for a compiled kernel: each person's, with the sensors' yaw bias taken out.
+"""Facing loops, for compiled kernels: each person's facing with the sensors' yaw bias taken
+out, the walking check, and the confidence's facing terms.
 
-:func:`facing_loop` is :func:`skelfuse.fusion.anatomy.facing_directions` and
-:func:`unbiased_loop` is :func:`skelfuse.fusion.labels.unbiased_facings` (with the views' own
-facings from :func:`skelfuse.fusion.anatomy.facings_of_forward`) written as scalar code:
-:mod:`skelfuse.fusion.kernels` compiles it with numba. The same IEEE operations in the same
-order, so the same bits: dot products as (a₀b₀ + a₁b₁) + a₂b₂ (``np.vecdot`` on three
-components), ``%`` as numpy's floating remainder (the divisor's sign, as Python's), ``np.sign``
-0 at 0, sums over a person's views from 0 view after view, ``atan2``/``sin``/``cos`` from the C
-library as numpy's loops call them (the tests compare both paths on the machine they run on).
-
-Imported only by :mod:`skelfuse.fusion.kernels` when the kernels run; without numba
-:func:`~skelfuse.fusion.kernels_jit.jit` leaves the functions plain Python (slow, same results).
+:func:`unbiased_loop` is :func:`skelfuse.fusion.labels.unbiased_facings`,
+:func:`backwards_loop` the first half of :func:`skelfuse.fusion.labels.walking_backwards`,
+:func:`cosines_loop` and :func:`facing_factors_loop` the confidence's facing terms, written as
+scalar code compiled with numba: dot products as (a₀b₀ + a₁b₁) + a₂b₂, ``%`` as numpy's
+floating remainder (the divisor's sign, as Python's), ``np.sign`` 0 at 0, sums over a person's
+views from 0 view after view, ``atan2``/``sin``/``cos`` from the C library.
 """
 
 from __future__ import annotations
@@ -21,7 +17,6 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.kernels_jit import jit
-from skelfuse.fusion.kernels_rom import body_frame
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
@@ -104,23 +99,6 @@ def unbiased_loop(
             out[p, 0], out[p, 1], out[p, 2] = m0 / norm, m1 / norm, m2 / norm
         else:
             out[p, 0] = out[p, 1] = out[p, 2] = math.nan
-
-
-@jit
-def facing_loop(skeletons: FloatArray, out: FloatArray) -> None:
-    """Fill ``out`` (P, 3) with ``anatomy.facing_directions`` of ``skeletons`` (P, 25, 3): the
-    body frame's forward axis (``kernels_rom.body_frame``, as ``anatomy._body_frame``), made
-    horizontal and unit as ``anatomy.facings_of_forward``."""
-    for m in range(skeletons.shape[0]):
-        v = skeletons[m]
-        f0, f1, f2 = body_frame(v)[6:]
-        h0, h1, h2 = f0 * 1.0, f1 * 0.0, f2 * 1.0
-        norm = math.sqrt((h0 * h0 + h1 * h1) + h2 * h2)
-        ok = math.isfinite(h0) and math.isfinite(h1) and math.isfinite(h2)
-        if ok and not norm < 1e-6:
-            out[m, 0], out[m, 1], out[m, 2] = h0 / norm, h1 / norm, h2 / norm
-        else:
-            out[m, 0] = out[m, 1] = out[m, 2] = math.nan
 
 
 @jit

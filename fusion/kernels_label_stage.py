@@ -6,7 +6,7 @@ each view's anatomical evidence against it. With every person's last skeleton an
 (the usual step) the compiled path was five calls (the range-of-motion factors of both
 labellings, the lateral distances, the scores, the evidence) with their arguments' stacks and
 gathers: ~100 µs of glue at 4 sensors × 6 people around ~50 µs of loops. Here one call runs the
-same loops (:func:`~skelfuse.fusion.kernels_rom.rom_loop`,
+same loops (:func:`~skelfuse.fusion.anatomy.rom_loop`,
 :func:`~skelfuse.fusion.kernels_mirror.lateral_loop`,
 :func:`~skelfuse.fusion.kernels_mirror.score_loop`,
 :func:`~skelfuse.fusion.kernels_labels.evidence_loop`) on the same values, so the same bits
@@ -26,11 +26,11 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
+from skelfuse.fusion.anatomy import rom_loop
 from skelfuse.fusion.kernels_facing import unbiased_loop
 from skelfuse.fusion.kernels_jit import Warmed, jit, plain
 from skelfuse.fusion.kernels_labels import evidence_loop, swap_loop
 from skelfuse.fusion.kernels_mirror import Terms, lateral_loop, score_loop
-from skelfuse.fusion.kernels_rom import rom_loop
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
@@ -137,11 +137,10 @@ def _scored_loop(  # pragma: no cover - compiled
                 both[v, 1, j, c] = views[v, permutation[j], c]
     rom_loop(
         both.reshape(2 * total, size, 3),
-        rom[0],
-        rom[1],
-        rom[2],
+        rom,
         factors.reshape(2 * total, size),
         forward.reshape(2 * total, 3),
+        np.empty((2 * total, 13)),
     )
     # Each view's person's last skeleton, and the agreement terms.
     own = np.empty((total, size, 3))

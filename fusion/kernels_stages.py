@@ -162,22 +162,6 @@ def unbiased_facings(
     return out
 
 
-def facing_directions(skeletons: FloatArray) -> FloatArray:
-    """The compiled :func:`skelfuse.fusion.anatomy.facing_directions` (same bits).
-
-    Args:
-        skeletons: (P, 25, 3) joints, metres, world frame (+Y up), NaN where unknown.
-
-    Returns:
-        (P, 3) horizontal unit vectors, NaN rows where unknown.
-    """
-    from skelfuse.fusion import kernels_facing  # imports numba: only when used
-
-    out = np.empty((skeletons.shape[0], 3))
-    kernels_facing.facing_loop(plain(skeletons), out)
-    return out
-
-
 def walking_backwards(velocities: FloatArray, facings: FloatArray, min_speed: float) -> BoolArray:
     """The compiled first half of :func:`skelfuse.fusion.labels.walking_backwards` for P persons:
     whether each walks backwards now (velocities and facings (P, 3); the same decisions)."""
@@ -292,7 +276,6 @@ def warm_up() -> None:
         views, np.ones((2, 3)), places, np.ones((1, 3)), views[:1], np.ones((2, 2, 25)),
         np.zeros(2, dtype=np.intp), (1.0, 0.1, 0.1, 0.01, 0.05), lateral, (6, 1e-9),
     )  # fmt: skip
-    facing_directions(views)
     walking_backwards(np.ones((2, 3)), np.ones((2, 3)), 0.3)
     swap_mirrored(views, np.zeros((2, 25), np.uint8), np.ones(2, bool), np.arange(25))
     facing_factors(facing_cosines(views[0], views[1], views[0]), 2.0, 0.1, 0.5)

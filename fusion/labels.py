@@ -22,7 +22,7 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion import kernels, kernels_label_stage, kernels_stages
-from skelfuse.fusion.anatomy import facing_direction, facing_directions, facings_of_forward
+from skelfuse.fusion.anatomy import HORIZONTAL, facing_direction, facing_directions
 from skelfuse.fusion.kernels_jit import in_place
 from skelfuse.fusion.label_scores import scored_labels
 from skelfuse.fusion.mirror import PERMUTATION
@@ -181,7 +181,7 @@ def label_views(
             own = None
             if forward is not None:
                 chosen = forward[np.arange(len(joints)), mirrored.view(np.uint8)]
-                own = facings_of_forward(chosen)
+                own = _facings_of_forward(chosen)
             facings = unbiased_facings(
                 joints, sensor_positions, mirrored, counts, s.view_lean_fraction, own
             )
@@ -380,3 +380,15 @@ def _unturn(phi: FloatArray, lean: float) -> FloatArray:
         np.abs(phi) <= knee, phi / (1.0 - lean), phi + lean * (np.pi / 2) * np.sign(phi)
     )
     return theta
+
+
+def _facings_of_forward(forward: FloatArray) -> FloatArray:
+    """Horizontal unit facings (P, 3) from :func:`body_frame` forward axes (P, 3); NaN rows
+    where unknown (the body's forward axis close to vertical, or missing)."""
+    horizontal = forward * HORIZONTAL
+    # np.vecdot is the dot product np.linalg.norm uses on one vector (the same bits).
+    norm = np.sqrt(np.vecdot(horizontal, horizontal))
+    ok = np.isfinite(horizontal).all(-1) & ~(norm < 1e-6)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        result: FloatArray = np.where(ok[:, None], horizontal / norm[:, None], np.nan)
+    return result

@@ -196,7 +196,7 @@ def choose_labellings_and_forward(
 
     Returns:
         mirrored, factors: as :func:`choose_labellings`;
-        forward: (N, 2, 3) :func:`~skelfuse.fusion.anatomy.body_frame` forward axis of each view
+        forward: (N, 2, 3) :func:`~skelfuse.fusion.anatomy.body_axes` forward axis of each view
             as reported (0) and swapped (1), when the factors were computed, else None.
     """
     total = views.shape[0]

@@ -116,9 +116,9 @@ def test_warm_up_compiles_every_stage_kernel_once(numba_kernels: None, tmp_path:
     kernels.warm_up()
     loops = [
         kernels_mirror.lateral_loop, kernels_mirror.score_loop, kernels_labels.evidence_loop,
-        kernels_facing.facing_loop, kernels_facing.unbiased_loop, kernels_facing.cosines_loop,
-        kernels_facing.facing_factors_loop, kernels_confidence.body_loop,
-        kernels_confidence.confidence_loop, kernels_labels.swap_loop,
+        anatomy.facing_loop, anatomy.rom_loop, kernels_facing.unbiased_loop,
+        kernels_facing.cosines_loop, kernels_facing.facing_factors_loop,
+        kernels_confidence.body_loop, kernels_confidence.confidence_loop, kernels_labels.swap_loop,
     ]  # fmt: skip
     compiled = [len(loop.signatures) for loop in loops]  # (other tests may add their own)
     golden.test_replay_output_is_byte_identical_to_the_golden_digest("", tmp_path)

@@ -17,7 +17,7 @@ import pytest
 from skelfuse.fusion import anatomy, kernels, kernels_stages, label_scores, labels, mirror
 from skelfuse.fusion.mirror_distances import LATERAL_JOINTS, LATERAL_SWAP, lateral_terms
 from skelfuse.fusion.mirror_labellings import layout
-from tests.unit.test_kernels import _numpy_uses_svml, _same_bits, _views
+from tests.unit.test_kernels import _same_bits, _views
 
 FloatArray = np.ndarray
 COUNTS = (1, 2, 3, 4, 5, 6, 7, 8, 10)
@@ -133,38 +133,6 @@ def test_scoring_kernel_takes_the_first_of_tied_labellings(numba_kernels: None) 
         expected = _choose(frame, **zero)[0]
     assert _choose(frame, **zero)[0].tolist() == expected.tolist()
     assert expected.tolist() == [True, False, True, True, True, False, False, False]
-
-
-@pytest.mark.parametrize("seed", range(5))
-@pytest.mark.parametrize("lean", [0.0, 0.5, 0.9])
-def test_unbiased_facing_kernel_gives_the_numpy_bits(
-    numba_kernels: None, seed: int, lean: float
-) -> None:
-    frame = _frame(seed)
-    views, sensors = frame.views, frame.sensor_positions
-    mirrored, _, forward = _choose(frame)
-    assert forward is not None
-    mirrored[::3] = ~mirrored[::3]  # both labellings, whatever was chosen
-    starts = layout(COUNTS, tuple((True, True) for _ in COUNTS)).starts
-    got = kernels_stages.unbiased_facings(views[:, 0], sensors, forward, mirrored, starts, lean)
-    chosen = forward[np.arange(len(views)), mirrored.view(np.uint8)]
-    own = anatomy.facings_of_forward(chosen)
-    expected = labels.unbiased_facings(views, sensors, mirrored, COUNTS, lean, own)
-    if _numpy_uses_svml():  # arctan2, sin and cos of SVML on AVX-512: a few ulp apart
-        np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-15)
-    else:
-        assert _same_bits(got, expected)
-    assert np.isnan(own).any() and mirrored.any() and not mirrored.all()
-
-
-@pytest.mark.parametrize("seed", range(5))
-def test_facing_kernel_gives_the_numpy_bits(numba_kernels: None, seed: int) -> None:
-    views = _views(seed)
-    facings = anatomy.facing_directions(views)
-    with kernels.forced("numpy"):
-        expected = anatomy.facing_directions(views)
-    assert _same_bits(facings, expected)
-    assert np.isnan(facings).any() and np.isfinite(facings).any()
 
 
 @pytest.mark.parametrize("seed", range(5))
