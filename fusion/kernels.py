@@ -154,9 +154,11 @@ def warm_up() -> float:
     if not enabled():
         return 0.0
     start = time.perf_counter()
-    from skelfuse.fusion import anatomy
+    from skelfuse.fusion import anatomy, unbiased_facing, walking
 
     anatomy.warm_up()
+    unbiased_facing.warm_up()
+    walking.warm_up()
     views = np.zeros((2, 25, 3))
     index = np.zeros(25, dtype=np.intp)  # the index tables' types, any content
     tables = (index, index, index, index, index, np.full(25, -1, dtype=np.intp))

@@ -27,9 +27,8 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.anatomy import rom_loop
-from skelfuse.fusion.kernels_facing import unbiased_loop
 from skelfuse.fusion.kernels_jit import Warmed, jit, plain
-from skelfuse.fusion.kernels_labels import evidence_loop, swap_loop
+from skelfuse.fusion.kernels_labels import evidence_loop
 from skelfuse.fusion.kernels_mirror import Terms, lateral_loop, score_loop
 
 FloatArray = npt.NDArray[np.float64]
@@ -168,67 +167,6 @@ def _scored_loop(  # pragma: no cover - compiled
     evidence_loop(factors, mirrored, person_of, per_view, evidence)
 
 
-def settled(
-    joints: FloatArray,
-    states: npt.NDArray[np.uint8],
-    mirrored: BoolArray,
-    permutation: IntArray,
-    facing_terms: tuple[FloatArray, FloatArray, IntArray, float],
-    factors: FloatArray,
-) -> tuple[FloatArray, FloatArray]:
-    """After the choice: the mirrored views swapped back in place, each person's unbiased
-    facing and each view's range-of-motion factors as labelled, in one call (the loops of
-    :func:`~skelfuse.fusion.kernels_stages.swap_mirrored` and
-    :func:`~skelfuse.fusion.kernels_stages.unbiased_facings`, and the gather of ``factors``).
-
-    Args:
-        joints: (N, 25, 3) float64, states: (N, 25) uint8, both C-ordered and writable: the
-            views, swapped in place where ``mirrored`` (N,); permutation: (25,) left/right.
-        facing_terms: sensor positions (N, 3), each view's forward axis as reported and swapped
-            (N, 2, 3), (P + 1,) each person's first view then N, and the sensors' lean in [0, 1).
-        factors: (N, 2, 25) range-of-motion factors as reported and swapped.
-
-    Returns:
-        facings (P, 3) horizontal unit vectors (NaN rows: unknown), rom (N, 25).
-    """
-    sensor_positions, forward, starts, lean = facing_terms
-    facings = np.empty((len(starts) - 1, 3))
-    rom = np.empty((joints.shape[0], joints.shape[1]))
-    _settled_loop(
-        joints,
-        states,
-        plain(mirrored, np.bool_),
-        plain(permutation, np.intp),
-        (plain(sensor_positions), plain(forward), plain(starts, np.intp), float(lean)),
-        plain(factors),
-        (facings, rom),
-    )
-    return facings, rom
-
-
-@jit
-def _settled_loop(  # pragma: no cover - compiled
-    joints: FloatArray,
-    states: npt.NDArray[np.uint8],
-    mirrored: BoolArray,
-    permutation: IntArray,
-    facing_terms: tuple[FloatArray, FloatArray, IntArray, float],
-    factors: FloatArray,
-    out: tuple[FloatArray, FloatArray],
-) -> None:
-    sensor_positions, forward, starts, lean = facing_terms
-    facings, rom = out
-    swap_loop(joints, states, mirrored, permutation)
-    origins = np.empty((joints.shape[0], 3))
-    for v in range(joints.shape[0]):
-        chosen = 1 if mirrored[v] else 0
-        for c in range(3):
-            origins[v, c] = joints[v, 0, c]
-        for j in range(joints.shape[1]):
-            rom[v, j] = factors[v, chosen, j]
-    unbiased_loop(origins, sensor_positions, forward, mirrored, starts, lean, facings)
-
-
 def warm_up() -> None:
     """Compile (or load from numba's cache) the loop now; a no-op with the kernels off."""
     views = np.zeros((2, 25, 3))
@@ -244,8 +182,4 @@ def warm_up() -> None:
         (6, 1e-9),
         (15.0, np.zeros(13), np.zeros(13)),
     )
-    settled(
-        views, np.zeros((2, 25), np.uint8), np.ones(2, np.bool_), np.arange(25, dtype=np.intp),
-        (np.ones((2, 3)), np.ones((2, 2, 3)), np.array([0, 2]), 0.5), np.ones((2, 2, 25)),
-    )  # fmt: skip
     warmed.done = True

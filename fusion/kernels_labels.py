@@ -61,32 +61,3 @@ def evidence_loop(
             value = -_LARGEST
         per_view[v] = value
         evidence[person_of[v]] += value
-
-
-@jit
-def swap_loop(
-    joints: FloatArray, states: npt.NDArray[np.uint8], mirrored: BoolArray, permutation: IntArray
-) -> None:
-    """Swap left and right of the ``mirrored`` (N,) views in place: ``joints`` (N, 25, 3) and
-    ``states`` (N, 25) rows reordered by ``permutation`` (25,), as ``labels.label_views``."""
-    size = len(permutation)
-    points = np.empty((size, 3))
-    flags = np.empty(size, dtype=np.uint8)
-    for v in range(len(mirrored)):
-        if not mirrored[v]:
-            continue
-        for j in range(size):
-            points[j, 0], points[j, 1], points[j, 2] = (
-                joints[v, j, 0],
-                joints[v, j, 1],
-                joints[v, j, 2],
-            )
-            flags[j] = states[v, j]
-        for j in range(size):
-            k = permutation[j]
-            joints[v, j, 0], joints[v, j, 1], joints[v, j, 2] = (
-                points[k, 0],
-                points[k, 1],
-                points[k, 2],
-            )
-            states[v, j] = flags[k]

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.kernels_jit import in_place, plain
+from skelfuse.fusion.kernels_jit import plain
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
@@ -111,65 +111,6 @@ def view_evidence(
         plain(factors), plain(mirrored, np.bool_), plain(person_of, np.intp), per_view, evidence
     )
     return per_view, evidence
-
-
-def swap_mirrored(
-    joints: FloatArray, states: npt.NDArray[np.uint8], mirrored: BoolArray, permutation: IntArray
-) -> bool:
-    """Swap the mirrored views' left and right in place (compiled), when ``joints`` (N, 25, 3)
-    float64 and ``states`` (N, 25) uint8 are plain writable arrays; False (nothing done) if not.
-    """
-    from skelfuse.fusion import kernels_labels  # imports numba: only when used
-
-    if not (in_place(joints, np.float64) and in_place(states, np.uint8)):
-        return False
-    kernels_labels.swap_loop(joints, states, plain(mirrored, np.bool_), plain(permutation, np.intp))
-    return True
-
-
-def unbiased_facings(
-    origins: FloatArray,
-    sensor_positions: FloatArray,
-    forward: FloatArray,
-    mirrored: npt.NDArray[np.bool_],
-    starts: IntArray,
-    lean: float,
-) -> FloatArray:
-    """The compiled :func:`skelfuse.fusion.labels.unbiased_facings` (same bits), each view's own
-    facing taken from the forward axis of its chosen labelling.
-
-    Args:
-        origins: (N, 3) each view's SpineBase, metres, world; sensor_positions: (N, 3);
-        forward: (N, 2, 3) each view's forward axis as reported and swapped; mirrored: (N,)
-        the labelling chosen; starts: (P + 1,) each person's first view, then N; lean: the
-        share of its yaw a sensor turns a body towards itself, in [0, 1).
-
-    Returns:
-        (P, 3) horizontal unit vectors, NaN rows where unknown.
-    """
-    from skelfuse.fusion import kernels_facing  # imports numba: only when used
-
-    out = np.empty((len(starts) - 1, 3))
-    kernels_facing.unbiased_loop(
-        plain(origins),
-        plain(sensor_positions),
-        plain(forward),
-        plain(mirrored, np.bool_),
-        plain(starts, np.intp),
-        float(lean),
-        out,
-    )
-    return out
-
-
-def walking_backwards(velocities: FloatArray, facings: FloatArray, min_speed: float) -> BoolArray:
-    """The compiled first half of :func:`skelfuse.fusion.labels.walking_backwards` for P persons:
-    whether each walks backwards now (velocities and facings (P, 3); the same decisions)."""
-    from skelfuse.fusion import kernels_facing  # imports numba: only when used
-
-    out = np.empty(len(velocities), dtype=np.bool_)
-    kernels_facing.backwards_loop(plain(velocities), plain(facings), float(min_speed), out)
-    return out
 
 
 def facing_cosines(facings: FloatArray, bodies: FloatArray, sensors: FloatArray) -> FloatArray:
@@ -276,13 +217,8 @@ def warm_up() -> None:
         views, np.ones((2, 3)), places, np.ones((1, 3)), views[:1], np.ones((2, 2, 25)),
         np.zeros(2, dtype=np.intp), (1.0, 0.1, 0.1, 0.01, 0.05), lateral, (6, 1e-9),
     )  # fmt: skip
-    walking_backwards(np.ones((2, 3)), np.ones((2, 3)), 0.3)
-    swap_mirrored(views, np.zeros((2, 25), np.uint8), np.ones(2, bool), np.arange(25))
     facing_factors(facing_cosines(views[0], views[1], views[0]), 2.0, 0.1, 0.5)
     view_evidence(np.ones((2, 2, 25)), np.zeros(2, bool), np.zeros(2, dtype=np.intp), 1)
-    unbiased_facings(
-        views[:, 0], np.ones((2, 3)), np.ones((2, 2, 3)), np.zeros(2, bool), np.array([0, 2]), 0.5
-    )
     index = np.zeros(24, dtype=np.intp)
     body_weights(
         views, np.zeros((2, 25), np.uint8), (0.0, 0.5, 1.0), np.ones((2, 24)), np.ones((2, 25)),

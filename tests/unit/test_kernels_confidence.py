@@ -110,15 +110,24 @@ def test_facing_kernels_give_the_numpy_bits(numba_kernels: None, seed: int) -> N
 def test_warm_up_compiles_every_stage_kernel_once(numba_kernels: None, tmp_path: Path) -> None:
     """After kernels.warm_up, a whole replay (every stage, every input the pipeline passes)
     adds no compilation: each loop keeps the signatures the warm-up compiled."""
-    from skelfuse.fusion import kernels_confidence, kernels_facing, kernels_labels, kernels_mirror
+    from skelfuse.fusion import (
+        kernels_confidence,
+        kernels_facing,
+        kernels_labels,
+        kernels_mirror,
+        labels,
+        unbiased_facing,
+        walking,
+    )
     from tests.unit import test_golden_replay as golden
 
     kernels.warm_up()
     loops = [
         kernels_mirror.lateral_loop, kernels_mirror.score_loop, kernels_labels.evidence_loop,
-        anatomy.facing_loop, anatomy.rom_loop, kernels_facing.unbiased_loop,
+        anatomy.facing_loop, anatomy.rom_loop, unbiased_facing.unbiased_loop,
         kernels_facing.cosines_loop, kernels_facing.facing_factors_loop,
-        kernels_confidence.body_loop, kernels_confidence.confidence_loop, kernels_labels.swap_loop,
+        kernels_confidence.body_loop, kernels_confidence.confidence_loop,
+        labels._settled_loop, walking._backwards_loop,
     ]  # fmt: skip
     compiled = [len(loop.signatures) for loop in loops]  # (other tests may add their own)
     golden.test_replay_output_is_byte_identical_to_the_golden_digest("", tmp_path)

@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pytest
 
-from skelfuse.fusion import anatomy, kernels, kernels_stages, label_scores, labels, mirror
+from skelfuse.fusion import anatomy, kernels, kernels_stages, label_scores, labels, mirror, walking
 from skelfuse.fusion.mirror_distances import LATERAL_JOINTS, LATERAL_SWAP, lateral_terms
 from skelfuse.fusion.mirror_labellings import layout
 from tests.unit.test_kernels import _same_bits, _views
@@ -170,18 +170,15 @@ def test_walking_check_decides_as_numpy_at_the_boundary() -> None:
         velocity = rng.uniform(0.45, 0.55) * direction
         speed = float(np.linalg.norm(velocity))
         expected = speed >= 0.5 and float(np.dot(facing, velocity)) < -0.5 * speed
-        got = labels.walking_backwards(joints, velocity, 1.0, 0.0, settings, facing)
+        got = walking.walking_backwards(joints, velocity, 1.0, 0.0, settings, facing)
         assert got == ((True, None) if expected else (False, None))
         decided += expected
     assert 0 < decided < 2000
 
 
-def test_walking_backwards_kernel_decides_as_the_python_check(numba_kernels: None) -> None:
+def test_walking_backwards_now_decides_as_numpy_for_every_person() -> None:
     """On the threshold of speed and of direction (cos −0.5, to rounding), unknown facings."""
-    from skelfuse.fusion.settings import FusionSettings
-
     rng = np.random.default_rng(5)
-    settings = FusionSettings(mirror_walk_check_s=0.5, mirror_walk_min_speed_mps=0.5)
     count = 3000
     angle = rng.uniform(0, 2 * np.pi, count)
     facings = np.stack([np.sin(angle), np.zeros(count), np.cos(angle)], axis=1)
@@ -193,26 +190,32 @@ def test_walking_backwards_kernel_decides_as_the_python_check(numba_kernels: Non
     velocities = rng.uniform(0.45, 0.55, count)[:, None] * direction
     velocities[:5] = 0.5 * facings[:5] * [[-1.0, 1.0, -1.0]]  # backwards at exactly the speed
     facings[rng.random(count) < 0.05, rng.integers(0, 3)] = np.nan  # unknown facings
-    got = kernels_stages.walking_backwards(velocities, facings, 0.5)
-    joints = _views(0)[0]
+    got = walking.walking_backwards_now(velocities, facings, 0.5)
     expected = [
-        labels.walking_backwards(joints, v, 1.0, 0.0, settings, f)[0]
+        bool(np.linalg.norm(v) >= 0.5 and np.isfinite(f).all())
+        and float(np.dot(f, v)) < -0.5 * float(np.linalg.norm(v))
         for v, f in zip(velocities, facings, strict=True)
     ]
     assert got.tolist() == expected
     assert 0 < sum(expected) < count
 
 
-def test_swap_kernel_swaps_as_numpy(numba_kernels: None) -> None:
+def test_settle_swaps_the_mirrored_views_back_in_place_whatever_their_layout() -> None:
     rng = np.random.default_rng(2)
     joints = _views(2)
     states = rng.integers(0, 3, joints.shape[:2]).astype(np.uint8)
     mirrored = rng.random(len(joints)) < 0.4
+    reported = states.copy()
     expected_joints, expected_states = joints.copy(), states.copy()
     expected_joints[mirrored] = joints[mirrored][:, mirror.PERMUTATION]
     expected_states[mirrored] = states[mirrored][:, mirror.PERMUTATION]
-    assert kernels_stages.swap_mirrored(joints, states, mirrored, mirror.PERMUTATION)
+    factors = rng.uniform(0.0, 1.0, (len(joints), 2, 25))
+    _, rom = labels.settle((joints, states, mirrored), None, factors)
     assert _same_bits(joints, expected_joints) and _same_bits(states, expected_states)
-    strided = joints[::2]  # not a plain array: left to the caller's numpy path
-    assert not kernels_stages.swap_mirrored(strided, states[::2], mirrored[::2], mirror.PERMUTATION)
-    assert _same_bits(joints, expected_joints)
+    assert rom is not None
+    assert _same_bits(rom, factors[np.arange(len(joints)), mirrored.astype(np.intp)])
+    wide = np.repeat(expected_joints, 2, axis=0)[::2]  # strided, F-ordered: copied, written back
+    flags = np.asfortranarray(expected_states)
+    assert labels.settle((wide, flags, mirrored), None, None) == (None, None)
+    assert np.array_equal(wide, _views(2), equal_nan=True)  # swapped back to as reported
+    assert np.array_equal(flags, reported) and flags.flags.f_contiguous

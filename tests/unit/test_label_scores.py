@@ -20,7 +20,9 @@ import pytest
 
 from skelfuse.fusion import kernels, kernels_label_stage, label_scores
 from skelfuse.fusion.labels import LabelDoubt, label_views
+from skelfuse.fusion.mirror import PERMUTATION
 from skelfuse.fusion.settings import FusionSettings
+from skelfuse.fusion.unbiased_facing import unbiased_facings
 from tests.unit.test_kernels import _numpy_uses_svml, _same_bits
 from tests.unit.test_kernels_mirror import Frame, _frame
 
@@ -139,7 +141,7 @@ def test_the_compiled_call_waits_for_its_warm_up(
     _same(got, _scored(_frame(0), FusionSettings(), "numpy"))
 
 
-def _label(frame: Frame, mode: str, states_order: str = "C") -> tuple[Any, ...]:
+def _label(frame: Frame, states_order: str = "C") -> tuple[Any, ...]:
     """label_views on a copy of ``frame`` with remembered labels and running doubts."""
     rng = np.random.default_rng(7)
     joints = frame.views.copy()
@@ -151,37 +153,35 @@ def _label(frame: Frame, mode: str, states_order: str = "C") -> tuple[Any, ...]:
     ]
     doubts = [LabelDoubt(against=1.4, born_s=-5.0, last_s=-1 / 30) for _ in frame.counts]
     doubts[1].facing = np.array([0.0, 0.0, 1.0])  # a remembered unbiased facing
-    with kernels.forced(mode):
-        mirrored, rom, swapped = label_views(
-            joints, states, frame.sensor_positions, keys, frame.counts, frame.references,
-            frame.reference_facings, memories, FusionSettings(), doubts, 0.0,
-        )  # fmt: skip
+    mirrored, rom, swapped = label_views(
+        joints, states, frame.sensor_positions, keys, frame.counts, frame.references,
+        frame.reference_facings, memories, FusionSettings(), doubts, 0.0,
+    )  # fmt: skip
     facings = np.array([d.facing for d in doubts])
     return mirrored, rom, swapped, joints, states, facings, memories, [d.against for d in doubts]
 
 
 @pytest.mark.parametrize("seed", range(4))
-@pytest.mark.parametrize("states_order", ["C", "F"])
-def test_the_labels_after_the_choice_in_one_call_give_the_numpy_bits(
-    numba_kernels: None, monkeypatch: pytest.MonkeyPatch, seed: int, states_order: str
+def test_the_labels_after_the_choice_swap_back_and_give_the_facings_of_the_swapped_views(
+    seed: int,
 ) -> None:
-    calls = _spy(monkeypatch, "settled")
     frame = _frame(seed)
-    got = _label(frame, "numba", states_order)
-    # The swap, the facings and the factors as labelled: one call, unless the states cannot be
-    # swapped in place as they are (Fortran order).
-    assert calls == ([1] if states_order == "C" else [])
-    expected = _label(frame, "numpy", states_order)
-    for a, b in zip(got, expected, strict=True):
-        if isinstance(a, np.ndarray) and not (_numpy_uses_svml() and a.dtype == np.float64):
-            assert _same_bits(np.ascontiguousarray(a), np.ascontiguousarray(b))
-        elif isinstance(a, np.ndarray):  # numpy's own trigonometry on AVX-512
-            np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12)
+    got = _label(frame, "C")
+    mirrored, rom, _, joints, _, facings, _, _ = got
+    expected = frame.views.copy()
+    expected[mirrored] = expected[mirrored][:, PERMUTATION]
+    assert np.array_equal(joints, expected, equal_nan=True)
+    lean = FusionSettings().view_lean_fraction
+    remade = unbiased_facings(joints, frame.sensor_positions, mirrored, frame.counts, lean)
+    np.testing.assert_allclose(facings, remade, rtol=0, atol=1e-12)  # from the swapped joints
+    assert rom is not None and rom.shape == (len(joints), 25)
+    fortran = _label(frame, "F")  # states in another layout: the same labels, in place
+    for a, b in zip(got, fortran, strict=True):
+        if isinstance(a, np.ndarray):
+            assert np.array_equal(a, b, equal_nan=True)
         else:
             assert a == b
-    mirrored, _, _, joints, _, facings, _, _ = got
     assert mirrored.any() and np.isfinite(facings).all()
-    assert not np.array_equal(joints, frame.views, equal_nan=True)  # views were swapped back
 
 
 def test_each_person_remembers_exactly_this_steps_labels() -> None:
