@@ -154,9 +154,11 @@ def warm_up() -> float:
     if not enabled():
         return 0.0
     start = time.perf_counter()
-    from skelfuse.fusion import anatomy, unbiased_facing, walking
+    from skelfuse.fusion import anatomy, labels, mirror, unbiased_facing, walking
 
-    anatomy.warm_up()
+    anatomy.warm_up()  # the mirror, labels and facing stages
+    mirror.warm_up()
+    labels.warm_up()
     unbiased_facing.warm_up()
     walking.warm_up()
     views = np.zeros((2, 25, 3))
@@ -164,13 +166,12 @@ def warm_up() -> float:
     tables = (index, index, index, index, index, np.full(25, -1, dtype=np.intp))
     project_bone_lengths(views, np.ones((2, 24)), np.ones((2, 25)), 1, tables)
     weighted_mean(views[None], np.ones((1, 2, 25)))
-    from skelfuse.fusion import kernels_stages  # the mirror and confidence stages' kernels
+    from skelfuse.fusion import kernels_stages  # the confidence stage's kernels
 
     kernels_stages.warm_up()
     # The bone observation's medians and the Kalman correction: they run once warmed.
     from skelfuse.fusion import (
         kernels_filter,
-        kernels_label_stage,
         kernels_lerp,
         kernels_median,
         kernels_motion,
@@ -190,5 +191,4 @@ def warm_up() -> float:
     kernels_lerp.warm_up()
     kernels_replay.warm_up()
     kernels_weigh.warm_up()
-    kernels_label_stage.warm_up()
     return time.perf_counter() - start

@@ -113,9 +113,8 @@ def test_warm_up_compiles_every_stage_kernel_once(numba_kernels: None, tmp_path:
     from skelfuse.fusion import (
         kernels_confidence,
         kernels_facing,
-        kernels_labels,
-        kernels_mirror,
         labels,
+        mirror_scores,
         unbiased_facing,
         walking,
     )
@@ -123,7 +122,7 @@ def test_warm_up_compiles_every_stage_kernel_once(numba_kernels: None, tmp_path:
 
     kernels.warm_up()
     loops = [
-        kernels_mirror.lateral_loop, kernels_mirror.score_loop, kernels_labels.evidence_loop,
+        mirror_scores.scored_loop, mirror_scores.evidence_loop,
         anatomy.facing_loop, anatomy.rom_loop, unbiased_facing.unbiased_loop,
         kernels_facing.cosines_loop, kernels_facing.facing_factors_loop,
         kernels_confidence.body_loop, kernels_confidence.confidence_loop,
