@@ -26,7 +26,8 @@ jointly for all of the person's views by minimising
 - **hysteresis**: ``hysteresis`` for changing a view's labelling from the previous step, and a
   small prior for reporting a view as mirrored at all.
 
-All 2^S combinations are scored at once (S ≤ 10 sensors per person; 3 views: 8 combinations).
+All 2^S combinations are scored (S ≤ 10 sensors per person; 3 views: 8 combinations), every
+person in one compiled call (:func:`score`, the loops in :mod:`skelfuse.fusion.mirror_scores`).
 Pure functions on arrays; the per-(sensor, body) memory for the hysteresis is kept by
 :mod:`skelfuse.fusion.labels`.
 """
