@@ -1,8 +1,10 @@
 """The body's own geometry: kinematic chain order, body frame, joint angles, facing, yaw.
 
 Pure functions on arrays of joints, (S, 25, 3) or (25, 3), metres, world frame (+Y up); NaN
-where a joint is unknown. :mod:`skelfuse.fusion.confidence` turns the angles into confidence
-terms; its docstring gives the sources of :data:`ROM_LIMITS_DEG`.
+where a joint is unknown. The body frame, the angles, their range-of-motion factors and the
+facings are loops over views compiled with numba (:func:`warm_up` compiles them ahead).
+:mod:`skelfuse.fusion.confidence` turns the angles into confidence terms; its docstring gives
+the sources of :data:`ROM_LIMITS_DEG`.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion import kernels, kernels_stages
+from skelfuse.fusion.kernels_jit import jit, jit_inline, plain
 from skelfuse.protocol.skeleton import JOINT_COUNT, PARENTS, JointId
 
 FloatArray = npt.NDArray[np.float64]
@@ -52,85 +54,81 @@ CHAIN_LEVELS: Final = _depth_levels()
 
 
 HORIZONTAL: Final = np.array([1.0, 0.0, 1.0])
+"""Keeps the horizontal components of a vector (…, 3)."""
 
 
 def unit(v: FloatArray) -> FloatArray:
     """Unit vectors along the last axis (…, 3); NaN where a vector is zero or unknown."""
     with np.errstate(invalid="ignore", divide="ignore"):
-        return _unit(v)
-
-
-def _unit(v: FloatArray) -> FloatArray:
-    """:func:`unit` for callers already inside ``np.errstate(invalid=, divide="ignore")``."""
-    norm = np.sqrt((v * v).sum(-1, keepdims=True))  # == np.linalg.norm(v, axis=-1)
-    result: FloatArray = v / norm
+        result: FloatArray = v / np.sqrt((v * v).sum(-1, keepdims=True))  # np.linalg.norm's bits
     return result
 
 
-# The body frame and the angles work on component-major arrays, (3, S, …): x, y and z are
-# each one contiguous block, so a dot product or a cross product is a few whole-array
-# operations (the same ones, in the same order, as on (…, 3) arrays: the same bits).
+# The loops keep numpy's conventions: dot products as (a₀b₀ + a₁b₁) + a₂b₂, cross products as
+# ``np.cross``, clips passing NaN through, atan2 / asin / acos / exp from the C library.
+_RAD2DEG: Final = 180.0 / math.pi  # what np.degrees multiplies by (numpy's npy_rad2deg)
+
+# Joint indices as plain ints (numba types globals of these as integer constants).
+_SB, _SS = int(J.SPINE_BASE), int(J.SPINE_SHOULDER)
+_HL, _HR, _SL, _SR = int(J.HIP_LEFT), int(J.HIP_RIGHT), int(J.SHOULDER_LEFT), int(J.SHOULDER_RIGHT)
+_KL, _KR, _AL, _AR = int(J.KNEE_LEFT), int(J.KNEE_RIGHT), int(J.ANKLE_LEFT), int(J.ANKLE_RIGHT)
+_FL, _FR, _EL, _ER = int(J.FOOT_LEFT), int(J.FOOT_RIGHT), int(J.ELBOW_LEFT), int(J.ELBOW_RIGHT)
+_WL, _WR, _NK, _HD = int(J.WRIST_LEFT), int(J.WRIST_RIGHT), int(J.NECK), int(J.HEAD)
 
 
-def _dot(a: FloatArray, b: FloatArray) -> FloatArray:
-    """(…) dot products of component-major (3, …) arrays: (a₀b₀ + a₁b₁) + a₂b₂, the order a sum
-    over a last axis of three takes."""
-    result: FloatArray = a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-    return result
-
-
-def _unit_major(v: FloatArray) -> FloatArray:
-    """:func:`unit` of a component-major (3, …) array (inside ``np.errstate``)."""
-    result: FloatArray = v / np.sqrt(_dot(v, v))
-    return result
-
-
-_NEXT: Final = np.array([1, 2, 0])
-_AFTER: Final = np.array([2, 0, 1])
-
-
-def _cross(a: FloatArray, b: FloatArray) -> FloatArray:
-    """``np.cross`` of component-major (3, …) arrays (the same operations, so the same bits):
-    component k is a[k+1]·b[k+2] − a[k+2]·b[k+1], all three at once."""
-    out: FloatArray = a[_NEXT] * b[_AFTER] - a[_AFTER] * b[_NEXT]
-    return out
-
-
-_ACROSS_LEFT: Final = np.array([J.HIP_LEFT, J.SHOULDER_LEFT])
-_ACROSS_RIGHT: Final = np.array([J.HIP_RIGHT, J.SHOULDER_RIGHT])
-
-
-def body_frame(views: npt.ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Each view's own body axes, from its labels.
-
-    Args:
-        views: (S, 25, 3) joints, metres, world frame.
-
-    Returns:
-        left, up, forward: (S, 3) unit vectors (NaN where the trunk is missing). ``left`` is the
-        mean of the hip and shoulder left-minus-right vectors made orthogonal to ``up``
-        (SpineBase → SpineShoulder); ``forward = left × up``.
+@jit_inline
+def body_axes(
+    v: FloatArray,
+) -> tuple[float, float, float, float, float, float, float, float, float]:
+    """One view's own body axes from its labels, ``v`` (25, 3) metres, world frame: the unit up
+    axis (SpineBase → SpineShoulder), the unit left axis (the hips' and the shoulders'
+    left-minus-right vectors, each where finite, summed and made normal to up) and
+    forward = left × up, as ``(u0, u1, u2, l0, l1, l2, f0, f1, f2)``; NaN where the trunk is
+    unknown. Inlined into each loop by numba (numba's disk cache checks only the caller's
+    file: a loop in another module that inlines this keeps a stale body after an edit here).
     """
-    joints = np.asarray(views, dtype=np.float64)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        left, up, forward = _body_frame(np.ascontiguousarray(joints.transpose(2, 0, 1)))
-    return left.T.copy(), up.T.copy(), forward.T.copy()
+    u0, u1, u2 = v[_SS, 0] - v[_SB, 0], v[_SS, 1] - v[_SB, 1], v[_SS, 2] - v[_SB, 2]
+    norm = math.sqrt((u0 * u0 + u1 * u1) + u2 * u2)
+    u0, u1, u2 = u0 / norm, u1 / norm, u2 / norm
+    h0, h1, h2 = v[_HL, 0] - v[_HR, 0], v[_HL, 1] - v[_HR, 1], v[_HL, 2] - v[_HR, 2]
+    s0, s1, s2 = v[_SL, 0] - v[_SR, 0], v[_SL, 1] - v[_SR, 1], v[_SL, 2] - v[_SR, 2]
+    hips = math.isfinite(h0) and math.isfinite(h1) and math.isfinite(h2)
+    shoulders = math.isfinite(s0) and math.isfinite(s1) and math.isfinite(s2)
+    if hips or shoulders:
+        l0 = (h0 if math.isfinite(h0) else 0.0) + (s0 if math.isfinite(s0) else 0.0)
+        l1 = (h1 if math.isfinite(h1) else 0.0) + (s1 if math.isfinite(s1) else 0.0)
+        l2 = (h2 if math.isfinite(h2) else 0.0) + (s2 if math.isfinite(s2) else 0.0)
+    else:
+        l0 = l1 = l2 = math.nan
+    d = (l0 * u0 + l1 * u1) + l2 * u2
+    l0, l1, l2 = l0 - d * u0, l1 - d * u1, l2 - d * u2
+    norm = math.sqrt((l0 * l0 + l1 * l1) + l2 * l2)
+    l0, l1, l2 = l0 / norm, l1 / norm, l2 / norm
+    f0, f1, f2 = l1 * u2 - l2 * u1, l2 * u0 - l0 * u2, l0 * u1 - l1 * u0
+    return u0, u1, u2, l0, l1, l2, f0, f1, f2
 
 
-def _body_frame(joints: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """:func:`body_frame` of component-major (3, S, 25) joints, inside ``np.errstate``: left,
-    up, forward as (3, S)."""
-    up = _unit_major(joints[:, :, J.SPINE_SHOULDER] - joints[:, :, J.SPINE_BASE])
-    across = joints[:, :, _ACROSS_LEFT] - joints[:, :, _ACROSS_RIGHT]  # (3, S, 2): hips, shoulders
-    ok: npt.NDArray[np.bool_] = np.isfinite(across)
-    kept = np.where(ok, across, 0.0)
-    lateral = kept[:, :, 0] + kept[:, :, 1]
-    whole = ok[0] & ok[1] & ok[2]  # (S, 2): the hips, the shoulders known
-    lateral[:, ~(whole[:, 0] | whole[:, 1])] = np.nan
-    lateral = lateral - _dot(lateral, up) * up
-    left = _unit_major(lateral)
-    forward = _cross(left, up)
-    return left, up, forward
+@jit
+def _clip_unit(x: float) -> float:
+    """``np.clip(x, -1, 1)`` (NaN stays NaN)."""
+    if x < -1.0:
+        return -1.0
+    if x > 1.0:
+        return 1.0
+    return x
+
+
+@jit
+def _factor(angle: float, low: float, high: float, scale_deg: float) -> float:
+    """One angle's range-of-motion factor: exp(−excess / scale), 1 where unknown (an excess of
+    ±0 gives 1 alike)."""
+    below, above = low - angle, angle - high
+    excess = (below if below >= 0.0 or below != below else 0.0) + (
+        above if above >= 0.0 or above != above else 0.0
+    )
+    if math.isfinite(excess):
+        return math.exp(-excess / scale_deg)
+    return 1.0
 
 
 ROM_LIMITS_DEG: Final[dict[str, tuple[float, float]]] = {
@@ -142,121 +140,122 @@ ROM_LIMITS_DEG: Final[dict[str, tuple[float, float]]] = {
     "ankle_shank_foot": (25.0, 150.0),
     "neck_flexion": (0.0, 70.0),
 }
-"""Anatomical range of each angle (degrees); sources and conventions in the module docstring."""
-
-
-# Both sides at once: index 0 left, 1 right (sign +1 / −1 for abduction).
-_SIDE_SIGN: Final = np.array([1.0, -1.0])
-
-
-_KNEE: Final = np.array([J.KNEE_LEFT, J.KNEE_RIGHT])
-
-
-_ANKLE: Final = np.array([J.ANKLE_LEFT, J.ANKLE_RIGHT])
-
-
-_FOOT: Final = np.array([J.FOOT_LEFT, J.FOOT_RIGHT])
-
-
-_ELBOW: Final = np.array([J.ELBOW_LEFT, J.ELBOW_RIGHT])
-
-
-_WRIST: Final = np.array([J.WRIST_LEFT, J.WRIST_RIGHT])
+"""Anatomical range of each angle (degrees); sources and conventions in confidence.py."""
 
 
 _SIDED_ANGLES: Final = (
-    ("knee_flexion", _ANKLE),
-    ("hip_flexion", _KNEE),
-    ("hip_abduction", _KNEE),
-    ("ankle_shank_foot", _FOOT),
-    ("elbow_flexion", _WRIST),
-    ("shoulder_extension", _ELBOW),
+    ("knee_flexion", (_AL, _AR)),
+    ("hip_flexion", (_KL, _KR)),
+    ("hip_abduction", (_KL, _KR)),
+    ("ankle_shank_foot", (_FL, _FR)),
+    ("elbow_flexion", (_WL, _WR)),
+    ("shoulder_extension", (_EL, _ER)),
 )
-"""The per-side angles in the order :func:`_angle_table` returns them, and their distal joints."""
+"""The per-side angles in the angle table's column order (left, right each; then the neck),
+and the joints they land on."""
 
 
-_ANGLE_LOW: Final = np.array(
-    [ROM_LIMITS_DEG[name][0] for name, _ in _SIDED_ANGLES for _side in range(2)]
-    + [ROM_LIMITS_DEG["neck_flexion"][0]]
-)
+def _limits(bound: int) -> FloatArray:
+    sided = [ROM_LIMITS_DEG[name][bound] for name, _ in _SIDED_ANGLES for _side in range(2)]
+    return np.array([*sided, ROM_LIMITS_DEG["neck_flexion"][bound]])
 
 
-_ANGLE_HIGH: Final = np.array(
-    [ROM_LIMITS_DEG[name][1] for name, _ in _SIDED_ANGLES for _side in range(2)]
-    + [ROM_LIMITS_DEG["neck_flexion"][1]]
-)
-ANGLE_LIMITS: Final = (_ANGLE_LOW, _ANGLE_HIGH)
-"""The angle table's limits, low and high (13,), degrees: what the compiled kernels take."""
-
-_KNEE_COLUMNS: Final = (2, 3, 4, 5)
-"""Columns of the angle table landing on the knees (hip flexion L/R, hip abduction L/R)."""
+ANGLE_LIMITS: Final = (_limits(0), _limits(1))
+"""The angle table's limits, low and high (13,), degrees."""
 
 
-_SINGLE_COLUMNS: Final = np.array([0, 1, 6, 7, 8, 9, 10, 11, 12])
+@jit_inline
+def _view_angles(v: FloatArray, axes: tuple[float, ...], seg: FloatArray, out: FloatArray) -> None:
+    """Fill ``out`` (13,) with one view's angles (degrees, the table's column order) from its
+    joints ``v`` (25, 3) and :func:`body_axes`; ``seg`` (19, 3) scratch: the segments, then
+    the unit ones."""
+    u0, u1, u2, l0, l1, l2, f0, f1, f2 = axes
+    distal = (_KL, _KR, _AL, _AR, _FL, _FR, _EL, _ER, _WL, _WR, _HD)
+    proximal = (_HL, _HR, _KL, _KR, _AL, _AR, _SL, _SR, _EL, _ER, _NK)
+    for k in range(11):  # thighs, shanks, feet, upper arms, forearms, the neck: distal − proximal
+        for c in range(3):
+            seg[k, c] = v[distal[k], c] - v[proximal[k], c]
+    # Knee (thigh → shank about the left axis), ankle (shank → foot about the right axis).
+    for i in range(4):
+        a, b = seg[i], seg[i + 2]
+        x0, x1, x2 = a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]
+        sign = 1.0 if i < 2 else -1.0  # the left axis, then the right (exact negation)
+        axis = (x0 * (sign * l0) + x1 * (sign * l1)) + x2 * (sign * l2)
+        along = (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2]
+        out[i if i < 2 else i + 4] = math.atan2(axis, along) * _RAD2DEG  # knees 0, 1; ankles 6, 7
+    # Hip flexion (thighs) and shoulder extension (upper arms, behind while below the shoulder).
+    for i in range(4):
+        a = seg[i if i < 2 else i + 4]
+        ahead = (a[0] * f0 + a[1] * f1) + a[2] * f2
+        below = (a[0] * -u0 + a[1] * -u1) + a[2] * -u2
+        if i < 2:
+            out[2 + i] = math.atan2(ahead, below) * _RAD2DEG
+        else:
+            out[8 + i] = math.atan2(-ahead, below) * _RAD2DEG if below > 0 else 0.0
+    # Unit thighs, upper arms, forearms, neck, and up again.
+    units = seg[11:]
+    for j in range(7):
+        a = seg[(0, 1, 6, 7, 8, 9, 10)[j]]
+        norm = math.sqrt((a[0] * a[0] + a[1] * a[1]) + a[2] * a[2])
+        units[j, 0], units[j, 1], units[j, 2] = a[0] / norm, a[1] / norm, a[2] / norm
+    norm = math.sqrt((u0 * u0 + u1 * u1) + u2 * u2)
+    units[7, 0], units[7, 1], units[7, 2] = u0 / norm, u1 / norm, u2 / norm
+    for i in range(2):  # hip abduction: the thigh out of the sagittal plane, outwards positive
+        outwards = (units[i, 0] * l0 + units[i, 1] * l1) + units[i, 2] * l2
+        out[4 + i] = math.asin(_clip_unit(outwards if i == 0 else -outwards)) * _RAD2DEG
+    for i in range(3):  # elbows (upper arm · forearm) and the neck (up · neck), unsigned
+        a, b = units[(2, 3, 7)[i]], units[(4, 5, 6)[i]]
+        cos = (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2]
+        out[(8, 9, 12)[i]] = math.acos(_clip_unit(cos)) * _RAD2DEG
 
 
-_SINGLE_JOINTS: Final = np.array(
-    [J.ANKLE_LEFT, J.ANKLE_RIGHT, J.FOOT_LEFT, J.FOOT_RIGHT, J.WRIST_LEFT, J.WRIST_RIGHT,
-     J.ELBOW_LEFT, J.ELBOW_RIGHT, J.HEAD]
-)  # fmt: skip
+@jit
+def rom_loop(
+    views: FloatArray,
+    limits: tuple[float, FloatArray, FloatArray],
+    factors: FloatArray,
+    forward: FloatArray,
+    angles: FloatArray,
+) -> None:
+    """Fill ``factors`` (M, 25), ``forward`` (M, 3) and ``angles`` (M, 13) for ``views``
+    (M, 25, 3): ``limits`` the scale (degrees outside the range for 1/e) and the angle limits
+    low, high (13,). ``factors`` must be all ones on entry (joints without an angle)."""
+    scale_deg, low, high = limits
+    seg = np.empty((19, 3))
+    single = (
+        (0, _AL),
+        (1, _AR),
+        (6, _FL),
+        (7, _FR),
+        (8, _WL),
+        (9, _WR),
+        (10, _EL),
+        (11, _ER),
+        (12, _HD),
+    )
+    for m in range(views.shape[0]):
+        axes = body_axes(views[m])
+        forward[m, 0], forward[m, 1], forward[m, 2] = axes[6], axes[7], axes[8]
+        angle = angles[m]
+        _view_angles(views[m], axes, seg, angle)
+        row = factors[m]
+        for column, joint in single:
+            row[joint] = _factor(angle[column], low[column], high[column], scale_deg)
+        for column, joint in ((2, _KL), (3, _KR)):  # hip flexion × hip abduction on the knee
+            row[joint] = _factor(angle[column], low[column], high[column], scale_deg) * _factor(
+                angle[column + 2], low[column + 2], high[column + 2], scale_deg
+            )
 
 
-# The segments the angles need, as distal − proximal joint: thigh, shank, foot, upper arm,
-# forearm (left, right each), then the neck.
-_SEGMENT_DISTAL: Final = np.array(
-    [J.KNEE_LEFT, J.KNEE_RIGHT, J.ANKLE_LEFT, J.ANKLE_RIGHT, J.FOOT_LEFT, J.FOOT_RIGHT,
-     J.ELBOW_LEFT, J.ELBOW_RIGHT, J.WRIST_LEFT, J.WRIST_RIGHT, J.HEAD]
-)  # fmt: skip
-_SEGMENT_PROXIMAL: Final = np.array(
-    [J.HIP_LEFT, J.HIP_RIGHT, J.KNEE_LEFT, J.KNEE_RIGHT, J.ANKLE_LEFT, J.ANKLE_RIGHT,
-     J.SHOULDER_LEFT, J.SHOULDER_RIGHT, J.ELBOW_LEFT, J.ELBOW_RIGHT, J.NECK]
-)  # fmt: skip
-_LIMBS: Final = np.array([0, 1, 6, 7])
-"""Thighs and upper arms among the segments: each swings forward or back from the trunk."""
-_TO_UNIT: Final = np.array([0, 1, 6, 7, 8, 9, 10])
-"""Segments made unit vectors: thighs (abduction), upper arms, forearms, neck (then ``up``)."""
-_TABLE_ORDER: Final = np.array([0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 11, 12, 10])
-"""Columns of [knee, hip, abduction, ankle, elbow, neck, shoulder] in :func:`_angle_table`'s
-order (the shoulders before the neck)."""
-
-
-def _angle_table(
-    joints: FloatArray, left: FloatArray, up: FloatArray, forward: FloatArray
-) -> FloatArray:
-    """(S, 13) angles in degrees: each of :data:`_SIDED_ANGLES` left then right, then the neck.
-
-    joints: component-major (3, S, 25); left, up, forward: (3, S) (:func:`_body_frame`).
-    Angles of the same kind are computed together (left and right, knees with ankles, hips
-    with shoulders, elbows with the neck): each is the same operations as alone.
-    """
-    left_, up_, forward_ = left[:, :, None], up[:, :, None], forward[:, :, None]
-    segment = joints[:, :, _SEGMENT_DISTAL] - joints[:, :, _SEGMENT_PROXIMAL]  # (3, S, 11)
-    # Knee flexion swings the shank backwards: positive about the person's left axis; the foot
-    # points forward from the shank: positive about the person's right axis. (S, 4) signed
-    # angles from (thigh, shank) to (shank, foot).
-    first, second = segment[:, :, 0:4], segment[:, :, 2:6]
-    axis = np.repeat(left_, 4, axis=2)
-    np.negative(axis[:, :, 2:], out=axis[:, :, 2:])  # the right axis (np.negative: NaN bits too)
-    bend = np.degrees(np.arctan2(_dot(_cross(first, second), axis), _dot(first, second)))
-    # Hip: thigh against the trunk's down axis, flexion forward. Shoulder extension: the arm
-    # behind the trunk while below shoulder height.
-    limbs = segment[:, :, _LIMBS]
-    ahead = _dot(limbs, forward_)
-    np.negative(ahead[:, 2:], out=ahead[:, 2:])  # the arms: how far behind
-    below = _dot(limbs, -up_)
-    swing = np.degrees(np.arctan2(ahead, below))
-    units = _unit_major(np.concatenate([segment[:, :, _TO_UNIT], up_], axis=2))  # (3, S, 8)
-    # Abduction: how far the thigh leaves the sagittal plane (outwards positive).
-    outwards = _SIDE_SIGN * _dot(units[:, :, 0:2], left_)
-    abduction = np.degrees(np.arcsin(np.clip(outwards, -1.0, 1.0)))
-    # Elbows (upper arm to forearm) and the neck (up to the neck), unsigned.
-    cos = _dot(units[:, :, [2, 3, 7]], units[:, :, [4, 5, 6]])
-    unsigned = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
-    shoulder = np.where(below[:, 2:4] > 0, swing[:, 2:4], 0.0)
-    out: FloatArray = np.concatenate(
-        [bend[:, 0:2], swing[:, 0:2], abduction, bend[:, 2:4], unsigned, shoulder], axis=1
-    )[:, _TABLE_ORDER]
-    return out
+def _rom(views: npt.ArrayLike, scale_deg: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """:func:`rom_loop` of ``views`` (M, 25, 3): factors (M, 25), forward (M, 3), angles
+    (M, 13)."""
+    joints = plain(views)
+    factors = np.ones(joints.shape[:2])
+    forward = np.empty((joints.shape[0], 3))
+    angles = np.empty((joints.shape[0], 13))
+    rom_loop(joints, (float(scale_deg), *ANGLE_LIMITS), factors, forward, angles)
+    return factors, forward, angles
 
 
 def joint_angles(views: npt.ArrayLike) -> dict[str, tuple[FloatArray, int]]:
@@ -268,40 +267,31 @@ def joint_angles(views: npt.ArrayLike) -> dict[str, tuple[FloatArray, int]]:
     Returns:
         ``name_side`` → ((S,) angles in degrees, NaN where unknown; distal joint index).
     """
-    joints = np.ascontiguousarray(np.asarray(views, dtype=np.float64).transpose(2, 0, 1))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        table = _angle_table(joints, *_body_frame(joints))
+    table = _rom(views, 1.0)[2]
     out: dict[str, tuple[FloatArray, int]] = {}
     for side_index, side in enumerate(("left", "right")):
         for k, (name, distal) in enumerate(_SIDED_ANGLES):
-            out[f"{name}_{side}"] = (table[:, 2 * k + side_index], int(distal[side_index]))
-    out["neck_flexion"] = (table[:, 12], int(J.HEAD))
+            out[f"{name}_{side}"] = (table[:, 2 * k + side_index], distal[side_index])
+    out["neck_flexion"] = (table[:, 12], _HD)
     return out
 
 
 def rom_factors_and_forward(
     views: npt.ArrayLike, scale_deg: float
 ) -> tuple[FloatArray, FloatArray]:
-    """:func:`range_of_motion_factors` and the views' ``forward`` axes (:func:`body_frame`).
+    """Each view's range-of-motion factors and its body's forward axis.
 
-    Runs the compiled kernel when :func:`skelfuse.fusion.kernels.enabled` (the same bits); the
-    numpy code below is the reference.
+    Args:
+        views: (M, 25, 3) joints, metres, world frame, NaN where unknown.
+        scale_deg: degrees outside the range for a factor of 1/e.
+
+    Returns:
+        factors (M, 25) float64 in (0, 1] (1 where every angle landing on the joint is in range
+        or unknown; the knees get hip flexion × hip abduction), forward (M, 3) unit vectors
+        (NaN where the trunk is missing; :func:`body_axes`).
     """
-    joints = np.asarray(views, dtype=np.float64)
-    if kernels.enabled():
-        return kernels.rom_factors_and_forward(joints, scale_deg, _ANGLE_LOW, _ANGLE_HIGH)
-    major = np.ascontiguousarray(joints.transpose(2, 0, 1))  # fancy indexing is faster on it
-    with np.errstate(invalid="ignore", divide="ignore"):
-        left, up, forward = _body_frame(major)
-        angles = _angle_table(major, left, up, forward)
-    excess = np.maximum(_ANGLE_LOW - angles, 0.0) + np.maximum(angles - _ANGLE_HIGH, 0.0)
-    factors = np.where(np.isfinite(excess), np.exp(-excess / scale_deg), 1.0)
-    out = np.ones(joints.shape[:2])
-    out[:, _SINGLE_JOINTS] = factors[:, _SINGLE_COLUMNS]
-    # The knee gets hip flexion × hip abduction (1 · a · b as a running product: the same bits).
-    out[:, J.KNEE_LEFT] = factors[:, _KNEE_COLUMNS[0]] * factors[:, _KNEE_COLUMNS[2]]
-    out[:, J.KNEE_RIGHT] = factors[:, _KNEE_COLUMNS[1]] * factors[:, _KNEE_COLUMNS[3]]
-    return out, forward.T.copy()
+    factors, forward, _ = _rom(views, scale_deg)
+    return factors, forward
 
 
 def facing_direction(joints: npt.ArrayLike) -> FloatArray:
@@ -315,25 +305,28 @@ def facing_direction(joints: npt.ArrayLike) -> FloatArray:
 
 
 def facing_directions(skeletons: npt.ArrayLike) -> FloatArray:
-    """:func:`facing_direction` of each of P skeletons (P, 25, 3) at once: (P, 3).
+    """:func:`facing_direction` of each of P skeletons (P, 25, 3) at once: (P, 3) horizontal unit
+    vectors, NaN rows where unknown (the body's forward axis close to vertical, or missing)."""
+    joints = plain(skeletons)
+    out = np.empty((joints.shape[0], 3))
+    facing_loop(joints, out)
+    return out
 
-    Runs the compiled kernel when :func:`skelfuse.fusion.kernels.enabled` (the same bits)."""
-    if kernels.enabled():
-        return kernels_stages.facing_directions(np.asarray(skeletons, dtype=np.float64))
-    _, _, forward = body_frame(skeletons)
-    return facings_of_forward(forward)
 
-
-def facings_of_forward(forward: FloatArray) -> FloatArray:
-    """Horizontal unit facings (P, 3) from :func:`body_frame` forward axes (P, 3); NaN rows
-    where unknown (the body's forward axis close to vertical, or missing)."""
-    horizontal = forward * HORIZONTAL
-    # np.vecdot is the dot product np.linalg.norm uses on one vector (the same bits).
-    norm = np.sqrt(np.vecdot(horizontal, horizontal))
-    ok = np.isfinite(horizontal).all(-1) & ~(norm < 1e-6)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        result: FloatArray = np.where(ok[:, None], horizontal / norm[:, None], np.nan)
-    return result
+@jit
+def facing_loop(skeletons: FloatArray, out: FloatArray) -> None:
+    """Fill ``out`` (P, 3) with the facings of ``skeletons`` (P, 25, 3): the forward axis of
+    :func:`body_axes` made horizontal and unit (``np.vecdot`` order), NaN where its horizontal
+    part is unknown or shorter than 1e-6."""
+    for m in range(skeletons.shape[0]):
+        f0, f1, f2 = body_axes(skeletons[m])[6:]
+        h0, h1, h2 = f0 * 1.0, f1 * 0.0, f2 * 1.0
+        norm = math.sqrt((h0 * h0 + h1 * h1) + h2 * h2)
+        ok = math.isfinite(h0) and math.isfinite(h1) and math.isfinite(h2)
+        if ok and not norm < 1e-6:
+            out[m, 0], out[m, 1], out[m, 2] = h0 / norm, h1 / norm, h2 / norm
+        else:
+            out[m, 0] = out[m, 1] = out[m, 2] = math.nan
 
 
 def align_yaw(views: npt.ArrayLike, target_facing: npt.ArrayLike, max_deg: float) -> FloatArray:
@@ -395,3 +388,11 @@ def corrected_yaw(joints: FloatArray, cosines: FloatArray, max_deg: float) -> Fl
         if norm > 1e-6:
             return align_yaw(joints, mean / norm, max_deg)
     return joints
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) this module's loops now, for the argument types every
+    call passes (:func:`~skelfuse.fusion.kernels_jit.plain`), so no frame waits for it."""
+    views = np.zeros((2, 25, 3))
+    rom_factors_and_forward(views, 15.0)
+    facing_directions(views)

@@ -87,28 +87,6 @@ def forced(chosen: str) -> Iterator[None]:
         _state.mode, _state.enabled = saved
 
 
-def rom_factors_and_forward(
-    views: FloatArray, scale_deg: float, low: FloatArray, high: FloatArray
-) -> tuple[FloatArray, FloatArray]:
-    """The compiled :func:`skelfuse.fusion.anatomy.rom_factors_and_forward` (same bits).
-
-    Args:
-        views: (M, 25, 3) float64 joints, metres, world frame, NaN where unknown.
-        scale_deg: degrees outside the range for a factor of 1/e.
-        low, high: (13,) the angle limits, degrees, in the angle table's column order.
-
-    Returns:
-        factors (M, 25), forward (M, 3), as the numpy version.
-    """
-    joints = plain(views)
-    factors = np.ones(joints.shape[:2])
-    forward = np.empty((joints.shape[0], 3))
-    from skelfuse.fusion.kernels_rom import rom_loop  # imports numba: only when used
-
-    rom_loop(joints, float(scale_deg), plain(low), plain(high), factors, forward)
-    return factors, forward
-
-
 def project_bone_lengths(
     joints: FloatArray,
     reference: FloatArray,
@@ -159,15 +137,19 @@ def warm_up() -> float:
     if not enabled():
         return 0.0
     start = time.perf_counter()
+    from skelfuse.fusion import anatomy, labels, mirror, unbiased_facing, walking
+
+    anatomy.warm_up()  # the mirror, labels and facing stages
+    mirror.warm_up()
+    labels.warm_up()
+    unbiased_facing.warm_up()
+    walking.warm_up()
     views = np.zeros((2, 25, 3))
-    limits = np.zeros(13)
-    rom_factors_and_forward(views, 15.0, limits, limits)
     index = np.zeros(25, dtype=np.intp)  # the index tables' types, any content
     tables = (index, index, index, index, index, np.full(25, -1, dtype=np.intp))
     project_bone_lengths(views, np.ones((2, 24)), np.ones((2, 25)), 1, tables)
-    from skelfuse.fusion import confidence, kernels_stages, view_factors, weigh, weighted
+    from skelfuse.fusion import confidence, view_factors, weigh, weighted
 
-    kernels_stages.warm_up()  # the mirror stages' kernels
     weighted.warm_up()
     confidence.warm_up()
     view_factors.warm_up()
@@ -175,7 +157,6 @@ def warm_up() -> float:
     # The bone observation's medians and the Kalman correction: they run once warmed.
     from skelfuse.fusion import (
         kernels_filter,
-        kernels_label_stage,
         kernels_lerp,
         kernels_median,
         kernels_motion,
@@ -193,5 +174,4 @@ def warm_up() -> float:
     kernels_motion.warm_up()
     kernels_lerp.warm_up()
     kernels_replay.warm_up()
-    kernels_label_stage.warm_up()
     return time.perf_counter() - start

@@ -7,7 +7,7 @@ sensors × 60 frames (timed alone), which set the step's p99; 0.16 ms here. One 
 candidate does the same IEEE operations: the modulo as ``np.mod`` takes it (``fmod``, then the
 divisor's sign), the sum over sensors element after element from 0 as numpy reduces a middle
 axis, the mean over frames as numpy's pairwise sum
-(:func:`~skelfuse.fusion.kernels_mirror.pairwise`) over the count; so the same floats, and the
+(:func:`~skelfuse.fusion.mirror_distances.pairwise`) over the count; so the same floats, and the
 same phase chosen (tests/unit/test_kernels_replay.py).
 
 As :mod:`skelfuse.fusion.kernels_observe`: the loop runs only once :func:`warm_up` has compiled
@@ -20,7 +20,7 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.kernels_jit import Warmed, jit, jit_inline, plain
-from skelfuse.fusion.kernels_mirror import pairwise
+from skelfuse.fusion.mirror_distances import pairwise
 
 FloatArray = npt.NDArray[np.float64]
 

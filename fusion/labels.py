@@ -1,14 +1,15 @@
 """The mirror-labels step: which views are swapped back, remembered per body, and whole persons
-swapped when they walk backwards.
+swapped when their anatomy speaks against their labels.
 
-:func:`label_views` asks :func:`skelfuse.fusion.mirror.choose_labellings` for every person's
+:func:`label_views` asks :func:`skelfuse.fusion.label_scores.scored_labels` for every person's
 labelling at once, remembers each (sensor, body)'s decision for the next step's hysteresis, and
-swaps the mirrored views in place. Two cues can swap a whole person whose labels were wrong
-from its birth: :func:`walking_backwards`, which does not depend on labels (docs/fusion.md §5),
-and, with ``mirror_redecide``, the anatomy of all its views (:func:`redecide`), which works
-standing still too. With ``mirror_unbiased_facing`` the facing the geometry term compares
-each sensor with is the person's facing with every sensor's bias of turning the body towards
-itself taken out (:func:`unbiased_facings`).
+swaps the mirrored views in place (:func:`settle`, one compiled loop). Two cues can swap a whole
+person whose labels were wrong from its birth: :func:`skelfuse.fusion.walking.walking_backwards`,
+which does not depend on labels (docs/fusion.md §5), and, with ``mirror_redecide``, the anatomy
+of all its views (:func:`redecide`), which works standing still too. With
+``mirror_unbiased_facing`` the facing the geometry term compares each sensor with is the
+person's facing with every sensor's bias of turning the body towards itself taken out
+(:func:`skelfuse.fusion.unbiased_facing.unbiased_facings`).
 """
 
 from __future__ import annotations
@@ -21,15 +22,17 @@ from itertools import pairwise
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion import kernels, kernels_label_stage, kernels_stages
-from skelfuse.fusion.anatomy import facing_direction, facing_directions, facings_of_forward
-from skelfuse.fusion.kernels_jit import in_place
+from skelfuse.fusion.anatomy import facing_loop
+from skelfuse.fusion.kernels_jit import jit, plain
 from skelfuse.fusion.label_scores import scored_labels
 from skelfuse.fusion.mirror import PERMUTATION
 from skelfuse.fusion.mirror_labellings import slots
 from skelfuse.fusion.settings import FusionSettings
+from skelfuse.fusion.unbiased_facing import check_lean, unbiased_loop
+from skelfuse.protocol.skeleton import JOINT_COUNT
 
 FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.intp]
 Labels = dict[tuple[str, int], bool]
 """Per (sensor id, tracking id): whether that body was mirrored at the last step."""
 VIEW_AGAINST = 0.5
@@ -43,8 +46,8 @@ class LabelDoubt:
 
     against: the running sum of evidence (joints, :func:`redecide`); sensors: the sensors that
     saw the person at the last step; born_s, last_s: first and last step seen (seconds);
-    facing: (3,) the last step's :func:`unbiased_facings` (``mirror_unbiased_facing``; NaN:
-    unknown).
+    facing: (3,) the last step's :func:`~skelfuse.fusion.unbiased_facing.unbiased_facings`
+    (``mirror_unbiased_facing``; NaN: unknown).
     """
 
     against: float = 0.0
@@ -122,75 +125,180 @@ def label_views(
     swapped = np.zeros(len(counts), dtype=bool)
     if redeciding and per_view is not None and summed is not None:
         assert doubts is not None
-        sensors = [frozenset(k[0] for k in keys[lo:hi]) for lo, hi in pairwise(starts)]
-        evidence = summed.tolist()
-        turned = False  # whether any person was: most steps none, and no array is asked
-        for p, doubt in enumerate(doubts):
-            if not redecide(doubt, evidence[p], sensors[p], t_s, s):
-                continue
-            swapped[p] = turned = True
-            if s.mirror_redecide_views > 1:
-                alone = views_alone(per_view[starts[p] : starts[p + 1]], doubt, t_s, s)
-                if alone is not None:  # a view or two, not the person: they turn, not the track
-                    mirrored[starts[p] : starts[p + 1]] ^= alone
-                    swapped[p] = False
-        if turned and swapped.any():
-            mirrored ^= swapped[person_of]
-    flags = mirrored.tolist()
+        _redecide_all(mirrored, swapped, (per_view, summed), (keys, starts, person_of),
+                      doubts, t_s, s)  # fmt: skip
+    _remember(memories, mirrored.tolist(), last, keys, starts)
+    facings, rom = settle(
+        (joints, states, mirrored),
+        (sensor_positions, forward, places.starts, s.view_lean_fraction) if unbiased else None,
+        both_rom if s.use_range_of_motion or s.mirror_anatomy_weight_m > 0 else None,
+    )
+    if facings is not None:
+        assert doubts is not None
+        for doubt, facing in zip(doubts, facings, strict=True):
+            doubt.facing = facing
+    return mirrored, rom, swapped
+
+
+def _redecide_all(
+    mirrored: npt.NDArray[np.bool_],
+    swapped: npt.NDArray[np.bool_],
+    evidence: tuple[FloatArray, FloatArray],
+    places: tuple[Sequence[tuple[str, int]], list[int], IntArray],
+    doubts: Sequence[LabelDoubt],
+    t_s: float,
+    s: FusionSettings,
+) -> None:
+    """Turn over, in place, the labels of each person :func:`redecide` turns over (``mirrored``
+    (N,) of its views, ``swapped`` (P,) set), or of the views alone (:func:`views_alone`).
+
+    evidence: (N,) per view and (P,) per person, in joints; places: each view's key, each
+    person's first view (then N) and each view's person."""
+    per_view, summed = evidence
+    keys, starts, person_of = places
+    sensors = [frozenset(k[0] for k in keys[lo:hi]) for lo, hi in pairwise(starts)]
+    against = summed.tolist()
+    turned = False  # whether any person was: most steps none, and no array is asked
+    for p, doubt in enumerate(doubts):
+        if not redecide(doubt, against[p], sensors[p], t_s, s):
+            continue
+        swapped[p] = turned = True
+        if s.mirror_redecide_views > 1:
+            alone = views_alone(per_view[starts[p] : starts[p + 1]], doubt, t_s, s)
+            if alone is not None:  # a view or two, not the person: they turn, not the track
+                mirrored[starts[p] : starts[p + 1]] ^= alone
+                swapped[p] = False
+    if turned and swapped.any():
+        mirrored ^= swapped[person_of]
+
+
+def _remember(
+    memories: list[Labels],
+    flags: list[bool],
+    last: list[bool | int],
+    keys: Sequence[tuple[str, int]],
+    starts: list[int],
+) -> None:
+    """Each person's memory becomes exactly this step's labels of its views."""
     for p, (lo, hi) in enumerate(pairwise(starts)):
         memory = memories[p]
         if flags[lo:hi] == last[lo:hi] and len(memory) == hi - lo:
             continue  # every view remembered, as decided again, and nothing else: as it is
         memory.clear()
         memory.update(zip(keys[lo:hi], flags[lo:hi], strict=True))
-    if (
-        unbiased
-        and forward is not None
-        and both_rom is not None
-        and (s.use_range_of_motion or s.mirror_anatomy_weight_m > 0)
-        and 0.0 <= s.view_lean_fraction < 1.0
-        and kernels.enabled()
-        and kernels_label_stage.warmed()
-        and in_place(joints, np.float64)
-        and in_place(states, np.uint8)
-    ):  # the usual step: the swap, the facings and the factors as labelled in one call
-        assert doubts is not None
-        facings, as_labelled = kernels_label_stage.settled(
-            joints, states, mirrored, PERMUTATION,
-            (sensor_positions, forward, places.starts, s.view_lean_fraction), both_rom,
-        )  # fmt: skip
-        for doubt, facing in zip(doubts, facings, strict=True):
-            doubt.facing = facing
-        return mirrored, as_labelled, swapped
-    swapped_here = kernels.enabled() and kernels_stages.swap_mirrored(
-        joints, states, mirrored, PERMUTATION
-    )
-    if mirrored.any() and not swapped_here:
-        joints[mirrored] = joints[mirrored][:, PERMUTATION]
-        states[mirrored] = states[mirrored][:, PERMUTATION]
-    if unbiased:
-        assert doubts is not None
-        # Each view's facing as labelled: the forward axis of its chosen labelling, already
-        # computed for the range of motion (the same bits as from the swapped joints).
-        if forward is not None and kernels.enabled() and 0.0 <= s.view_lean_fraction < 1.0:
-            facings = kernels_stages.unbiased_facings(
-                joints[:, 0], sensor_positions, forward, mirrored, places.starts,
-                s.view_lean_fraction,
-            )  # fmt: skip
-        else:
-            own = None
-            if forward is not None:
-                chosen = forward[np.arange(len(joints)), mirrored.view(np.uint8)]
-                own = facings_of_forward(chosen)
-            facings = unbiased_facings(
-                joints, sensor_positions, mirrored, counts, s.view_lean_fraction, own
+
+
+def settle(
+    labelled: tuple[FloatArray, npt.NDArray[np.uint8], npt.NDArray[np.bool_]],
+    facing_terms: tuple[FloatArray, FloatArray | None, IntArray, float] | None,
+    factors: FloatArray | None,
+) -> tuple[FloatArray | None, FloatArray | None]:
+    """After the choice, in one compiled call: the mirrored views swapped back in place, each
+    person's unbiased facing, and each view's range-of-motion factors as labelled.
+
+    Args:
+        labelled: joints (N, 25, 3) float64 and states (N, 25) uint8, swapped in place where
+            mirrored (N,) bool.
+        facing_terms: sensor positions (N, 3), each view's forward axis as reported and swapped
+            (N, 2, 3) or None (then taken from the swapped joints), (P + 1,) each person's
+            first view then N, and the sensors' lean in [0, 1); None: no facings.
+        factors: (N, 2, 25) range-of-motion factors as reported and swapped, or None.
+
+    Returns:
+        facings (P, 3) horizontal unit vectors (NaN rows: unknown) and rom (N, 25), each None
+        when not asked for.
+
+    Raises:
+        ValueError: when the lean is not in [0, 1).
+    """
+    joints, states, mirrored = labelled
+    points, flags = plain(joints), plain(states, np.uint8)
+    count = len(points)
+    sensors, forward, starts, lean = facing_terms or (np.zeros((count, 3)), None, [0, count], 0.0)
+    check_lean(lean)
+    facings = np.empty((len(starts) - 1, 3))
+    rom = np.empty((count, JOINT_COUNT))
+    _settled_loop(
+        (points, flags, plain(mirrored, np.bool_), plain(PERMUTATION, np.intp)),
+        (plain(sensors), plain(np.zeros((0, 2, 3)) if forward is None else forward),
+         plain(starts, np.intp), float(lean)),
+        plain(np.zeros((0, 2, JOINT_COUNT)) if factors is None else factors),
+        (facing_terms is not None, factors is not None),
+        (facings, rom),
+    )  # fmt: skip
+    if points is not joints:  # not writable in place as they were: copied, now written back
+        joints[...] = points
+    if flags is not states:
+        states[...] = flags
+    return facings if facing_terms is not None else None, rom if factors is not None else None
+
+
+@jit
+def _settled_loop(  # one loop for three steps: a call each costs more than their work
+    labelled: tuple[FloatArray, npt.NDArray[np.uint8], npt.NDArray[np.bool_], IntArray],
+    facing_terms: tuple[FloatArray, FloatArray, IntArray, float],
+    factors: FloatArray,
+    wanted: tuple[bool, bool],
+    out: tuple[FloatArray, FloatArray],
+) -> None:
+    joints, states, mirrored, permutation = labelled
+    sensor_positions, forward, starts, lean = facing_terms
+    facings, rom = out
+    _swap_loop(joints, states, mirrored, permutation)
+    count = joints.shape[0]
+    if wanted[1]:
+        for v in range(count):
+            chosen = 1 if mirrored[v] else 0
+            for j in range(joints.shape[1]):
+                rom[v, j] = factors[v, chosen, j]
+    if not wanted[0]:
+        return
+    own = np.empty((count, 3))
+    if forward.shape[0] == count:  # each view's facing from its chosen labelling's forward axis
+        for v in range(count):
+            axis = forward[v, 1 if mirrored[v] else 0]
+            h0, h1, h2 = axis[0] * 1.0, axis[1] * 0.0, axis[2] * 1.0
+            norm = math.sqrt((h0 * h0 + h1 * h1) + h2 * h2)
+            finite = math.isfinite(h0) and math.isfinite(h1) and math.isfinite(h2)
+            if finite and not norm < 1e-6:
+                own[v, 0], own[v, 1], own[v, 2] = h0 / norm, h1 / norm, h2 / norm
+            else:
+                own[v, 0] = own[v, 1] = own[v, 2] = math.nan
+    else:  # from the swapped joints (the same bits)
+        facing_loop(joints, own)
+    unbiased_loop(joints[:, 0].copy(), sensor_positions, own, mirrored, starts, lean, facings)
+
+
+@jit
+def _swap_loop(
+    joints: FloatArray,
+    states: npt.NDArray[np.uint8],
+    mirrored: npt.NDArray[np.bool_],
+    permutation: IntArray,
+) -> None:
+    """Swap left and right of the ``mirrored`` (N,) views in place: ``joints`` (N, 25, 3) and
+    ``states`` (N, 25) rows reordered by ``permutation`` (25,)."""
+    size = len(permutation)
+    points = np.empty((size, 3))
+    flags = np.empty(size, dtype=np.uint8)
+    for v in range(len(mirrored)):
+        if not mirrored[v]:
+            continue
+        for j in range(size):
+            points[j, 0], points[j, 1], points[j, 2] = (
+                joints[v, j, 0],
+                joints[v, j, 1],
+                joints[v, j, 2],
             )
-        for doubt, facing in zip(doubts, facings, strict=True):
-            doubt.facing = facing
-    rom = None
-    if both_rom is not None and (s.use_range_of_motion or s.mirror_anatomy_weight_m > 0):
-        rom = both_rom[np.arange(len(joints)), mirrored.astype(np.intp)]
-    return mirrored, rom, swapped
+            flags[j] = states[v, j]
+        for j in range(size):
+            k = permutation[j]
+            joints[v, j, 0], joints[v, j, 1], joints[v, j, 2] = (
+                points[k, 0],
+                points[k, 1],
+                points[k, 2],
+            )
+            states[v, j] = flags[k]
 
 
 def views_alone(
@@ -252,131 +360,11 @@ def redecide(
     return True
 
 
-def walking_backwards(
-    joints: FloatArray,
-    velocity: FloatArray,
-    t_s: float,
-    backward_since_s: float | None,
-    settings: FusionSettings,
-    facing: FloatArray | None = None,
-) -> tuple[bool, float | None]:
-    """Whether a person has walked backwards long enough to be taken as mirrored as a whole.
-
-    A person born mirrored (every sensor seeing them from the side or behind) stays mirrored,
-    since each view is labelled to agree with them and their own facing, reversed, makes the
-    back views look like front ones. People walk forwards: walking backwards at
-    ``mirror_walk_min_speed_mps`` or more for ``mirror_walk_check_s`` means the labels are wrong.
-
-    Args:
-        joints: (25, 3) the person's fused skeleton, metres, world; velocity: (3,) m/s.
-        backward_since_s: when the current stretch of walking backwards began, or None.
-        facing: the skeleton's ``facing_direction`` (3,) if the caller has it (one batched
-            call for every person is cheaper); None: worked out here when needed.
-
-    Returns:
-        (swap now, when the stretch began or None): after a swap the stretch starts over.
-    """
-    s = settings
-    if s.mirror_walk_check_s <= 0 or not s.use_mirror_correction:
-        return False, backward_since_s
-    # On Python floats: the operations np.linalg.norm and np.dot do on three components, in
-    # their order ((a₀b₀ + a₁b₁) + a₂b₂), without a numpy call's cost.
-    v0, v1, v2 = np.asarray(velocity, dtype=np.float64).tolist()
-    speed = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
-    backwards = False
-    if speed >= s.mirror_walk_min_speed_mps:
-        if facing is None:
-            facing = facing_direction(joints)
-        f0, f1, f2 = np.asarray(facing, dtype=np.float64).tolist()
-        finite = math.isfinite(f0) and math.isfinite(f1) and math.isfinite(f2)
-        backwards = finite and f0 * v0 + f1 * v1 + f2 * v2 < -0.5 * speed
-    if not backwards:
-        return False, None
-    if backward_since_s is None:
-        return False, t_s
-    if t_s - backward_since_s < s.mirror_walk_check_s:
-        return False, backward_since_s
-    return True, None
-
-
-def unbiased_facings(
-    joints: FloatArray,
-    sensor_positions: FloatArray,
-    mirrored: npt.NDArray[np.bool_],
-    counts: Sequence[int],
-    lean: float,
-    own: FloatArray | None = None,
-) -> FloatArray:
-    """(P, 3) each person's horizontal facing from its labelled views, each sensor's yaw bias
-    taken out (``mirror_unbiased_facing``); NaN rows where no view gives one.
-
-    A Kinect turns the body it reports towards itself by ``lean`` × the person's yaw θ to it
-    (clamped to ±90°; the simulator's ``facing_bias``): a view's own facing is at φ = θ − lean ×
-    clamp(θ) from its sensor. A view the sensor mirrored was fitted to the back, at the apparent
-    yaw θ ∓ 180°, and turned by that; swapped back, its facing is reversed again. A fused
-    skeleton inherits these turns: a person seen side-on by two sensors looks turned by
-    40–60° (the crossing scenario's turns), enough to put a side sensor behind them and to
-    keep that view's old labels after the sensor flips. Inverting each view's turn under the
-    labelling chosen, and averaging the unit vectors, gives the facing back.
-
-    Args:
-        joints: (N, 25, 3) every person's views, labels corrected; metres, world.
-        sensor_positions: (N, 3) metres, world (NaN rows: unknown).
-        mirrored: (N,) whether each view was swapped back (the sensor reported it mirrored).
-        counts: views per person.
-        lean: the share of its yaw a sensor turns a body towards itself, in [0, 1).
-        own: (N, 3) each view's :func:`~skelfuse.fusion.anatomy.facing_directions` as
-            labelled, when the caller has them (None: computed here).
-
-    Returns:
-        (P, 3) horizontal unit vectors (y = 0), NaN where unknown.
-
-    Raises:
-        ValueError: when ``lean`` is not in [0, 1).
-    """
-    if not 0.0 <= lean < 1.0:
-        raise ValueError(f"lean must be in [0, 1), got {lean}")
-    if own is None:
-        own = facing_directions(joints)  # (N, 3), the view's facing as labelled
-    to_sensor = sensor_positions - joints[:, 0]
-    sensor_angle = np.arctan2(to_sensor[:, 0], to_sensor[:, 2])
-    phi = _wrap(sensor_angle - np.arctan2(own[:, 0], own[:, 2]))
-    flipped = mirrored.astype(bool)
-    if flipped.any():
-        # A mirrored view was turned at its apparent yaw (facing reversed): invert there, turn
-        # back.
-        theta = _unturn(np.where(flipped, _wrap(phi - np.pi), phi), lean)
-        theta = np.where(flipped, _wrap(theta + np.pi), theta)
-    else:
-        theta = _unturn(phi, lean)
-    facing_angle = sensor_angle - theta
-    vectors = np.zeros((len(facing_angle), 3))
-    vectors[:, 0] = np.sin(facing_angle)
-    vectors[:, 2] = np.cos(facing_angle)
-    usable = np.isfinite(facing_angle)  # sin and cos are finite where the angle is
-    # Per person, the sum of its usable views' vectors, row by row as vectors[rows].sum(axis=0)
-    # (a zero-padded (P, S_max, 3) block: adding the zeros changes no bit).
-    places = slots(tuple(counts))
-    padded = np.zeros((len(counts), places.widest, 3))
-    padded[places.person_of, places.slot_of] = np.where(usable[:, None], vectors, 0.0)
-    mean = padded.sum(axis=1)
-    # np.vecdot is the dot product np.linalg.norm uses on one vector (the same bits).
-    norm: FloatArray = np.sqrt(np.vecdot(mean, mean))[:, None]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        out: FloatArray = np.where(norm > 1e-6, mean / norm, np.nan)
-    return out
-
-
-def _wrap(angle: FloatArray) -> FloatArray:
-    """Angles (radians) wrapped to [−π, π)."""
-    wrapped: FloatArray = (angle + np.pi) % (2 * np.pi) - np.pi
-    return wrapped
-
-
-def _unturn(phi: FloatArray, lean: float) -> FloatArray:
-    """The yaw θ whose view is at φ = θ − lean × clamp(θ, ±90°) (monotonic, so one θ per φ)."""
-    knee = (1.0 - lean) * (np.pi / 2)
-    theta: FloatArray = np.where(
-        np.abs(phi) <= knee, phi / (1.0 - lean), phi + lean * (np.pi / 2) * np.sign(phi)
-    )
-    return theta
+def warm_up() -> None:
+    """Compile (or load from numba's cache) this module's loops now, for the argument types every
+    call passes (:func:`~skelfuse.fusion.kernels_jit.plain`), so no frame waits for it."""
+    views = np.zeros((2, 25, 3))
+    labelled = (views, np.zeros((2, 25), np.uint8), np.ones(2, np.bool_))
+    for forward in (np.ones((2, 2, 3)), None):
+        settle(labelled, (np.ones((2, 3)), forward, np.array([0, 2]), 0.5), np.ones((2, 2, 25)))
+    settle(labelled, None, None)

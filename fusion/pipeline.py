@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion import kernels, kernels_stages
+from skelfuse.fusion import kernels
 from skelfuse.fusion.anatomy import facing_directions
 from skelfuse.fusion.batch import ViewBatch
 from skelfuse.fusion.bones import (
@@ -48,12 +48,13 @@ from skelfuse.fusion.bones import (
 )
 from skelfuse.fusion.filters import JointFilter, Stacks, filter_all, make_filter
 from skelfuse.fusion.identity import PersonTracker, Track
-from skelfuse.fusion.labels import LabelDoubt, Labels, label_views, walking_backwards
+from skelfuse.fusion.labels import LabelDoubt, Labels, label_views
 from skelfuse.fusion.mirror_labellings import MAX_VIEWS
 from skelfuse.fusion.priors import priors_of
 from skelfuse.fusion.sensors import SensorState
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.views import FusedPerson, View, fused_persons
+from skelfuse.fusion.walking import walking_backwards, walking_backwards_now
 from skelfuse.fusion.weigh import weigh_and_fuse
 from skelfuse.fusion.world_views import PoseLookup, views_at
 
@@ -247,7 +248,7 @@ class FusionPipeline:
     def _check_walking_directions(
         self, ids: list[int], t_s: float, moved: tuple[FloatArray, FloatArray] | None = None
     ) -> None:
-        """Swap each whole person that walks backwards for too long (labels.walking_backwards).
+        """Swap each whole person that walks backwards for too long (walking.walking_backwards).
 
         The swap takes effect from the next step: the person's skeleton and every view's
         remembered label are swapped, the filter restarts (it would otherwise sweep the limbs
@@ -270,15 +271,13 @@ class FusionPipeline:
                 pid: (row, facing) for pid, row, facing in zip(ids, joints, computed, strict=True)
             }
         ahead = [False] * len(ids)  # walking forwards (or standing) for sure: nothing to time
-        if computed is not None and kernels.enabled():  # one compiled call
+        if computed is not None:  # one compiled call for every person
             velocities = (
                 moved[1]
                 if moved is not None
                 else np.array([t.velocity for t in tracks], dtype=np.float64)
             )
-            backwards = kernels_stages.walking_backwards(
-                velocities, computed, s.mirror_walk_min_speed_mps
-            )
+            backwards = walking_backwards_now(velocities, computed, s.mirror_walk_min_speed_mps)
             ahead = (~backwards).tolist()
         for person_id, track, facing, forwards in zip(ids, tracks, facings, ahead, strict=True):
             memory = self.memories[person_id]

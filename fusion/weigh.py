@@ -29,7 +29,7 @@ from typing import Final, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.anatomy import corrected_yaw
+from skelfuse.fusion.anatomy import corrected_yaw, facing_loop
 from skelfuse.fusion.batch import ViewBatch
 from skelfuse.fusion.confidence import (
     BODY_TABLES,
@@ -38,7 +38,7 @@ from skelfuse.fusion.confidence import (
     range_of_motion_factors,
     sensor_terms,
 )
-from skelfuse.fusion.kernels_facing import cosines_loop, facing_loop
+from skelfuse.fusion.kernels_facing import cosines_loop
 from skelfuse.fusion.kernels_jit import jit, plain
 from skelfuse.fusion.priors import SensorPrior
 from skelfuse.fusion.reliability import reliability_factors

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-
 import numpy as np
 import pytest
 
@@ -400,23 +398,10 @@ def test_online_bone_estimate_can_lock() -> None:
     np.testing.assert_allclose(follows.estimate, 0.40)
 
 
-@pytest.fixture(params=["numpy", "numba"])
-def kernel_mode(request: pytest.FixtureRequest) -> Iterator[str]:
-    """Each kernel path in turn (numba compiled and warmed: tests/conftest.py)."""
-    from skelfuse.fusion import kernels
-
-    if request.param == "numba":
-        request.getfixturevalue("numba_kernels")
-    with kernels.forced(request.param):
-        yield request.param
-
-
 @pytest.mark.parametrize("walk_check_s", [0.5, 0.0])
-def test_a_person_walking_backwards_is_unmirrored_as_a_whole(
-    walk_check_s: float, kernel_mode: str
-) -> None:
+def test_a_person_walking_backwards_is_unmirrored_as_a_whole(walk_check_s: float) -> None:
     """A track mirrored as a whole stays so (every view is labelled to agree with it); only the
-    walking direction can tell, and with the check it does (on either kernel path)."""
+    walking direction can tell, and with the check it does."""
     from skelfuse.fusion.anatomy import facing_direction
 
     body = standing()

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import importlib
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,7 +18,6 @@ from skelfuse.agent.sim.performer import ProceduralPerformer
 from skelfuse.fusion import anatomy, bones, kernels, weighted
 from skelfuse.protocol.skeleton import JointId as J
 from tests.support import require_numba
-from tests.unit import test_golden_replay as golden
 
 FloatArray = np.ndarray
 
@@ -58,22 +56,6 @@ def _numpy_uses_svml() -> bool:
     return bool(getattr(umath, "__cpu_features__", {}).get("AVX512_SKX", False))
 
 
-@pytest.mark.parametrize("seed", range(5))
-@pytest.mark.parametrize("scale_deg", [15.0, 7.5])
-def test_rom_kernel_gives_the_numpy_bits(numba_kernels: None, seed: int, scale_deg: float) -> None:
-    views = _views(seed)
-    factors, forward = anatomy.rom_factors_and_forward(views, scale_deg)
-    with kernels.forced("numpy"):
-        assert not kernels.enabled()
-        expected_factors, expected_forward = anatomy.rom_factors_and_forward(views, scale_deg)
-    if _numpy_uses_svml():  # angles from trigonometry: a few ulp apart, never more
-        np.testing.assert_allclose(factors, expected_factors, rtol=1e-12, atol=0.0)
-    else:
-        assert _same_bits(factors, expected_factors)
-    assert _same_bits(forward, expected_forward)  # sums, products and sqrt only: exact anywhere
-    assert (factors < 1.0).any() and np.isnan(forward).any()  # the inputs reach every branch
-
-
 def test_forcing_numpy_turns_the_kernels_off(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv(kernels.ENV, "numpy")
     assert kernels.mode() == "numpy" and not kernels.enabled()
@@ -106,7 +88,7 @@ def test_a_forced_mode_pins_whether_the_kernels_run(monkeypatch: pytest.MonkeyPa
 
 
 def test_warm_up_compiles_every_kernel(numba_kernels: None) -> None:
-    from skelfuse.fusion import kernels_bones, kernels_rom
+    from skelfuse.fusion import kernels_bones
 
     assert kernels.warm_up() > 0.0
     # Strided, read-only, one-skeleton inputs reuse the warm-up's compilation (none mid-stream).
@@ -116,18 +98,8 @@ def test_warm_up_compiles_every_kernel(numba_kernels: None) -> None:
     lengths = np.full((len(views), 24), 0.3)[:, ::-1]
     bones.project_bone_lengths(views, lengths, np.ones(25), iterations=2)
     bones.project_bone_lengths(views[0], lengths[0])
-    assert len(kernels_rom.rom_loop.signatures) == 1  # type: ignore[attr-defined]
+    assert len(anatomy.rom_loop.signatures) == 1  # type: ignore[attr-defined]
     assert len(kernels_bones.project_loop.signatures) == 1  # type: ignore[attr-defined]
-
-
-@pytest.mark.parametrize("mode", ["numpy", "numba"])
-@pytest.mark.parametrize("config", sorted(golden.DIGESTS))
-def test_golden_replay_on_each_path(mode: str, config: str, tmp_path: Path) -> None:
-    """test_golden_replay.py's digests, with the kernels forced on and forced off."""
-    if mode == "numba":
-        require_numba()
-    with kernels.forced(mode):
-        golden.test_replay_output_is_byte_identical_to_the_golden_digest(config, tmp_path)
 
 
 @pytest.mark.parametrize("seed", range(5))
