@@ -31,7 +31,6 @@ import numpy.typing as npt
 from skelfuse.fusion.kernels_jit import numba_module, plain
 
 FloatArray = npt.NDArray[np.float64]
-IntArray = npt.NDArray[np.intp]
 
 ENV: Final = "SKELFUSE_KERNELS"
 MODES: Final = ("auto", "numba", "numpy")
@@ -109,50 +108,6 @@ def rom_factors_and_forward(
     return factors, forward
 
 
-def project_bone_lengths(
-    joints: FloatArray,
-    reference: FloatArray,
-    move: FloatArray,
-    iterations: int,
-    tables: tuple[IntArray, IntArray, IntArray, IntArray, IntArray, IntArray],
-) -> FloatArray:
-    """The compiled :func:`skelfuse.fusion.bones.project_bone_lengths` (same bits).
-
-    Args:
-        joints: (..., 25, 3) metres, NaN where unknown; reference: (..., 24) metres (NaN: leave
-            that bone); move: (..., 25) mobilities, floored at 1e-6; iterations: passes;
-            tables: :data:`skelfuse.fusion.bones.BONE_TABLES` (the skeleton's index tables).
-
-    Returns:
-        (..., 25, 3) float64.
-    """
-    from skelfuse.fusion import kernels_bones  # imports numba: only when used
-
-    shape = joints.shape
-    flat = plain(joints.reshape(-1, 25, 3))
-    ref = plain(reference.reshape(-1, reference.shape[-1]))
-    if move.shape != shape[:-1]:
-        move = np.broadcast_to(move, shape[:-1])
-    mobility = plain(move.reshape(-1, 25))
-    out = np.empty_like(flat)
-    grouped, parents, children, order, parent_of, bone_to = (plain(t, np.intp) for t in tables)
-    kernels_bones.project_loop(
-        flat,
-        ref,
-        mobility,
-        int(iterations),
-        grouped,
-        parents,
-        children,
-        order,
-        parent_of,
-        bone_to,
-        out,
-    )
-    result: FloatArray = out.reshape(shape)
-    return result
-
-
 def weighted_mean(joints: FloatArray, weights: FloatArray) -> FloatArray:
     """The compiled :func:`skelfuse.fusion.weighted.weighted_mean` (same bits).
 
@@ -179,9 +134,10 @@ def warm_up() -> float:
     views = np.zeros((2, 25, 3))
     limits = np.zeros(13)
     rom_factors_and_forward(views, 15.0, limits, limits)
-    index = np.zeros(25, dtype=np.intp)  # the index tables' types, any content
-    tables = (index, index, index, index, index, np.full(25, -1, dtype=np.intp))
-    project_bone_lengths(views, np.ones((2, 24)), np.ones((2, 25)), 1, tables)
+    from skelfuse.fusion import bone_fit, bones
+
+    bone_fit.warm_up()
+    bones.warm_up()
     weighted_mean(views[None], np.ones((1, 2, 25)))
     from skelfuse.fusion import kernels_stages  # the mirror and confidence stages' kernels
 
@@ -193,14 +149,12 @@ def warm_up() -> float:
         kernels_lerp,
         kernels_median,
         kernels_motion,
-        kernels_observe,
         kernels_replay,
         kernels_tracks,
         kernels_trunks,
         kernels_weigh,
     )
 
-    kernels_observe.warm_up()  # callers check warmed() (and enabled())
     kernels_filter.warm_up()
     kernels_median.warm_up()
     kernels_trunks.warm_up()

@@ -10,7 +10,7 @@ masks and prediction. Each does the same IEEE operations in the same order per e
 fused multiply-add: numba without fastmath), so the same bits
 (tests/unit/test_kernels_filter.py).
 
-As :mod:`skelfuse.fusion.kernels_observe`: they run only once :func:`warm_up` has compiled
+As the other kernel modules: they run only once :func:`warm_up` has compiled
 them, so no frame waits for a compilation; until then, and with the kernels off, numpy runs.
 """
 

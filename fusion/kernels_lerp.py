@@ -12,7 +12,7 @@ both in one loop: the same IEEE operations per coordinate (the products and the 
 order, the float32 rounding numpy's cast does), so the same bits (tests/unit/test_kernels_lerp.py;
 a NaN's sign aside where +inf and −inf meet, which no frame holds: the wire refuses ±inf).
 
-As :mod:`skelfuse.fusion.kernels_observe`: the loop runs only once :func:`warm_up` has compiled
+As the other kernel modules: the loop runs only once :func:`warm_up` has compiled
 it, so no frame waits for a compilation; until then, and with the kernels off, numpy runs.
 """
 

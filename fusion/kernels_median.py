@@ -18,7 +18,7 @@ and their median selected, with no pooled copy of the window, no count pass and 
 numpy between them (75 → 34 µs a person on one 300-sample window, 2026-11-24 15:01; six
 persons refresh together).
 
-As :mod:`skelfuse.fusion.kernels_observe`: the loop runs only once :func:`warm_up` has compiled
+As the other kernel modules: the loop runs only once :func:`warm_up` has compiled
 it, so no frame waits for a compilation; until then, and with the kernels off, numpy runs.
 """
 

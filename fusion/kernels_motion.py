@@ -11,7 +11,7 @@ views starts from 0.0 and adds them in that order; its padding adds 0.0, which c
 that starts from 0.0), divided by the count of finite terms; each late body's row straight
 from its person's views, found by id. So the same bits (tests/unit/test_kernels_motion.py).
 
-As :mod:`skelfuse.fusion.kernels_observe`: the loop runs only once :func:`warm_up` has compiled
+As the other kernel modules: the loop runs only once :func:`warm_up` has compiled
 it, so no frame waits for a compilation; until then, and with the kernels off, numpy runs.
 """
 

@@ -10,7 +10,7 @@ axis, the mean over frames as numpy's pairwise sum
 (:func:`~skelfuse.fusion.kernels_mirror.pairwise`) over the count; so the same floats, and the
 same phase chosen (tests/unit/test_kernels_replay.py).
 
-As :mod:`skelfuse.fusion.kernels_observe`: the loop runs only once :func:`warm_up` has compiled
+As the other kernel modules: the loop runs only once :func:`warm_up` has compiled
 it, so no frame waits for a compilation; until then, and with the kernels off, numpy runs.
 """
 

@@ -7,7 +7,7 @@ order (the velocity's difference quotient, its smoothing ``0.6 old + 0.4 new``, 
 ``√((x² + y²) + z²)`` and its clip, a joint kept where the fusion has none), so the same bits
 (tests/unit/test_association_arrays.py).
 
-As :mod:`skelfuse.fusion.kernels_observe`: the loop runs only once :func:`warm_up` has compiled
+As the other kernel modules: the loop runs only once :func:`warm_up` has compiled
 it, so no frame waits for a compilation; until then, and with the kernels off, numpy runs.
 """
 

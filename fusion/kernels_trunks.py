@@ -9,7 +9,7 @@ after joint, as numpy sums a last axis of five, divided by the count), so the sa
 each view's midline joints and its track's prediction taken from the stacked joints in the
 loop (``Track.predicted``'s step and sums), instead of two gathers and a dozen calls first.
 
-As :mod:`skelfuse.fusion.kernels_observe`: the loop runs only once :func:`warm_up` has compiled
+As the other kernel modules: the loop runs only once :func:`warm_up` has compiled
 it, so no frame waits for a compilation; until then, and with the kernels off, numpy runs.
 """
 

@@ -242,8 +242,8 @@ def test_duplicate_person_from_disjoint_sensors_is_merged() -> None:
 
 
 def test_batched_fusion_helpers_match_single_calls() -> None:
+    from skelfuse.fusion.bone_fit import enforce_bone_lengths
     from skelfuse.fusion.bone_window import nanmedian_axis
-    from skelfuse.fusion.bones import enforce_bone_lengths
     from skelfuse.fusion.confidence import joint_confidence
     from skelfuse.fusion.weighted import weighted_mean
 
@@ -302,7 +302,7 @@ def test_several_persons_fuse_as_if_alone() -> None:
 
 
 def test_bone_projection_gives_exact_lengths_and_moves_joints_less_than_the_chain() -> None:
-    from skelfuse.fusion.bones import enforce_bone_lengths, project_bone_lengths
+    from skelfuse.fusion.bone_fit import enforce_bone_lengths, project_bone_lengths
     from skelfuse.protocol.skeleton import bone_lengths
 
     rng = np.random.default_rng(21)
@@ -332,7 +332,7 @@ def test_bone_projection_gives_exact_lengths_and_moves_joints_less_than_the_chai
 
 
 def test_bone_projection_leaves_unknown_bones_missing_joints_and_right_lengths_alone() -> None:
-    from skelfuse.fusion.bones import project_bone_lengths
+    from skelfuse.fusion.bone_fit import project_bone_lengths
     from skelfuse.protocol.skeleton import JointId, bone_lengths
 
     joints = standing()

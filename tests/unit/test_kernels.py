@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from skelfuse.agent.sim.performer import ProceduralPerformer
-from skelfuse.fusion import anatomy, bones, kernels, weighted
+from skelfuse.fusion import anatomy, kernels, weighted
 from skelfuse.protocol.skeleton import JointId as J
 from tests.support import require_numba
 from tests.unit import test_golden_replay as golden
@@ -106,18 +106,14 @@ def test_a_forced_mode_pins_whether_the_kernels_run(monkeypatch: pytest.MonkeyPa
 
 
 def test_warm_up_compiles_every_kernel(numba_kernels: None) -> None:
-    from skelfuse.fusion import kernels_bones, kernels_rom
+    from skelfuse.fusion import kernels_rom
 
     assert kernels.warm_up() > 0.0
-    # Strided, read-only, one-skeleton inputs reuse the warm-up's compilation (none mid-stream).
+    # Strided, read-only inputs reuse the warm-up's compilation (none mid-stream).
     views = _views(0)[::2]
     views.flags.writeable = False
     assert anatomy.rom_factors_and_forward(views, 15.0)[0].shape == (len(views), 25)
-    lengths = np.full((len(views), 24), 0.3)[:, ::-1]
-    bones.project_bone_lengths(views, lengths, np.ones(25), iterations=2)
-    bones.project_bone_lengths(views[0], lengths[0])
     assert len(kernels_rom.rom_loop.signatures) == 1  # type: ignore[attr-defined]
-    assert len(kernels_bones.project_loop.signatures) == 1  # type: ignore[attr-defined]
 
 
 @pytest.mark.parametrize("mode", ["numpy", "numba"])
@@ -128,30 +124,6 @@ def test_golden_replay_on_each_path(mode: str, config: str, tmp_path: Path) -> N
         require_numba()
     with kernels.forced(mode):
         golden.test_replay_output_is_byte_identical_to_the_golden_digest(config, tmp_path)
-
-
-@pytest.mark.parametrize("seed", range(5))
-@pytest.mark.parametrize("iterations", [1, 3])
-def test_bone_projection_kernel_gives_the_numpy_bits(
-    numba_kernels: None, seed: int, iterations: int
-) -> None:
-    rng = np.random.default_rng(seed)
-    skeletons = _views(seed)
-    true_lengths = np.linalg.norm(
-        skeletons[:, bones._BONE_CHILD] - skeletons[:, bones._BONE_PARENT], axis=-1
-    )
-    references = true_lengths * rng.uniform(0.8, 1.2, true_lengths.shape)
-    references[rng.random(references.shape) < 0.1] = np.nan  # bones left alone
-    mobility = rng.uniform(0.0, 1.0, skeletons.shape[:2])
-    for args in ((skeletons, references), (skeletons, references, mobility)):
-        fitted = bones.project_bone_lengths(*args, iterations=iterations)
-        with kernels.forced("numpy"):
-            expected = bones.project_bone_lengths(*args, iterations=iterations)
-        assert _same_bits(fitted, expected)
-    one = bones.project_bone_lengths(skeletons[0], references[0], iterations=iterations)
-    with kernels.forced("numpy"):
-        expected = bones.project_bone_lengths(skeletons[0], references[0], iterations=iterations)
-    assert _same_bits(one, expected)  # one skeleton, (25, 3)
 
 
 def test_without_numba_everything_runs_on_numpy(monkeypatch: pytest.MonkeyPatch) -> None:
