@@ -134,10 +134,11 @@ def warm_up() -> float:
     views = np.zeros((2, 25, 3))
     limits = np.zeros(13)
     rom_factors_and_forward(views, 15.0, limits, limits)
-    from skelfuse.fusion import bone_fit, bones
+    from skelfuse.fusion import bone_fit, bone_window, bones
 
     bone_fit.warm_up()
     bones.warm_up()
+    bone_window.warm_up()
     weighted_mean(views[None], np.ones((1, 2, 25)))
     from skelfuse.fusion import kernels_stages  # the mirror and confidence stages' kernels
 
@@ -147,7 +148,6 @@ def warm_up() -> float:
         kernels_filter,
         kernels_label_stage,
         kernels_lerp,
-        kernels_median,
         kernels_motion,
         kernels_replay,
         kernels_tracks,
@@ -156,7 +156,6 @@ def warm_up() -> float:
     )
 
     kernels_filter.warm_up()
-    kernels_median.warm_up()
     kernels_trunks.warm_up()
     kernels_tracks.warm_up()
     kernels_motion.warm_up()
