@@ -134,12 +134,13 @@ def warm_up() -> float:
     views = np.zeros((2, 25, 3))
     limits = np.zeros(13)
     rom_factors_and_forward(views, 15.0, limits, limits)
-    from skelfuse.fusion import bone_fit, bone_window, bones, trunks
+    from skelfuse.fusion import bone_fit, bone_window, bones, measured_motion, trunks
 
     bone_fit.warm_up()
     bones.warm_up()
     bone_window.warm_up()
     trunks.warm_up()
+    measured_motion.warm_up()
     weighted_mean(views[None], np.ones((1, 2, 25)))
     from skelfuse.fusion import kernels_stages  # the mirror and confidence stages' kernels
 
@@ -149,13 +150,11 @@ def warm_up() -> float:
         kernels_filter,
         kernels_label_stage,
         kernels_lerp,
-        kernels_motion,
         kernels_replay,
         kernels_weigh,
     )
 
     kernels_filter.warm_up()
-    kernels_motion.warm_up()
     kernels_lerp.warm_up()
     kernels_replay.warm_up()
     kernels_weigh.warm_up()
