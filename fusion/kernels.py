@@ -134,13 +134,21 @@ def warm_up() -> float:
     views = np.zeros((2, 25, 3))
     limits = np.zeros(13)
     rom_factors_and_forward(views, 15.0, limits, limits)
-    from skelfuse.fusion import bone_fit, bone_window, bones, measured_motion, trunks
+    from skelfuse.fusion import (
+        bone_fit,
+        bone_window,
+        bones,
+        measured_motion,
+        trunks,
+        world_views,
+    )
 
     bone_fit.warm_up()
     bones.warm_up()
     bone_window.warm_up()
     trunks.warm_up()
     measured_motion.warm_up()
+    world_views.warm_up()
     weighted_mean(views[None], np.ones((1, 2, 25)))
     from skelfuse.fusion import kernels_stages  # the mirror and confidence stages' kernels
 
@@ -149,13 +157,11 @@ def warm_up() -> float:
     from skelfuse.fusion import (
         kernels_filter,
         kernels_label_stage,
-        kernels_lerp,
         kernels_replay,
         kernels_weigh,
     )
 
     kernels_filter.warm_up()
-    kernels_lerp.warm_up()
     kernels_replay.warm_up()
     kernels_weigh.warm_up()
     kernels_label_stage.warm_up()
