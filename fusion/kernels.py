@@ -135,6 +135,7 @@ def warm_up() -> float:
     limits = np.zeros(13)
     rom_factors_and_forward(views, 15.0, limits, limits)
     from skelfuse.fusion import (
+        alignment_replay,
         bone_fit,
         bone_window,
         bones,
@@ -149,6 +150,7 @@ def warm_up() -> float:
     trunks.warm_up()
     measured_motion.warm_up()
     world_views.warm_up()
+    alignment_replay.warm_up()
     weighted_mean(views[None], np.ones((1, 2, 25)))
     from skelfuse.fusion import kernels_stages  # the mirror and confidence stages' kernels
 
@@ -157,12 +159,10 @@ def warm_up() -> float:
     from skelfuse.fusion import (
         kernels_filter,
         kernels_label_stage,
-        kernels_replay,
         kernels_weigh,
     )
 
     kernels_filter.warm_up()
-    kernels_replay.warm_up()
     kernels_weigh.warm_up()
     kernels_label_stage.warm_up()
     return time.perf_counter() - start
