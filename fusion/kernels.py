@@ -139,6 +139,7 @@ def warm_up() -> float:
         bone_fit,
         bone_window,
         bones,
+        filters_ca,
         measured_motion,
         trunks,
         world_views,
@@ -151,18 +152,16 @@ def warm_up() -> float:
     measured_motion.warm_up()
     world_views.warm_up()
     alignment_replay.warm_up()
+    filters_ca.warm_up()
     weighted_mean(views[None], np.ones((1, 2, 25)))
     from skelfuse.fusion import kernels_stages  # the mirror and confidence stages' kernels
 
     kernels_stages.warm_up()
-    # The bone observation's medians and the Kalman correction: they run once warmed.
     from skelfuse.fusion import (
-        kernels_filter,
         kernels_label_stage,
         kernels_weigh,
     )
 
-    kernels_filter.warm_up()
     kernels_weigh.warm_up()
     kernels_label_stage.warm_up()
     return time.perf_counter() - start
