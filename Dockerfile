@@ -23,7 +23,7 @@ RUN pip install --no-cache-dir "skelfuse[server] @ file://$(echo /wheels/skelfus
 # keeps that in the same folder, which is the server user's for that reason.
 ENV NUMBA_CACHE_DIR=/var/cache/skelfuse-numba
 RUN useradd --create-home --uid 10001 skelfuse && mkdir /data && chown skelfuse /data \
-    && python -c "from skelfuse.fusion import kernels; assert kernels.warm_up() > 0" \
+    && python -c "from skelfuse.fusion.engine import warm_up; warm_up()" \
     && chown -R skelfuse "$NUMBA_CACHE_DIR"
 USER skelfuse
 WORKDIR /home/skelfuse

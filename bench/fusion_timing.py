@@ -64,13 +64,13 @@ def fusion_timing(
     instant, when every sensor's newest frame looks more than the deadline old, so under
     ``deadline`` every sensor is carried forward at every instant (the late path's worst case,
     not what the live server does)."""
-    from skelfuse.fusion import kernels
+    from skelfuse.fusion.engine import warm_up
     from skelfuse.protocol.feed import frame_json
     from skelfuse.server.broadcast import encode_message
     from skelfuse.server.hub import FusionHub
     from skelfuse.server.settings import Settings
 
-    kernels.warm_up()  # as the server does at start: no step compiles, every kernel runs
+    warm_up()  # as the server does at start: no step compiles
     poses = sensor_layout(sensors)
     settings = Settings()
     calibration = Calibration(1, 0.0, {s: SensorCalibration(p, "bench") for s, p in poses.items()})

@@ -5,15 +5,16 @@ from the centre, 90° apart, unsynchronised phases, 2 ms network delay) watching
 2-person routine for 5 minutes; each frame is encoded to wire bytes and stored with its
 arrival time, exactly as the server's recorder stores it. Then:
 
-- **replay speed**: ``recording.replay.replay`` fuses it (production FusionHub, recorded time);
+- **replay speed**: ``recording.replay.replay`` fuses it (the server's fusion engine, recorded
+  time);
   speed = recorded duration ÷ wall-clock time of the replay (× real time);
-- **determinism**: a second replay must give byte-identical fused JSON;
+- **determinism**: every replay must give byte-identical fused JSON;
 - **BVH round trip**: each fused person longer than 10 s is exported to BVH (30 fps), read back,
   forward kinematics run, and the positions compared with the fused joints (mean, p95, max).
 
-Run: ``python bench/replay.py`` (``--minutes 1`` for a quicker run, ``--json FILE`` to save,
-``--kernels both`` for numpy against the compiled fusion kernels, interleaved; the kernels'
-warm-up is reported apart and not counted in the replay times).
+Run: ``python bench/replay.py`` (``--minutes 1`` for a quicker run, ``--runs N`` replays, the
+median reported, ``--json FILE`` to save; the stages' warm-up is reported apart and not counted
+in the replay times).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import argparse
 import hashlib
 import json
 import math
+import statistics
 import sys
 import tempfile
 import time
@@ -33,7 +35,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from skelfuse.agent.sim.kinect_model import SimulatedKinect
 from skelfuse.agent.sim.performer import ProceduralPerformer
-from skelfuse.fusion import kernels
 from skelfuse.fusion.engine import FusedFrame
 from skelfuse.protocol.feed import frame_json
 from skelfuse.protocol.recording_file import Header, pack_record
@@ -85,15 +86,13 @@ def generate_recording(
     return path.stat().st_size
 
 
-def fused_digest(path: Path, mode: str = "auto") -> tuple[str, list[FusedFrame], float, float]:
-    """Replay ``path`` with the fusion kernels in ``mode`` (skelfuse.fusion.kernels): the fused
-    frames' digest, the frames, the replay's seconds without the kernels' warm-up, and the
-    warm-up's seconds (compiling, or loading numba's cache; 0 with the kernels off)."""
+def fused_digest(path: Path) -> tuple[str, list[FusedFrame], float, float]:
+    """Replay ``path``: the fused frames' digest, the frames, the replay's seconds without the
+    stages' warm-up, and the warm-up's seconds (compiling, or loading numba's cache)."""
     stats = ReplayStats()
-    with kernels.forced(mode):
-        started = time.perf_counter()
-        frames = list(replay(path, stats=stats))
-        elapsed = time.perf_counter() - started - stats.warm_up_s
+    started = time.perf_counter()
+    frames = list(replay(path, stats=stats))
+    elapsed = time.perf_counter() - started - stats.warm_up_s
     digest = hashlib.sha256()
     for frame in frames:
         digest.update(
@@ -108,24 +107,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sensors", type=int, default=4)
     parser.add_argument("--persons", type=int, default=2)
     parser.add_argument("--json", type=Path, default=None)
-    parser.add_argument(
-        "--kernels", choices=("auto", "numpy", "both"), default="auto",
-        help="fusion kernels (SKELFUSE_KERNELS); both: numpy and compiled replays interleaved",
-    )  # fmt: skip
+    parser.add_argument("--runs", type=int, default=3, help="replays of the same recording")
     args = parser.parse_args(argv)
     duration = args.minutes * 60
-    modes = ("numpy", "numba", "numpy", "numba") if args.kernels == "both" else (args.kernels,) * 2
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "bench.sfrec"
         started = time.perf_counter()
         size = generate_recording(path, args.sensors, args.persons, duration)
         generated = time.perf_counter() - started
-        runs = [(mode, *fused_digest(path, mode)) for mode in modes]
-    frames = runs[0][2]
-    warm_up_s = max(run[4] for run in runs)
-    per_mode = {
-        mode: min(run[3] for run in runs if run[0] == mode) for mode in dict.fromkeys(modes)
-    }
+        runs = [fused_digest(path) for _ in range(args.runs)]
+    frames = runs[0][1]
+    warm_up_s = max(run[3] for run in runs)
+    times = sorted(run[2] for run in runs)
     take = take_from_frames(frames)
     rows = []
     for person in take.persons.values():
@@ -139,26 +132,21 @@ def main(argv: list[str] | None = None) -> int:
                          "mean_mm": float(errors.mean()),
                          "p95_mm": float(np.percentile(errors, 95)),
                          "max_mm": float(errors.max())})  # fmt: skip
-    best = min(run[3] for run in runs)
-    identical = len({run[1] for run in runs}) == 1
+    median = statistics.median(times)
+    identical = len({run[0] for run in runs}) == 1
     result = {
         "sensors": args.sensors, "persons": args.persons, "duration_s": duration,
-        "file_mb": size / 1e6, "generate_s": generated, "replay_s": [run[3] for run in runs],
-        "modes": list(modes), "speed_x_realtime": duration / best,
-        "speed_x_realtime_by_mode": {m: duration / e for m, e in per_mode.items()},
-        "kernel_warm_up_s": warm_up_s, "fused_frames": len(frames),
+        "file_mb": size / 1e6, "generate_s": generated, "replay_s": times,
+        "speed_x_realtime": duration / median, "warm_up_s": warm_up_s, "fused_frames": len(frames),
         "deterministic": identical, "bvh": rows,
     }  # fmt: skip
     print(f"\nReplay: {args.sensors} sensors, {args.persons} persons, {duration:.0f} s recorded, "
           f"{size / 1e6:.1f} MB\n")  # fmt: skip
     print("| measure | value |")
     print("|---|---:|")
-    print(f"| replay wall time (best of {len(runs)}) | {best:.1f} s |")
-    for mode, elapsed in per_mode.items():
-        print(f"| replay speed, kernels {mode} | {duration / elapsed:.1f}× real time |")
-    if len(per_mode) == 2:
-        print(f"| numpy ÷ compiled wall time | {per_mode['numpy'] / per_mode['numba']:.2f} |")
-    print(f"| kernel warm-up (not in the replay times) | {warm_up_s:.2f} s |")
+    print(f"| replay wall time (median of {len(runs)}) | {median:.2f} s |")
+    print(f"| replay speed | {duration / median:.1f}× real time |")
+    print(f"| warm-up (not in the replay times) | {warm_up_s:.2f} s |")
     print(f"| fused frames | {len(frames)} |")
     print(f"| replays byte-identical | {'yes' if identical else 'NO'} |")
     print("\n| person | BVH bones | frames | round trip mean mm | p95 mm | max mm |")

@@ -2,7 +2,11 @@
 (:mod:`skelfuse.fusion.alignment` re-chooses the grid's phase with these every second).
 
 Pure functions on arrays of times (seconds): each sensor's last capture times modulo its frame
-period, and how long after capture each of those frames was first seen by the policy.
+period, and how long after capture each of those frames was first seen by the policy. The
+``deadline`` replay (:func:`replayed_horizons`) runs once a second inside the fusion step that
+triggers it, over (candidates × sensors × frames): one compiled loop per candidate, the modulo
+as ``np.mod`` takes it (``fmod``, then the divisor's sign), the sum over sensors element after
+element from 0, the mean over frames as numpy's pairwise sum.
 """
 
 from __future__ import annotations
@@ -14,15 +18,16 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion import kernels
+from skelfuse.fusion.mirror_distances import pairwise
+from skelfuse.jit import jit, jit_inline, plain
 
 FloatArray = npt.NDArray[np.float64]
 
 REPLAYED_AT_ONCE = 65_536
-"""At most this many (candidate, sensor, frame) elements replayed together, the candidates
-split evenly: the arrays then stay in the cache. 129 candidates of 16 sensors × 60 frames (the
-re-phase of 16 sensors at 30 fps) go in two parts; 4 or 10 sensors stay in one. The same bits:
-each candidate's sums are its own."""
+"""At most this many (candidate, sensor, frame) elements :func:`replayed_waits` replays
+together, the candidates split evenly: the arrays then stay in the cache. 129 candidates of 16
+sensors × 60 frames (the re-phase of 16 sensors at 30 fps) go in two parts; 4 or 10 sensors
+stay in one. The same bits: each candidate's sums are its own."""
 
 
 def _parts(phases_s: FloatArray, captures_s: FloatArray) -> list[FloatArray]:
@@ -147,31 +152,104 @@ def replayed_horizons(
         (C,) the mean wait for the last on-time sensor (seconds; 0 when all are late);
         (C, S) the share of frames in which each sensor was late.
     """
-    if kernels.enabled():
-        from skelfuse.fusion import kernels_replay  # imports numba: only when used
-
-        # The same floats in one loop, once warmed (no re-phase waits for a compilation).
-        frames = captures_s.shape[1]
-        taken = kernels_replay.FEWEST_FRAMES <= frames <= kernels_replay.MOST_FRAMES
-        if taken and kernels_replay.warmed():
-            return kernels_replay.horizons(phases_s, captures_s, delays_s, periods_s, deadline_s)
-    parts = _parts(phases_s, captures_s)
-    if len(parts) > 1:
-        replayed = [
-            replayed_horizons(p, captures_s, delays_s, periods_s, deadline_s) for p in parts
-        ]
-        costs, waits_, shares_ = zip(*replayed, strict=True)
-        return np.concatenate(costs), np.concatenate(waits_), np.concatenate(shares_)
-    # Two (C, S, L) arrays worked in place, not seven: fresh big arrays are fresh pages from
-    # the kernel (some 900 page faults, ~2 ms, per re-phase of 16 sensors before).
-    work = np.subtract(captures_s[None], phases_s[:, None, None])
-    ahead = np.mod(work, periods_s[None, :, None], out=work)
-    seen = ahead + delays_s[None]
-    late = seen > deadline_s
-    horizon = np.subtract(periods_s[None, :, None], ahead, out=work)  # ahead is used up
-    np.copyto(horizon, 0.0, where=~late)
-    cost: FloatArray = np.multiply(horizon, horizon, out=horizon).sum(axis=1).mean(axis=1)
-    np.copyto(seen, 0.0, where=late)  # the last on-time sensor's wait: the late ones count 0
-    waits: FloatArray = seen.max(axis=1).mean(axis=1)
-    shares: FloatArray = late.mean(axis=2)
+    count = len(phases_s)
+    cost, waits = np.empty(count), np.empty(count)
+    shares = np.empty((count, captures_s.shape[0]))
+    _horizons_loop(
+        plain(phases_s),
+        plain(captures_s),
+        plain(delays_s),
+        plain(periods_s),
+        float(deadline_s),
+        cost,
+        waits,
+        shares,
+    )
     return cost, waits, shares
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) the loop now, off any latency-bound path."""
+    times = np.zeros((1, 2))
+    replayed_horizons(np.zeros(1), times, times, np.ones(1), 0.01)
+
+
+@jit
+def _horizons_loop(  # the candidates' loop and its two modulo forms: one piece
+    phases: FloatArray,
+    captures: FloatArray,
+    delays: FloatArray,
+    periods: FloatArray,
+    deadline: float,
+    cost: FloatArray,
+    waits: FloatArray,
+    shares: FloatArray,
+) -> None:
+    """:func:`replayed_horizons` into ``cost``, ``waits`` and ``shares``."""
+    sensors, frames = captures.shape
+    squared = np.empty(frames)  # per frame, the sum over sensors of squared horizons
+    last = np.empty(frames)  # per frame, the latest on-time sensor's wait
+    # Each sensor's earliest and latest capture phase (NaN: the general modulo throughout).
+    lowest, highest = np.empty(sensors), np.empty(sensors)
+    for s in range(sensors):
+        lowest[s], highest[s] = np.min(captures[s]), np.max(captures[s])
+    for c in range(len(phases)):
+        phase = phases[c]
+        squared[:] = 0.0  # numpy sums over the sensors from 0
+        last[:] = 0.0  # no sensor: no wait
+        for s in range(sensors):
+            period = periods[s]
+            late_frames = 0
+            # np.mod is fmod, then the divisor's sign (a zero takes the divisor's). Within a
+            # period either side of 0 (a sensor at the grid's rate or slower) fmod gives the
+            # value itself: there one addition, in a loop LLVM vectorises (7× quicker than
+            # with fmod in it); elsewhere Python's float modulo, which numba keeps (np.mod's).
+            if highest[s] - phase < period and lowest[s] - phase > -period:
+                for f in range(frames):
+                    ahead = captures[s, f] - phase
+                    ahead = ahead + period if ahead < 0.0 else ahead  # −0 keeps a sign only
+                    late_frames += _replay_frame(ahead, delays[s, f], period, deadline, s, f,
+                                                 squared, last)  # fmt: skip
+            else:
+                for f in range(frames):
+                    ahead = (captures[s, f] - phase) % period
+                    late_frames += _replay_frame(ahead, delays[s, f], period, deadline, s, f,
+                                                 squared, last)  # fmt: skip
+            shares[c, s] = late_frames / frames
+        cost[c] = _frames_sum(squared, frames) / frames
+        waits[c] = _frames_sum(last, frames) / frames
+
+
+@jit
+def _frames_sum(values: FloatArray, n: int) -> float:
+    """numpy's sum of the first ``n`` ``values`` along a contiguous axis: :func:`pairwise` up to
+    its blocks of 128, halved (a multiple of 8 first) above as numpy's pairwise sum recurses."""
+    if n <= 128:
+        return pairwise(values, n)
+    half = n // 2
+    half -= half % 8
+    return _frames_sum(values, half) + _frames_sum(values[half:], n - half)
+
+
+@jit_inline
+def _replay_frame(
+    ahead: float,
+    delay: float,
+    period: float,
+    deadline: float,
+    s: int,
+    f: int,
+    squared: FloatArray,
+    last: FloatArray,
+) -> int:
+    """One sensor's frame ``f`` at one candidate phase: 1 if late, else 0; its squared horizon
+    added to ``squared[f]``, its wait (0 when late) taken into ``last[f]`` as ``np.maximum``
+    takes it over the sensors (sensor 0's as it is; a NaN stays)."""
+    seen = ahead + delay
+    late = seen > deadline
+    horizon = period - ahead if late else 0.0
+    wait = 0.0 if late else seen
+    squared[f] += horizon * horizon
+    latest = last[f]
+    last[f] = wait if s == 0 or wait > latest or wait != wait else latest
+    return 1 if late else 0

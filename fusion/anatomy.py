@@ -15,7 +15,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.kernels_jit import jit, jit_inline, plain
+from skelfuse.jit import jit, jit_inline, plain
 from skelfuse.protocol.skeleton import JOINT_COUNT, PARENTS, JointId
 
 FloatArray = npt.NDArray[np.float64]
@@ -392,7 +392,7 @@ def corrected_yaw(joints: FloatArray, cosines: FloatArray, max_deg: float) -> Fl
 
 def warm_up() -> None:
     """Compile (or load from numba's cache) this module's loops now, for the argument types every
-    call passes (:func:`~skelfuse.fusion.kernels_jit.plain`), so no frame waits for it."""
+    call passes (:func:`~skelfuse.jit.plain`), so no frame waits for it."""
     views = np.zeros((2, 25, 3))
     rom_factors_and_forward(views, 15.0)
     facing_directions(views)

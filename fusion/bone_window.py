@@ -2,21 +2,28 @@
 
 What :class:`skelfuse.fusion.bones.BoneModel` estimates from. Stored bones first in a ring,
 (24, window), NaN where nothing was observed: appending overwrites the oldest observation, as
-a ``deque(maxlen=window)`` drops it, and the median sorts contiguous rows. A median does not
-depend on the order of its observations, so it is, to the bit, the median of the same
-observations in arrival order.
+a ``deque(maxlen=window)`` drops it. A median does not depend on the order of its
+observations, so it is, to the bit, the median of the same observations in arrival order.
+
+The medians are compiled loops that find each row's two middle values by selection (Hoare's,
+middle pivot) rather than a full sort: the values a sort would put in those places. The rule is
+np.nanmedian's with its corners kept: the count is of finite values, the two middle places are
+taken among the values that are not NaN (infinities sort among them), and a row without a
+finite value gives NaN. :meth:`SampleWindow.median` reads each row where the ring keeps it (a
+left bone's and its right counterpart's together), with no pooled copy.
 
 Shapes: 24 bones in :data:`skelfuse.protocol.skeleton.BONES` order; metres.
 """
 
 from __future__ import annotations
 
+import math
 from typing import Final
 
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion import kernels, kernels_median
+from skelfuse.jit import jit, plain
 from skelfuse.protocol.skeleton import BONE_MIRROR_PERMUTATION, BONES
 
 FloatArray = npt.NDArray[np.float64]
@@ -30,35 +37,24 @@ _MIRROR_OF_PAIRS: Final = BONE_MIRROR[_PAIRS]
 """Each pair's other bone (a midline bone: itself, read twice as numpy's pooling does)."""
 _BONES: Final = np.arange(BONE_COUNT)
 _NO_ROWS: Final = np.full(BONE_COUNT, -1)
-"""No second row per bone (:func:`~skelfuse.fusion.kernels_median.window_medians`)."""
+"""No second row per bone (:func:`window_medians`)."""
 
 
 def nanmedian_axis(data: FloatArray, axis: int) -> FloatArray:
     """``np.nanmedian`` along ``axis`` (the same values: mean of the two middle ones), faster.
 
-    All-NaN slices give NaN without a warning.
+    All-NaN (or empty) slices give NaN without a warning.
     """
-    moved = np.moveaxis(data, axis, -1)
-    if moved.shape[-1] == 0:
-        return np.full(moved.shape[:-1], np.nan)
-    return nanmedian_last(moved)  # its sort copies the moved axis into contiguous rows
+    return nanmedian_last(np.moveaxis(data, axis, -1))  # plain() copies it into contiguous rows
 
 
 def nanmedian_last(data: FloatArray) -> FloatArray:
     """:func:`nanmedian_axis` along the last axis (the same values), on its contiguous rows
-    without moving axes: (..., n) → (...), n ≥ 1."""
-    n = data.shape[-1]
-    if kernels.enabled() and kernels_median.warmed():  # the same bits by selection, no sort
-        return kernels_median.row_medians(data.reshape(-1, n)).reshape(data.shape[:-1])
-    rows = np.sort(data, axis=-1).reshape(-1, n)  # NaN last
-    count = np.isfinite(rows).sum(axis=1)
-    # The middle two of each row's finite values, by their flat index.
-    first = np.arange(0, rows.size, n)
-    flat = rows.reshape(-1)
-    low = flat[first + np.maximum((count - 1) // 2, 0)]
-    high = flat[first + count // 2]
-    median: FloatArray = np.where(count > 0, (low + high) / 2.0, np.nan)
-    return median.reshape(data.shape[:-1])
+    without moving axes: (..., n) → (...)."""
+    rows = data.reshape(math.prod(data.shape[:-1]), data.shape[-1])
+    out = np.empty(rows.shape[0])
+    _medians_loop(plain(rows), out)
+    return out.reshape(data.shape[:-1])
 
 
 class SampleWindow:
@@ -93,18 +89,141 @@ class SampleWindow:
         counterpart pool their observations (the count is the mean of the two sides')."""
         if not self._size:
             return np.full(BONE_COUNT, np.nan), np.zeros(BONE_COUNT)
-        if kernels.enabled() and kernels_median.warmed():  # the same bits in one call
-            second = _MIRROR_OF_PAIRS if symmetric else _NO_ROWS
-            median, counts = kernels_median.window_medians(
-                self._data, self._size, _PAIRS if symmetric else _BONES, second, min_samples
-            )
-            return (median[_PAIR_OF], counts[_PAIR_OF]) if symmetric else (median, counts)
-        data = self._data[:, : self._size]
-        if not symmetric:
-            counts = np.isfinite(data).sum(axis=1) / 1
-            return np.where(counts >= min_samples, nanmedian_axis(data, 1), np.nan), counts
+        second = _MIRROR_OF_PAIRS if symmetric else _NO_ROWS
+        median, counts = window_medians(
+            self._data, self._size, _PAIRS if symmetric else _BONES, second, min_samples
+        )
         # Both bones of a pair pool the same observations: one median per pair serves both.
-        pooled = np.concatenate([data[_PAIRS], data[BONE_MIRROR[_PAIRS]]], axis=1)
-        counts = np.isfinite(pooled).sum(axis=1) / 2
-        median = np.where(counts >= min_samples, nanmedian_axis(pooled, 1), np.nan)
-        return median[_PAIR_OF], counts[_PAIR_OF]
+        return (median[_PAIR_OF], counts[_PAIR_OF]) if symmetric else (median, counts)
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) the loops now, off any latency-bound path."""
+    nanmedian_last(np.zeros((1, 2)))
+    rows = np.zeros(1, np.intp)
+    window_medians(np.zeros((1, 2)), 1, rows, rows, 1)
+    window_medians(np.zeros((1, 2)), 1, rows, np.full(1, -1, np.intp), 1)
+
+
+def window_medians(
+    window: FloatArray,
+    size: int,
+    first: npt.NDArray[np.intp],
+    second: npt.NDArray[np.intp],
+    min_samples: int,
+) -> tuple[FloatArray, FloatArray]:
+    """``SampleWindow.median``'s answer from the window itself: per output row ``r``, the
+    values of ``window[first[r], :size]`` and, unless ``second[r]`` is −1, of
+    ``window[second[r], :size]`` together; their finite count divided by the number of rows
+    read (1 or 2), and the median of their finite values (:func:`nanmedian_last`'s rule on
+    their concatenation), NaN where that count is below ``min_samples``.
+
+    Args:
+        window: (B, W) metres, NaN where nothing was observed; size: the columns in use
+            (1 ≤ size ≤ W); first, second: (R,) rows of ``window`` (second: −1 for none).
+
+    Returns:
+        (R,) medians and (R,) counts, float64.
+    """
+    medians = np.empty(first.shape[0])
+    counts = np.empty(first.shape[0])
+    _window_loop(
+        plain(window), int(size), plain(first, np.intp), plain(second, np.intp),
+        int(min_samples), medians, counts,
+    )  # fmt: skip
+    return medians, counts
+
+
+@jit
+def _medians_loop(rows: FloatArray, out: FloatArray) -> None:
+    """:func:`nanmedian_last` of ``rows`` (R, n) into ``out`` (R,)."""
+    n = rows.shape[1]
+    values = np.empty(n)
+    for r in range(rows.shape[0]):
+        kept, finite = _collect(rows[r], n, values, 0, 0)
+        out[r] = _middle(values, kept, finite)
+
+
+@jit
+def _window_loop(
+    window: FloatArray,
+    size: int,
+    first: npt.NDArray[np.intp],
+    second: npt.NDArray[np.intp],
+    min_samples: int,
+    medians: FloatArray,
+    counts: FloatArray,
+) -> None:
+    """:func:`window_medians` into ``medians`` and ``counts``."""
+    values = np.empty(2 * size)
+    for r in range(first.shape[0]):
+        kept, finite = _collect(window[first[r]], size, values, 0, 0)
+        read = 1
+        if second[r] >= 0:
+            kept, finite = _collect(window[second[r]], size, values, kept, finite)
+            read = 2
+        counts[r] = finite / read
+        if counts[r] >= min_samples:
+            medians[r] = _middle(values, kept, finite)
+        else:
+            medians[r] = np.nan
+
+
+@jit
+def _collect(
+    row: FloatArray, n: int, values: FloatArray, kept: int, finite: int
+) -> tuple[int, int]:
+    """``row[:n]``'s values that are not NaN appended to ``values`` after its first ``kept``
+    (infinities sort among them, as in np.sort); the new ``kept`` and finite counts."""
+    for i in range(n):
+        v = row[i]
+        if v == v:
+            values[kept] = v
+            kept += 1
+            if np.isfinite(v):
+                finite += 1
+    return kept, finite
+
+
+@jit
+def _middle(values: FloatArray, kept: int, finite: int) -> float:
+    """The median of ``values[:kept]`` by :func:`nanmedian_last`'s rule (``finite`` of them
+    finite; NaN for none); reorders them."""
+    if finite == 0:
+        return np.nan
+    high_at = finite // 2
+    low_at = (finite - 1) // 2
+    high = _select(values, kept, high_at)
+    low = high
+    if low_at < high_at:  # the largest of the values left below the high one
+        low = values[0]
+        for i in range(1, high_at):
+            if values[i] > low:
+                low = values[i]
+    return (low + high) / 2.0
+
+
+@jit
+def _select(values: FloatArray, count: int, k: int) -> float:
+    """The ``k``-th smallest of ``values[:count]`` (no NaN), leaving every smaller one before
+    place ``k`` and every larger one after it (Hoare's selection, middle pivot)."""
+    lo, hi = 0, count - 1
+    while lo < hi:
+        pivot = values[(lo + hi) // 2]
+        i, j = lo, hi
+        while i <= j:
+            while values[i] < pivot:
+                i += 1
+            while values[j] > pivot:
+                j -= 1
+            if i <= j:
+                values[i], values[j] = values[j], values[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:
+            break
+    return float(values[k])

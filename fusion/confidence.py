@@ -78,9 +78,9 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.anatomy import CHAIN_ORDER, rom_factors_and_forward
-from skelfuse.fusion.kernels_jit import jit, plain
 from skelfuse.fusion.priors import SensorPrior, distinct_priors
 from skelfuse.fusion.settings import FusionSettings
+from skelfuse.jit import jit, plain
 from skelfuse.protocol.skeleton import BONES, PARENTS, JointId
 
 FloatArray = npt.NDArray[np.float64]

@@ -14,7 +14,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from skelfuse.calibration.store import Calibration
-from skelfuse.fusion import kernels
 from skelfuse.fusion.alignment import Alignment, live_timings
 from skelfuse.fusion.drift import DriftMonitor
 from skelfuse.fusion.extrapolation import late_motions, views_with_late
@@ -175,17 +174,16 @@ class FusionEngine:
             return None
         t_target = instant.t_s
         pose_of = {sid: self.pose_of(sid)[0] for sid in self.sensors}.get  # once, not ~10 times
-        with kernels.forced(kernels.mode()):  # asked ~20 times a step: read once (kernels.py)
-            if instant.late or instant.left_out:
-                views = views_with_late(
-                    self.sensors.values(), pose_of, t_target, s.interpolation_gap_s,
-                    dict(instant.late), instant.left_out, late_motions(self.pipeline, s.fusion),
-                )  # fmt: skip
-                persons = self.pipeline.update(views, t_target)
-            else:
-                persons, views = self.pipeline.step(
-                    self.sensors.values(), pose_of, t_target, s.interpolation_gap_s
-                )
+        if instant.late or instant.left_out:
+            views = views_with_late(
+                self.sensors.values(), pose_of, t_target, s.interpolation_gap_s,
+                dict(instant.late), instant.left_out, late_motions(self.pipeline, s.fusion),
+            )  # fmt: skip
+            persons = self.pipeline.update(views, t_target)
+        else:
+            persons, views = self.pipeline.step(
+                self.sensors.values(), pose_of, t_target, s.interpolation_gap_s
+            )
         self._seq += 1
         fused = FusedFrame(self._seq, t_target, now_s, tuple(persons), tuple(views), instant.late)
         self.latest = fused
@@ -199,3 +197,37 @@ class FusionEngine:
     def sensor_summary(self, now_mono: float) -> list[dict[str, object]]:
         """One row per known sensor, for ``GET /api/sensors`` (:func:`sensor_rows`)."""
         return sensor_rows(self.sensors.values(), self.pose_of, self.drift, now_mono)
+
+
+def warm_up() -> None:
+    """Compile every fusion stage's loops now (or load them from numba's cache); call at start,
+    off any latency-bound loop, so no fused frame waits for a compilation. Each stage's own
+    ``warm_up`` calls its loops once with the argument types the pipeline passes (a first start
+    compiles for seconds, later starts load the cache)."""
+    from skelfuse.fusion import (
+        alignment_replay,
+        anatomy,
+        bone_fit,
+        bone_window,
+        bones,
+        confidence,
+        filters_ca,
+        labels,
+        measured_motion,
+        mirror,
+        trunks,
+        unbiased_facing,
+        view_factors,
+        walking,
+        weigh,
+        weighted,
+        world_views,
+    )
+
+    stages = (
+        anatomy, mirror, labels, unbiased_facing, walking, weighted, confidence, view_factors,
+        weigh, bone_fit, bones, bone_window, trunks, measured_motion, world_views,
+        alignment_replay, filters_ca,
+    )  # fmt: skip
+    for stage in stages:
+        stage.warm_up()

@@ -29,9 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion import kernels, kernels_motion
 from skelfuse.fusion.identity import ViewKey
-from skelfuse.fusion.measured_motion import measured_from_arrays
+from skelfuse.fusion.measured_motion import carried_worlds, measured_from_arrays
 from skelfuse.fusion.moving import world_position
 from skelfuse.fusion.pipeline import FusionPipeline, PoseLookup
 from skelfuse.fusion.sensors import SensorState, TimedFrame
@@ -293,7 +292,7 @@ def _carried_late(
     if measured is None:
         measured = np.full(newest_worlds.shape, np.nan)
     row_scales = np.array(scales).repeat(counts)  # the method: np.repeat's wrapper costs more
-    worlds_seen, seen, whole = _carry(newest_worlds, row_scales, measured)
+    worlds_seen, seen, whole = carried_worlds(newest_worlds, row_scales, measured)
     if all(whole.tolist()):  # every joint of every body measured (the usual instant): as they are
         return _by_sensor(newest, counts, worlds_seen)
     worlds: list[FloatArray] = list(worlds_seen)
@@ -319,18 +318,3 @@ def _by_sensor(newest: list[SensorBodies], counts: list[int], rows: Rows) -> dic
         split[b.sensor.sensor_id] = rows[lo : lo + count]
         lo += count
     return split
-
-
-def _carry(
-    worlds: FloatArray, scales: FloatArray, measured: FloatArray
-) -> tuple[FloatArray, npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
-    """Late bodies (B, 25, 3) world metres carried by ``scales`` (B,) × ``measured`` (B, 25, 3)
-    where that is finite: the carried joints, where it was finite, and whether it was at every
-    joint of a body ((B, 25, 3), (B, 25, 3), (B,)); the rule of
-    :func:`~skelfuse.fusion.kernels_motion.carried_worlds`, which runs when warmed."""
-    if kernels.enabled() and kernels_motion.warmed():  # the same bits in one loop
-        return kernels_motion.carried_worlds(worlds, scales, measured)
-    carried = scales[:, None, None] * measured
-    seen: npt.NDArray[np.bool_] = np.isfinite(carried)
-    whole = np.asarray(seen.all(axis=(1, 2)))
-    return worlds + np.where(seen, carried, 0.0), seen, whole

@@ -30,59 +30,18 @@ import numpy as np
 import numpy.typing as npt
 from scipy.optimize import linear_sum_assignment
 
-from skelfuse.fusion import kernels, kernels_tracks, kernels_trunks
 from skelfuse.fusion.mirror import PERMUTATION
-from skelfuse.fusion.points import finite_points
 from skelfuse.fusion.settings import FusionSettings
+from skelfuse.fusion.trunks import TRUNK_JOINTS, moved, sticky_distances, trunk_distances
 from skelfuse.fusion.views import View
-from skelfuse.protocol.skeleton import JOINT_COUNT, JointId
+from skelfuse.protocol.skeleton import JOINT_COUNT
 
 FloatArray = npt.NDArray[np.float64]
 ViewKey = tuple[str, int]
 """(sensor id, the sensor's own tracking id): one body as one sensor follows it."""
 
-TRUNK_JOINTS: Final = np.array(
-    [JointId.SPINE_BASE, JointId.SPINE_MID, JointId.SPINE_SHOULDER, JointId.NECK, JointId.HEAD]
-)
-"""Joints on the body's midline: the same whatever a sensor thinks is left or right."""
 MAX_SPEED_MPS: Final = 3.0
 """Trunk speed used for prediction is clipped to this (a person, not a glitch)."""
-
-
-def trunk_distance(a: npt.ArrayLike, b: npt.ArrayLike) -> float:
-    """Mean distance between the midline joints two skeletons both have (metres).
-
-    Used to decide whether two views (or a view and a track) are the same person. Midline
-    joints make it immune to a sensor swapping left and right. ``inf`` with nothing in common.
-
-    Args:
-        a, b: (25, 3) joints, metres, same frame; NaN where unknown.
-    """
-    pa = np.asarray(a, dtype=np.float64)[TRUNK_JOINTS]
-    pb = np.asarray(b, dtype=np.float64)[TRUNK_JOINTS]
-    both = np.isfinite(pa).all(axis=1) & np.isfinite(pb).all(axis=1)
-    if both.sum() < 2:
-        return float("inf")
-    return float(np.linalg.norm(pa[both] - pb[both], axis=1).mean())
-
-
-def trunk_distances(a: FloatArray, b: FloatArray) -> FloatArray:
-    """:func:`trunk_distance` of many pairs: a, b (M, 5, 3) midline joints, metres → (M,)
-    (or any two shapes that broadcast: (..., 5, 3) → (...))."""
-    if a.shape == b.shape and a.ndim == 3 and kernels.enabled() and kernels_trunks.warmed():
-        return kernels_trunks.trunk_distances(a, b)  # the same bits in one loop
-    both = finite_points(a) & finite_points(b)
-    diff = a - b
-    square = diff * diff
-    # x + y + z in the order numpy's sum over an axis of 3 adds them (the same floats), without
-    # the reduction's fixed cost (~1.5 µs a call on a step's arrays).
-    d = np.sqrt(square[..., 0] + square[..., 1] + square[..., 2])
-    count = both.sum(-1)
-    # Dividing by at least 1 instead of under np.errstate (~1.5 µs a call): a count of 0 is
-    # below 2, replaced by inf; any other count divides as before (the same floats).
-    mean = np.where(both, d, 0.0).sum(-1) / np.maximum(count, 1)
-    result: FloatArray = np.where(count < 2, np.inf, mean)
-    return result
 
 
 @dataclass(slots=True)
@@ -160,9 +119,8 @@ class PersonTracker:
     ) -> tuple[FloatArray, FloatArray]:
         """:meth:`move` for many persons at once: ``fused`` (P, 25, 3), row p is ``person_ids[p]``.
 
-        Element by element the arithmetic of one person alone, so the same floats (the speed
-        clip's norm is ``√((x² + y²) + z²)``: the same on every machine, which a BLAS dot
-        product is not); with the kernels on, one loop (:mod:`skelfuse.fusion.kernels_tracks`).
+        Element by element the arithmetic of one person alone, in one compiled loop
+        (:func:`moved`).
 
         Returns:
             The tracks' new skeletons (P, 25, 3) and trunk velocities (P, 3), stacked (each
@@ -171,56 +129,22 @@ class PersonTracker:
         tracks = [self.tracks[person_id] for person_id in person_ids]
         if not tracks:
             return np.empty((0, JOINT_COUNT, 3)), np.empty((0, 3))
-        joints = np.array([t.joints for t in tracks], dtype=np.float64)
-        last_seen = np.array([t.last_seen_s for t in tracks])
-        if kernels.enabled() and kernels_tracks.warmed():  # the same bits in one loop
-            velocities = np.array([t.velocity for t in tracks], dtype=np.float64)
-            fused_once = np.array([t.fused_once for t in tracks])
-            kept, velocity, moved = kernels_tracks.moved(
-                joints, last_seen, fused_once, velocities, fused, t_s, MAX_SPEED_MPS
-            )
-            for p in moved.nonzero()[0].tolist():
-                tracks[p].velocity = velocity[p]
-        else:
-            kept = self._moved(tracks, joints, t_s - last_seen, fused)
-            velocity = np.array([t.velocity for t in tracks], dtype=np.float64)
+        kept, velocity, moving = moved(
+            np.array([t.joints for t in tracks], dtype=np.float64),
+            np.array([t.last_seen_s for t in tracks]),
+            np.array([t.fused_once for t in tracks]),
+            np.array([t.velocity for t in tracks], dtype=np.float64),
+            fused,
+            t_s,
+            MAX_SPEED_MPS,
+        )
+        for p in moving.nonzero()[0].tolist():
+            tracks[p].velocity = velocity[p]
         for track, row in zip(tracks, kept, strict=True):
             track.joints = row
             track.last_seen_s = t_s
             track.fused_once = True
         return kept, velocity
-
-    @staticmethod
-    def _moved(
-        tracks: list[Track], joints: FloatArray, dts: FloatArray, fused: FloatArray
-    ) -> FloatArray:
-        """:meth:`move_all` in numpy: each moving track's velocity set, the skeletons kept."""
-        moving = np.flatnonzero(
-            np.array([t.fused_once for t in tracks])
-            & (dts > 0)
-            & (dts < 0.5)
-            & finite_points(fused[:, 0])
-            & finite_points(joints[:, 0])
-        ).tolist()
-        if moving:
-            if len(moving) == len(tracks):  # everyone moves (the usual step): no gathers
-                velocity = (fused[:, 0] - joints[:, 0]) / dts[:, None]
-            else:
-                velocity = (fused[moving, 0] - joints[moving, 0]) / dts[moving, None]
-            velocity[:, 1] = 0.0
-            old = np.array([tracks[p].velocity for p in moving], dtype=np.float64)
-            smoothed = 0.6 * old + 0.4 * velocity
-            x, y, z = smoothed[:, 0], smoothed[:, 1], smoothed[:, 2]
-            speeds = np.sqrt((x * x + y * y) + z * z)
-            fast = speeds > MAX_SPEED_MPS
-            if fast.any():
-                with np.errstate(divide="ignore"):
-                    scale = MAX_SPEED_MPS / speeds
-                smoothed = np.where(fast[:, None], smoothed * scale[:, None], smoothed)
-            for p, row in zip(moving, smoothed, strict=True):
-                tracks[p].velocity = row
-        kept: FloatArray = np.where(np.isfinite(fused), fused, joints)
-        return kept
 
     def swap_sides(self, person_id: int) -> None:
         """Swap left and right in a person's skeleton (the whole track was mirrored)."""
@@ -236,50 +160,55 @@ class PersonTracker:
         return track
 
     def _assign(self, views: list[View], t_s: float) -> dict[int, list[View]]:
-        gate = self.settings.association_gate_m
-        clusters: dict[int, list[View]] = {}
-        remaining: list[View] = []
-        # Midline joints of every view and every track's prediction, stacked once: the distances
-        # below are computed for many pairs at a time (trunk_distances, the same floats).
+        """Steps 1–3: each view to a person, by person id (new persons born here)."""
         tracks = list(self.tracks.values())
-        row_of = {t.person_id: k for k, t in enumerate(tracks)}
+        clusters, seen, remaining = self._sticky(views, tracks, t_s)
+        if not remaining:
+            return clusters
+        # The remaining views' midline joints, stacked once: the distances below are computed
+        # for many pairs at a time.
+        trunks = _trunks(remaining)
+        index_of = {id(view): i for i, view in enumerate(remaining)}
+        leftovers = self._hungarian(remaining, (trunks, index_of), tracks, t_s, clusters, seen)
+        self._births(leftovers, (trunks, index_of), clusters, t_s)
+        return clusters
 
-        # 1. Sticky membership (every view's distance to its track in one pass).
+    def _sticky(
+        self, views: list[View], tracks: list[Track], t_s: float
+    ) -> tuple[dict[int, list[View]], dict[int, set[str]], list[View]]:
+        """1. Sticky membership: each body a sensor still tracks stays with its person within
+        twice the gate of its prediction (every such view's distance in one call). Returns the
+        clusters, the sensors each has a view from, and the views left to place."""
         owner: dict[ViewKey, Track] = {}
         for t in reversed(tracks):  # the first track holding a key wins
             for member in t.members:
                 owner[member] = t
         sticky = [owner.get((view.sensor_id, view.tracking_id)) for view in views]
         with_track = [i for i, t in enumerate(sticky) if t is not None]
-        rows = [row_of[t.person_id] for t in sticky if t is not None]
-        # The views' and the tracks' predicted midline joints, (N, 5, 3) and (T, 5, 3): built
-        # unless the compiled call below does without them and no view is left to place.
-        trunks = predicted = _NO_TRUNKS
-        compiled = kernels.enabled() and kernels_trunks.warmed()
-        if views and len(with_track) == len(views) and compiled:
-            # Every body still tracked (the usual step): the distances in one compiled call.
-            distances: list[float] = kernels_trunks.sticky_distances(
-                np.array([v.joints_world for v in views], dtype=np.float64),
+        distances: list[float] = [np.inf] * len(views)
+        if with_track:
+            row_of = {t.person_id: k for k, t in enumerate(tracks)}
+            everyone = len(with_track) == len(views)  # the usual step: no gather, no scatter
+            found = sticky_distances(
+                np.array([views[i].joints_world for i in with_track], dtype=np.float64),
                 (
                     np.array([t.joints for t in tracks], dtype=np.float64),
                     np.array([t.velocity for t in tracks], dtype=np.float64),
                     np.array([t.last_seen_s for t in tracks], dtype=np.float64),
                 ),
-                np.array(rows, dtype=np.intp),
+                np.array([row_of[t.person_id] for t in sticky if t is not None], dtype=np.intp),
                 t_s,
-                TRUNK_JOINTS,
-            ).tolist()
-        else:
-            trunks, predicted = _trunks(views), _predicted_trunks(tracks, t_s)
-            if len(with_track) == len(views):  # every body still tracked: no gather, no scatter
-                distances = trunk_distances(trunks, predicted[rows]).tolist()
+            )
+            if everyone:
+                distances = found.tolist()
             else:
                 spread = np.full(len(views), np.inf)
-                if with_track:
-                    spread[with_track] = trunk_distances(trunks[with_track], predicted[rows])
+                spread[with_track] = found
                 distances = spread.tolist()
-        sticky_gate = 2 * gate
-        seen: dict[int, set[str]] = {}  # the sensors each cluster has a view from
+        sticky_gate = 2 * self.settings.association_gate_m
+        clusters: dict[int, list[View]] = {}
+        seen: dict[int, set[str]] = {}
+        remaining: list[View] = []
         for view, track, distance in zip(views, sticky, distances, strict=True):
             if track is None or distance > sticky_gate:
                 remaining.append(view)
@@ -294,11 +223,23 @@ class PersonTracker:
             else:
                 clusters[person_id].append(view)
                 sensors.add(view.sensor_id)
+        return clusters, seen, remaining
 
-        # 2. Hungarian assignment to existing tracks, sensor by sensor.
-        if remaining and trunks is _NO_TRUNKS:
-            trunks, predicted = _trunks(views), _predicted_trunks(tracks, t_s)
-        index_of = {id(view): i for i, view in enumerate(views)} if remaining else {}
+    def _hungarian(
+        self,
+        remaining: list[View],
+        stacked: tuple[FloatArray, dict[int, int]],
+        tracks: list[Track],
+        t_s: float,
+        clusters: dict[int, list[View]],
+        seen: dict[int, set[str]],
+    ) -> list[View]:
+        """2. Hungarian assignment of the ``remaining`` views (``stacked``: their trunks and
+        each one's row there, by id) to existing tracks, sensor by sensor, within the gate;
+        adds to ``clusters`` and ``seen``; returns the views left over."""
+        gate = self.settings.association_gate_m
+        trunks, index_of = stacked
+        predicted = _predicted_trunks(tracks, t_s)
         leftovers: list[View] = []
         for sensor_id in sorted({v.sensor_id for v in remaining}):
             mine = [v for v in remaining if v.sensor_id == sensor_id]
@@ -318,11 +259,21 @@ class PersonTracker:
                     seen.setdefault(person_id, set()).add(sensor_id)
                     taken.add(r)
             leftovers.extend(v for i, v in enumerate(mine) if i not in taken)
+        return leftovers
 
-        # 3. Births: group leftovers across sensors.
+    def _births(
+        self,
+        leftovers: list[View],
+        stacked: tuple[FloatArray, dict[int, int]],
+        clusters: dict[int, list[View]],
+        t_s: float,
+    ) -> None:
+        """3. Births: the ``leftovers`` grouped across sensors (gated) into new persons, added
+        to ``clusters`` (``stacked``: as :meth:`_hungarian`)."""
+        trunks, index_of = stacked
         new_clusters: list[list[View]] = []
         for view in leftovers:
-            best, best_distance = None, gate
+            best, best_distance = None, self.settings.association_gate_m
             own = trunks[index_of[id(view)]][None]
             for cluster in new_clusters:
                 if any(v.sensor_id == view.sensor_id for v in cluster):
@@ -338,7 +289,6 @@ class PersonTracker:
         for cluster in new_clusters:
             track = self._new_track(cluster[0].joints_world, t_s)
             clusters[track.person_id] = cluster
-        return clusters
 
     def _merge_duplicates(self, clusters: dict[int, list[View]]) -> None:
         """4. Merge persons that are one person seen by disjoint sets of sensors (older id wins)."""
@@ -365,10 +315,6 @@ class PersonTracker:
                     if young.published and not old.published:
                         old.published = True
                     del self.tracks[younger]
-
-
-_NO_TRUNKS: Final = np.empty((0, len(TRUNK_JOINTS), 3))
-"""What :meth:`PersonTracker._assign` holds before it builds the trunks it needs."""
 
 
 def _trunks(views: list[View]) -> FloatArray:

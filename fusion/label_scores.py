@@ -13,11 +13,11 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.kernels_jit import plain
 from skelfuse.fusion.mirror import Scored, score
 from skelfuse.fusion.mirror_labellings import slots
 from skelfuse.fusion.mirror_scores import evidence_loop
 from skelfuse.fusion.settings import FusionSettings
+from skelfuse.jit import plain
 
 FloatArray = npt.NDArray[np.float64]
 

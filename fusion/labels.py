@@ -23,12 +23,12 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.anatomy import facing_loop
-from skelfuse.fusion.kernels_jit import jit, plain
 from skelfuse.fusion.label_scores import scored_labels
 from skelfuse.fusion.mirror import PERMUTATION
 from skelfuse.fusion.mirror_labellings import slots
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.unbiased_facing import check_lean, unbiased_loop
+from skelfuse.jit import jit, plain
 from skelfuse.protocol.skeleton import JOINT_COUNT
 
 FloatArray = npt.NDArray[np.float64]
@@ -362,7 +362,7 @@ def redecide(
 
 def warm_up() -> None:
     """Compile (or load from numba's cache) this module's loops now, for the argument types every
-    call passes (:func:`~skelfuse.fusion.kernels_jit.plain`), so no frame waits for it."""
+    call passes (:func:`~skelfuse.jit.plain`), so no frame waits for it."""
     views = np.zeros((2, 25, 3))
     labelled = (views, np.zeros((2, 25), np.uint8), np.ones(2, np.bool_))
     for forward in (np.ones((2, 2, 3)), None):

@@ -5,7 +5,11 @@ late frame's capture and the instant, as that person's *on-time* views saw it (d
 Each on-time view is interpolated at both times; the difference is averaged over a person's
 views joint by joint, over the views that have the joint Tracked at both times (an Inferred
 joint is the sensor's guess, not a measurement), with left and right swapped for a view whose
-mirror label differs from the late body's. Shapes: (25, 3) world metres per body.
+mirror label differs from the late body's. One compiled loop does it per late body: per joint
+coordinate, the differences where both times are Tracked, added view after view to 0.0 in the
+person's view order, divided by their count; each late body's row straight from its person's
+views, found by id. :func:`carried_worlds` then carries the late bodies by their scaled
+measurement. Shapes: (25, 3) world metres per body.
 """
 
 from __future__ import annotations
@@ -15,16 +19,15 @@ from collections.abc import Iterable, Mapping
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion import kernels, kernels_motion
 from skelfuse.fusion.identity import ViewKey
 from skelfuse.fusion.views import View
 from skelfuse.fusion.world_views import SensorBodies, StackedRows
+from skelfuse.jit import jit, plain
 from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION, TrackingState
 
 FloatArray = npt.NDArray[np.float64]
-_MIRROR = np.array(MIRROR_PERMUTATION)
-_UNSEEN = np.full((JOINT_COUNT, 3), np.nan)
-"""A body none of whose joints the on-time views measured."""
+IndexArray = npt.NDArray[np.intp]
+_MIRROR = np.array(MIRROR_PERMUTATION, dtype=np.intp)
 _TRACKED = int(TrackingState.TRACKED)
 """Compared as a plain int: numpy compares a uint8 array with an IntEnum member 5× slower."""
 
@@ -80,51 +83,16 @@ def _displacements(
     all NaN for a body without a measurement."""
     unknown = (-1, False)  # a late body of nobody (person ids start at 1)
     late = [members.get(key, unknown) for key in late_keys]
-    of_keys = [members[key] for key in keys]
-    if kernels.enabled() and kernels_motion.warmed():  # the same bits in one loop
-        return kernels_motion.person_displacements(
-            joints,
-            states,
-            np.array(of_keys, dtype=np.intp).reshape(-1, 2),  # (person, label) rows
-            np.array(late, dtype=np.intp).reshape(-1, 2),
-        )
-    persons = [person for person, _ in of_keys]
-    labels = np.array([label for _, label in of_keys])
-    # Each person's views, in their order (dicts keep it); persons numbered as they appear.
-    group_index: dict[int, int] = {}
-    group_of = [group_index.setdefault(person, len(group_index)) for person in persons]
-    # Each late body's person's number (len(group_index): none) and whether it is swapped back.
-    unseen = len(group_index)
-    rows = [group_index.get(person, unseen) for person, _ in late]
-    swapped = [at != unseen and swap for at, (_, swap) in zip(rows, late, strict=True)]
-    count = len(keys)
-    # An Inferred joint is the sensor's guess, not a measurement: its motion is not used.
-    tracked = (states[:count] == _TRACKED) & (states[count:] == _TRACKED)
-    moved_all = np.where(tracked[..., None], joints[:count] - joints[count:], np.nan)
-    # Every view in the joint order of a body labelled False (a view labelled True swapped):
-    # a body labelled True gets its person's mean swapped back (a permutation: the same sums).
-    canonical = np.where(labels[:, None, None], moved_all[:, _MIRROR], moved_all)
-    # Per person, its views in their order, padded with NaN (unseen) to the most views one has,
-    # summed row after row: the sum over the person's rows alone, to the bit (np.add.reduceat
-    # adds in another order).
-    groups: list[list[int]] = [[] for _ in range(unseen)]
-    for row, group in enumerate(group_of):
-        groups[group].append(row)
-    padded = np.full((len(groups), max(map(len, groups)), JOINT_COUNT, 3), np.nan)
-    padded[
-        [g for g, members_rows in enumerate(groups) for _ in members_rows],
-        [w for members_rows in groups for w in range(len(members_rows))],
-    ] = canonical[[row for members_rows in groups for row in members_rows]]
-    finite = np.isfinite(padded)
-    seen = finite.sum(axis=1)
-    total = np.where(finite, padded, 0.0).sum(axis=1)
-    means = np.where(seen > 0, total / np.maximum(seen, 1), np.nan)
-    # Each late body's person's row (an all-NaN row past the persons' for none), gathered at
-    # once; a body labelled True takes it swapped back.
-    out: FloatArray = np.concatenate([means, _UNSEEN[None]])[rows]
-    flipped = [row for row, swap in enumerate(swapped) if swap]
-    if flipped:
-        out[flipped] = out[flipped][:, _MIRROR]
+    out = np.empty((len(late), JOINT_COUNT, 3))
+    _displacements_loop(
+        plain(joints),
+        plain(states, np.uint8),
+        np.array([members[key] for key in keys], dtype=np.intp).reshape(-1, 2),
+        np.array(late, dtype=np.intp).reshape(-1, 2),
+        _MIRROR,
+        _TRACKED,
+        out,
+    )
     return out
 
 
@@ -171,3 +139,100 @@ def measured_from_arrays(
     joints = np.concatenate([b.world for b in now] + [b.world for b in then])[rows]
     states = np.concatenate([b.bodies.states for b in now] + [b.bodies.states for b in then])
     return _displacements(late_keys, members, keys, joints, states[rows])
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) the loops now, off any latency-bound path."""
+    joints = np.zeros((2, JOINT_COUNT, 3))
+    states = np.full((2, JOINT_COUNT), _TRACKED, dtype=np.uint8)
+    moved = _displacements([("s", 0)], {("s", 0): (1, True)}, [("s", 0)], joints, states)
+    carried_worlds(joints[:1], np.ones(1), moved)
+
+
+@jit
+def _displacements_loop(
+    joints: FloatArray,
+    states: npt.NDArray[np.uint8],
+    members: IndexArray,
+    late: IndexArray,
+    mirror: IndexArray,
+    tracked: int,
+    out: FloatArray,
+) -> None:
+    """:func:`_displacements` into ``out`` (L, 25, 3): ``members`` (K, 2) each on-time body's
+    person id and mirror label (1: its left and right are swapped into the person's order of a
+    body labelled 0); ``late`` (L, 2) each late body's person id, or −1 for nobody (its row is
+    all NaN, as is the row of a person no on-time body is of), and its label (1: its row is
+    swapped back); ``mirror``: the left-right permutation; ``tracked``: the state measured."""
+    count = members.shape[0]
+    own = np.empty(count, dtype=np.intp)  # the row's person's on-time bodies, in their order
+    for row in range(late.shape[0]):
+        person = late[row, 0]
+        views = 0
+        for k in range(count):
+            if person >= 0 and members[k, 0] == person:
+                own[views] = k
+                views += 1
+        for j in range(out.shape[1]):
+            # The late body's joint j is the person's joint ``wanted`` in the order of a body
+            # labelled 0; each view's own joint for it is swapped if the view is labelled 1.
+            wanted = mirror[j] if late[row, 1] != 0 else j
+            for c in range(3):
+                total = 0.0
+                seen = 0
+                for v in range(views):
+                    k = own[v]
+                    source = mirror[wanted] if members[k, 1] != 0 else wanted
+                    if states[k, source] != tracked or states[count + k, source] != tracked:
+                        continue  # Inferred at either time: the sensor's guess, not measured
+                    moved = joints[k, source, c] - joints[count + k, source, c]
+                    if np.isfinite(moved):
+                        total += moved
+                        seen += 1
+                out[row, j, c] = total / max(seen, 1) if seen > 0 else np.nan
+
+
+def carried_worlds(
+    worlds: FloatArray, scales: FloatArray, measured: FloatArray
+) -> tuple[FloatArray, npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
+    """Late bodies carried by their scaled measurement where it is known.
+
+    Args:
+        worlds: (B, 25, 3) the late bodies' newest joints, world metres.
+        scales: (B,) each body's share of the measurement (its sensor's horizon over the
+            furthest-late one's).
+        measured: (B, 25, 3) metres, :func:`measured_from_arrays`' answer (NaN: not measured).
+
+    Returns:
+        The carried joints (B, 25, 3), ``worlds + scale × measured`` where that product is
+        finite and ``worlds + 0.0`` elsewhere; where it is finite, (B, 25, 3); and whether it
+        is finite at every joint of a body, (B,).
+    """
+    out = np.empty(worlds.shape)
+    seen = np.empty(worlds.shape, dtype=np.bool_)
+    whole = np.empty(worlds.shape[0], dtype=np.bool_)
+    _carried_loop(plain(worlds), plain(scales), plain(measured), out, seen, whole)
+    return out, seen, whole
+
+
+@jit
+def _carried_loop(
+    worlds: FloatArray,
+    scales: FloatArray,
+    measured: FloatArray,
+    out: FloatArray,
+    seen: npt.NDArray[np.bool_],
+    whole: npt.NDArray[np.bool_],
+) -> None:
+    """:func:`carried_worlds` into ``out``, ``seen`` and ``whole``."""
+    for b in range(worlds.shape[0]):
+        every = True
+        for j in range(worlds.shape[1]):
+            for c in range(3):
+                carried = scales[b] * measured[b, j, c]
+                finite = np.isfinite(carried)
+                # + 0.0 where unknown, as numpy's where-then-add does (-0.0 becomes +0.0).
+                out[b, j, c] = worlds[b, j, c] + (carried if finite else 0.0)
+                seen[b, j, c] = finite
+                every = every and finite
+        whole[b] = every

@@ -41,10 +41,10 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.anatomy import ANGLE_LIMITS, facing_direction
-from skelfuse.fusion.kernels_jit import plain
 from skelfuse.fusion.mirror_distances import LATERAL_JOINTS, LATERAL_SWAP
 from skelfuse.fusion.mirror_labellings import MAX_VIEWS, SCREEN_FROM_VIEWS, SCREEN_MARGIN_M, layout
 from skelfuse.fusion.mirror_scores import scored_loop
+from skelfuse.jit import plain
 from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION
 
 FloatArray = npt.NDArray[np.float64]
@@ -278,7 +278,7 @@ def score(
 
 def warm_up() -> None:
     """Compile (or load from numba's cache) the scoring loop now, for the argument types every
-    call passes (:func:`~skelfuse.fusion.kernels_jit.plain`), so no frame waits for it."""
+    call passes (:func:`~skelfuse.jit.plain`), so no frame waits for it."""
     views = np.zeros((2, 25, 3))
     for references in ([views[0]], [None]):
         score(views, np.ones((2, 3)), [2], (references, np.ones((1, 3)), np.zeros(2, np.intp)),

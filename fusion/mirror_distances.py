@@ -14,7 +14,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.kernels_jit import jit
+from skelfuse.jit import jit
 from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION
 
 FloatArray = npt.NDArray[np.float64]

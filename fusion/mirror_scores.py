@@ -20,8 +20,8 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.anatomy import rom_loop
-from skelfuse.fusion.kernels_jit import jit
 from skelfuse.fusion.mirror_distances import lateral_loop, pairwise
+from skelfuse.jit import jit
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]

@@ -37,7 +37,6 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion import kernels
 from skelfuse.fusion.anatomy import facing_directions
 from skelfuse.fusion.batch import ViewBatch
 from skelfuse.fusion.bones import (
@@ -100,10 +99,7 @@ class FusionPipeline:
 
     def update(self, views: list[View], t_s: float) -> list[FusedPerson]:
         """Steps 3–8 on the views of one instant (world frame); the published persons, by id."""
-        # The kernel mode read once for the step: its ~16 kernel choices each read the
-        # environment otherwise (1.2 µs a time, 0.2 once pinned).
-        with kernels.forced(kernels.mode()):
-            return self._update(views, t_s)
+        return self._update(views, t_s)
 
     def _update(self, views: list[View], t_s: float) -> list[FusedPerson]:
         s = self.settings

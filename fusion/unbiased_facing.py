@@ -23,8 +23,8 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.anatomy import facing_directions
-from skelfuse.fusion.kernels_jit import jit, plain
 from skelfuse.fusion.mirror_labellings import slots
+from skelfuse.jit import jit, plain
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
@@ -151,6 +151,6 @@ def unbiased_loop(
 
 def warm_up() -> None:
     """Compile (or load from numba's cache) the loop now, for the argument types every call
-    passes (:func:`~skelfuse.fusion.kernels_jit.plain`), so no frame waits for it."""
+    passes (:func:`~skelfuse.jit.plain`), so no frame waits for it."""
     views = np.zeros((2, 25, 3))
     unbiased_facings(views, np.ones((2, 3)), np.zeros(2, bool), [2], 0.5)

@@ -14,8 +14,8 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.anatomy import facing_direction
-from skelfuse.fusion.kernels_jit import jit, plain
 from skelfuse.fusion.settings import FusionSettings
+from skelfuse.jit import jit, plain
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -86,5 +86,5 @@ def _backwards_loop(
 
 def warm_up() -> None:
     """Compile (or load from numba's cache) the loop now, for the argument types every call
-    passes (:func:`~skelfuse.fusion.kernels_jit.plain`), so no frame waits for it."""
+    passes (:func:`~skelfuse.jit.plain`), so no frame waits for it."""
     walking_backwards_now(np.ones((2, 3)), np.ones((2, 3)), 0.3)

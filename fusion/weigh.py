@@ -38,13 +38,12 @@ from skelfuse.fusion.confidence import (
     range_of_motion_factors,
     sensor_terms,
 )
-from skelfuse.fusion.kernels_facing import cosines_loop
-from skelfuse.fusion.kernels_jit import jit, plain
 from skelfuse.fusion.priors import SensorPrior
 from skelfuse.fusion.reliability import reliability_factors
 from skelfuse.fusion.settings import FusionSettings
-from skelfuse.fusion.view_factors import view_factor_loop
+from skelfuse.fusion.view_factors import cosines_loop, view_factor_loop
 from skelfuse.fusion.weighted import MIN_SHARE, weighted_loop
+from skelfuse.jit import jit, plain
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]

@@ -22,7 +22,7 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.confidence import confidence_loop, joint_confidence
-from skelfuse.fusion.kernels_jit import jit, plain
+from skelfuse.jit import jit, plain
 
 FloatArray = npt.NDArray[np.float64]
 MIN_SHARE: Final = 0.05

@@ -7,19 +7,19 @@ sensors in a few calls instead of a dozen per sensor, which is what a step with 
 spends its time on:
 
 - the usual interpolation (every body in both frames, in the same order) of all sensors is one
-  element-wise pass: ``(1 − α)·a + α·b`` with each sensor's own ``α`` per row, the same IEEE
-  operations as one sensor alone, and the same rule where a frame misses a joint; a sensor
-  whose bodies came, went or changed order takes
-  :func:`~skelfuse.fusion.sensors.body_arrays_at` as before;
-- the move to the world frame is one element-wise pass over every row with its own sensor's
-  pose, each coordinate ``((x·r₀ + y·r₁) + z·r₂) + t`` as ``apply`` computes it body by body
-  (tests/unit/test_world_views.py checks the bits); with the compiled kernels, one loop does
-  both (:mod:`skelfuse.fusion.kernels_lerp`).
+  pass: ``(1 − α)·a + α·b`` in float64 with each sensor's own ``α`` per row, float32 out, the
+  same IEEE operations as one sensor alone, and the same rule where a frame misses a joint
+  (the nearer frame decides, the lower tracking state wins); a sensor whose bodies came, went
+  or changed order takes :func:`~skelfuse.fusion.sensors.body_arrays_at` as before;
+- the move to the world frame is in the same pass, every row with its own sensor's pose, each
+  coordinate ``((x·r₀ + y·r₁) + z·r₂) + t`` as ``apply`` computes it body by body
+  (tests/unit/test_world_views.py checks the bits).
+
+Both are one compiled loop over every row (:func:`to_world`).
 """
 
 from __future__ import annotations
 
-import math
 from collections import deque
 from collections.abc import Callable, Iterable
 from typing import NamedTuple
@@ -27,15 +27,16 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion import kernels, kernels_lerp
 from skelfuse.fusion.moving import world_position
-from skelfuse.fusion.points import finite_points
 from skelfuse.fusion.sensors import BodyArrays, SensorState, TimedFrame, body_arrays_at
 from skelfuse.fusion.views import View
-from skelfuse.protocol.skeleton import TrackingState
+from skelfuse.jit import jit, plain
+from skelfuse.protocol.skeleton import JOINT_COUNT, TrackingState
 from skelfuse.protocol.transform import Matrix4
 
 FloatArray = npt.NDArray[np.float64]
+Float32Array = npt.NDArray[np.float32]
+StateArray = npt.NDArray[np.uint8]
 PoseLookup = Callable[[str], Matrix4 | None]
 """A sensor's ``T_world_from_sensor`` (4×4, metres), or None while it is uncalibrated."""
 
@@ -126,22 +127,16 @@ def resolve(groups: list[Gathered]) -> list[list[SensorBodies]]:
 def resolve_with_rows(
     groups: list[Gathered],
 ) -> tuple[list[list[SensorBodies]], StackedRows | None]:
-    """:func:`resolve`, and with the compiled kernels its rows as computed: every body's world
-    joints (N, 25, 3) float64 and states (N, 25), group after group and sensor after sensor
-    (the arrays each :class:`SensorBodies`' ``world`` and states are the rows of, or hold
-    the same values); None from numpy, which computes them apart."""
+    """:func:`resolve`, and its rows as computed: every body's world joints (N, 25, 3) float64
+    and states (N, 25), group after group and sensor after sensor (the arrays each
+    :class:`SensorBodies`' ``world`` and states are the rows of, or hold the same values);
+    None without a body."""
     flat = [entry for group in groups for entry in group]
     if not flat:
         return [[] for _ in groups], None
     items = [bodies for _, _, bodies in flat]
     poses = [pose for _, pose, _ in flat]
-    compiled = _compiled(items, poses) if kernels.enabled() and kernels_lerp.warmed() else None
-    rows: StackedRows | None = None
-    if compiled is None:
-        arrays = _interpolate_pending(items)
-        done = arrays, bodies_to_world(poses, [a.joints_m for a in arrays])
-    else:
-        done, rows = compiled
+    done, rows = _resolved_rows(items, poses)
     resolved = [
         SensorBodies(sensor, pose, bodies, world)
         for (sensor, pose, _), bodies, world in zip(flat, *done, strict=True)
@@ -154,13 +149,12 @@ def resolve_with_rows(
     return out, rows
 
 
-def _compiled(
+def _resolved_rows(
     items: list[BodyArrays | _Pending], poses: list[Matrix4]
-) -> tuple[tuple[list[BodyArrays], list[FloatArray]], StackedRows] | None:
-    """:func:`_interpolate_pending` then :func:`bodies_to_world`, in one compiled loop
-    (:func:`~skelfuse.fusion.kernels_lerp.to_world`, the same bits), and every row's world
-    joints and states in one array each; None when a body is not float32 (frames hold
-    float32; one from elsewhere takes numpy)."""
+) -> tuple[tuple[list[BodyArrays], list[FloatArray]], StackedRows]:
+    """Every pending interpolation done and every body moved to the world by its pose, in one
+    call of :func:`to_world`: the items' bodies (a pending one replaced by its interpolated
+    rows) and world joints, and every row's world joints and states in one array each."""
     firsts: list[npt.NDArray[np.float32]] = []
     seconds: list[npt.NDArray[np.float32]] = []
     first_states: list[npt.NDArray[np.uint8]] = []
@@ -179,10 +173,10 @@ def _compiled(
         alphas.append(alpha)
         counts.append(len(first.tracking_ids))
     a, b = np.concatenate(firsts), np.concatenate(seconds)
-    if not a.dtype == b.dtype == np.float32:
-        return None
+    if not a.dtype == b.dtype == np.float32:  # frames hold float32; a body from elsewhere:
+        a, b = a.astype(np.float64), b.astype(np.float64)  # not rounded before the arithmetic
     row_alphas = np.array(alphas).repeat(counts)  # the method: np.repeat's wrapper costs more
-    joints32, states, world = kernels_lerp.to_world(
+    joints32, states, world = to_world(
         a,
         b,
         np.concatenate(first_states),
@@ -237,37 +231,6 @@ def _bodies_or_pending(
     return _Pending(second if alpha >= 0.5 else first, first, second, alpha)
 
 
-def _interpolate_pending(items: list[BodyArrays | _Pending]) -> list[BodyArrays]:
-    """Every pending interpolation done, all sensors' rows in one pass: :func:`_lerp`'s rule
-    and arithmetic element by element, with each row's own ``α`` (its sensor's); numpy's
-    (:func:`_compiled` is the loop)."""
-    pending = [item for item in items if isinstance(item, _Pending)]
-    if not pending:
-        return [item for item in items if isinstance(item, BodyArrays)]
-    counts = [len(item.nearer.tracking_ids) for item in pending]
-    first_states = np.concatenate([item.first.states for item in pending])
-    second_states = np.concatenate([item.second.states for item in pending])
-    alphas = np.repeat(np.array([item.alpha for item in pending]), counts)
-    first = np.concatenate([item.first.joints_m for item in pending])
-    second = np.concatenate([item.second.joints_m for item in pending])
-    a = first.astype(np.float64)
-    b = second.astype(np.float64)
-    alpha = alphas[:, None, None]
-    joints = (1.0 - alpha) * a + alpha * b
-    states = np.minimum(first_states, second_states)
-    # Finite only if every position of both frames is (NaN and inf propagate): the usual case
-    # needs nothing more. Otherwise _lerp's rule for the rows that need it, which leaves every
-    # row whose positions are all known as it is: where only one frame has a joint, the
-    # nearer frame decides, position and state.
-    if not math.isfinite(joints.sum()):
-        missing = ~(finite_points(a) & finite_points(b))  # (N, 25)
-        later = alpha[:, :, 0] >= 0.5  # (N, 1): the later frame is the nearer
-        joints = np.where(missing[..., None], np.where(later[..., None], b, a), joints)
-        states = np.where(missing, np.where(later, second_states, first_states), states)
-        states[~finite_points(joints)] = TrackingState.NOT_TRACKED
-    return _split(items, joints.astype(np.float32), states)
-
-
 def _split(
     items: list[BodyArrays | _Pending],
     joints32: npt.NDArray[np.float32],
@@ -303,18 +266,121 @@ def _rows_of(array: FloatArray, counts: list[int]) -> list[FloatArray]:
     return out
 
 
-def bodies_to_world(
-    poses: list[Matrix4], joints: list[npt.NDArray[np.float32]]
-) -> list[FloatArray]:
-    """Each sensor's (B, 25, 3) joints moved by its pose: ``apply(pose, joints)``'s floats
-    (each coordinate ``((x·r₀ + y·r₁) + z·r₂) + t``), every row at once with its own pose."""
-    counts = [len(rows) for rows in joints]
-    points = np.concatenate(joints, dtype=np.float64)
-    stacked = np.array(poses, dtype=np.float64)[np.repeat(np.arange(len(poses)), counts)]
-    rotation, shift = stacked[:, None, :3, :3], stacked[:, None, :3, 3]  # (N, 1, 3, 3), (N, 1, 3)
-    world = (
-        (points[..., 0:1] * rotation[..., 0] + points[..., 1:2] * rotation[..., 1])
-        + points[..., 2:3] * rotation[..., 2]
-        + shift
+_NOT_TRACKED = int(TrackingState.NOT_TRACKED)
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) the loop now, off any latency-bound path: for
+    float32 bodies (every frame's) and float64 ones."""
+    states = np.zeros((1, JOINT_COUNT), np.uint8)
+    rows = (np.full(1, 0.5), np.ones(1, bool), np.zeros(1, np.intp))
+    for dtype in (np.float32, np.float64):
+        joints = np.zeros((1, JOINT_COUNT, 3), dtype)
+        to_world(joints, joints, states, states, *rows, np.eye(4)[None])
+
+
+def to_world(
+    first: Float32Array | FloatArray,
+    second: Float32Array | FloatArray,
+    first_states: StateArray,
+    second_states: StateArray,
+    alpha: FloatArray,
+    interpolate: npt.NDArray[np.bool_],
+    pose_of_row: npt.NDArray[np.intp],
+    poses: FloatArray,
+) -> tuple[Float32Array, StateArray, FloatArray]:
+    """Every row interpolated (where ``interpolate``) and moved to the world by its pose.
+
+    Args:
+        first, second: (N, 25, 3) float32 (or both float64) metres, the earlier and the later
+            frame's bodies;
+        first_states, second_states: (N, 25) their tracking states; alpha: (N,) each row's
+            fraction (its sensor's), in [0, 1]; a row not to interpolate is ``first`` as it
+            is (``second`` and ``alpha`` unread);
+        interpolate: (N,) which rows to interpolate; pose_of_row: (N,) each row's pose;
+        poses: (S, 4, 4) ``T_world_from_sensor`` (metres).
+
+    Returns:
+        (N, 25, 3) float32 joints and (N, 25) states: where both frames have a joint (all
+        three coordinates finite) the float64 interpolation rounded to float32 and the lower
+        state; elsewhere the nearer frame's joint and state (the later one from α = 0.5); a
+        joint left with an unknown coordinate is NOT_TRACKED; a row not interpolated is
+        ``first``'s (rounded to float32). And (N, 25, 3) float64 world metres, the joints
+        moved as :func:`~skelfuse.protocol.transform.apply` moves them (a row not
+        interpolated: ``first``'s joints as they are).
+    """
+    dtype = np.float32 if first.dtype == second.dtype == np.float32 else np.float64
+    joints = np.empty(first.shape, np.float32)
+    states = np.empty(first_states.shape, np.uint8)
+    world = np.empty(first.shape)
+    _to_world_loop(
+        plain(first, dtype),
+        plain(second, dtype),
+        plain(first_states, np.uint8),
+        plain(second_states, np.uint8),
+        plain(alpha),
+        plain(interpolate, np.bool_),
+        plain(pose_of_row, np.intp),
+        plain(poses),
+        _NOT_TRACKED,
+        joints,
+        states,
+        world,
     )
-    return _rows_of(world, counts)
+    return joints, states, world
+
+
+@jit
+def _to_world_loop(
+    first: Float32Array | FloatArray,
+    second: Float32Array | FloatArray,
+    first_states: StateArray,
+    second_states: StateArray,
+    alpha: FloatArray,
+    interpolate: npt.NDArray[np.bool_],
+    pose_of_row: npt.NDArray[np.intp],
+    poses: FloatArray,
+    not_tracked: int,
+    joints: Float32Array,
+    states: StateArray,
+    world: FloatArray,
+) -> None:
+    """:func:`to_world` into ``joints``, ``states`` and ``world``: one loop, as it moves each
+    joint as soon as it is interpolated."""
+    value = np.empty(3)
+    for n in range(first.shape[0]):
+        fraction = alpha[n]
+        rest = 1.0 - fraction
+        later = fraction >= 0.5
+        pose = poses[pose_of_row[n]]
+        for j in range(first.shape[1]):
+            if not interpolate[n]:
+                for c in range(3):
+                    joints[n, j, c] = first[n, j, c]
+                    value[c] = np.float64(first[n, j, c])  # as it is, not rounded
+                states[n, j] = first_states[n, j]
+            else:  # sensors._lerp's rule, joint by joint
+                both = True
+                for c in range(3):
+                    if not (np.isfinite(first[n, j, c]) and np.isfinite(second[n, j, c])):
+                        both = False
+                if both:
+                    for c in range(3):
+                        value[c] = rest * np.float64(first[n, j, c]) + fraction * np.float64(
+                            second[n, j, c]
+                        )
+                    state = min(first_states[n, j], second_states[n, j])
+                else:
+                    for c in range(3):
+                        value[c] = np.float64(second[n, j, c] if later else first[n, j, c])
+                    state = second_states[n, j] if later else first_states[n, j]
+                known = True
+                for c in range(3):
+                    joints[n, j, c] = np.float32(value[c])
+                    if not np.isfinite(value[c]):
+                        known = False
+                    value[c] = np.float64(joints[n, j, c])  # moved as rounded to float32
+                states[n, j] = state if known else not_tracked
+            x, y, z = value[0], value[1], value[2]
+            for i in range(3):  # protocol.transform.apply's sums
+                world[n, j, i] = ((x * pose[i, 0] + y * pose[i, 1]) + z * pose[i, 2]) + pose[i, 3]

@@ -12,14 +12,14 @@ the same bytes from :func:`write_jsonl`), as fast as the CPU allows.
 from __future__ import annotations
 
 import json
+import time
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TextIO
 
 from skelfuse.calibration.store import Calibration, SensorCalibration, SpaceCalibration
-from skelfuse.fusion import kernels
-from skelfuse.fusion.engine import FusedFrame, FusionEngine
+from skelfuse.fusion.engine import FusedFrame, FusionEngine, warm_up
 from skelfuse.fusion.settings import HubSettings
 from skelfuse.protocol.errors import DecodeError
 from skelfuse.protocol.feed import frame_json
@@ -43,8 +43,8 @@ class ReplayStats:
     last_t_s: float | None = None
     read: ReadStatus | None = None
     warm_up_s: float = 0.0
-    """Seconds spent compiling (or loading from cache) the fusion kernels before the first
-    record (0.0 with the kernels off: :mod:`skelfuse.fusion.kernels`)."""
+    """Seconds spent compiling the fusion stages' loops (or loading numba's cache) before the
+    first record (:func:`skelfuse.fusion.engine.warm_up`)."""
 
     @property
     def duration_s(self) -> float:
@@ -93,7 +93,9 @@ def replay(
         RecordingError: the file is not a readable recording.
     """
     stats = stats if stats is not None else ReplayStats()
-    stats.warm_up_s = kernels.warm_up()  # compile before the first frame, not inside one
+    started = time.perf_counter()
+    warm_up()  # compile before the first frame, not inside one
+    stats.warm_up_s = time.perf_counter() - started
     with RecordingReader(path, strict=strict) as reader:
         stats.read = reader.status
         settings = settings or HubSettings()

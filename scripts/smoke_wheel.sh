@@ -91,8 +91,8 @@ echo "==> wheel smoke: the fusion kernels compiled once, as the image's build do
 # server started below must find the machine code there instead of compiling again.
 export NUMBA_CACHE_DIR="$work/numba-cache"
 started=$SECONDS
-"$work/venv/bin/python" -c "from skelfuse.fusion import kernels; assert kernels.warm_up() > 0" ||
-  fail "the installed server extras do not compile the fusion kernels (numba)"
+"$work/venv/bin/python" -c "from skelfuse.fusion.engine import warm_up; warm_up()" ||
+  fail "the installed server extras do not compile the fusion stages (numba)"
 echo "    compiled in $((SECONDS - started)) s"
 
 echo "==> wheel smoke: skelfuse server from an empty folder"

@@ -1,5 +1,5 @@
 """Shared fixtures: free loopback ports, the shared data folder, a running demo stack, and the
-compiled fusion kernels forced on."""
+fusion stages compiled before any test."""
 
 from __future__ import annotations
 
@@ -19,9 +19,9 @@ import pytest
 
 from skelfuse.cli.values import parse_pose
 from skelfuse.demo import sensor_layout
-from skelfuse.fusion import kernels
+from skelfuse.fusion.engine import warm_up
 from skelfuse.protocol.transform import invert, pose_from_position_yaw_pitch
-from tests.support import free_port, require_numba, unavailable, wait_until
+from tests.support import free_port, unavailable, wait_until
 from tests.support_terminal import popen_in_terminal
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
@@ -30,21 +30,11 @@ CMU_DIR = SHARED_DATA / "cmu-mocap"
 
 
 @pytest.fixture(scope="session", autouse=True)
-def _fusion_kernels_compiled() -> None:
-    """Compile the fusion kernels (or load numba's cache) once before any test, as the server
-    and replay do at start (fusion/kernels.py): a test that times a fusion loop it built itself
-    must not pay that inside its first fusion step. Nothing to do without numba."""
-    kernels.warm_up()
-
-
-@pytest.fixture
-def numba_kernels() -> Iterator[None]:
-    """The compiled kernels on and every one warmed up (those that run only once warmed too);
-    skips without numba, fails under CI (tests/support.py's require_numba)."""
-    require_numba()
-    with kernels.forced("numba"):
-        kernels.warm_up()
-        yield
+def _fusion_stages_compiled() -> None:
+    """Compile the fusion stages' loops (or load numba's cache) once before any test, as the
+    server and replay do at start: a test that times a fusion loop it built itself must not pay
+    that inside its first fusion step."""
+    warm_up()
 
 
 @pytest.fixture

@@ -6,13 +6,14 @@ import os
 import socket
 import time
 from collections.abc import Callable
-from typing import NoReturn
+from typing import Any, NoReturn
 
 import numpy as np
 import numpy.typing as npt
 import pytest
 
-from skelfuse.fusion.kernels_jit import numba_module
+from skelfuse.agent.sim.performer import ProceduralPerformer
+from skelfuse.protocol.skeleton import JointId as J
 from tests.support_blender import blender_executable
 
 
@@ -60,16 +61,6 @@ def require_blender() -> str:
     return blender
 
 
-def require_numba() -> None:
-    """Return when numba is installed, else :func:`unavailable` (skip; fail under CI, where the
-    dev extra installs numba so the compiled kernels must be tested)."""
-    if numba_module() is None:
-        unavailable(
-            "numba is not installed (pip install -e .[fast])",
-            "CI installs the dev extra, which has numba: the kernels must be tested",
-        )
-
-
 def mpjpe(estimate: npt.ArrayLike, truth: npt.ArrayLike) -> tuple[float, int]:
     """Mean per-joint position error over the joints the estimate has (metres), and how many.
 
@@ -84,3 +75,27 @@ def mpjpe(estimate: npt.ArrayLike, truth: npt.ArrayLike) -> tuple[float, int]:
     if not present.any():
         return float("nan"), 0
     return float(err[present].mean()), int(present.sum())
+
+
+def random_views(seed: int) -> npt.NDArray[np.float64]:
+    """(M, 25, 3) views: simulated poses with noise, unknown joints, missing trunk parts, and
+    random points (angles far outside every range, degenerate frames)."""
+    rng = np.random.default_rng(seed)
+    performer = ProceduralPerformer(3)
+    poses = np.concatenate([performer.joints_at(t) for t in rng.uniform(0, 60, 12)])
+    poses = poses + rng.normal(0.0, 0.05, poses.shape)
+    noisy = poses + rng.normal(0.0, 0.3, poses.shape)
+    unknown = noisy.copy()
+    unknown[rng.random(unknown.shape[:2]) < 0.15] = np.nan
+    trunk = poses[:8].copy()
+    trunk[0:2, [J.HIP_LEFT, J.SHOULDER_RIGHT]] = np.nan  # the hips and the shoulders cut
+    trunk[2:4, J.HIP_RIGHT, 1] = np.nan  # one hip known, the shoulders whole
+    trunk[4:6, J.SPINE_SHOULDER] = np.nan  # no up axis
+    trunk[6, J.HIP_LEFT] = trunk[6, J.HIP_RIGHT]  # a zero-length lateral vector
+    random = rng.normal(0.0, 1.0, (20, 25, 3))
+    coincident = np.zeros((2, 25, 3))
+    return np.concatenate([poses, noisy, unknown, trunk, random, coincident])
+
+
+def same_bits(a: npt.NDArray[Any], b: npt.NDArray[Any]) -> bool:
+    return a.shape == b.shape and a.dtype == b.dtype and a.tobytes() == b.tobytes()

@@ -490,8 +490,8 @@ def test_the_toml_settings_are_checked() -> None:
 def test_replays_in_parts_give_the_bits_of_all_at_once(
     monkeypatch: pytest.MonkeyPatch, budget: int
 ) -> None:
-    """The candidates are replayed a few at a time to keep the arrays in the cache: every part
-    size (down to one candidate, and a last part shorter than the others) gives the same
+    """The waits' candidates are replayed a few at a time to keep the arrays in the cache: every
+    part size (down to one candidate, and a last part shorter than the others) gives the same
     answers as one pass over all of them."""
     rng = np.random.default_rng(budget)
     phases = rng.uniform(0.0, 1 / 30, 129)
@@ -499,23 +499,20 @@ def test_replays_in_parts_give_the_bits_of_all_at_once(
     captures = rng.uniform(0.0, 1 / 30, (16, 60)) % periods[:, None]
     delays = rng.uniform(0.0, 0.02, (16, 60))
     monkeypatch.setattr(alignment_replay, "REPLAYED_AT_ONCE", 10**9)
-    want = (*replayed_horizons(phases, captures, delays, periods, 0.007),)
     want_waits = replayed_waits(phases, captures, delays, periods)
     monkeypatch.setattr(alignment_replay, "REPLAYED_AT_ONCE", budget)
     parts = alignment_replay._parts(phases, captures)
     assert np.concatenate(parts).tobytes() == phases.tobytes()
     assert len(parts) == 129 if budget < 960 else len(parts) > 1  # every budget here splits
     assert all(len(p) * 960 <= max(budget, 960) for p in parts)
-    got = replayed_horizons(phases, captures, delays, periods, 0.007)
-    assert [a.shape for a in got] == [(129,), (129,), (129, 16)]
-    assert all(a.tobytes() == b.tobytes() for a, b in zip(got, want, strict=True))
     assert replayed_waits(phases, captures, delays, periods).tobytes() == want_waits.tobytes()
 
 
 @pytest.mark.parametrize("seed", range(6))
 def test_replays_are_the_rule_written_plainly(seed: int) -> None:
-    """The replays work two arrays in place; the answers are those of the rule written with a
-    fresh array per step (as it was), to the bit, ties at the deadline and zero phases included."""
+    """The replays' answers are those of the rule written with a fresh array per step (the
+    waits to the bit: they work two arrays in place), ties at the deadline and zero phases
+    included."""
     rng = np.random.default_rng(seed)
     sensors, frames = int(rng.integers(1, 17)), int(rng.integers(1, 61))
     periods = rng.choice([1 / 30, 1 / 15, 1 / 60], sensors)
@@ -533,7 +530,8 @@ def test_replays_are_the_rule_written_plainly(seed: int) -> None:
         late.mean(axis=2),
     )
     got = replayed_horizons(phases, captures, delays, periods, 0.007)
-    assert all(a.tobytes() == b.tobytes() for a, b in zip(got, want, strict=True))
+    for a, b in zip(got, want, strict=True):  # one loop: numpy's sums, within an ulp or two
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-15)
     plain_waits = (ahead + delays[None]).max(axis=1).mean(axis=1)
     assert replayed_waits(phases, captures, delays, periods).tobytes() == plain_waits.tobytes()
 

@@ -7,7 +7,7 @@ import numpy as np
 
 from skelfuse.fusion import anatomy
 from skelfuse.protocol.skeleton import JointId as J
-from tests.unit.test_kernels import _views
+from tests.support import random_views as _views
 
 
 def _reference_frame(v: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

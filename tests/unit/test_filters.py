@@ -260,34 +260,3 @@ def test_speed_raises_the_damped_acceleration_kalman_gain() -> None:
         x = np.array([np.sin(2 * math.pi * t)])
         lag_still, lag_adaptive = x[0] - still(x, t)[0], x[0] - adaptive(x, t)[0]
     assert abs(lag_adaptive) < 0.7 * abs(lag_still)
-
-
-@pytest.mark.parametrize("seed", range(8))
-def test_the_prediction_is_the_matrix_products_summed_in_index_order(seed: int) -> None:
-    # predicted() sums F x and F P Fᵀ element-wise, (a + b) + c: the products' values (to
-    # rounding, whatever BLAS does), and exactly the explicit sums written out one by one.
-    from skelfuse.fusion.filters_ca import predicted
-
-    rng = np.random.default_rng(seed)
-    h = rng.uniform(0.01, 0.05)
-    f = np.array([[[1.0, h, h * h / 2], [0.0, 1.0, h], [0.0, 0.0, math.exp(-h / 0.1)]]])
-    p = rng.normal(size=(int(rng.integers(1, 9)), 25, 3, 3, 3)) * 10.0 ** rng.uniform(-4, 2)
-    x = rng.normal(size=p.shape[:-1])
-    p[0, 0, 0] = np.nan  # a coordinate never seen
-    for transition in (f, rng.normal(size=p.shape)):  # one for all, one per coordinate
-        x_p, p_p = predicted(transition, x, p)
-        want_p = transition @ p @ np.swapaxes(transition, -1, -2)
-        want_x = (transition @ x[..., None])[..., 0]
-        np.testing.assert_allclose(p_p, want_p, rtol=1e-12, atol=1e-12 * np.nanmax(abs(want_p)))
-        np.testing.assert_allclose(x_p, want_x, rtol=1e-12, atol=1e-12 * np.abs(want_x).max())
-        assert np.isnan(p_p[0, 0, 0]).all()
-        t = np.broadcast_to(transition, p.shape)
-        c = (len(p) - 1, 7, 2)  # one coordinate, summed by hand in index order
-        fp = [[sum((t[c][a, k] * p[c][k, b] for k in (1, 2)), t[c][a, 0] * p[c][0, b])
-               for b in range(3)] for a in range(3)]  # fmt: skip
-        for a in range(3):
-            assert x_p[c][a] == t[c][a, 0] * x[c][0] + t[c][a, 1] * x[c][1] + t[c][a, 2] * x[c][2]
-            for b in range(3):
-                assert p_p[c][a, b] == (
-                    fp[a][0] * t[c][b, 0] + fp[a][1] * t[c][b, 1] + fp[a][2] * t[c][b, 2]
-                )

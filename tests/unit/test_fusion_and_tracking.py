@@ -7,9 +7,9 @@ import pytest
 
 from skelfuse.agent.sim.performer import ProceduralPerformer
 from skelfuse.fusion.confidence import state_weights
-from skelfuse.fusion.identity import trunk_distance
 from skelfuse.fusion.pipeline import FusionPipeline
 from skelfuse.fusion.settings import FusionSettings
+from skelfuse.fusion.trunks import trunk_distance
 from skelfuse.fusion.views import FusedPerson, View
 from skelfuse.fusion.weighted import fuse_views
 from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION, JointId, TrackingState
@@ -240,8 +240,8 @@ def test_duplicate_person_from_disjoint_sensors_is_merged() -> None:
 
 
 def test_batched_fusion_helpers_match_single_calls() -> None:
+    from skelfuse.fusion.bone_fit import enforce_bone_lengths
     from skelfuse.fusion.bone_window import nanmedian_axis
-    from skelfuse.fusion.bones import enforce_bone_lengths
     from skelfuse.fusion.confidence import joint_confidence
     from skelfuse.fusion.weighted import weighted_mean
 
@@ -300,7 +300,7 @@ def test_several_persons_fuse_as_if_alone() -> None:
 
 
 def test_bone_projection_gives_exact_lengths_and_moves_joints_less_than_the_chain() -> None:
-    from skelfuse.fusion.bones import enforce_bone_lengths, project_bone_lengths
+    from skelfuse.fusion.bone_fit import enforce_bone_lengths, project_bone_lengths
     from skelfuse.protocol.skeleton import bone_lengths
 
     rng = np.random.default_rng(21)
@@ -330,7 +330,7 @@ def test_bone_projection_gives_exact_lengths_and_moves_joints_less_than_the_chai
 
 
 def test_bone_projection_leaves_unknown_bones_missing_joints_and_right_lengths_alone() -> None:
-    from skelfuse.fusion.bones import project_bone_lengths
+    from skelfuse.fusion.bone_fit import project_bone_lengths
     from skelfuse.protocol.skeleton import JointId, bone_lengths
 
     joints = standing()

@@ -11,7 +11,6 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from skelfuse.fusion import kernels
 from skelfuse.fusion.alignment import Alignment, SensorTiming
 from skelfuse.fusion.alignment_replay import replayed_horizons
 from skelfuse.fusion.engine import FusedFrame
@@ -27,7 +26,6 @@ from skelfuse.protocol.transform import look_at_pose
 from skelfuse.protocol.wire import Body, Frame, Hello, encode
 from skelfuse.server.hub import FusionHub
 from skelfuse.server.settings import FusionSettings, Settings
-from tests.support import require_numba
 
 P = 1 / 30
 T0 = 1_800_000_000.0
@@ -341,11 +339,10 @@ def test_measured_displacements_for_many_persons_are_each_persons_own_mean_to_th
         assert np.array_equal(got, expected, equal_nan=True), key
 
 
-@pytest.mark.parametrize("mode", ["numpy", "numba"])
 @pytest.mark.parametrize("usual", [False, True])
 @pytest.mark.parametrize("seed", range(12))
 def test_the_live_paths_measurement_on_arrays_is_the_views_rule_to_the_bit(
-    seed: int, usual: bool, mode: str
+    seed: int, usual: bool
 ) -> None:
     """What views_with_late runs (measured_from_arrays, rows gathered by key from the sensors'
     arrays) against measured_displacements on the same bodies as views: bodies seen at only
@@ -389,18 +386,14 @@ def test_the_live_paths_measurement_on_arrays_is_the_views_rule_to_the_bit(
         }
 
     late_keys = [("b", i) for i in late_ids]
-    if mode == "numba":
-        require_numba()
-    with kernels.forced(mode):
-        kernels.warm_up()  # the compiled measurement runs once warmed
-        want = measured_displacements(late_keys, members, views(then), views(now))
-        got = measured_from_arrays(newest, members, now, then)
-        # As views_with_late passes them: the rows resolve computed, now's then then's.
-        stacked = (
-            np.concatenate([b.world for b in now + then]),
-            np.concatenate([b.bodies.states for b in now + then]),
-        )
-        assert measured_from_arrays(newest, members, now, then, stacked).tobytes() == got.tobytes()
+    want = measured_displacements(late_keys, members, views(then), views(now))
+    got = measured_from_arrays(newest, members, now, then)
+    # As views_with_late passes them: the rows resolve computed, now's then then's.
+    stacked = (
+        np.concatenate([b.world for b in now + then]),
+        np.concatenate([b.bodies.states for b in now + then]),
+    )
+    assert measured_from_arrays(newest, members, now, then, stacked).tobytes() == got.tobytes()
     assert got.shape == (len(late_ids), JOINT_COUNT, 3)
     for row, key in enumerate(late_keys):
         if key in want:

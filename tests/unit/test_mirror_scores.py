@@ -14,7 +14,7 @@ import pytest
 from skelfuse.fusion import anatomy, label_scores, labels, mirror, walking
 from skelfuse.fusion.mirror_distances import LATERAL_JOINTS, LATERAL_SWAP, lateral_loop
 from skelfuse.fusion.mirror_labellings import layout
-from tests.unit.test_kernels import _same_bits, _views
+from tests.support import random_views as _views, same_bits as _same_bits
 
 FloatArray = np.ndarray
 COUNTS = (1, 2, 3, 4, 5, 6, 7, 8, 10)

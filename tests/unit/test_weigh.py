@@ -29,7 +29,7 @@ from skelfuse.fusion.view_factors import facing_cosines, view_factors
 from skelfuse.fusion.views import View
 from skelfuse.fusion.weighted import confidence_and_carriers
 from skelfuse.protocol.skeleton import BONES, JointId
-from tests.unit.test_kernels import _views
+from tests.support import random_views as _views
 
 COUNTS = (4, 2, 3, 1, 4)
 """Views per person: different widths, so the persons are padded, and a person seen once."""

@@ -1,10 +1,10 @@
-"""The ``views`` predictor's compiled measurement gives the numpy path's bits.
+"""The ``views`` predictor's measurement and carry against the rule, written below.
 
-skelfuse.fusion.kernels_motion against measured_motion's numpy code, through the function the
-live path calls (``_displacements``), on random rigs: persons with one to twelve on-time views
-(numpy's sum over more than eight terms is where a reordering would show), mirrored views,
-Inferred and untracked joints, unknown and infinite coordinates, zero and negative-zero
-displacements, late bodies of nobody, of a person no on-time view sees, and labelled True.
+skelfuse.fusion.measured_motion through the function the live path calls (``_displacements``),
+on random rigs: persons with one to twelve on-time views, mirrored views, Inferred and
+untracked joints, unknown and infinite coordinates, zero and negative-zero displacements, late
+bodies of nobody, of a person no on-time view sees, and labelled True; then ``carried_worlds``
+against the carry in numpy.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from skelfuse.fusion import extrapolation, kernels, kernels_motion, measured_motion
+from skelfuse.fusion import measured_motion
 from skelfuse.fusion.identity import ViewKey
 from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION, TrackingState
 
@@ -52,31 +52,11 @@ def _rig(
     return late, members, keys, joints, states
 
 
-@pytest.mark.parametrize("seed", range(40))
-def test_compiled_displacements_are_the_numpy_displacements(numba_kernels: None, seed: int) -> None:
+@pytest.mark.parametrize("seed", range(12))
+def test_the_rule_body_by_body(seed: int) -> None:
+    """One person's mean over its views, joint by joint, in the late body's order; a body
+    without a measurement is all NaN."""
     late, members, keys, joints, states = _rig(seed)
-    with kernels.forced("numpy"), np.errstate(invalid="ignore"):  # inf − inf: NaN, unused
-        want = measured_motion._displacements(late, members, keys, joints, states)
-    calls = 0
-    compiled = kernels_motion.person_displacements
-
-    def counted(*args: np.ndarray) -> np.ndarray:
-        nonlocal calls
-        calls += 1
-        return compiled(*args)
-
-    with pytest.MonkeyPatch.context() as patch, np.errstate(invalid="ignore"):
-        patch.setattr(kernels_motion, "person_displacements", counted)
-        got = measured_motion._displacements(late, members, keys, joints, states)
-    assert calls == 1  # the kernel ran
-    assert got.shape == (len(late), JOINT_COUNT, 3)
-    assert got.tobytes() == want.tobytes()
-
-
-def test_the_rule_body_by_body(numba_kernels: None) -> None:
-    """Independent of both paths: one person's mean over its views, joint by joint, in the late
-    body's order; a body without a measurement is all NaN."""
-    late, members, keys, joints, states = _rig(7)
     with np.errstate(invalid="ignore"):
         got = measured_motion._displacements(late, members, keys, joints, states)
     mirror = np.array(MIRROR_PERMUTATION)
@@ -97,13 +77,13 @@ def test_the_rule_body_by_body(numba_kernels: None) -> None:
             for c in range(3):
                 finite = [t[c] for t in terms if np.isfinite(t[c])]
                 if finite:
-                    assert got[row, j, c] == pytest.approx(np.mean(finite), rel=1e-12, abs=1e-15)
+                    assert got[row, j, c] == pytest.approx(np.mean(finite), rel=1e-9, abs=1e-12)
                 else:
                     assert np.isnan(got[row, j, c])
 
 
 @pytest.mark.parametrize("seed", range(20))
-def test_compiled_carry_is_the_numpy_carry(numba_kernels: None, seed: int) -> None:
+def test_the_carry_adds_the_scaled_measurement_where_it_is_known(seed: int) -> None:
     rng = np.random.default_rng(seed)
     bodies = int(rng.integers(1, 80))
     worlds = rng.normal(0.0, 2.0, (bodies, JOINT_COUNT, 3))
@@ -116,13 +96,13 @@ def test_compiled_carry_is_the_numpy_carry(numba_kernels: None, seed: int) -> No
         measured[1] = 0.001  # a body measured at every joint
     scales = rng.uniform(0.0, 1.0, bodies)
     scales[rng.random(bodies) < 0.2] = 0.0  # 0 × inf: NaN, unmeasured
-    with kernels.forced("numpy"), np.errstate(invalid="ignore"):
-        want = extrapolation._carry(worlds, scales, measured)
-    got = kernels_motion.carried_worlds(worlds, scales, measured)
-    for mine, numpy_s in zip(got, want, strict=True):
-        assert mine.dtype == numpy_s.dtype
-        assert mine.tobytes() == numpy_s.tobytes()
-    assert got[2].any() == (bodies > 1)
-    assert not got[2].all()  # some bodies have an unmeasured joint
-    with np.errstate(invalid="ignore"):  # the kernel ran: the same through the dispatcher
-        assert extrapolation._carry(worlds, scales, measured)[0].tobytes() == want[0].tobytes()
+    with np.errstate(invalid="ignore"):
+        carried = scales[:, None, None] * measured
+    finite = np.isfinite(carried)
+    got, seen, whole = measured_motion.carried_worlds(worlds, scales, measured)
+    np.testing.assert_allclose(got, worlds + np.where(finite, carried, 0.0), rtol=0.0, atol=1e-9)
+    np.testing.assert_array_equal(seen, finite)
+    np.testing.assert_array_equal(whole, finite.all(axis=(1, 2)))
+    assert whole.any() == (bodies > 1)
+    assert not whole.all()  # some bodies have an unmeasured joint
+    assert not np.signbit(got[~finite & (worlds == 0.0)]).any()  # -0.0 + 0.0: +0.0

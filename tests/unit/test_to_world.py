@@ -1,10 +1,9 @@
-"""The compiled interpolation and move to the world of a step's rows gives the numpy path's bits.
+"""A step's rows interpolated and moved to the world in one loop: the rule of one sensor alone.
 
-skelfuse.fusion.kernels_lerp against world_views' numpy passes (``_interpolate_pending`` then
-``bodies_to_world``), through the function resolve calls (``_compiled``), and against
-sensors._lerp and protocol.transform.apply sensor by sensor (the rule of one sensor alone):
-joints missing in one frame or both, infinities, α below, at and above 0.5, every tracking
-state, values over many magnitudes, and sensors that need no interpolation between them.
+skelfuse.fusion.world_views.to_world, through the function resolve calls (``_resolved_rows``),
+against sensors._lerp and protocol.transform.apply sensor by sensor: joints missing in one
+frame or both, infinities, α below, at and above 0.5, every tracking state, values over many
+magnitudes, sensors that need no interpolation between them, and float64 bodies.
 """
 
 from __future__ import annotations
@@ -12,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from skelfuse.fusion import kernels, kernels_lerp, sensors, world_views
+from skelfuse.fusion import sensors, world_views
 from skelfuse.fusion.sensors import BodyArrays
 from skelfuse.protocol.skeleton import JOINT_COUNT
 from skelfuse.protocol.transform import Matrix4, apply, look_at_pose
@@ -50,36 +49,22 @@ def _poses(rng: np.random.Generator, count: int) -> list[Matrix4]:
 
 
 @pytest.mark.parametrize("seed", range(30))
-def test_compiled_rows_are_the_numpy_rows(numba_kernels: None, seed: int) -> None:
+def test_the_rows_are_each_sensors_interpolation_moved_by_its_pose(seed: int) -> None:
     items = _items(seed)
     poses = _poses(np.random.default_rng(seed + 1000), len(items))
-    with kernels.forced("numpy"), np.errstate(invalid="ignore"):  # inf − inf: unused
-        want = world_views._interpolate_pending(items)
-        want_worlds = world_views.bodies_to_world(poses, [a.joints_m for a in want])
-    done = world_views._compiled(items, poses)
-    assert done is not None
-    (got, worlds), (world_rows, state_rows) = done
-    assert len(got) == len(want) == len(worlds) == len(items)
+    (got, worlds), (world_rows, state_rows) = world_views._resolved_rows(items, poses)
+    assert len(got) == len(worlds) == len(items)
     # The stacked rows are every item's, in order: what measured_from_arrays reads.
     assert world_rows.tobytes() == np.concatenate(worlds).tobytes()
     assert state_rows.tobytes() == np.concatenate([a.states for a in got]).tobytes()
-    for mine, numpy_s, world, numpy_world, item, pose in zip(
-        got, want, worlds, want_worlds, items, poses, strict=True
-    ):
-        assert mine.tracking_ids == numpy_s.tracking_ids
+    for mine, world, item, pose in zip(got, worlds, items, poses, strict=True):
         assert mine.joints_m.dtype == np.float32 and mine.states.dtype == np.uint8
-        assert mine.joints_m.tobytes() == numpy_s.joints_m.tobytes()
-        assert mine.states.tobytes() == numpy_s.states.tobytes()
         assert world.dtype == np.float64 and world.shape == mine.joints_m.shape
         with np.errstate(invalid="ignore"):
             alone = apply(pose, mine.joints_m)  # the sensor alone
-        # Every bit of a body without ±inf (the wire refuses ±inf: every body fusion sees);
-        # where +inf and −inf meet (inf − inf) the NaN's sign depends on the operands' order
-        # the compiler chose, so those compare as NaN.
-        plain = ~np.isinf(mine.joints_m).any(axis=(1, 2))
-        assert world[plain].tobytes() == numpy_world[plain].tobytes() == alone[plain].tobytes()
-        assert np.array_equal(world, numpy_world, equal_nan=True)
-        assert np.array_equal(world, alone, equal_nan=True)
+        # Where +inf and −inf meet (inf − inf) the NaN's sign depends on the operands' order
+        # the compiler chose: compared as NaN.
+        np.testing.assert_allclose(world, alone, rtol=0.0, atol=1e-6)
         if isinstance(item, world_views._Pending):  # the rule of one sensor alone
             with np.errstate(invalid="ignore"):
                 one = sensors._lerp(
@@ -89,18 +74,19 @@ def test_compiled_rows_are_the_numpy_rows(numba_kernels: None, seed: int) -> Non
                     item.second.states,
                     item.alpha,
                 )
-            assert mine.joints_m.tobytes() == one[0].tobytes()
-            assert mine.states.tobytes() == one[1].tobytes()
+            assert mine.tracking_ids == item.nearer.tracking_ids
+            np.testing.assert_allclose(mine.joints_m, one[0], rtol=0.0, atol=1e-6)
+            np.testing.assert_array_equal(mine.states, one[1])
         else:
             assert mine is item
 
 
-def test_resolve_runs_the_loop_once_for_every_group(numba_kernels: None) -> None:
+def test_resolve_runs_the_loop_once_for_every_group() -> None:
     rng = np.random.default_rng(5)
     items = _items(5)
     poses = _poses(rng, len(items))
     calls = 0
-    compiled = kernels_lerp.to_world
+    compiled = world_views.to_world
 
     def counted(*args: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         nonlocal calls
@@ -110,20 +96,32 @@ def test_resolve_runs_the_loop_once_for_every_group(numba_kernels: None) -> None
     gathered = [(object(), pose, item) for pose, item in zip(poses, items, strict=True)]
     half = len(gathered) // 2
     with pytest.MonkeyPatch.context() as patch, np.errstate(invalid="ignore"):
-        patch.setattr(kernels_lerp, "to_world", counted)
+        patch.setattr(world_views, "to_world", counted)
         groups = world_views.resolve([gathered[:half], gathered[half:]])  # type: ignore[list-item]
     assert calls == 1
-    with kernels.forced("numpy"), np.errstate(invalid="ignore"):
-        want = world_views.resolve([gathered[:half], gathered[half:]])  # type: ignore[list-item]
-    for mine, numpy_s in zip(groups[0] + groups[1], want[0] + want[1], strict=True):
-        assert np.array_equal(mine.world, numpy_s.world, equal_nan=True)  # ±inf: NaN's sign
-        assert mine.bodies.joints_m.tobytes() == numpy_s.bodies.joints_m.tobytes()
+    with np.errstate(invalid="ignore"):
+        alone = world_views.resolve([gathered[:half]]) + world_views.resolve([gathered[half:]])  # type: ignore[list-item]
+    for mine, one in zip(groups[0] + groups[1], alone[0] + alone[1], strict=True):
+        assert np.array_equal(mine.world, one.world, equal_nan=True)  # ±inf: NaN's sign
+        assert mine.bodies.joints_m.tobytes() == one.bodies.joints_m.tobytes()
 
 
-def test_float64_rows_take_numpy(numba_kernels: None) -> None:
-    """A float64 body (not from a frame) is not rounded to float32 before the arithmetic."""
+def test_float64_rows_are_not_rounded_before_the_arithmetic() -> None:
+    """A float64 body (not from a frame) is interpolated and moved in float64; only its
+    interpolated joints are rounded to float32, as one sensor alone rounds them."""
     rng = np.random.default_rng(3)
     first, second = _bodies(rng, 2), _bodies(rng, 2)
     wide = BodyArrays(first.tracking_ids, first.joints_m.astype(np.float64) + 1e-9, first.states)
-    items: list[BodyArrays | world_views._Pending] = [world_views._Pending(wide, wide, second, 0.3)]
-    assert world_views._compiled(items, _poses(rng, 1)) is None
+    poses = _poses(rng, 2)
+    items: list[BodyArrays | world_views._Pending] = [
+        world_views._Pending(wide, wide, second, 0.3),
+        wide,
+    ]
+    with np.errstate(invalid="ignore"):
+        (got, worlds), _ = world_views._resolved_rows(items, poses)
+        one = sensors._lerp(wide.joints_m, wide.states, second.joints_m, second.states, 0.3)
+        np.testing.assert_array_equal(got[0].joints_m, one[0])
+        np.testing.assert_allclose(worlds[0], apply(poses[0], one[0]), rtol=0.0, atol=1e-9)
+        # As it is: moved from its float64 joints, not from float32 ones.
+        np.testing.assert_allclose(worlds[1], apply(poses[1], wide.joints_m), rtol=0.0, atol=1e-12)
+    assert got[1] is wide

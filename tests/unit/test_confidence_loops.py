@@ -9,17 +9,15 @@ points, with and without each term: weights and factors to 1e-9.
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from skelfuse.fusion import anatomy, confidence, kernels, view_factors, weighted
+from skelfuse.fusion import anatomy, confidence, view_factors, weighted
 from skelfuse.fusion.priors import AZURE_BODY_TRACKING, KINECT_V2, RGB_MONO, SensorPrior
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.protocol.skeleton import BONES, PARENTS
-from tests.support import require_numba
-from tests.unit.test_kernels import _views
+from tests.support import random_views as _views
 
 TOLERANCE = 1e-9
 """Weights, factors and confidences: the loops and the references round differently at most."""
@@ -181,33 +179,3 @@ def test_view_factors_are_facing_times_distance() -> None:
     np.testing.assert_allclose(
         view_factors.view_factors(cosines, bodies, sensors, only_facing), facing, atol=0.0
     )
-
-
-def test_warm_up_compiles_every_stage_loop_once(tmp_path: Path) -> None:
-    """After the warm-ups, a whole replay (every stage, every input the pipeline passes) adds
-    no compilation: each loop keeps the signatures the warm-up compiled."""
-    from skelfuse.fusion import (
-        kernels_facing,
-        labels,
-        mirror_scores,
-        unbiased_facing,
-        walking,
-        weigh,
-    )
-    from tests.unit import test_golden_replay as golden
-
-    require_numba()
-    kernels.warm_up()
-    for stage in (weighted, confidence, view_factors, weigh):
-        stage.warm_up()
-    loops = [
-        mirror_scores.scored_loop, mirror_scores.evidence_loop,
-        anatomy.facing_loop, anatomy.rom_loop, unbiased_facing.unbiased_loop,
-        kernels_facing.cosines_loop, kernels_facing.facing_factors_loop, confidence.body_loop,
-        view_factors.view_factor_loop, confidence.confidence_loop, weighted.weighted_loop,
-        weigh._weigh_loop, labels._settled_loop, walking._backwards_loop,
-    ]  # fmt: skip
-    compiled = [len(loop.signatures) for loop in loops]  # (other tests may add their own)
-    golden.test_replay_output_matches_the_golden_output_within_its_rounding("defaults", tmp_path)
-    golden.test_replay_output_matches_the_golden_output_within_its_rounding("kalman", tmp_path)
-    assert [len(loop.signatures) for loop in loops] == compiled
