@@ -220,7 +220,7 @@ def _initial_poses(
 
 def _refine(
     method: str,
-    clouds: dict[str, F64],
+    clouds: dict[str, npt.NDArray[np.float32]],
     inits: dict[str, Matrix4],
     relative_truth: list[Matrix4],
     stats: Stats,
@@ -248,7 +248,9 @@ def _refine(
             stats[name]["dofs6"].append(float(result.constrained_dofs == 6))
 
 
-def _floors(layout: Layout, clouds: dict[str, F64], stats: Stats, index: int) -> None:
+def _floors(
+    layout: Layout, clouds: dict[str, npt.NDArray[np.float32]], stats: Stats, index: int
+) -> None:
     """The floor fitted in each sensor's cloud and the Kinect's own plane, their errors added
     to ``stats``."""
     started = time.perf_counter()
