@@ -193,22 +193,7 @@ def raster_numpy(
     cand_idx: list[npt.NDArray[np.int64]] = []
     cand_z: list[FloatArray] = []
     cand_ir: list[FloatArray] = []
-    top_left, top_right = (slice(None, -1), slice(None, -1)), (slice(None, -1), slice(1, None))
-    bottom_left, bottom_right = (slice(1, None), slice(None, -1)), (slice(1, None), slice(1, None))
-    top = _joined_blocks((top_left, top_right, bottom_left), valid, source_z, max_edge_m)
-    bottom = _joined_blocks((top_right, bottom_right, bottom_left), valid, source_z, max_edge_m)
-    neither = ~(top | bottom)
-    north, south = (slice(None, -2), slice(1, -1)), (slice(2, None), slice(1, -1))
-    west, east = (slice(1, -1), slice(None, -2)), (slice(1, -1), slice(2, None))
-    dropped = source_z[1:-1, 1:-1] == 0.0
-    triangles: list[tuple[tuple[tuple[slice, slice], ...], BoolArray]] = [
-        ((top_left, top_right, bottom_left), top),
-        ((top_right, bottom_right, bottom_left), bottom),
-    ]
-    for other in ((top_left, top_right, bottom_right), (top_left, bottom_right, bottom_left)):
-        triangles.append((other, _joined_blocks(other, valid, source_z, max_edge_m) & neither))
-    for half in ((north, east, south), (north, south, west)):
-        triangles.append((half, _joined_blocks(half, valid, source_z, max_edge_m) & dropped))
+    triangles = _mesh_triangles(valid, source_z, max_edge_m)
     for tri, ok in triangles:
         x = np.stack([u[c][ok] for c in tri])
         y = np.stack([v[c][ok] for c in tri])
@@ -250,9 +235,49 @@ def raster_numpy(
     cand_idx.append((py_pt[on] * out_w + px_pt[on]).astype(np.int64))
     cand_z.append(z[on])
     cand_ir.append(ir[on])
-    idx = np.concatenate(cand_idx)
-    depth = np.concatenate(cand_z)
-    values = np.concatenate(cand_ir)
+    _keep_nearest(
+        np.concatenate(cand_idx), np.concatenate(cand_z), np.concatenate(cand_ir), out_z, out_ir
+    )
+
+
+_Triangle = tuple[tuple[slice, slice], ...]
+"""A triangle's three corners, each a 2-D slice of the (H, W) source grid."""
+
+
+def _mesh_triangles(
+    valid: BoolArray, source_z: FloatArray, max_edge_m: float
+) -> list[tuple[_Triangle, BoolArray]]:
+    """The mesh's triangles as :func:`raster_loop` picks them: each kind of triangle with the
+    blocks where it is drawn (the block's usual split, else the other diagonal's halves, and
+    the diamond over a dropped pixel)."""
+    top_left, top_right = (slice(None, -1), slice(None, -1)), (slice(None, -1), slice(1, None))
+    bottom_left, bottom_right = (slice(1, None), slice(None, -1)), (slice(1, None), slice(1, None))
+    top = _joined_blocks((top_left, top_right, bottom_left), valid, source_z, max_edge_m)
+    bottom = _joined_blocks((top_right, bottom_right, bottom_left), valid, source_z, max_edge_m)
+    neither = ~(top | bottom)
+    north, south = (slice(None, -2), slice(1, -1)), (slice(2, None), slice(1, -1))
+    west, east = (slice(1, -1), slice(None, -2)), (slice(1, -1), slice(2, None))
+    dropped = source_z[1:-1, 1:-1] == 0.0
+    triangles: list[tuple[_Triangle, BoolArray]] = [
+        ((top_left, top_right, bottom_left), top),
+        ((top_right, bottom_right, bottom_left), bottom),
+    ]
+    for other in ((top_left, top_right, bottom_right), (top_left, bottom_right, bottom_left)):
+        triangles.append((other, _joined_blocks(other, valid, source_z, max_edge_m) & neither))
+    for half in ((north, east, south), (north, south, west)):
+        triangles.append((half, _joined_blocks(half, valid, source_z, max_edge_m) & dropped))
+    return triangles
+
+
+def _keep_nearest(
+    idx: npt.NDArray[np.int64],
+    depth: FloatArray,
+    values: FloatArray,
+    out_z: FloatArray,
+    out_ir: FloatArray,
+) -> None:
+    """Write the nearest candidate of each pixel (flat index ``idx`` into the reference image,
+    ``depth`` metres, IR ``values``) where it is nearer than what ``out_z`` holds."""
     order = np.lexsort((depth, idx))
     idx, depth, values = idx[order], depth[order], values[order]
     first = np.ones(idx.size, dtype=bool)

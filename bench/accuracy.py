@@ -79,6 +79,46 @@ from skelfuse.fusion.settings import FusionSettings
 
 def main(argv: list[str] | None = None) -> int:
     """Parse the command line, run what it asks for, print the tables; returns the exit status."""
+    args = _parser().parse_args(argv)
+    methods = _methods(args)
+    if args.oracle:
+        oracle = {
+            sc.name: [run_oracle(sc, seed, KinectV2Params()) for seed in range(args.runs)]
+            for sc in scenarios(args.quick)
+        }
+        print_oracle(oracle)
+        return 0
+    if args.alignment:
+        return alignment_only(
+            args.quick, args.runs, args.jitter_ms, args.json, chosen_policies(args.policies)
+        )
+
+    if not args.paper and not args.birth:
+        print_filter_latency(filter_latency())
+    if args.latency:
+        return 0
+    paper = {} if args.birth else paper_experiment()
+    if not args.birth:
+        print_paper(paper)
+    if args.paper:
+        return 0
+
+    if not (CMU_DIR / "scaled_131_01.bvh").is_file():
+        print(f"\nnote: CMU data not found at {CMU_DIR}; procedural scenarios only")
+    started = time.perf_counter()
+    results, groups = _run_scenarios(args.birth, args.quick, args.runs, methods)
+    elapsed = time.perf_counter() - started
+
+    summary = print_accuracy(results, groups, args.runs, elapsed)
+    print_labels(results, groups)
+    if args.json:
+        args.json.write_text(json.dumps({"summary": summary, "runs": results, "paper": paper},
+                                        indent=1))  # fmt: skip
+    return 0
+
+
+def _parser() -> argparse.ArgumentParser:
+    """The command line: runs and subsets, the variants of every method, the alignment table."""
     parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
     parser.add_argument("--runs", type=int, default=1, help="noise seeds per scenario")
     parser.add_argument("--quick", action="store_true", help="a short subset of scenarios")
@@ -108,7 +148,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--policies", default=None,
                         help="--alignment: comma-separated policy labels "
                              "(bench/accuracy_alignment.py ALL_POLICIES)")  # fmt: skip
-    args = parser.parse_args(argv)
+    return parser
+
+
+def _methods(args: argparse.Namespace) -> dict[str, FusionSettings]:
+    """The methods compared, with the command line's variants applied to each."""
     methods = METHODS
     if args.no_mirror_redecide:
         methods = {label: replace(m, mirror_redecide=False) for label, m in METHODS.items()}
@@ -117,49 +161,23 @@ def main(argv: list[str] | None = None) -> int:
     if args.no_mirror_turns:
         methods = {label: replace(m, mirror_unbiased_facing=False, mirror_redecide_views=1)
                    for label, m in methods.items()}  # fmt: skip
-    if args.oracle:
-        oracle = {
-            sc.name: [run_oracle(sc, seed, KinectV2Params()) for seed in range(args.runs)]
-            for sc in scenarios(args.quick)
-        }
-        print_oracle(oracle)
-        return 0
-    if args.alignment:
-        return alignment_only(
-            args.quick, args.runs, args.jitter_ms, args.json, chosen_policies(args.policies)
-        )
+    return methods
 
-    if not args.paper and not args.birth:
-        print_filter_latency(filter_latency())
-    if args.latency:
-        return 0
-    paper = {} if args.birth else paper_experiment()
-    if not args.birth:
-        print_paper(paper)
-    if args.paper:
-        return 0
 
-    if not (CMU_DIR / "scaled_131_01.bvh").is_file():
-        print(f"\nnote: CMU data not found at {CMU_DIR}; procedural scenarios only")
+def _run_scenarios(
+    birth: bool, quick: bool, runs: int, methods: dict[str, FusionSettings]
+) -> tuple[dict[str, list[dict[str, dict[str, float]]]], dict[str, list[str]]]:
+    """Every scenario (the birth ones with ``birth``) with ``runs`` noise seeds: per scenario,
+    each seed's figures by method; and the scenarios' names by group."""
     params = KinectV2Params()
-    started = time.perf_counter()
     results: dict[str, list[dict[str, dict[str, float]]]] = {}
     groups: dict[str, list[str]] = {}
-    for scenario in birth_scenarios(args.quick) if args.birth else scenarios(args.quick):
+    for scenario in birth_scenarios(quick) if birth else scenarios(quick):
         groups.setdefault(scenario.group, []).append(scenario.name)
         t = time.perf_counter()
-        results[scenario.name] = [
-            run_once(scenario, seed, params, methods) for seed in range(args.runs)
-        ]
+        results[scenario.name] = [run_once(scenario, seed, params, methods) for seed in range(runs)]
         print(f"  {scenario.name}: {time.perf_counter() - t:.0f} s", file=sys.stderr)
-    elapsed = time.perf_counter() - started
-
-    summary = print_accuracy(results, groups, args.runs, elapsed)
-    print_labels(results, groups)
-    if args.json:
-        args.json.write_text(json.dumps({"summary": summary, "runs": results, "paper": paper},
-                                        indent=1))  # fmt: skip
-    return 0
+    return results, groups
 
 
 def alignment_only(

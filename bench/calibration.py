@@ -154,10 +154,14 @@ def percentile(values: list[float], q: float) -> float:
     return float(np.percentile(values, q)) if values else math.nan
 
 
-def run(layouts: int, seed: int, seconds: float) -> dict[str, dict[str, list[float]]]:
+Stats = dict[str, dict[str, list[float]]]
+"""Method → measure (``rot_deg``, ``trans_mm``, ``time_s``, ``failures`` ...) → values."""
+
+
+def run(layouts: int, seed: int, seconds: float) -> Stats:
     rng = np.random.default_rng(seed)
     room = default_room()
-    stats: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
+    stats: Stats = defaultdict(lambda: defaultdict(list))
     for index in range(layouts):
         layout = make_layout(rng, room)
         truth_ref = layout.poses[0]
@@ -170,74 +174,102 @@ def run(layouts: int, seed: int, seconds: float) -> dict[str, dict[str, list[flo
             for k, pose in enumerate(layout.poses)
         }
         stats["depth capture (all sensors)"]["time_s"].append(time.perf_counter() - started)
-
-        inits: dict[str, dict[str, Matrix4]] = {
-            "points": {"s0": np.eye(4)},
-            "skeleton": {"s0": np.eye(4)},
-        }
         for method in ("points", "skeleton"):
             started = time.perf_counter()
-            for k in range(1, len(layout.poses)):
-                try:
-                    if method == "points":
-                        estimate = points_method(truth_ref, layout.poses[k], rng)
-                    else:
-                        fit = solve_from_skeletons(*skeletons[0], *skeletons[k])
-                        estimate = fit.T_ref_from_other
-                        stats[method]["trust_" + fit.trust].append(1.0)
-                except CalibrationError as exc:
-                    stats[method]["failures"].append(1.0)
-                    print(f"layout {index} sensor {k} {method}: {exc}", file=sys.stderr)
-                    continue
-                inits[method][f"s{k}"] = estimate
-                rot, trans = pose_error(estimate, relative_truth[k])
-                stats[method]["rot_deg"].append(rot)
-                stats[method]["trans_mm"].append(trans)
+            inits = _initial_poses(method, layout, skeletons, relative_truth, rng, stats, index)
             stats[method]["time_s"].append(time.perf_counter() - started)
-
             started = time.perf_counter()
-            usable = {k: v for k, v in clouds.items() if k in inits[method]}
-            try:
-                cap = SKELETON_ERROR_BOUND if method == "skeleton" else None
-                results: dict[str, IcpResult] = refine_all(
-                    usable, inits[method], "s0", max_correction=cap
-                )
-            except CalibrationError as exc:
-                print(f"layout {index} {method}→ICP: {exc}", file=sys.stderr)
-                results = {}
-            name = f"{method}→ICP"
-            for sensor, init in inits[method].items():
-                if sensor == "s0":
-                    continue
-                result = results.get(sensor)
-                final = result.T_target_from_source if result is not None else init
-                rot, trans = pose_error(final, relative_truth[int(sensor[1:])])
-                stats[name]["rot_deg"].append(rot)
-                stats[name]["trans_mm"].append(trans)
-                if result is not None:
-                    stats[name]["applied"].append(float(result.applied))
-                    stats[name]["dofs6"].append(float(result.constrained_dofs == 6))
-            stats[name]["time_s"].append(time.perf_counter() - started)
-
-        started = time.perf_counter()
-        for k, pose in enumerate(layout.poses):
-            try:
-                floor = fit_floor(clouds[f"s{k}"])
-            except CalibrationError as exc:
-                stats["floor (depth fit)"]["failures"].append(1.0)
-                print(f"layout {index} sensor {k} floor: {exc}", file=sys.stderr)
-                continue
-            tilt, height = floor_error(floor, pose)
-            stats["floor (depth fit)"]["tilt_deg"].append(tilt)
-            stats["floor (depth fit)"]["height_mm"].append(abs(height))
-        stats["floor (depth fit)"]["time_s"].append(time.perf_counter() - started)
-        for pose in layout.poses:
-            kinect_floor = floor_from_kinect_plane(*SimulatedKinect(pose).floor_plane())
-            tilt, height = floor_error(kinect_floor, pose)
-            stats["floor (Kinect plane)"]["tilt_deg"].append(tilt)
-            stats["floor (Kinect plane)"]["height_mm"].append(abs(height))
+            _refine(method, clouds, inits, relative_truth, stats, index)
+            stats[f"{method}→ICP"]["time_s"].append(time.perf_counter() - started)
+        _floors(layout, clouds, stats, index)
         print(f"layout {index + 1}/{layouts}: {len(layout.poses)} sensors", file=sys.stderr)
     return stats
+
+
+def _initial_poses(
+    method: str,
+    layout: Layout,
+    skeletons: list[tuple[F64, npt.NDArray[np.uint8]]],
+    relative_truth: list[Matrix4],
+    rng: np.random.Generator,
+    stats: Stats,
+    index: int,
+) -> dict[str, Matrix4]:
+    """Each sensor's pose in the reference's frame by ``method`` (``points`` or ``skeleton``),
+    its error against ``relative_truth`` added to ``stats``; the sensors it failed for left out."""
+    truth_ref = layout.poses[0]
+    inits: dict[str, Matrix4] = {"s0": np.eye(4)}
+    for k in range(1, len(layout.poses)):
+        try:
+            if method == "points":
+                estimate = points_method(truth_ref, layout.poses[k], rng)
+            else:
+                fit = solve_from_skeletons(*skeletons[0], *skeletons[k])
+                estimate = fit.T_ref_from_other
+                stats[method]["trust_" + fit.trust].append(1.0)
+        except CalibrationError as exc:
+            stats[method]["failures"].append(1.0)
+            print(f"layout {index} sensor {k} {method}: {exc}", file=sys.stderr)
+            continue
+        inits[f"s{k}"] = estimate
+        rot, trans = pose_error(estimate, relative_truth[k])
+        stats[method]["rot_deg"].append(rot)
+        stats[method]["trans_mm"].append(trans)
+    return inits
+
+
+def _refine(
+    method: str,
+    clouds: dict[str, npt.NDArray[np.float32]],
+    inits: dict[str, Matrix4],
+    relative_truth: list[Matrix4],
+    stats: Stats,
+    index: int,
+) -> None:
+    """ICP from ``method``'s poses; the refined poses' errors added to ``stats``."""
+    usable = {k: v for k, v in clouds.items() if k in inits}
+    try:
+        cap = SKELETON_ERROR_BOUND if method == "skeleton" else None
+        results: dict[str, IcpResult] = refine_all(usable, inits, "s0", max_correction=cap)
+    except CalibrationError as exc:
+        print(f"layout {index} {method}→ICP: {exc}", file=sys.stderr)
+        results = {}
+    name = f"{method}→ICP"
+    for sensor, init in inits.items():
+        if sensor == "s0":
+            continue
+        result = results.get(sensor)
+        final = result.T_target_from_source if result is not None else init
+        rot, trans = pose_error(final, relative_truth[int(sensor[1:])])
+        stats[name]["rot_deg"].append(rot)
+        stats[name]["trans_mm"].append(trans)
+        if result is not None:
+            stats[name]["applied"].append(float(result.applied))
+            stats[name]["dofs6"].append(float(result.constrained_dofs == 6))
+
+
+def _floors(
+    layout: Layout, clouds: dict[str, npt.NDArray[np.float32]], stats: Stats, index: int
+) -> None:
+    """The floor fitted in each sensor's cloud and the Kinect's own plane, their errors added
+    to ``stats``."""
+    started = time.perf_counter()
+    for k, pose in enumerate(layout.poses):
+        try:
+            floor = fit_floor(clouds[f"s{k}"])
+        except CalibrationError as exc:
+            stats["floor (depth fit)"]["failures"].append(1.0)
+            print(f"layout {index} sensor {k} floor: {exc}", file=sys.stderr)
+            continue
+        tilt, height = floor_error(floor, pose)
+        stats["floor (depth fit)"]["tilt_deg"].append(tilt)
+        stats["floor (depth fit)"]["height_mm"].append(abs(height))
+    stats["floor (depth fit)"]["time_s"].append(time.perf_counter() - started)
+    for pose in layout.poses:
+        kinect_floor = floor_from_kinect_plane(*SimulatedKinect(pose).floor_plane())
+        tilt, height = floor_error(kinect_floor, pose)
+        stats["floor (Kinect plane)"]["tilt_deg"].append(tilt)
+        stats["floor (Kinect plane)"]["height_mm"].append(abs(height))
 
 
 def table(stats: dict[str, dict[str, list[float]]], layouts: int) -> str:

@@ -86,6 +86,45 @@ from skelfuse.blas import pin_blas_threads
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Parse the command line, run what it asks for, print the tables; returns the exit status."""
+    args = _parser().parse_args(argv)
+    pin_blas_threads()  # the in-process timings run as the server does
+    started = time.monotonic()
+    log_dir = Path(tempfile.mkdtemp(prefix="skelfuse-load-logs-"))
+    raw: dict[str, Any] = {}
+    decodes = [decode_timing(bodies=6, not_tracked=nt) for nt in (False, True)]
+    raw["decode"] = [asdict(d) for d in decodes]
+    if args.decode_only:
+        print_decode(decodes)
+        return 0
+    encode = encode_timing(bodies=6)
+    raw["encode"] = asdict(encode)
+    if args.encode_only:
+        print_encode(encode)
+        return 0
+    if not args.fusion_only:
+        _live_runs(args, log_dir, raw)
+    speeds = [host_speed()]  # the host's state before and after (bench/host_speed.py)
+    timings = [
+        fusion_timing(s, b, args.fusion_steps, drive=args.fusion_drive)
+        for s, b in ((4, 6), (10, 6), (16, 6))
+    ]
+    speeds.append(host_speed())
+    raw["fusion"] = [asdict(t) for t in timings]
+    raw["host_speed"] = [asdict(speed) for speed in speeds]
+    print_fusion(timings, speeds)
+    print_encode(encode)
+    print_decode(decodes)
+    print(
+        f"\nMachine: {os.cpu_count()} cores, Python {sys.version.split()[0]}; "
+        f"{time.monotonic() - started:.0f} s in all; server logs in {log_dir}"
+    )
+    if args.json:
+        args.json.write_text(json.dumps(raw, indent=1, default=str))
+    return 0
+
+
+def _parser() -> argparse.ArgumentParser:
+    """The command line: the live run's configuration, the scaling sweep, the in-process parts."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0] if __doc__ else None)
     parser.add_argument("--agents", type=int, default=10)
     parser.add_argument("--bodies", type=int, default=6, choices=range(1, 7))
@@ -116,67 +155,40 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="run this calibration through REST a fifth into the window: loop lag, 'server silent'",
     )  # fmt: skip
     parser.add_argument("--calibrate-capture", type=float, default=15.0, help="skeleton capture, s")
-    args = parser.parse_args(argv)
-    pin_blas_threads()  # the in-process timings run as the server does
-    started = time.monotonic()
-    log_dir = Path(tempfile.mkdtemp(prefix="skelfuse-load-logs-"))
-    raw: dict[str, Any] = {}
+    return parser
 
-    def run_config(config: RunConfig) -> RunResult:
-        runs = []
-        for k in range(args.repeat):
-            print(
-                f"  run {k + 1}/{args.repeat}: {config.agents} agents × {config.bodies} bodies, "
-                f"{config.duration_s:.0f} s …",
-                file=sys.stderr,
-                flush=True,
-            )
-            runs.append(asyncio.run(run_once(config, seed=k + 1, log_dir=log_dir)))
-        raw.setdefault("runs", []).extend(asdict(r) for r in runs)
-        return median_result(runs)
 
-    decodes = [decode_timing(bodies=6, not_tracked=nt) for nt in (False, True)]
-    raw["decode"] = [asdict(d) for d in decodes]
-    if args.decode_only:
-        print_decode(decodes)
-        return 0
-    encode = encode_timing(bodies=6)
-    raw["encode"] = asdict(encode)
-    if args.encode_only:
-        print_encode(encode)
-        return 0
-    if not args.fusion_only:
-        if args.scaling:
-            configs = [
-                RunConfig(a, b, args.scaling_duration, args.warmup, args.clients, args.stalled)
-                for b in (1, 6)
-                for a in (1, 2, 4, 8, 16)
-            ]
-            results = [run_config(config) for config in configs]
-            print_scaling(results, args.repeat)
-        else:
-            config = RunConfig(args.agents, args.bodies, args.duration, args.warmup,
-                               args.clients, args.stalled, args.calibrate,
-                               args.calibrate_capture, args.client)  # fmt: skip
-            print_main(run_config(config), args.repeat)
-    speeds = [host_speed()]  # the host's state before and after (bench/host_speed.py)
-    timings = [
-        fusion_timing(s, b, args.fusion_steps, drive=args.fusion_drive)
-        for s, b in ((4, 6), (10, 6), (16, 6))
-    ]
-    speeds.append(host_speed())
-    raw["fusion"] = [asdict(t) for t in timings]
-    raw["host_speed"] = [asdict(speed) for speed in speeds]
-    print_fusion(timings, speeds)
-    print_encode(encode)
-    print_decode(decodes)
-    print(
-        f"\nMachine: {os.cpu_count()} cores, Python {sys.version.split()[0]}; "
-        f"{time.monotonic() - started:.0f} s in all; server logs in {log_dir}"
-    )
-    if args.json:
-        args.json.write_text(json.dumps(raw, indent=1, default=str))
-    return 0
+def _live_runs(args: argparse.Namespace, log_dir: Path, raw: dict[str, Any]) -> None:
+    """The live runs (the scaling sweep, or the one configuration asked for), their table
+    printed and their raw results added to ``raw["runs"]``."""
+    if args.scaling:
+        configs = [
+            RunConfig(a, b, args.scaling_duration, args.warmup, args.clients, args.stalled)
+            for b in (1, 6)
+            for a in (1, 2, 4, 8, 16)
+        ]
+        results = [_run_config(config, args.repeat, log_dir, raw) for config in configs]
+        print_scaling(results, args.repeat)
+    else:
+        config = RunConfig(args.agents, args.bodies, args.duration, args.warmup,
+                           args.clients, args.stalled, args.calibrate,
+                           args.calibrate_capture, args.client)  # fmt: skip
+        print_main(_run_config(config, args.repeat, log_dir, raw), args.repeat)
+
+
+def _run_config(config: RunConfig, repeat: int, log_dir: Path, raw: dict[str, Any]) -> RunResult:
+    """``repeat`` runs of ``config`` (seeds 1..repeat); their medians."""
+    runs = []
+    for k in range(repeat):
+        print(
+            f"  run {k + 1}/{repeat}: {config.agents} agents × {config.bodies} bodies, "
+            f"{config.duration_s:.0f} s …",
+            file=sys.stderr,
+            flush=True,
+        )
+        runs.append(asyncio.run(run_once(config, seed=k + 1, log_dir=log_dir)))
+    raw.setdefault("runs", []).extend(asdict(r) for r in runs)
+    return median_result(runs)
 
 
 if __name__ == "__main__":

@@ -134,16 +134,7 @@ def agents_process(
     motion = WorldMotion(bodies)
     states = np.full(JOINT_COUNT, TrackingState.TRACKED, dtype=np.uint8)
     context: zmq.Context[Any] = zmq.Context()
-    handlers: list[dict[str, RequestHandler]] = [{} for _ in ids]
-    if depth:
-        people = motion.at(time.time())
-        for i, s in enumerate(ids):
-            pose = np.asarray(poses[s], dtype=np.float64).reshape(4, 4)
-            handlers[i] = {"depth_cloud": depth_handler(pose, people, seed * 100 + i)}
-    links = [
-        AgentLink(endpoint, partial(hello, s), context=context, handlers=handlers[i])
-        for i, s in enumerate(ids)
-    ]
+    links = _links(endpoint, poses, context, motion if depth else None, seed)
     # Every link's socket, waited on between captures: a heartbeat is echoed when it comes,
     # as a real agent does (agent/capture_thread.py), not after that sensor's next frame.
     poller = zmq.Poller()
@@ -171,19 +162,7 @@ def agents_process(
         heapq.heappop(due)
         t_ns = time.time_ns()
         seqs[i] += 1
-        world = motion.at(t_ns / 1e9)
-        frame = Frame(
-            seqs[i],
-            t_ns,
-            tuple(
-                Body(
-                    i * 100 + b + 1,
-                    apply(sensor_from_world[i], world[b]).astype(np.float32),
-                    states,
-                )
-                for b in range(bodies)
-            ),
-        )
+        frame = _frame(seqs[i], t_ns, i, sensor_from_world[i], motion.at(t_ns / 1e9), states)
         registered = links[i].registered
         if links[i].send_frame(frame):
             captures[i].append(t_ns / 1e9)
@@ -196,17 +175,66 @@ def agents_process(
             nxt = now + PERIOD_S
         heapq.heappush(due, (nxt, i))
     out = {
-        s: {
-            "captured": seqs[i],
-            "sent": links[i].stats.frames_sent,
-            "dropped_unregistered": links[i].stats.frames_dropped - dropped_registered[i],
-            "dropped_registered": dropped_registered[i],
-            "registrations": links[i].stats.registrations,
-            "captures": captures[i],
-        }
+        s: _agent_figures(links[i], seqs[i], dropped_registered[i], captures[i])
         for i, s in enumerate(ids)
     }
     for link in links:
         link.close()
     context.term()
     results.put({"agents": out, "late": late})
+
+
+def _frame(
+    seq: int,
+    t_ns: int,
+    agent: int,
+    sensor_from_world: Matrix4,
+    world: npt.NDArray[np.float64],
+    states: npt.NDArray[np.uint8],
+) -> Frame:
+    """Agent number ``agent``'s frame ``seq`` captured at ``t_ns`` (ns since the epoch): the
+    (B, 25, 3) ``world`` bodies in its frame, body ids ``agent·100 + 1..B``."""
+    return Frame(
+        seq,
+        t_ns,
+        tuple(
+            Body(agent * 100 + b + 1, apply(sensor_from_world, world[b]).astype(np.float32), states)
+            for b in range(len(world))
+        ),
+    )
+
+
+def _links(
+    endpoint: str,
+    poses: dict[str, list[float]],
+    context: Any,
+    depth_of: WorldMotion | None,
+    seed: int,
+) -> list[AgentLink]:
+    """One link per sensor (sorted by id); with ``depth_of``, each answers ``depth_cloud``
+    requests with a cloud of the room and its people now, rendered here."""
+    ids = sorted(poses)
+    handlers: list[dict[str, RequestHandler]] = [{} for _ in ids]
+    if depth_of is not None:
+        people = depth_of.at(time.time())
+        for i, s in enumerate(ids):
+            pose = np.asarray(poses[s], dtype=np.float64).reshape(4, 4)
+            handlers[i] = {"depth_cloud": depth_handler(pose, people, seed * 100 + i)}
+    return [
+        AgentLink(endpoint, partial(hello, s), context=context, handlers=handlers[i])
+        for i, s in enumerate(ids)
+    ]
+
+
+def _agent_figures(
+    link: AgentLink, captured: int, dropped_registered: int, captures: list[float]
+) -> dict[str, Any]:
+    """One agent's counts, and its frames' capture times (s since the epoch)."""
+    return {
+        "captured": captured,
+        "sent": link.stats.frames_sent,
+        "dropped_unregistered": link.stats.frames_dropped - dropped_registered,
+        "dropped_registered": dropped_registered,
+        "registrations": link.stats.registrations,
+        "captures": captures,
+    }

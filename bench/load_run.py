@@ -11,8 +11,9 @@ import subprocess
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from multiprocessing.synchronize import Event as MpEvent
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -35,7 +36,8 @@ from bench.load_server import (
     wait_for,
 )
 from bench.load_stages import Buckets, scrape_stages, window_quantile
-from bench.load_waits import alignment_waits, offset_series
+from bench.load_waits import OffsetSeries, alignment_waits, offset_series
+from skelfuse.protocol.transform import Matrix4
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -163,141 +165,218 @@ async def run_once(config: RunConfig, seed: int, log_dir: Path) -> RunResult:
     log_path = log_dir / f"server-{config.agents}x{config.bodies}-{seed}.log"
     server, log_file = start_server(poses, http_port, zmq_port, log_path)
     ctx = mp.get_context("spawn")
-    stop = ctx.Event()
-    queue: mp.Queue[Any] = ctx.Queue()
-    agents: mp.process.BaseProcess | None = None
-    tasks: list[asyncio.Task[None]] = []
-    stalled: list[tuple[socket.socket, int, float]] = []
+    load = _Load(ctx.Event(), ctx.Queue())
     agents_log = log_dir / f"agents-{config.agents}x{config.bodies}-{seed}.log"
-    calibration: asyncio.Task[Any] | None = None
     try:
         await asyncio.to_thread(
             wait_for, lambda: http_json(base + "/api/health"), 20, "the server to start"
         )
-        logs = [ClientLog() for _ in range(config.clients)]
-        ws_url = f"ws://127.0.0.1:{http_port}/ws/skeletons"
-        reader = raw_healthy_client if config.client == "raw" else healthy_client
-        tasks = [asyncio.create_task(reader(ws_url, log)) for log in logs]
-        for _ in range(config.stalled):
-            sock, port = await asyncio.to_thread(open_stalled_client, http_port)
-            stalled.append((sock, port, time.time()))
-        agents = ctx.Process(
-            target=agents_process,
-            args=(
-                f"tcp://127.0.0.1:{zmq_port}",
-                {s: [float(x) for x in p.reshape(16)] for s, p in poses.items()},
-                config.bodies, seed, config.warmup_s + config.duration_s + 180.0, stop, queue,
-                str(agents_log), config.calibrate is not None,
-            ),
-            daemon=True,
-        )  # fmt: skip
-        agents.start()
-
-        def all_online() -> bool:
-            health = http_json(base + "/api/health")
-            return bool(health["sensors_online"] == config.agents and health["fused_frames"] > 30)
-
+        await _start_load(load, config, seed, http_port, zmq_port, poses, agents_log)
         online_s = 30 if config.calibrate is None else 30 + 2 * config.agents  # depth renders
-        await asyncio.to_thread(wait_for, all_online, online_s, "every sensor online and fusing")
+        await asyncio.to_thread(
+            wait_for, lambda: _all_online(base, config.agents), online_s,
+            "every sensor online and fusing",
+        )  # fmt: skip
         settings = await asyncio.to_thread(http_json, base + "/api/fusion/settings")
         result.alignment = str(settings["fusion"]["alignment"])
         await asyncio.sleep(config.warmup_s)
-
-        async def snapshot() -> tuple[float, float, dict[str, Any], dict[str, Any]]:
-            t = time.time()
-            cpu = proc_cpu_s(server.pid)
-            sensors, health = await asyncio.gather(
-                get(base + "/api/sensors"), get(base + "/api/health")
-            )
-            return t, cpu, sensors, health
-
-        stages0 = await asyncio.to_thread(scrape_stages, base)
-        t0, cpu0, sensors0, health0 = await snapshot()
-        # The server maps each frame with its clock offset estimate of the moment: sample them
-        # through the run for the alignment-wait reconstruction (bench/load_waits.py).
-        offset_samples = [(t0, {s["id"]: s["clock_offset_s"] for s in sensors0["sensors"]})]
-        result.server_rss_start_mb = proc_rss_mb(server.pid)
-        rss_max = result.server_rss_start_mb
-        stalled_seen: dict[int, dict[str, Any]] = {}
-        evicted_at: dict[int, float] = {}
-        end = t0 + config.duration_s
-        if config.calibrate is not None:  # starts a fifth into the window, after a baseline
-            calibration = asyncio.create_task(calibrate_under_load(
-                base, config.calibrate, config.calibrate_capture_s, config.duration_s / 5,
-                [agents_log],
-            ))  # fmt: skip
-        while (now := time.time()) < end:
-            await asyncio.sleep(min(1.0, end - now))
-            rss_max = max(rss_max, proc_rss_mb(server.pid))
-            clients, sensors = await asyncio.gather(
-                get(base + "/api/clients"), get(base + "/api/sensors")
-            )
-            offset_samples.append(
-                (time.time(), {s["id"]: s["clock_offset_s"] for s in sensors["sensors"]})
-            )
-            for _, port, _ in stalled:
-                entry = next(
-                    (c for c in clients["clients"] if str(c["remote"]).endswith(f"{port})")), None
-                )
-                if entry is not None:
-                    stalled_seen[port] = entry
-                elif port not in evicted_at:
-                    evicted_at[port] = time.time()
-        t1, cpu1, sensors1, health1 = await snapshot()
-        stages1 = await asyncio.to_thread(scrape_stages, base)
-        result.server_rss_end_mb = proc_rss_mb(server.pid)
-        result.server_rss_max_mb = max(rss_max, result.server_rss_end_mb)
-        result.window_s = t1 - t0
-        result.server_cpu_pct = 100 * (cpu1 - cpu0) / result.window_s
-        result.persons_last = int(health1["persons"])
-        result.evicted_total = int((await get(base + "/api/clients"))["evicted"])
-        if calibration is not None:
-            try:
-                baseline, calibrated = await asyncio.wait_for(calibration, 300)
-            except Exception as exc:  # e.g. refused with a 409: the load figures still stand
-                result.notes.append(f"the calibration did not run: {type(exc).__name__}: {exc}")
-                calibration = None
-        if calibration is not None:
-            result.calibration_state = calibrated.state + ("" if calibrated.icp_applied else
-                                                           " (no ICP)")  # fmt: skip
-            result.calibration_s = calibrated.seconds
-            result.calibration_lag_max_ms = calibrated.max_ms
-            result.calibration_lag_p99_ms = calibrated.p99_ms
-            result.calibration_over_20ms = calibrated.over_20ms
-            result.calibration_server_silent = calibrated.server_silent
-            result.calibration_icp = int(calibrated.icp_applied)
-            result.baseline_lag_max_ms = baseline.max_ms
-            result.baseline_lag_p99_ms = baseline.p99_ms
-            result.baseline_over_20ms = baseline.over_20ms
-            result.baseline_s = baseline.seconds
-            if calibrated.seconds > config.duration_s * 0.8:
-                result.notes.append("the calibration ran past the window's end")
-
-        stop.set()
-        agent_out: dict[str, Any] = await asyncio.to_thread(queue.get, True, 30)
-        await asyncio.to_thread(agents.join, 10)
+        window = await _measure(result, config, base, server.pid, load, agents_log)
+        if load.calibration is not None:
+            await _calibration_figures(result, config, load)
+        load.stop.set()
+        agent_out: dict[str, Any] = await asyncio.to_thread(load.queue.get, True, 30)
+        assert load.agents is not None
+        await asyncio.to_thread(load.agents.join, 10)
         await asyncio.sleep(0.5)  # the last frames in flight
         sensors_end = await get(base + "/api/sensors")
     finally:
-        stop.set()
-        if calibration is not None and not calibration.done():
-            calibration.cancel()
-        for task in tasks:
-            task.cancel()
-        await asyncio.gather(*tasks, return_exceptions=True)
-        for sock, _, _ in stalled:
-            sock.close()
-        if agents is not None and agents.is_alive():
-            agents.kill()
-        server.send_signal(2)
-        try:
-            server.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            server.kill()
-            server.wait()
-        log_file.close()
+        await _stop(load, server, log_file)
+    offsets, captures = _ingest_figures(result, window, agent_out, sensors_end)
+    _client_figures(result, window, load.logs, captures, offsets)
+    _stalled_figures(result, window, load.stalled)
+    return result
 
-    # --- ingest -----------------------------------------------------------------------------
+
+@dataclass
+class _Load:
+    """What a run starts beside the server: the clients, the agents' process, a calibration."""
+
+    stop: MpEvent
+    """Tells the agents' process to stop."""
+    queue: mp.Queue[Any]
+    """Where the agents' process puts its figures when stopped."""
+    logs: list[ClientLog] = field(default_factory=list)
+    tasks: list[asyncio.Task[None]] = field(default_factory=list)
+    stalled: list[tuple[socket.socket, int, float]] = field(default_factory=list)
+    """Each stalled client's socket, local port and connection time (s since the epoch)."""
+    agents: mp.process.BaseProcess | None = None
+    calibration: asyncio.Task[Any] | None = None
+
+
+@dataclass
+class _Window:
+    """The measured window: its ends (s since the epoch), the server's REST answers at each
+    end, its stage histograms, its clock offsets through it, and what became of the stalled
+    clients (last ``/api/clients`` entry, and when it vanished, by local port)."""
+
+    t0: float
+    t1: float
+    sensors0: dict[str, Any]
+    sensors1: dict[str, Any]
+    health0: dict[str, Any]
+    health1: dict[str, Any]
+    stages0: dict[str, Buckets]
+    stages1: dict[str, Buckets]
+    offset_samples: list[tuple[float, dict[str, Any]]]
+    stalled_seen: dict[int, dict[str, Any]]
+    evicted_at: dict[int, float]
+
+
+async def _start_load(
+    load: _Load,
+    config: RunConfig,
+    seed: int,
+    http_port: int,
+    zmq_port: int,
+    poses: dict[str, Matrix4],
+    agents_log: Path,
+) -> None:
+    """Connect the healthy and the stalled clients, then start the agents' process."""
+    load.logs = [ClientLog() for _ in range(config.clients)]
+    ws_url = f"ws://127.0.0.1:{http_port}/ws/skeletons"
+    reader = raw_healthy_client if config.client == "raw" else healthy_client
+    load.tasks = [asyncio.create_task(reader(ws_url, log)) for log in load.logs]
+    for _ in range(config.stalled):
+        sock, port = await asyncio.to_thread(open_stalled_client, http_port)
+        load.stalled.append((sock, port, time.time()))
+    load.agents = mp.get_context("spawn").Process(
+        target=agents_process,
+        args=(
+            f"tcp://127.0.0.1:{zmq_port}",
+            {s: [float(x) for x in p.reshape(16)] for s, p in poses.items()},
+            config.bodies, seed, config.warmup_s + config.duration_s + 180.0, load.stop,
+            load.queue, str(agents_log), config.calibrate is not None,
+        ),
+        daemon=True,
+    )  # fmt: skip
+    load.agents.start()
+
+
+def _all_online(base: str, agents: int) -> bool:
+    health = http_json(base + "/api/health")
+    return bool(health["sensors_online"] == agents and health["fused_frames"] > 30)
+
+
+async def _snapshot(base: str, pid: int) -> tuple[float, float, dict[str, Any], dict[str, Any]]:
+    """Now (s since the epoch), the server's CPU time (s), ``/api/sensors``, ``/api/health``."""
+    t = time.time()
+    cpu = proc_cpu_s(pid)
+    sensors, health = await asyncio.gather(get(base + "/api/sensors"), get(base + "/api/health"))
+    return t, cpu, sensors, health
+
+
+async def _measure(
+    result: RunResult, config: RunConfig, base: str, pid: int, load: _Load, agents_log: Path
+) -> _Window:
+    """Poll the server through the window (starting the calibration part-way, if any); set
+    ``result``'s CPU, memory, persons and eviction figures."""
+    stages0 = await asyncio.to_thread(scrape_stages, base)
+    t0, cpu0, sensors0, health0 = await _snapshot(base, pid)
+    # The server maps each frame with its clock offset estimate of the moment: sample them
+    # through the run for the alignment-wait reconstruction (bench/load_waits.py).
+    offset_samples = [(t0, {s["id"]: s["clock_offset_s"] for s in sensors0["sensors"]})]
+    result.server_rss_start_mb = proc_rss_mb(pid)
+    rss_max = result.server_rss_start_mb
+    stalled_seen: dict[int, dict[str, Any]] = {}
+    evicted_at: dict[int, float] = {}
+    end = t0 + config.duration_s
+    if config.calibrate is not None:  # starts a fifth into the window, after a baseline
+        load.calibration = asyncio.create_task(calibrate_under_load(
+            base, config.calibrate, config.calibrate_capture_s, config.duration_s / 5,
+            [agents_log],
+        ))  # fmt: skip
+    while (now := time.time()) < end:
+        await asyncio.sleep(min(1.0, end - now))
+        rss_max = max(rss_max, proc_rss_mb(pid))
+        clients, sensors = await asyncio.gather(
+            get(base + "/api/clients"), get(base + "/api/sensors")
+        )
+        offset_samples.append(
+            (time.time(), {s["id"]: s["clock_offset_s"] for s in sensors["sensors"]})
+        )
+        for _, port, _ in load.stalled:
+            entry = next(
+                (c for c in clients["clients"] if str(c["remote"]).endswith(f"{port})")), None
+            )
+            if entry is not None:
+                stalled_seen[port] = entry
+            elif port not in evicted_at:
+                evicted_at[port] = time.time()
+    t1, cpu1, sensors1, health1 = await _snapshot(base, pid)
+    stages1 = await asyncio.to_thread(scrape_stages, base)
+    result.server_rss_end_mb = proc_rss_mb(pid)
+    result.server_rss_max_mb = max(rss_max, result.server_rss_end_mb)
+    result.window_s = t1 - t0
+    result.server_cpu_pct = 100 * (cpu1 - cpu0) / result.window_s
+    result.persons_last = int(health1["persons"])
+    result.evicted_total = int((await get(base + "/api/clients"))["evicted"])
+    return _Window(
+        t0, t1, sensors0, sensors1, health0, health1, stages0, stages1,
+        offset_samples, stalled_seen, evicted_at,
+    )  # fmt: skip
+
+
+async def _calibration_figures(result: RunResult, config: RunConfig, load: _Load) -> None:
+    """Wait for the calibration run under load and set its figures (or a note why none)."""
+    assert load.calibration is not None
+    try:
+        baseline, calibrated = await asyncio.wait_for(load.calibration, 300)
+    except Exception as exc:  # e.g. refused with a 409: the load figures still stand
+        result.notes.append(f"the calibration did not run: {type(exc).__name__}: {exc}")
+        load.calibration = None
+        return
+    result.calibration_state = calibrated.state + ("" if calibrated.icp_applied else
+                                                   " (no ICP)")  # fmt: skip
+    result.calibration_s = calibrated.seconds
+    result.calibration_lag_max_ms = calibrated.max_ms
+    result.calibration_lag_p99_ms = calibrated.p99_ms
+    result.calibration_over_20ms = calibrated.over_20ms
+    result.calibration_server_silent = calibrated.server_silent
+    result.calibration_icp = int(calibrated.icp_applied)
+    result.baseline_lag_max_ms = baseline.max_ms
+    result.baseline_lag_p99_ms = baseline.p99_ms
+    result.baseline_over_20ms = baseline.over_20ms
+    result.baseline_s = baseline.seconds
+    if calibrated.seconds > config.duration_s * 0.8:
+        result.notes.append("the calibration ran past the window's end")
+
+
+async def _stop(load: _Load, server: subprocess.Popen[bytes], log_file: IO[bytes]) -> None:
+    """Stop everything the run started, the server last (SIGINT, then killed after 15 s)."""
+    load.stop.set()
+    if load.calibration is not None and not load.calibration.done():
+        load.calibration.cancel()
+    for task in load.tasks:
+        task.cancel()
+    await asyncio.gather(*load.tasks, return_exceptions=True)
+    for sock, _, _ in load.stalled:
+        sock.close()
+    if load.agents is not None and load.agents.is_alive():
+        load.agents.kill()
+    server.send_signal(2)
+    try:
+        server.wait(timeout=15)
+    except subprocess.TimeoutExpired:
+        server.kill()
+        server.wait()
+    log_file.close()
+
+
+def _ingest_figures(
+    result: RunResult, window: _Window, agent_out: dict[str, Any], sensors_end: dict[str, Any]
+) -> tuple[dict[str, OffsetSeries], dict[str, FloatArray]]:
+    """Set what the agents sent and the server received, rejected and fused. Returns the
+    clock offsets through the window (``offset_series``) and each sensor's capture times."""
     per_agent = agent_out["agents"]
     result.agents_late = int(agent_out["late"])
     received_end = {s["id"]: s for s in sensors_end["sensors"]}
@@ -315,15 +394,28 @@ async def run_once(config: RunConfig, seed: int, log_dir: Path) -> RunResult:
     result.frames_rejected = sum(
         sum(s["frames_rejected"].values()) for s in received_end.values()
     ) + sum(sensors_end["rejected_unregistered"].values())
-    rx0 = sum(s["frames_received"] for s in sensors0["sensors"])
-    rx1 = sum(s["frames_received"] for s in sensors1["sensors"])
+    rx0 = sum(s["frames_received"] for s in window.sensors0["sensors"])
+    rx1 = sum(s["frames_received"] for s in window.sensors1["sensors"])
     result.ingest_fps = (rx1 - rx0) / result.window_s
-    result.fused_fps = (health1["fused_frames"] - health0["fused_frames"]) / result.window_s
-    offset_samples.append((t1, {s["id"]: s["clock_offset_s"] for s in sensors1["sensors"]}))
-    offsets = offset_series(offset_samples)
+    fused = window.health1["fused_frames"] - window.health0["fused_frames"]
+    result.fused_fps = fused / result.window_s
+    window.offset_samples.append(
+        (window.t1, {s["id"]: s["clock_offset_s"] for s in window.sensors1["sensors"]})
+    )
+    offsets = offset_series(window.offset_samples)
     captures = {s: np.asarray(a["captures"], dtype=np.float64) for s, a in per_agent.items()}
+    return offsets, captures
 
-    # --- clients ----------------------------------------------------------------------------
+
+def _client_figures(
+    result: RunResult,
+    window: _Window,
+    logs: list[ClientLog],
+    captures: dict[str, FloatArray],
+    offsets: dict[str, OffsetSeries],
+) -> None:
+    """Set the healthy clients' rates, gaps and latencies over the window (and how much of
+    the latency is the alignment wait), and the server's stage figures."""
     fps: list[float] = []
     gaps: list[int] = []
     skipped: list[int] = []
@@ -333,13 +425,15 @@ async def run_once(config: RunConfig, seed: int, log_dir: Path) -> RunResult:
     server_beyond: list[float] = []
     send: list[float] = []
     waits_all: list[float] = []
-    evicted = min(evicted_at.values()) if evicted_at else None
+    evicted = min(window.evicted_at.values()) if window.evicted_at else None
     stalled_lat: list[float] = []
     after_lat: list[float] = []
     for log in logs:
         if log.error:
             result.notes.append(f"a healthy client failed: {log.error}")
-        rows = np.asarray([r for r in log.records if t0 <= r[0] <= t1], dtype=np.float64)
+        rows = np.asarray(
+            [r for r in log.records if window.t0 <= r[0] <= window.t1], dtype=np.float64
+        )
         if not len(rows):
             fps.append(0.0)
             continue
@@ -381,18 +475,21 @@ async def run_once(config: RunConfig, seed: int, log_dir: Path) -> RunResult:
     result.p99_while_stalled_ms = _pct(stalled_lat, 99)
     result.send_p50_ms = _pct(send, 50)
     result.send_p99_ms = _pct(send, 99)
-    stage_figures(result, stages0, stages1)
+    stage_figures(result, window.stages0, window.stages1)
     result.p99_after_evicted_ms = _pct(after_lat, 99)
 
-    # --- the stalled client -----------------------------------------------------------------
+
+def _stalled_figures(
+    result: RunResult, window: _Window, stalled: list[tuple[socket.socket, int, float]]
+) -> None:
+    """Set when the first stalled client was evicted and what it was sent and dropped."""
     if stalled:
         _, port, connected = stalled[0]
-        if port in evicted_at:
-            result.stalled_evicted_after_s = evicted_at[port] - connected
-        last = stalled_seen.get(port)
+        if port in window.evicted_at:
+            result.stalled_evicted_after_s = window.evicted_at[port] - connected
+        last = window.stalled_seen.get(port)
         if last is not None:
             result.stalled_sent = int(last["sent"])
             result.stalled_dropped = int(last["dropped"])
-        elif port not in evicted_at:
+        elif port not in window.evicted_at:
             result.notes.append("the stalled client never appeared in /api/clients")
-    return result

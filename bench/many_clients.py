@@ -219,27 +219,7 @@ def run_once(args: argparse.Namespace, seed: int, log_dir: Path) -> dict[str, An
             children.append(child)
         _wait_connected(base, args.clients, args.agents)
         time.sleep(args.warmup)
-        load_before = os.getloadavg()
-        fused0 = http_json(base + "/api/health")["fused_frames"]
-        rss_start = proc_rss_mb(server.pid)
-        rss_max = rss_start
-        stages0 = scrape_stages(base)
-        conflated0 = {
-            c["id"]: int(c["conflated"]) for c in http_json(base + "/api/clients")["clients"]
-        }
-        t0, cpu0, wait0 = time.time(), proc_cpu_s(server.pid), runqueue_wait_s(server.pid)
-        start.set()
-        while time.time() < t0 + args.duration:
-            time.sleep(1.0)
-            rss_max = max(rss_max, proc_rss_mb(server.pid))
-        # The server's figures before the clients stop (then they leave, with their counts).
-        t1, cpu1, wait1 = time.time(), proc_cpu_s(server.pid), runqueue_wait_s(server.pid)
-        stages1 = scrape_stages(base)
-        fused1 = http_json(base + "/api/health")["fused_frames"]
-        clients_now = http_json(base + "/api/clients")
-        stop.set()
-        rss_end = proc_rss_mb(server.pid)
-        load_after = os.getloadavg()
+        window = _measure(base, server.pid, args.duration, start, stop)
         logs: list[dict[str, Any]] = []
         clients_cpu = 0.0
         for _ in shares:
@@ -260,7 +240,45 @@ def run_once(args: argparse.Namespace, seed: int, log_dir: Path) -> dict[str, An
         except Exception:
             server.kill()
         log_file.close()
-    window = t1 - t0
+    return _figures(window, logs, clients_cpu)
+
+
+def _measure(
+    base: str, pid: int, duration_s: float, start: MpEvent, stop: MpEvent
+) -> dict[str, Any]:
+    """Let the clients count for ``duration_s``, then stop them; the server's figures at the
+    window's two ends (``<name>0`` and ``<name>1``; times s since the epoch, CPU s, RSS MB)."""
+    load_before = os.getloadavg()
+    fused0 = http_json(base + "/api/health")["fused_frames"]
+    rss_start = proc_rss_mb(pid)
+    rss_max = rss_start
+    stages0 = scrape_stages(base)
+    conflated0 = {c["id"]: int(c["conflated"]) for c in http_json(base + "/api/clients")["clients"]}
+    t0, cpu0, wait0 = time.time(), proc_cpu_s(pid), runqueue_wait_s(pid)
+    start.set()
+    while time.time() < t0 + duration_s:
+        time.sleep(1.0)
+        rss_max = max(rss_max, proc_rss_mb(pid))
+    # The server's figures before the clients stop (then they leave, with their counts).
+    t1, cpu1, wait1 = time.time(), proc_cpu_s(pid), runqueue_wait_s(pid)
+    stages1 = scrape_stages(base)
+    fused1 = http_json(base + "/api/health")["fused_frames"]
+    clients_now = http_json(base + "/api/clients")
+    stop.set()
+    rss_end = proc_rss_mb(pid)
+    load_after = os.getloadavg()
+    return {
+        "t0": t0, "t1": t1, "cpu0": cpu0, "cpu1": cpu1, "wait0": wait0, "wait1": wait1,
+        "fused0": fused0, "fused1": fused1, "stages0": stages0, "stages1": stages1,
+        "conflated0": conflated0, "clients_now": clients_now,
+        "rss": (rss_start, rss_max, rss_end), "load": (load_before, load_after),
+    }  # fmt: skip
+
+
+def _figures(m: dict[str, Any], logs: list[dict[str, Any]], clients_cpu: float) -> dict[str, Any]:
+    """The run's figures from the server's (``_measure``) and the clients' (``logs``, their
+    CPU time ``clients_cpu`` in s)."""
+    window = m["t1"] - m["t0"]
     ages_sent: list[float] = []
     ages_t: list[float] = []
     for log in logs:
@@ -269,10 +287,12 @@ def run_once(args: argparse.Namespace, seed: int, log_dir: Path) -> dict[str, An
     fps = [log["frames"] / window for log in logs]
     lost = [int(log["lost"]) for log in logs]
     errors = [log["error"] for log in logs if log["error"]]
+    rss_start, rss_max, rss_end = m["rss"]
+    load_before, load_after = m["load"]
     return {
         "clients": len(logs),
         "window_s": round(window, 2),
-        "fused_fps_server": round((fused1 - fused0) / window, 2),
+        "fused_fps_server": round((m["fused1"] - m["fused0"]) / window, 2),
         "fps_received_median": round(statistics.median(fps), 2) if fps else None,
         "fps_received_min": round(min(fps), 2) if fps else None,
         "lost_total": sum(lost),
@@ -285,19 +305,20 @@ def run_once(args: argparse.Namespace, seed: int, log_dir: Path) -> dict[str, An
         # NaN (a server without the stage): JSON null.
         **{
             f"server_{stage}_p{q}_ms": _rounded(
-                window_quantile(stages0.get(stage), stages1.get(stage), q / 100)
+                window_quantile(m["stages0"].get(stage), m["stages1"].get(stage), q / 100)
             )
             for stage in ("send", "publish")
             for q in (50, 99)
         },
-        "server_cpu_pct": round(100 * (cpu1 - cpu0) / window, 1),
-        "server_loop_runqueue_wait_pct": round(100 * (wait1 - wait0) / window, 1),
+        "server_cpu_pct": round(100 * (m["cpu1"] - m["cpu0"]) / window, 1),
+        "server_loop_runqueue_wait_pct": round(100 * (m["wait1"] - m["wait0"]) / window, 1),
         "clients_cpu_pct": round(100 * clients_cpu / window, 1),
         "server_rss_mb": [round(rss_start, 1), round(rss_max, 1), round(rss_end, 1)],
         "conflated_total": sum(  # in the window
-            int(c["conflated"]) - conflated0.get(c["id"], 0) for c in clients_now["clients"]
+            int(c["conflated"]) - m["conflated0"].get(c["id"], 0)
+            for c in m["clients_now"]["clients"]
         ),
-        "evicted": int(clients_now["evicted"]),
+        "evicted": int(m["clients_now"]["evicted"]),
         "client_errors": errors[:5],
         "client_error_count": len(errors),
         "handshake_retries": sum(int(log["retries"]) for log in logs),

@@ -195,39 +195,7 @@ def run_live(
             return {r["id"] for r in rows if r["connected"]} >= set(streamed)
 
         wait_for(registered, 30.0, "the agents")
-        frames = len(next(iter(clip.image_px.values())))
-        t0_ns = time.time_ns() + 500_000_000
-        clip_start_s = t0_ns / 1e9 + hold / FPS
-        last_s = clip_start_s + (frames - 1) / FPS
-        times: list[float] = []
-        joints: list[FloatArray] = []
-        persons: list[float] = []
-        run = LiveRun(np.zeros(0), np.zeros((0, 25, 3)), np.zeros(0))
-        with SyncFeedClient(base) as feed:
-            start.append(t0_ns)
-            # The server publishes only while frames come: once the clip has played, a
-            # watchdog closes the feed, which ends the loop below.
-            watchdog = threading.Timer(last_s + tail_s - time.time(), feed.close)
-            watchdog.start()
-            for frame in feed:
-                if frame.t >= last_s - 1e-3:
-                    break
-                if frame.t < clip_start_s - 0.2:
-                    continue
-                times.append((frame.t - clip_start_s) * FPS)
-                persons.append(float(len(frame.persons)))
-                if not frame.persons:
-                    joints.append(np.full((25, 3), np.nan))
-                    continue
-                best = max(frame.persons, key=lambda p: len(p.sources))
-                joints.append(np.asarray(best.joints, dtype=np.float64))
-                for name in best.mirrored:
-                    run.mirrored[name] = run.mirrored.get(name, 0) + 1
-                key = "+".join(sorted(best.sources))
-                run.sources[key] = run.sources.get(key, 0) + 1
-        watchdog.cancel()
-        run.times, run.joints, run.persons = np.array(times), np.array(joints), np.array(persons)
-        return run
+        return _fused_frames(base, clip, hold, start, tail_s)
     finally:
         stop.set()
         for thread in threads:
@@ -238,3 +206,42 @@ def run_live(
         except Exception:
             server.kill()
         log_file.close()
+
+
+def _fused_frames(base: str, clip: Clip, hold: int, start: list[int], tail_s: float) -> LiveRun:
+    """Start the agents' clock (``start`` gets the first frame's time, ns since the epoch,
+    half a second from now) and collect the fused frames until the clip has played (``hold``
+    frames held before it, ``tail_s`` s of grace after it)."""
+    frames = len(next(iter(clip.image_px.values())))
+    t0_ns = time.time_ns() + 500_000_000
+    clip_start_s = t0_ns / 1e9 + hold / FPS
+    last_s = clip_start_s + (frames - 1) / FPS
+    times: list[float] = []
+    joints: list[FloatArray] = []
+    persons: list[float] = []
+    run = LiveRun(np.zeros(0), np.zeros((0, 25, 3)), np.zeros(0))
+    with SyncFeedClient(base) as feed:
+        start.append(t0_ns)
+        # The server publishes only while frames come: once the clip has played, a
+        # watchdog closes the feed, which ends the loop below.
+        watchdog = threading.Timer(last_s + tail_s - time.time(), feed.close)
+        watchdog.start()
+        for frame in feed:
+            if frame.t >= last_s - 1e-3:
+                break
+            if frame.t < clip_start_s - 0.2:
+                continue
+            times.append((frame.t - clip_start_s) * FPS)
+            persons.append(float(len(frame.persons)))
+            if not frame.persons:
+                joints.append(np.full((25, 3), np.nan))
+                continue
+            best = max(frame.persons, key=lambda p: len(p.sources))
+            joints.append(np.asarray(best.joints, dtype=np.float64))
+            for name in best.mirrored:
+                run.mirrored[name] = run.mirrored.get(name, 0) + 1
+            key = "+".join(sorted(best.sources))
+            run.sources[key] = run.sources.get(key, 0) + 1
+    watchdog.cancel()
+    run.times, run.joints, run.persons = np.array(times), np.array(joints), np.array(persons)
+    return run

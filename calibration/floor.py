@@ -116,6 +116,25 @@ def fit_floor(
             "capture depth again with the floor in view"
         )
     generator = rng if rng is not None else np.random.default_rng(0)
+    normals, offsets = _horizontal_planes(pts, up, generator, iterations, max_tilt_deg)
+    normal, d = _lowest_large_plane(pts, normals, offsets, up, inlier_m, min_inliers)
+    return _weighted_refit(pts, normal, d, up, inlier_m, noise_m, min_inliers)
+
+
+def _horizontal_planes(
+    pts: FloatArray,
+    up: FloatArray,
+    generator: np.random.Generator,
+    iterations: int,
+    max_tilt_deg: float,
+) -> tuple[FloatArray, FloatArray]:
+    """RANSAC hypotheses: planes through 3 random points of the (N, 3) cloud, kept if their
+    normal is within ``max_tilt_deg`` of ``up``. Returns their (H, 3) unit normals (towards
+    ``up``) and (H,) offsets d, metres.
+
+    Raises:
+        DegenerateGeometry: no such plane.
+    """
     cos_max = float(np.cos(np.radians(max_tilt_deg)))
     samples = generator.integers(0, len(pts), size=(iterations, 3))
     a, b, c = pts[samples[:, 0]], pts[samples[:, 1]], pts[samples[:, 2]]
@@ -133,6 +152,24 @@ def fit_floor(
         )
     normals = normals[ok]
     offsets = -np.sum(normals * a[ok], axis=1)
+    return normals, offsets
+
+
+def _lowest_large_plane(
+    pts: FloatArray,
+    normals: FloatArray,
+    offsets: FloatArray,
+    up: FloatArray,
+    inlier_m: float,
+    min_inliers: int,
+) -> tuple[FloatArray, float]:
+    """Of the hypotheses with at least a third of the best one's inliers (and ``min_inliers``),
+    the lowest along ``up``, and within 10 cm of it the one with the most inliers: its (3,)
+    normal and offset d (metres).
+
+    Raises:
+        DegenerateGeometry: no hypothesis has ``min_inliers`` points.
+    """
     # Inlier counts, in chunks to bound memory (hypotheses × points).
     counts = np.empty(len(normals), dtype=np.int64)
     for start in range(0, len(normals), 32):
@@ -149,7 +186,24 @@ def fit_floor(
     lowest = float(level[large].min())
     near_lowest = large & (level <= lowest + 0.10)
     best = int(np.argmax(np.where(near_lowest, counts, -1)))
-    normal, d = normals[best], float(offsets[best])
+    return normals[best], float(offsets[best])
+
+
+def _weighted_refit(
+    pts: FloatArray,
+    normal: FloatArray,
+    d: float,
+    up: FloatArray,
+    inlier_m: float,
+    noise_m: tuple[float, float],
+    min_inliers: int,
+) -> FloorFit:
+    """The plane ``normal·p + d = 0`` refitted by weighted least squares over its inliers
+    (4 rounds; band and weights from the depth noise model, see :func:`fit_floor`).
+
+    Raises:
+        DegenerateGeometry: fewer than ``min_inliers`` points left on the refitted plane.
+    """
     sigma = noise_m[0] + noise_m[1] * np.sum(pts**2, axis=1)
     weights = 1.0 / np.maximum(sigma, 1e-6) ** 2
     # A fixed band would hold the refit near a slightly tilted RANSAC plane (far, noisy points

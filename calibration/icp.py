@@ -149,8 +149,7 @@ def refine_icp(
         NoOverlap: (almost) no source point near the target at the coarsest level.
         IcpUnavailable: open3d does not import (see :func:`load_open3d`).
     """
-    o3d = load_open3d()
-    reg = o3d.pipelines.registration
+    reg = load_open3d().pipelines.registration
     src_all = _cloud_array(source_points, "source_points")
     tgt_all = _cloud_array(target_points, "target_points")
     init = np.asarray(T_target_from_source_init, dtype=np.float64)
@@ -158,8 +157,56 @@ def refine_icp(
         raise InvalidInput("T_target_from_source_init must be a finite rigid 4×4 transform")
     if not voxel_sizes or min(voxel_sizes) <= 0:
         raise InvalidInput(f"voxel_sizes must be positive, got {list(voxel_sizes)}")
-    src_cloud, tgt_cloud = _to_o3d(src_all), _to_o3d(tgt_all)
+    src, tgt, distance, refined = _coarse_to_fine(
+        _to_o3d(src_all), _to_o3d(tgt_all), init, voxel_sizes,
+        max_correspondence_factor, max_iterations, progress,
+    )  # fmt: skip
+    refined, dofs = constrained_update(
+        np.asarray(src.points), np.asarray(tgt.points), np.asarray(tgt.normals),
+        init, refined, distance, min_eigen_ratio,
+    )  # fmt: skip
     warnings: list[str] = []
+    before = reg.evaluate_registration(src, tgt, distance, init)
+    transform, final, applied = _accepted(
+        reg, (src, tgt, distance), init, refined, before, max_correction, warnings
+    )
+    finest = float(min(voxel_sizes))
+    overlap = float(reg.evaluate_registration(src, tgt, 2 * finest, transform).fitness)
+    warnings += _coverage_warnings(overlap, min_overlap, dofs)
+    correction = np.linalg.inv(init) @ transform
+    return IcpResult(
+        transform,
+        float(final.fitness),
+        float(final.inlier_rmse),
+        overlap,
+        applied,
+        warnings,
+        float(before.fitness),
+        float(before.inlier_rmse),
+        rotation_angle_deg(correction) if applied else 0.0,
+        float(np.linalg.norm(transform[:3, 3] - init[:3, 3])) * 1000.0 if applied else 0.0,
+        dofs if applied else 0,
+    )
+
+
+def _coarse_to_fine(
+    src_cloud: Any,
+    tgt_cloud: Any,
+    init: Matrix4,
+    voxel_sizes: Sequence[float],
+    max_correspondence_factor: float,
+    max_iterations: int,
+    progress: Progress | None,
+) -> tuple[Any, Any, float, Matrix4]:
+    """Point-to-plane ICP per voxel level (module docstring, step 1), each from the previous
+    level's result. Returns the finest level's (source, target with normals, correspondence
+    distance in metres) and the (4, 4) ICP result.
+
+    Raises:
+        NoOverlap: too few source points near the target at the coarsest level.
+    """
+    o3d = load_open3d()
+    reg = o3d.pipelines.registration
     transform = init.copy()
     level: tuple[Any, Any, float] | None = None
     work = np.cumsum([1.0 / v for v in voxel_sizes]) / sum(1.0 / v for v in voxel_sizes)
@@ -187,43 +234,54 @@ def refine_icp(
         if progress is not None:
             progress(float(work[number]), f"level {number + 1} of {len(voxel_sizes)} done")
     assert level is not None  # voxel_sizes is non-empty
+    return (*level, transform)
+
+
+def _accepted(
+    reg: Any,
+    level: tuple[Any, Any, float],
+    init: Matrix4,
+    refined: Matrix4,
+    before: Any,
+    max_correction: tuple[float, float] | None,
+    warnings: list[str],
+) -> tuple[Matrix4, Any, bool]:
+    """The (4, 4) refined pose if it does not raise the truncated cost at the finest ``level``
+    (module docstring, step 2) and moves no further than ``max_correction`` (degrees,
+    millimetres); else the initial guess, with a warning appended saying why.
+
+    Returns:
+        (the pose, its evaluation at the finest level, whether the refinement was applied);
+        ``before`` is the initial guess's evaluation.
+    """
     src, tgt, distance = level
-    transform, dofs = constrained_update(
-        np.asarray(src.points),
-        np.asarray(tgt.points),
-        np.asarray(tgt.normals),
-        init,
-        transform,
-        distance,
-        min_eigen_ratio,
-    )
-    before = reg.evaluate_registration(src, tgt, distance, init)
-    after = reg.evaluate_registration(src, tgt, distance, transform)
+    after = reg.evaluate_registration(src, tgt, distance, refined)
     cost_before = _truncated_cost(before.fitness, before.inlier_rmse, distance)
     cost_after = _truncated_cost(after.fitness, after.inlier_rmse, distance)
-    applied = bool(np.isfinite(transform).all()) and cost_after <= cost_before * (1 + 1e-9)
-    if not applied:
+    if not (bool(np.isfinite(refined).all()) and cost_after <= cost_before * (1 + 1e-9)):
         warnings.append(
             "ICP made the fit worse (fitness "
             f"{before.fitness:.2f}→{after.fitness:.2f}, RMSE {before.inlier_rmse * 1000:.1f}→"
             f"{after.inlier_rmse * 1000:.1f} mm): kept the initial pose"
         )
-        transform, final = init.copy(), before
-    else:
-        final = after
-        if max_correction is not None:
-            moved_deg = rotation_angle_deg(np.linalg.inv(init) @ transform)
-            moved_mm = float(np.linalg.norm(transform[:3, 3] - init[:3, 3])) * 1000.0
-            if moved_deg > max_correction[0] or moved_mm > max_correction[1]:
-                warnings.append(
-                    f"ICP wanted to move the pose by {moved_deg:.1f}° / {moved_mm:.0f} mm, more "
-                    f"than the initial guess can be off ({max_correction[0]:.1f}° / "
-                    f"{max_correction[1]:.0f} mm): kept the initial pose"
-                )
-                applied = False
-                transform, final = init.copy(), before
-    finest = float(min(voxel_sizes))
-    overlap = float(reg.evaluate_registration(src, tgt, 2 * finest, transform).fitness)
+        return init.copy(), before, False
+    if max_correction is not None:
+        moved_deg = rotation_angle_deg(np.linalg.inv(init) @ refined)
+        moved_mm = float(np.linalg.norm(refined[:3, 3] - init[:3, 3])) * 1000.0
+        if moved_deg > max_correction[0] or moved_mm > max_correction[1]:
+            warnings.append(
+                f"ICP wanted to move the pose by {moved_deg:.1f}° / {moved_mm:.0f} mm, more "
+                f"than the initial guess can be off ({max_correction[0]:.1f}° / "
+                f"{max_correction[1]:.0f} mm): kept the initial pose"
+            )
+            return init.copy(), before, False
+    return refined, after, True
+
+
+def _coverage_warnings(overlap: float, min_overlap: float, dofs: int) -> list[str]:
+    """Warnings for a small ``overlap`` (share, 0..1) and for pose directions left to the
+    initial guess (``dofs`` of 6 constrained)."""
+    warnings = []
     if overlap < min_overlap:
         warnings.append(
             f"small overlap ({overlap:.0%} of this sensor's points lie on surfaces the target "
@@ -236,20 +294,7 @@ def refine_icp(
             "floor): ICP corrected those (tilt and height when it is the floor) and kept the "
             "initial guess for the rest"
         )
-    correction = np.linalg.inv(init) @ transform
-    return IcpResult(
-        transform,
-        float(final.fitness),
-        float(final.inlier_rmse),
-        overlap,
-        applied,
-        warnings,
-        float(before.fitness),
-        float(before.inlier_rmse),
-        rotation_angle_deg(correction) if applied else 0.0,
-        float(np.linalg.norm(transform[:3, 3] - init[:3, 3])) * 1000.0 if applied else 0.0,
-        dofs if applied else 0,
-    )
+    return warnings
 
 
 def refine_all(
@@ -294,17 +339,30 @@ def refine_all(
         raise InvalidInput(f"no initial pose for {sorted(missing)}")
     clouds = {k: _cloud_array(v, f"cloud of {k}") for k, v in clouds_sensor.items()}
     poses = {k: np.asarray(T_world_from_sensor_init[k], dtype=np.float64) for k in clouds}
-    results: dict[str, IcpResult] = {}
-    target_ref = apply(poses[reference], clouds[reference])
-    pending: list[str] = []
     others = len(clouds) - 1
-    total = max(1, others * (2 if second_pass else 1))
-    done = 0
+    passes = _PassProgress(progress, max(1, others * (2 if second_pass else 1)))
+    results, pending = _against_reference(clouds, poses, reference, passes, icp_options)
+    if second_pass or pending:
+        for sensor in sorted(clouds):
+            if sensor == reference or (not second_pass and sensor not in pending):
+                continue
+            _against_all_others(clouds, poses, sensor, results, passes, icp_options)
+    return results
 
-    def step(sensor: str, pass_number: int) -> Progress | None:
-        if progress is None:
+
+@dataclass
+class _PassProgress:
+    """``refine_all``'s progress: every refinement of a pass counts one of ``total``."""
+
+    progress: Progress | None
+    total: int
+    done: int = 0
+
+    def step(self, sensor: str, pass_number: int) -> Progress | None:
+        """The progress of the next refinement, ``sensor``'s in pass ``pass_number``."""
+        if self.progress is None:
             return None
-        report, base = progress, done
+        report, base, total = self.progress, self.done, self.total
 
         def level(fraction: float, detail: str) -> None:
             share = min(1.0, (base + fraction) / total)
@@ -312,40 +370,65 @@ def refine_all(
 
         return level
 
+
+def _against_reference(
+    clouds: Mapping[str, FloatArray],
+    poses: dict[str, FloatArray],
+    reference: str,
+    passes: _PassProgress,
+    icp_options: Mapping[str, Any],
+) -> tuple[dict[str, IcpResult], list[str]]:
+    """Pass 1: each non-reference sensor against the reference's cloud alone; ``poses``
+    (sensor id → (4, 4) ``T_world_from_sensor``) take the results. Returns the results and the
+    sensors that do not overlap the reference (left to pass 2)."""
+    target_ref = apply(poses[reference], clouds[reference])
+    results: dict[str, IcpResult] = {}
+    pending: list[str] = []
     for sensor in sorted(clouds):
         if sensor == reference:
             continue
         try:
             results[sensor] = refine_icp(
-                clouds[sensor], target_ref, poses[sensor], progress=step(sensor, 1), **icp_options
-            )
+                clouds[sensor], target_ref, poses[sensor], progress=passes.step(sensor, 1),
+                **icp_options,
+            )  # fmt: skip
         except NoOverlap:
-            done += 1
+            passes.done += 1
             pending.append(sensor)
             continue
-        done += 1
+        passes.done += 1
         poses[sensor] = results[sensor].T_target_from_source
-    if second_pass or pending:
-        for sensor in sorted(clouds):
-            if sensor == reference or (not second_pass and sensor not in pending):
-                continue
-            target = np.concatenate(
-                [apply(poses[k], clouds[k]) for k in sorted(clouds) if k != sensor]
-            )
-            previous = results.get(sensor)
-            try:
-                refined = refine_icp(
-                    clouds[sensor], target, poses[sensor], progress=step(sensor, 2), **icp_options
-                )
-            except NoOverlap:
-                if previous is None:
-                    raise
-                continue
-            finally:
-                done += 1
-            if previous is None or refined.applied:
-                if previous is not None:
-                    refined.warnings[:0] = [w for w in previous.warnings if "overlap" in w]
-                results[sensor] = refined
-                poses[sensor] = refined.T_target_from_source
-    return results
+    return results, pending
+
+
+def _against_all_others(
+    clouds: Mapping[str, FloatArray],
+    poses: dict[str, FloatArray],
+    sensor: str,
+    results: dict[str, IcpResult],
+    passes: _PassProgress,
+    icp_options: Mapping[str, Any],
+) -> None:
+    """Pass 2 for ``sensor``: against the union of all other clouds placed with ``poses``; the
+    result replaces pass 1's in ``results`` and ``poses`` if applied (or if pass 1 had none).
+
+    Raises:
+        NoOverlap: the sensor overlaps no other sensor, and did not overlap the reference.
+    """
+    target = np.concatenate([apply(poses[k], clouds[k]) for k in sorted(clouds) if k != sensor])
+    previous = results.get(sensor)
+    try:
+        refined = refine_icp(
+            clouds[sensor], target, poses[sensor], progress=passes.step(sensor, 2), **icp_options
+        )
+    except NoOverlap:
+        if previous is None:
+            raise
+        return
+    finally:
+        passes.done += 1
+    if previous is None or refined.applied:
+        if previous is not None:
+            refined.warnings[:0] = [w for w in previous.warnings if "overlap" in w]
+        results[sensor] = refined
+        poses[sensor] = refined.T_target_from_source

@@ -51,7 +51,7 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.calibration.errors import DegenerateGeometry, InvalidInput, NotEnoughCorrespondences
-from skelfuse.calibration.rigid import fit_rigid, rotation_angle_deg
+from skelfuse.calibration.rigid import RigidFit, fit_rigid, rotation_angle_deg
 from skelfuse.protocol.skeleton import JOINT_COUNT, JointId, TrackingState
 from skelfuse.protocol.transform import Matrix4
 
@@ -184,80 +184,13 @@ def solve_from_skeletons(
             f"ref and other must cover the same instants: got {ref_j.shape[0]} and "
             f"{oth_j.shape[0]} frames; align both sensors to common instants first"
         )
-    ref_f, ref_ok = _features(ref_j, ref_s)
-    oth_f, oth_ok = _features(oth_j, oth_s)
-    valid = ref_ok & oth_ok  # (T, F)
-    frame_ok = valid.sum(axis=1) >= 2
-    n_frames = int(frame_ok.sum())
-    if n_frames < min_frames:
-        raise NotEnoughCorrespondences(
-            f"only {n_frames} instants where both sensors track the person's trunk (need "
-            f"{min_frames}, of {ref_j.shape[0]} received); have one person walk where both "
-            "sensors see them, facing each sensor part of the time, for 10-20 s"
-        )
-    frames = np.flatnonzero(frame_ok)
-    frame_idx, feat_idx = np.nonzero(valid[frames])
-    frame_of_point = frames[frame_idx]
-    src = oth_f[frame_of_point, feat_idx]
-    dst = ref_f[frame_of_point, feat_idx]
-    base_w = np.array([f[2] for f in FEATURES])[feat_idx]
-
-    # Spread of the person's positions (reference frame): per-frame centroids.
-    centroids = np.stack([dst[frame_idx == k].mean(axis=0) for k in range(len(frames))])
-    spread_all = np.linalg.svd(centroids - centroids.mean(axis=0), compute_uv=False) / np.sqrt(
-        len(centroids)
-    )
-    spread = float(spread_all[1]) if len(spread_all) > 1 else 0.0
-    if float(spread_all[0]) < min_spread_m:
-        raise DegenerateGeometry(
-            f"the person hardly moved (positions spread over {spread_all[0] * 100:.0f} cm, need "
-            f"{min_spread_m * 100:.0f} cm): walk around the whole capture area for 10-20 s "
-            "while both sensors see you"
-        )
-
+    src, dst, base_w, frame_idx = _correspondences(ref_j, ref_s, oth_j, oth_s, min_frames)
+    centroids, spread = _person_spread(dst, frame_idx, min_spread_m)
     generator = rng if rng is not None else np.random.default_rng(0)
-    best_score, best_inlier_frames = -1.0, np.zeros(len(frames), dtype=bool)
-    counts = np.bincount(frame_idx, minlength=len(frames))
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    median_col = (counts - 1) // 2  # lower median of each frame's residuals
-    padded_rows = np.full((len(frames), len(FEATURES)), -1, dtype=np.int64)
-    padded_rows[frame_idx, np.arange(len(frame_idx)) - starts[frame_idx]] = np.arange(len(src))
-    for _ in range(ransac_iterations):
-        pick = generator.choice(len(frames), size=3, replace=False)
-        c = centroids[pick]
-        if min(np.linalg.norm(c[0] - c[1]), np.linalg.norm(c[0] - c[2]),
-               np.linalg.norm(c[1] - c[2])) < 0.2:  # fmt: skip
-            continue
-        rows = padded_rows[pick].reshape(-1)
-        rows = rows[rows >= 0]
-        try:
-            hypothesis = fit_rigid(src[rows], dst[rows], min_spread_m=0.02)
-        except DegenerateGeometry:
-            continue
-        t = hypothesis.T_dst_from_src
-        residual = np.linalg.norm(src @ t[:3, :3].T + t[:3, 3] - dst, axis=1)
-        per_frame = np.sort(np.where(padded_rows >= 0, residual[padded_rows], np.inf), axis=1)[
-            np.arange(len(frames)), median_col
-        ]
-        inlier_frames = per_frame < ransac_threshold_m
-        score = float(counts[inlier_frames].sum())
-        if score > best_score:
-            best_score, best_inlier_frames = score, inlier_frames
-    if best_score <= 0:
-        raise DegenerateGeometry(
-            "no consistent pose found: the two sensors' skeletons never agree; check that both "
-            "sensors track the same single person at the same instants"
-        )
-    keep = best_inlier_frames[frame_idx]
-    weights = base_w * keep
-    fit = fit_rigid(src, dst, weights, min_spread_m=0.02)
-    for _ in range(10):
-        r = fit.residuals_m
-        scale = max(float(1.4826 * np.median(r[weights > 0])), min_scale_m)
-        weights = base_w * keep * _tukey(r, scale)
-        fit = fit_rigid(src, dst, weights, min_spread_m=0.02)
-    kept = weights > 0
-    final = fit_rigid(src, dst, base_w * kept, min_spread_m=0.02)
+    inlier_frames = _ransac_inlier_frames(
+        src, dst, frame_idx, centroids, ransac_iterations, ransac_threshold_m, generator
+    )
+    final, kept = _robust_fit(src, dst, base_w, inlier_frames[frame_idx], min_scale_m)
     residual_mm = float(np.sqrt(np.mean(final.residuals_m[kept] ** 2))) * 1000.0
     frames_used = int(np.unique(frame_idx[kept]).size)
     joints_used = int(kept.sum())
@@ -279,6 +212,140 @@ def solve_from_skeletons(
         warnings,
         spread,
     )
+
+
+def _correspondences(
+    ref_j: FloatArray,
+    ref_s: npt.NDArray[np.int64],
+    oth_j: FloatArray,
+    oth_s: npt.NDArray[np.int64],
+    min_frames: int,
+) -> tuple[FloatArray, FloatArray, FloatArray, npt.NDArray[np.intp]]:
+    """The feature points valid in both views, at the instants with at least two of them.
+
+    Returns:
+        (P, 3) points in the other sensor's frame and (P, 3) the same in the reference's,
+        metres; (P,) each point's feature weight; (P,) each point's frame number among the
+        usable instants (0..U-1, points grouped by frame in order).
+
+    Raises:
+        NotEnoughCorrespondences: fewer than ``min_frames`` usable instants.
+    """
+    ref_f, ref_ok = _features(ref_j, ref_s)
+    oth_f, oth_ok = _features(oth_j, oth_s)
+    valid = ref_ok & oth_ok  # (T, F)
+    frame_ok = valid.sum(axis=1) >= 2
+    n_frames = int(frame_ok.sum())
+    if n_frames < min_frames:
+        raise NotEnoughCorrespondences(
+            f"only {n_frames} instants where both sensors track the person's trunk (need "
+            f"{min_frames}, of {ref_j.shape[0]} received); have one person walk where both "
+            "sensors see them, facing each sensor part of the time, for 10-20 s"
+        )
+    frames = np.flatnonzero(frame_ok)
+    frame_idx, feat_idx = np.nonzero(valid[frames])
+    frame_of_point = frames[frame_idx]
+    src = oth_f[frame_of_point, feat_idx]
+    dst = ref_f[frame_of_point, feat_idx]
+    base_w = np.array([f[2] for f in FEATURES])[feat_idx]
+    return src, dst, base_w, frame_idx
+
+
+def _person_spread(
+    dst: FloatArray, frame_idx: npt.NDArray[np.intp], min_spread_m: float
+) -> tuple[FloatArray, float]:
+    """(U, 3) the person's position per usable frame (centroid of its points ``dst``, reference
+    frame, metres) and their spread across the walking direction (second singular value, m).
+
+    Raises:
+        DegenerateGeometry: the positions spread less than ``min_spread_m`` along their longest
+            direction.
+    """
+    n_frames = int(frame_idx.max()) + 1
+    centroids = np.stack([dst[frame_idx == k].mean(axis=0) for k in range(n_frames)])
+    spread_all = np.linalg.svd(centroids - centroids.mean(axis=0), compute_uv=False) / np.sqrt(
+        len(centroids)
+    )
+    spread = float(spread_all[1]) if len(spread_all) > 1 else 0.0
+    if float(spread_all[0]) < min_spread_m:
+        raise DegenerateGeometry(
+            f"the person hardly moved (positions spread over {spread_all[0] * 100:.0f} cm, need "
+            f"{min_spread_m * 100:.0f} cm): walk around the whole capture area for 10-20 s "
+            "while both sensors see you"
+        )
+    return centroids, spread
+
+
+def _ransac_inlier_frames(
+    src: FloatArray,
+    dst: FloatArray,
+    frame_idx: npt.NDArray[np.intp],
+    centroids: FloatArray,
+    iterations: int,
+    threshold_m: float,
+    generator: np.random.Generator,
+) -> npt.NDArray[np.bool_]:
+    """(U,) the frames that agree with the best of ``iterations`` three-frame hypotheses: its
+    median point residual below ``threshold_m``; best = most points in agreeing frames.
+
+    Raises:
+        DegenerateGeometry: no hypothesis has any agreeing frame.
+    """
+    n_frames = len(centroids)
+    best_score, best_inlier_frames = -1.0, np.zeros(n_frames, dtype=bool)
+    counts = np.bincount(frame_idx, minlength=n_frames)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    median_col = (counts - 1) // 2  # lower median of each frame's residuals
+    padded_rows = np.full((n_frames, len(FEATURES)), -1, dtype=np.int64)
+    padded_rows[frame_idx, np.arange(len(frame_idx)) - starts[frame_idx]] = np.arange(len(src))
+    for _ in range(iterations):
+        pick = generator.choice(n_frames, size=3, replace=False)
+        c = centroids[pick]
+        if min(np.linalg.norm(c[0] - c[1]), np.linalg.norm(c[0] - c[2]),
+               np.linalg.norm(c[1] - c[2])) < 0.2:  # fmt: skip
+            continue
+        rows = padded_rows[pick].reshape(-1)
+        rows = rows[rows >= 0]
+        try:
+            hypothesis = fit_rigid(src[rows], dst[rows], min_spread_m=0.02)
+        except DegenerateGeometry:
+            continue
+        t = hypothesis.T_dst_from_src
+        residual = np.linalg.norm(src @ t[:3, :3].T + t[:3, 3] - dst, axis=1)
+        per_frame = np.sort(np.where(padded_rows >= 0, residual[padded_rows], np.inf), axis=1)[
+            np.arange(n_frames), median_col
+        ]
+        inlier_frames = per_frame < threshold_m
+        score = float(counts[inlier_frames].sum())
+        if score > best_score:
+            best_score, best_inlier_frames = score, inlier_frames
+    if best_score <= 0:
+        raise DegenerateGeometry(
+            "no consistent pose found: the two sensors' skeletons never agree; check that both "
+            "sensors track the same single person at the same instants"
+        )
+    return best_inlier_frames
+
+
+def _robust_fit(
+    src: FloatArray,
+    dst: FloatArray,
+    base_w: FloatArray,
+    keep: npt.NDArray[np.bool_],
+    min_scale_m: float,
+) -> tuple[RigidFit, npt.NDArray[np.bool_]]:
+    """Weighted rigid fit of the ``keep`` points, reweighted ten times by Tukey's biweight of
+    the residuals (scale: 1.4826 · median, at least ``min_scale_m``), then refitted on the
+    points with weight left. Returns that fit and the (P,) points it used."""
+    weights = base_w * keep
+    fit = fit_rigid(src, dst, weights, min_spread_m=0.02)
+    for _ in range(10):
+        r = fit.residuals_m
+        scale = max(float(1.4826 * np.median(r[weights > 0])), min_scale_m)
+        weights = base_w * keep * _tukey(r, scale)
+        fit = fit_rigid(src, dst, weights, min_spread_m=0.02)
+    kept = weights > 0
+    return fit_rigid(src, dst, base_w * kept, min_spread_m=0.02), kept
 
 
 def _trust(

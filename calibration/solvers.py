@@ -30,7 +30,7 @@ import numpy.typing as npt
 from skelfuse.calibration.body_pairing import pairing_thresholds, solve_with_body_pairing
 from skelfuse.calibration.errors import CalibrationError, NotEnoughCorrespondences
 from skelfuse.calibration.floor import fit_floor, floor_from_kinect_plane, level_to_floor
-from skelfuse.calibration.icp import Progress, refine_all, scaled_progress
+from skelfuse.calibration.icp import IcpResult, Progress, refine_all, scaled_progress
 from skelfuse.calibration.rigid import fit_rigid, pose_error
 from skelfuse.calibration.skeleton_pose import SKELETON_ERROR_BOUND
 from skelfuse.protocol.skeleton import JointId
@@ -157,56 +157,87 @@ def solve_skeletons(
         if sensor_id == reference:
             continue
         try:
-            threshold_m, scale_m = pairing_thresholds(types.get(reference), types.get(sensor_id))
-            fit, note = solve_with_body_pairing(
-                ref_samples,
-                samples[sensor_id],
-                ransac_threshold_m=threshold_m,
-                min_scale_m=scale_m,
+            relative[sensor_id] = _paired_with_reference(
+                ref_samples, samples[sensor_id], types.get(reference), types.get(sensor_id)
             )
         except CalibrationError as exc:
             failures.append(f"{sensor_id}: {exc}")
             continue
-        T_ref_from[sensor_id] = fit.T_ref_from_other
-        relative[sensor_id] = SensorResult(
-            fit.T_ref_from_other,
-            "skeleton",
-            fit.residual_mm,
-            [*fit.warnings, *([note] if note else [])],
-            {
-                "trust": fit.trust,
-                "frames_used": fit.frames_used,
-                "joints_used": fit.joints_used,
-                "inlier_ratio": round(fit.inlier_ratio, 3),
-                "spread_m": round(fit.spread_m, 3),
-                "ransac_threshold_m": threshold_m,
-                "min_scale_m": scale_m,
-            },
-        )
+        T_ref_from[sensor_id] = relative[sensor_id].T_world_from_sensor
     if failures:
         raise NotEnoughCorrespondences("skeleton calibration failed for " + "; ".join(failures))
-    pelvis = [b.joints_m[JointId.SPINE_BASE] for bodies in ref_samples for b in bodies]
-    pelvis_array = np.asarray(pelvis, dtype=np.float64).reshape(-1, 3)
-    finite = pelvis_array[np.isfinite(pelvis_array).all(axis=1)]
-    centre = np.median(finite, axis=0) if len(finite) else None
-    warnings: tuple[str, ...] = ()
-    if floor_plane is None:
-        warnings = (
-            "the reference sensor reports no floor plane: the world is its camera frame "
-            "until an icp or auto run levels it",
-        )
-        T_world_from_ref: Matrix4 = np.eye(4)
-        floor: dict[str, Any] = {"source": "none"}
-    else:
-        plane = floor_from_kinect_plane(*floor_plane)
-        T_world_from_ref = level_to_floor(np.eye(4), plane, centre_world=centre)
-        floor = {"source": "kinect_floor_plane", "sensor_height_m": round(plane.d, 4)}
+    T_world_from_ref, floor, warnings = _skeleton_world(ref_samples, floor_plane)
     results = {
         sensor_id: replace(result, T_world_from_sensor=T_world_from_ref @ T_ref_from[sensor_id])
         for sensor_id, result in relative.items()
     }
     results[reference] = SensorResult(T_world_from_ref, "reference", 0.0)
     return Solution(results, floor, warnings)
+
+
+def _paired_with_reference(
+    ref_samples: Sequence[tuple[Body, ...]],
+    other_samples: Sequence[tuple[Body, ...]],
+    ref_type: str | None,
+    other_type: str | None,
+) -> SensorResult:
+    """One sensor's pose in the reference's camera frame (``T_world_from_sensor`` holds
+    ``T_ref_from_other`` until the world is chosen), with the fit's metrics.
+
+    Raises:
+        CalibrationError: the pair cannot be solved (its reason).
+    """
+    threshold_m, scale_m = pairing_thresholds(ref_type, other_type)
+    fit, note = solve_with_body_pairing(
+        ref_samples,
+        other_samples,
+        ransac_threshold_m=threshold_m,
+        min_scale_m=scale_m,
+    )
+    return SensorResult(
+        fit.T_ref_from_other,
+        "skeleton",
+        fit.residual_mm,
+        [*fit.warnings, *([note] if note else [])],
+        {
+            "trust": fit.trust,
+            "frames_used": fit.frames_used,
+            "joints_used": fit.joints_used,
+            "inlier_ratio": round(fit.inlier_ratio, 3),
+            "spread_m": round(fit.spread_m, 3),
+            "ransac_threshold_m": threshold_m,
+            "min_scale_m": scale_m,
+        },
+    )
+
+
+def _skeleton_world(
+    ref_samples: Sequence[tuple[Body, ...]],
+    floor_plane: tuple[float, float, float, float] | None,
+) -> tuple[Matrix4, dict[str, Any], tuple[str, ...]]:
+    """The world from the reference's floor plane and the walk's median pelvis (see
+    :func:`solve_skeletons`): (4, 4) ``T_world_from_ref``, the floor's report, warnings.
+
+    Raises:
+        InvalidInput: a floor plane with a zero normal or NaN.
+    """
+    pelvis = [b.joints_m[JointId.SPINE_BASE] for bodies in ref_samples for b in bodies]
+    pelvis_array = np.asarray(pelvis, dtype=np.float64).reshape(-1, 3)
+    finite = pelvis_array[np.isfinite(pelvis_array).all(axis=1)]
+    centre = np.median(finite, axis=0) if len(finite) else None
+    if floor_plane is None:
+        warning = (
+            "the reference sensor reports no floor plane: the world is its camera frame "
+            "until an icp or auto run levels it"
+        )
+        return np.eye(4), {"source": "none"}, (warning,)
+    plane = floor_from_kinect_plane(*floor_plane)
+    T_world_from_ref = level_to_floor(np.eye(4), plane, centre_world=centre)
+    return (
+        T_world_from_ref,
+        {"source": "kinect_floor_plane", "sensor_height_m": round(plane.d, 4)},
+        (),
+    )
 
 
 def refine_with_depth(
@@ -250,33 +281,45 @@ def refine_with_depth(
         progress(0.9, "fitting the floor in the reference's depth")
     results: dict[str, SensorResult] = {}
     for sensor_id in clouds:
-        before = initial[sensor_id]
         icp = refined.get(sensor_id)
-        if icp is None:  # the reference
-            results[sensor_id] = before
-            continue
-        method = "icp" if icp.applied else before.method
-        moved_deg, moved_mm = pose_error(icp.T_target_from_source, before.T_world_from_sensor)
-        results[sensor_id] = SensorResult(
-            icp.T_target_from_source,
-            f"{before.method}+icp" if icp.applied and before.method != "icp" else method,
-            icp.inlier_rmse_m * 1000.0,
-            [*before.warnings, *icp.warnings],
-            {
-                **before.metrics,
-                "icp_applied": icp.applied,
-                "fitness": round(icp.fitness, 4),
-                "overlap": round(icp.overlap, 4),
-                "initial_fitness": round(icp.initial_fitness, 4),
-                "initial_rmse_mm": round(icp.initial_rmse_m * 1000, 2),
-                "correction_deg": round(moved_deg, 3),
-                "correction_mm": round(moved_mm, 1),
-            },
+        # the reference (no ICP result) keeps its pose
+        results[sensor_id] = (
+            initial[sensor_id] if icp is None else _with_icp(initial[sensor_id], icp)
         )
+    return _levelled_by_floor(results, reference, clouds[reference])
+
+
+def _with_icp(before: SensorResult, icp: IcpResult) -> SensorResult:
+    """A sensor's result after ICP: its pose, method, error and metrics joined to ``before``'s."""
+    method = "icp" if icp.applied else before.method
+    moved_deg, moved_mm = pose_error(icp.T_target_from_source, before.T_world_from_sensor)
+    return SensorResult(
+        icp.T_target_from_source,
+        f"{before.method}+icp" if icp.applied and before.method != "icp" else method,
+        icp.inlier_rmse_m * 1000.0,
+        [*before.warnings, *icp.warnings],
+        {
+            **before.metrics,
+            "icp_applied": icp.applied,
+            "fitness": round(icp.fitness, 4),
+            "overlap": round(icp.overlap, 4),
+            "initial_fitness": round(icp.initial_fitness, 4),
+            "initial_rmse_mm": round(icp.initial_rmse_m * 1000, 2),
+            "correction_deg": round(moved_deg, 3),
+            "correction_mm": round(moved_mm, 1),
+        },
+    )
+
+
+def _levelled_by_floor(
+    results: dict[str, SensorResult], reference: str, reference_cloud: FloatArray
+) -> Solution:
+    """Every pose levelled by the floor fitted in the reference's (N, 3) cloud (its own frame,
+    metres), the world's yaw and origin kept; unlevelled with a warning when there is no floor."""
     T_world_from_ref = results[reference].T_world_from_sensor
     rotation_ref_from_world = T_world_from_ref[:3, :3].T
     try:
-        floor = fit_floor(clouds[reference], up_hint=rotation_ref_from_world[:, 1])
+        floor = fit_floor(reference_cloud, up_hint=rotation_ref_from_world[:, 1])
     except CalibrationError as exc:
         warning = f"no floor found in the reference's depth ({exc}); not levelled"
         return Solution(results, None, (warning,))

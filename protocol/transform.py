@@ -61,8 +61,8 @@ def apply(transform: Matrix4, points: npt.ArrayLike) -> npt.NDArray[np.float64]:
     """Apply ``transform`` to (..., 3) points; NaN stays NaN.
 
     Each output coordinate is ``((x·r₀ + y·r₁) + z·r₂) + t`` with ``r`` its row of the rotation,
-    element-wise: the same floats on every machine, and the ones the fusion step's compiled
-    kernels give (skelfuse.fusion.kernels_lerp); a BLAS product's depend on its kernel (fused
+    element-wise, as the fusion step's compiled interpolation computes it
+    (:mod:`skelfuse.fusion.world_views`); a BLAS product's floats depend on its kernel (fused
     multiply-adds or not, in its order).
     """
     pts = np.asarray(points, dtype=np.float64)

@@ -26,93 +26,106 @@ class SkelfuseCollector(Collector):
         self.broadcaster = broadcaster
 
     def collect(self) -> Iterator[Metric]:
-        now = time.monotonic()
-        hub = self.hub
-        frames = CounterMetricFamily(
-            "skelfuse_sensor_frames", "Frames accepted from each sensor", labels=["sensor"]
-        )
-        rejected = CounterMetricFamily(
-            "skelfuse_sensor_rejected", "Messages rejected, by sensor and reason",
-            labels=["sensor", "reason"],
-        )  # fmt: skip
-        gaps = CounterMetricFamily(
-            "skelfuse_sensor_sequence_gaps", "Frames an agent numbered but never delivered",
-            labels=["sensor"],
-        )  # fmt: skip
-        connected = GaugeMetricFamily(
-            "skelfuse_sensor_connected", "1 while the sensor is online", labels=["sensor"]
-        )
-        fps = GaugeMetricFamily(
-            "skelfuse_sensor_fps", "Frames per second received (last 2 s)", labels=["sensor"]
-        )
-        age = GaugeMetricFamily(
-            "skelfuse_sensor_last_frame_age_seconds", "Time since the last frame",
-            labels=["sensor"],
-        )  # fmt: skip
-        offset = GaugeMetricFamily(
-            "skelfuse_sensor_clock_offset_seconds",
-            "Estimated server clock minus agent clock", labels=["sensor"],
-        )  # fmt: skip
-        for sensor in hub.sensors.values():
-            sid = sensor.sensor_id
-            frames.add_metric([sid], sensor.frames_received)
-            gaps.add_metric([sid], sensor.sequence_gaps)
-            for reason, count in sensor.frames_rejected.items():
-                rejected.add_metric([sid, reason], count)
-            connected.add_metric([sid], 1.0 if sensor.connected else 0.0)
-            fps.add_metric([sid], sensor.fps(now) if sensor.connected else 0.0)
-            if sensor.last_frame_mono is not None:
-                age.add_metric([sid], now - sensor.last_frame_mono)
-            if sensor.clock_offset_s is not None:
-                offset.add_metric([sid], sensor.clock_offset_s)
-        for reason, count in hub.rejected_unregistered.items():
-            rejected.add_metric(["", reason], count)
-        yield from (frames, rejected, gaps, connected, fps, age, offset)
-        if hub.drift is not None:
-            yield from _drift_metrics(hub)
-
-        fused = CounterMetricFamily("skelfuse_fused_frames", "Fused frames produced")
-        fused.add_metric([], hub.latest.seq if hub.latest else 0)
-        persons = GaugeMetricFamily("skelfuse_persons", "People in the latest fused frame")
-        persons.add_metric([], len(hub.latest.persons) if hub.latest else 0)
-        yield fused
-        yield persons
-        if hub.fusion_timing.count:
-            compute = GaugeMetricFamily(
-                "skelfuse_fusion_compute_seconds",
-                "Fusion step compute time (median and max over the last 300 steps)",
-                labels=["stat"],
-            )
-            compute.add_metric(["median"], hub.fusion_timing.median())
-            compute.add_metric(["max"], hub.fusion_timing.maximum())
-            yield compute
-            lag = GaugeMetricFamily(
-                "skelfuse_fusion_lag_seconds",
-                "Server time at fusion minus the fused instant (median over the last 300)",
-            )
-            lag.add_metric([], hub.fusion_lag.median())
-            yield lag
-
-        sent = CounterMetricFamily(
-            "skelfuse_ws_client_sent", "Frames sent to each WebSocket client", labels=["client"]
-        )
-        conflated = CounterMetricFamily(
-            "skelfuse_ws_client_conflated",
-            "Frames a WebSocket client did not take before a newer one replaced them",
-            labels=["client"],
-        )
-        for client in self.broadcaster.clients.values():
-            label = str(client.client_id)
-            sent.add_metric([label], client.sent)
-            conflated.add_metric([label], client.conflated)
-        evicted = CounterMetricFamily(
-            "skelfuse_ws_clients_evicted", "WebSocket clients disconnected for stalling"
-        )
-        evicted.add_metric([], self.broadcaster.evicted)
-        clients = GaugeMetricFamily("skelfuse_ws_clients", "Connected WebSocket clients")
-        clients.add_metric([], len(self.broadcaster.clients))
-        yield from (sent, conflated, evicted, clients)
+        yield from _sensor_metrics(self.hub, time.monotonic())
+        if self.hub.drift is not None:
+            yield from _drift_metrics(self.hub)
+        yield from _fusion_metrics(self.hub)
+        yield from _feed_metrics(self.broadcaster)
         yield blas_threads()
+
+
+def _sensor_metrics(hub: FusionHub, now: float) -> Iterator[Metric]:
+    """Per sensor: frames accepted and rejected (by reason), sequence gaps, online, frame rate,
+    last frame's age and clock offset; rejections from unregistered senders under ``""``.
+    ``now`` is the server's monotonic clock, seconds."""
+    frames = CounterMetricFamily(
+        "skelfuse_sensor_frames", "Frames accepted from each sensor", labels=["sensor"]
+    )
+    rejected = CounterMetricFamily(
+        "skelfuse_sensor_rejected", "Messages rejected, by sensor and reason",
+        labels=["sensor", "reason"],
+    )  # fmt: skip
+    gaps = CounterMetricFamily(
+        "skelfuse_sensor_sequence_gaps", "Frames an agent numbered but never delivered",
+        labels=["sensor"],
+    )  # fmt: skip
+    connected = GaugeMetricFamily(
+        "skelfuse_sensor_connected", "1 while the sensor is online", labels=["sensor"]
+    )
+    fps = GaugeMetricFamily(
+        "skelfuse_sensor_fps", "Frames per second received (last 2 s)", labels=["sensor"]
+    )
+    age = GaugeMetricFamily(
+        "skelfuse_sensor_last_frame_age_seconds", "Time since the last frame",
+        labels=["sensor"],
+    )  # fmt: skip
+    offset = GaugeMetricFamily(
+        "skelfuse_sensor_clock_offset_seconds",
+        "Estimated server clock minus agent clock", labels=["sensor"],
+    )  # fmt: skip
+    for sensor in hub.sensors.values():
+        sid = sensor.sensor_id
+        frames.add_metric([sid], sensor.frames_received)
+        gaps.add_metric([sid], sensor.sequence_gaps)
+        for reason, count in sensor.frames_rejected.items():
+            rejected.add_metric([sid, reason], count)
+        connected.add_metric([sid], 1.0 if sensor.connected else 0.0)
+        fps.add_metric([sid], sensor.fps(now) if sensor.connected else 0.0)
+        if sensor.last_frame_mono is not None:
+            age.add_metric([sid], now - sensor.last_frame_mono)
+        if sensor.clock_offset_s is not None:
+            offset.add_metric([sid], sensor.clock_offset_s)
+    for reason, count in hub.rejected_unregistered.items():
+        rejected.add_metric(["", reason], count)
+    yield from (frames, rejected, gaps, connected, fps, age, offset)
+
+
+def _fusion_metrics(hub: FusionHub) -> Iterator[Metric]:
+    """Fused frames and people in the latest; once fusion has run, its compute time and lag."""
+    fused = CounterMetricFamily("skelfuse_fused_frames", "Fused frames produced")
+    fused.add_metric([], hub.latest.seq if hub.latest else 0)
+    persons = GaugeMetricFamily("skelfuse_persons", "People in the latest fused frame")
+    persons.add_metric([], len(hub.latest.persons) if hub.latest else 0)
+    yield fused
+    yield persons
+    if hub.fusion_timing.count:
+        compute = GaugeMetricFamily(
+            "skelfuse_fusion_compute_seconds",
+            "Fusion step compute time (median and max over the last 300 steps)",
+            labels=["stat"],
+        )
+        compute.add_metric(["median"], hub.fusion_timing.median())
+        compute.add_metric(["max"], hub.fusion_timing.maximum())
+        yield compute
+        lag = GaugeMetricFamily(
+            "skelfuse_fusion_lag_seconds",
+            "Server time at fusion minus the fused instant (median over the last 300)",
+        )
+        lag.add_metric([], hub.fusion_lag.median())
+        yield lag
+
+
+def _feed_metrics(broadcaster: Broadcaster) -> Iterator[Metric]:
+    """Per WebSocket client: frames sent and conflated; clients evicted and connected."""
+    sent = CounterMetricFamily(
+        "skelfuse_ws_client_sent", "Frames sent to each WebSocket client", labels=["client"]
+    )
+    conflated = CounterMetricFamily(
+        "skelfuse_ws_client_conflated",
+        "Frames a WebSocket client did not take before a newer one replaced them",
+        labels=["client"],
+    )
+    for client in broadcaster.clients.values():
+        label = str(client.client_id)
+        sent.add_metric([label], client.sent)
+        conflated.add_metric([label], client.conflated)
+    evicted = CounterMetricFamily(
+        "skelfuse_ws_clients_evicted", "WebSocket clients disconnected for stalling"
+    )
+    evicted.add_metric([], broadcaster.evicted)
+    clients = GaugeMetricFamily("skelfuse_ws_clients", "Connected WebSocket clients")
+    clients.add_metric([], len(broadcaster.clients))
+    yield from (sent, conflated, evicted, clients)
 
 
 def blas_threads() -> GaugeMetricFamily:

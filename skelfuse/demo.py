@@ -255,128 +255,44 @@ def run_demo(
     if data_dir is None:
         temporary = tempfile.TemporaryDirectory(prefix="skelfuse-demo-")
         data_dir = Path(temporary.name)
-    python = [sys.executable, "-m", "skelfuse", "--log-level", log_level]
-    # The agents' INFO lines are a statistic every 10 s each: they would push the viewer's
-    # address (the last thing the demo prints) off the screen. Their warnings still show.
-    quiet = "DEBUG" if log_level.upper() == "DEBUG" else "WARNING"
-    agent_python = [sys.executable, "-m", "skelfuse", "--log-level", quiet]
-    zmq_bind = (
-        f"tcp://{host}:{zmq_port}" if host not in ("0.0.0.0", "::") else f"tcp://*:{zmq_port}"
-    )
     agent_host = "127.0.0.1" if host in ("0.0.0.0", "::") else host
     # Secure like a real rig: every simulated agent gets its own CurveZMQ key (docs/security.md).
     layout = sensor_layout(sensors)
     token_given = token is not None
     token = token or secrets.token_urlsafe(12)
-    keys = key_paths(data_dir)
-    try:  # a --data folder from an earlier run keeps its keys
-        create_server_keys(data_dir)
-        agent_keys = {sensor_id: create_agent_keys(data_dir, sensor_id).secret
-                      for sensor_id, _ in layout}  # fmt: skip
-    except KeysMissing as exc:
-        logger.error("%s", exc)
+    agent_keys = _agent_secret_keys(data_dir, layout)
+    if agent_keys is None:
         return 2
-    missing = [str(path) for path in agent_keys.values() if not path.exists()]
-    if missing:
-        logger.error("the simulated agents' secret keys are missing: %s", ", ".join(missing))
-        return 2
-    # The children get their own process group: Ctrl-C in a terminal signals the whole
-    # foreground group, and a server signalled twice (by the terminal, then by the demo's own
-    # orderly stop) aborts its shutdown with a traceback. The demo alone stops them.
-    own_group: dict[str, Any] = {"process_group": 0} if os.name == "posix" else {}
-    # A demo killed outright (SIGKILL) runs no cleanup: each child watches this process and
-    # stops itself once it is gone (skelfuse.parent_watch), instead of running on for hours.
-    children_env = child_environment()
-    server = subprocess.Popen(
-        [
-            *python, "server", "--http", f"{host}:{port}", "--zmq", zmq_bind,
-            "--data", str(data_dir), "--curve", *(["--access-log"] if access_log else []),
-        ],
-        # The token goes in the environment: a command line is readable by every local user.
-        env={**children_env, "SKELFUSE_TOKEN": token},
-        **own_group,
-    )  # fmt: skip
+    server = _start_server(log_level, host, port, zmq_port, data_dir, token, access_log)
     processes: list[subprocess.Popen[bytes]] = [server]
     stop = threading.Event()
-
-    def on_signal(signum: int, frame: object) -> None:
-        stop.set()
-
-    # SIGHUP too (the terminal closed): the children, in their own group, would outlive it.
-    stop_signals = [signal.SIGINT, signal.SIGTERM]
-    if hasattr(signal, "SIGHUP"):
-        stop_signals.append(signal.SIGHUP)
-    previous = {s: signal.signal(s, on_signal) for s in stop_signals}
+    previous = _stop_on_signals(stop)
     url = f"http://{agent_host}:{port}"
     try:
         if not _wait_healthy(url, server, stop, timeout_s=_SERVER_START_S):
-            if stop.is_set():
-                return 0
-            if server.poll() is not None:
-                logger.error(
-                    "the server exited with code %s before it was ready (its message is above; "
-                    "a port in use, %d or %d, is a common cause)",
-                    server.returncode,
-                    port,
-                    zmq_port,
-                )
-            else:
-                logger.error("the server did not answer on %s within %.0f s", url, _SERVER_START_S)
-            return 1
+            return 0 if stop.is_set() else _server_failed(server, url, port, zmq_port)
+        server_endpoint = f"tcp://{agent_host}:{zmq_port}"
+        no_pose_hint = calibration == "auto"
         for sensor_id, pose in layout:
-            processes.append(
-                subprocess.Popen(
-                    [
-                        *agent_python,
-                        "agent",
-                        "--source",
-                        "sim",
-                        "--id",
-                        sensor_id,
-                        f"--pose={pose}",
-                        "--persons",
-                        str(persons),
-                        "--server",
-                        f"tcp://{agent_host}:{zmq_port}",
-                        *(["--no-pose-hint"] if calibration == "auto" else []),
-                        f"--key={agent_keys[sensor_id]}",
-                        f"--server-key={keys.server_public}",
-                    ],
-                    env=children_env,
-                    **own_group,
-                )
-            )
+            agent = _agent_command(
+                log_level, sensor_id, pose, persons, server_endpoint, no_pose_hint,
+                agent_keys[sensor_id], key_paths(data_dir).server_public,
+            )  # fmt: skip
+            processes.append(subprocess.Popen(agent, env=child_environment(), **_own_group()))
         logger.info("demo running: %d simulated sensors, %d people", sensors, persons)
         where = _token_location(token, chosen=token_given, data_dir=data_dir)
         _announce_viewer(url, where)
         deadline = None if duration_s is None else time.monotonic() + duration_s
-        kept = None if recalibrate else _kept_calibration(url, [s for s, _ in layout])
-        if kept is not None:
-            logger.info("using calibration v%d kept in %s (--recalibrate to calibrate again)",
-                        kept, data_dir)  # fmt: skip
-        elif calibration == "auto" and not calibrate(url, sensors, stop, token):
-            if stop.is_set():
-                return 0
-            logger.error("automatic calibration failed; try --calibration truth")
-            return 1
+        failed = _calibration_failed(url, layout, stop, token, calibration, recalibrate, data_dir)
+        if failed is not None:
+            return failed
         wait_s = 60.0 if deadline is None else min(60.0, max(0.0, deadline - time.monotonic()))
         if not _wait_fusing(url, sensors, stop, timeout_s=wait_s) and not stop.is_set():
             logger.warning("no fused people after %.0f s; the viewer may stay empty", wait_s)
         if not stop.is_set():
             terminal = sys.stderr.isatty()  # a person is watching: the address, to click
             print(viewer_box(url, token, where, terminal=terminal), file=sys.stderr, flush=True)
-        while not stop.is_set():
-            if deadline is not None and time.monotonic() >= deadline:
-                break
-            dead = [p for p in processes if p.poll() is not None]
-            if dead:
-                logger.error(
-                    "a demo process exited unexpectedly (%s); stopping",
-                    dead[0].args,
-                )
-                return 1
-            stop.wait(0.5)
-        return 0
+        return _watch(processes, stop, deadline)
     finally:
         # Agents first (they say bye), then the server.
         _terminate(processes[1:])
@@ -386,3 +302,150 @@ def run_demo(
         if temporary is not None:
             temporary.cleanup()
         logger.info("demo stopped")
+
+
+def _calibration_failed(
+    url: str,
+    layout: list[tuple[str, str]],
+    stop: threading.Event,
+    token: str,
+    calibration: str,
+    recalibrate: bool,
+    data_dir: Path,
+) -> int | None:
+    """Keep the server's stored calibration if it covers every sensor (unless ``recalibrate``),
+    else calibrate when ``calibration`` is ``auto``. None when the demo goes on, else its exit
+    status (0 when stopped meanwhile, 1 when the calibration failed)."""
+    kept = None if recalibrate else _kept_calibration(url, [s for s, _ in layout])
+    if kept is not None:
+        logger.info("using calibration v%d kept in %s (--recalibrate to calibrate again)",
+                    kept, data_dir)  # fmt: skip
+    elif calibration == "auto" and not calibrate(url, len(layout), stop, token):
+        if stop.is_set():
+            return 0
+        logger.error("automatic calibration failed; try --calibration truth")
+        return 1
+    return None
+
+
+def _own_group() -> dict[str, Any]:
+    """``Popen`` options that put a child in its own process group (on POSIX)."""
+    # The children get their own process group: Ctrl-C in a terminal signals the whole
+    # foreground group, and a server signalled twice (by the terminal, then by the demo's own
+    # orderly stop) aborts its shutdown with a traceback. The demo alone stops them.
+    return {"process_group": 0} if os.name == "posix" else {}
+
+
+def _start_server(
+    log_level: str,
+    host: str,
+    port: int,
+    zmq_port: int,
+    data_dir: Path,
+    token: str,
+    access_log: bool,
+) -> subprocess.Popen[bytes]:
+    """``skelfuse server`` in a child process, with CurveZMQ and ``token``, on ``host``."""
+    python = [sys.executable, "-m", "skelfuse", "--log-level", log_level]
+    zmq_bind = (
+        f"tcp://{host}:{zmq_port}" if host not in ("0.0.0.0", "::") else f"tcp://*:{zmq_port}"
+    )
+    # A demo killed outright (SIGKILL) runs no cleanup: each child watches this process and
+    # stops itself once it is gone (skelfuse.parent_watch), instead of running on for hours.
+    return subprocess.Popen(
+        [
+            *python, "server", "--http", f"{host}:{port}", "--zmq", zmq_bind,
+            "--data", str(data_dir), "--curve", *(["--access-log"] if access_log else []),
+        ],
+        # The token goes in the environment: a command line is readable by every local user.
+        env={**child_environment(), "SKELFUSE_TOKEN": token},
+        **_own_group(),
+    )  # fmt: skip
+
+
+def _agent_command(
+    log_level: str,
+    sensor_id: str,
+    pose: str,
+    persons: int,
+    server: str,
+    no_pose_hint: bool,
+    key: Path,
+    server_key: Path,
+) -> list[str]:
+    """A simulated agent's command line: ``sensor_id`` at ``pose`` (x,y,z,yaw,pitch), connecting
+    to the ``server`` endpoint with its secret ``key`` and the server's public key."""
+    # The agents' INFO lines are a statistic every 10 s each: they would push the viewer's
+    # address (the last thing the demo prints) off the screen. Their warnings still show.
+    quiet = "DEBUG" if log_level.upper() == "DEBUG" else "WARNING"
+    return [
+        sys.executable, "-m", "skelfuse", "--log-level", quiet,
+        "agent", "--source", "sim", "--id", sensor_id, f"--pose={pose}",
+        "--persons", str(persons), "--server", server,
+        *(["--no-pose-hint"] if no_pose_hint else []),
+        f"--key={key}", f"--server-key={server_key}",
+    ]  # fmt: skip
+
+
+def _agent_secret_keys(data_dir: Path, layout: list[tuple[str, str]]) -> dict[str, Path] | None:
+    """The server's keys and each simulated agent's secret key file in ``data_dir``, made if
+    missing; None (the reason logged) when they cannot be had."""
+    try:  # a --data folder from an earlier run keeps its keys
+        create_server_keys(data_dir)
+        agent_keys = {sensor_id: create_agent_keys(data_dir, sensor_id).secret
+                      for sensor_id, _ in layout}  # fmt: skip
+    except KeysMissing as exc:
+        logger.error("%s", exc)
+        return None
+    missing = [str(path) for path in agent_keys.values() if not path.exists()]
+    if missing:
+        logger.error("the simulated agents' secret keys are missing: %s", ", ".join(missing))
+        return None
+    return agent_keys
+
+
+def _stop_on_signals(stop: threading.Event) -> dict[int, Any]:
+    """Set ``stop`` on SIGINT, SIGTERM and SIGHUP; returns the handlers replaced (to restore)."""
+
+    def on_signal(signum: int, frame: object) -> None:
+        stop.set()
+
+    # SIGHUP too (the terminal closed): the children, in their own group, would outlive it.
+    stop_signals = [signal.SIGINT, signal.SIGTERM]
+    if hasattr(signal, "SIGHUP"):
+        stop_signals.append(signal.SIGHUP)
+    return {s: signal.signal(s, on_signal) for s in stop_signals}
+
+
+def _server_failed(server: subprocess.Popen[bytes], url: str, port: int, zmq_port: int) -> int:
+    """Say why the server is not ready (it exited, or did not answer); the exit status, 1."""
+    if server.poll() is not None:
+        logger.error(
+            "the server exited with code %s before it was ready (its message is above; "
+            "a port in use, %d or %d, is a common cause)",
+            server.returncode,
+            port,
+            zmq_port,
+        )
+    else:
+        logger.error("the server did not answer on %s within %.0f s", url, _SERVER_START_S)
+    return 1
+
+
+def _watch(
+    processes: list[subprocess.Popen[bytes]], stop: threading.Event, deadline: float | None
+) -> int:
+    """Run until ``stop``, the ``deadline`` (monotonic seconds) or a process's exit; the exit
+    status: 1 when a process exited, else 0."""
+    while not stop.is_set():
+        if deadline is not None and time.monotonic() >= deadline:
+            break
+        dead = [p for p in processes if p.poll() is not None]
+        if dead:
+            logger.error(
+                "a demo process exited unexpectedly (%s); stopping",
+                dead[0].args,
+            )
+            return 1
+        stop.wait(0.5)
+    return 0

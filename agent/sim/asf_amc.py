@@ -109,28 +109,9 @@ def _parse_asf(path: Path) -> _Asf:
             continue
         args = tokens[1:]
         if section == ":units":
-            if key == "length":
-                scale = _float(args[0] if args else "", where)
-                if scale <= 0:
-                    raise MocapFormatError(f"{where}: length unit must be > 0")
-                asf.length_m_per_unit = _INCH_M / scale
-            elif key == "angle":
-                unit = args[0].lower() if args else ""
-                if unit not in ("deg", "rad"):
-                    raise MocapFormatError(f"{where}: angle unit must be deg or rad, got {unit!r}")
-                asf.angles_in_degrees = unit == "deg"
+            _units_line(asf, key, args, where)
         elif section == ":root":
-            if key == "order":
-                order = tuple(a.lower() for a in args)
-                if not set(order) <= _ROOT_CHANNELS or len(set(order)) != len(order):
-                    raise MocapFormatError(f"{where}: unsupported root order {' '.join(args)!r}")
-                asf.root_order = order
-            elif key == "axis":
-                asf.root_axis = _axis_order(args[0] if args else "", where)
-            elif key == "position":
-                asf.root_position = _three(args, where)
-            elif key == "orientation":
-                asf.root_orientation = _three(args, where)
+            _root_line(asf, key, args, where)
         elif section == ":bonedata":
             if key == "begin":
                 bone = _AsfBone(name="", line=lineno)
@@ -144,25 +125,8 @@ def _parse_asf(path: Path) -> _Asf:
                 bone = None
             elif bone is None:
                 raise MocapFormatError(f"{where}: {tokens[0]!r} outside a begin/end bone block")
-            elif key == "name":
-                bone.name = args[0] if args else ""
-            elif key == "direction":
-                bone.direction = np.array(_three(args, where))
-            elif key == "length":
-                bone.length = _float(args[0] if args else "", where)
-            elif key == "axis":
-                bone.axis = _three(args, where)
-                bone.axis_order = _axis_order(args[3] if len(args) > 3 else "XYZ", where)
-            elif key == "dof":
-                dof = tuple(a.lower() for a in args)
-                bad = [d for d in dof if d not in ("rx", "ry", "rz")]
-                if bad or len(set(dof)) != len(dof):
-                    raise MocapFormatError(
-                        f"{where}: unsupported dof {' '.join(args)!r} "
-                        "(only rotations rx ry rz, each at most once)"
-                    )
-                bone.dof = dof
-            # id, limits and their continuation lines, bodymass, cofmass: not needed
+            else:
+                _bone_line(bone, key, args, where)
         elif section == ":hierarchy":
             if key == "begin":
                 in_hierarchy_block = True
@@ -180,6 +144,65 @@ def _parse_asf(path: Path) -> _Asf:
         raise MocapFormatError(f"{path}: bone {bone.name!r} has no 'end'")
     if not seen_bonedata or not seen_hierarchy:
         raise MocapFormatError(f"{path}: missing :bonedata or :hierarchy; not an ASF file?")
+    _check_hierarchy(path, asf)
+    return asf
+
+
+def _units_line(asf: _Asf, key: str, args: list[str], where: str) -> None:
+    """A line of ``:units``: the length unit (``asf.length_m_per_unit``) or the angle unit."""
+    if key == "length":
+        scale = _float(args[0] if args else "", where)
+        if scale <= 0:
+            raise MocapFormatError(f"{where}: length unit must be > 0")
+        asf.length_m_per_unit = _INCH_M / scale
+    elif key == "angle":
+        unit = args[0].lower() if args else ""
+        if unit not in ("deg", "rad"):
+            raise MocapFormatError(f"{where}: angle unit must be deg or rad, got {unit!r}")
+        asf.angles_in_degrees = unit == "deg"
+
+
+def _root_line(asf: _Asf, key: str, args: list[str], where: str) -> None:
+    """A line of ``:root``: its channel order, axis order, position or orientation."""
+    if key == "order":
+        order = tuple(a.lower() for a in args)
+        if not set(order) <= _ROOT_CHANNELS or len(set(order)) != len(order):
+            raise MocapFormatError(f"{where}: unsupported root order {' '.join(args)!r}")
+        asf.root_order = order
+    elif key == "axis":
+        asf.root_axis = _axis_order(args[0] if args else "", where)
+    elif key == "position":
+        asf.root_position = _three(args, where)
+    elif key == "orientation":
+        asf.root_orientation = _three(args, where)
+
+
+def _bone_line(bone: _AsfBone, key: str, args: list[str], where: str) -> None:
+    """A line inside a ``:bonedata`` begin/end block: the bone's name, direction, length,
+    axis or rotation channels (``dof``)."""
+    if key == "name":
+        bone.name = args[0] if args else ""
+    elif key == "direction":
+        bone.direction = np.array(_three(args, where))
+    elif key == "length":
+        bone.length = _float(args[0] if args else "", where)
+    elif key == "axis":
+        bone.axis = _three(args, where)
+        bone.axis_order = _axis_order(args[3] if len(args) > 3 else "XYZ", where)
+    elif key == "dof":
+        dof = tuple(a.lower() for a in args)
+        bad = [d for d in dof if d not in ("rx", "ry", "rz")]
+        if bad or len(set(dof)) != len(dof):
+            raise MocapFormatError(
+                f"{where}: unsupported dof {' '.join(args)!r} "
+                "(only rotations rx ry rz, each at most once)"
+            )
+        bone.dof = dof
+    # id, limits and their continuation lines, bodymass, cofmass: not needed
+
+
+def _check_hierarchy(path: Path, asf: _Asf) -> None:
+    """Every bone has one parent and hangs from the root."""
     parented = [c for kids in asf.children.values() for c in kids]
     duplicates = sorted({c for c in parented if parented.count(c) > 1})
     if duplicates:
@@ -188,7 +211,6 @@ def _parse_asf(path: Path) -> _Asf:
     missing = sorted(set(asf.bones) - set(reachable))
     if missing:
         raise MocapFormatError(f"{path}: bones not connected to root in :hierarchy: {missing}")
-    return asf
 
 
 def _check_bone(path: Path, bone: _AsfBone) -> None:

@@ -144,6 +144,21 @@ def pose_joints(
     out[J.SPINE_SHOULDER] = up(s(0.48))
     out[J.NECK] = up(s(0.56))
     out[J.HEAD] = up(s(0.70))
+    _place_arms(out, shape, pose, lean)
+
+    world: npt.NDArray[np.float64] = out @ _rot_y(heading).T
+    world[:, 0] += position_xz[0]
+    world[:, 1] += pelvis_y
+    world[:, 2] += position_xz[1]
+    return world
+
+
+def _place_arms(
+    out: npt.NDArray[np.float64], shape: BodyShape, pose: Pose, lean: npt.NDArray[np.float64]
+) -> None:
+    """Set both arms' joints in ``out`` ((25, 3) body-local, metres) from the shoulders, which
+    hang off the spine shoulder already in ``out``, turned by the trunk's ``lean`` (3, 3)."""
+    s = shape.scaled
     upper_arm, forearm, hand, hand_tip = s(0.28), s(0.25), s(0.08), s(0.08)
     for side, sign in (("l", 1.0), ("r", -1.0)):
         flex = pose.shoulder_flex_l if side == "l" else pose.shoulder_flex_r
@@ -165,12 +180,6 @@ def pose_joints(
             ids = (J.SHOULDER_RIGHT, J.ELBOW_RIGHT, J.WRIST_RIGHT, J.HAND_RIGHT)
             out[J.HAND_TIP_RIGHT], out[J.THUMB_RIGHT] = tip, thumb
         out[ids[0]], out[ids[1]], out[ids[2]], out[ids[3]] = shoulder, elbow, wrist, hand_j
-
-    world: npt.NDArray[np.float64] = out @ _rot_y(heading).T
-    world[:, 0] += position_xz[0]
-    world[:, 1] += pelvis_y
-    world[:, 2] += position_xz[1]
-    return world
 
 
 def standing_pose(height_m: float = 1.75) -> npt.NDArray[np.float64]:

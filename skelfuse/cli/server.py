@@ -18,6 +18,13 @@ if TYPE_CHECKING:
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add ``server`` and its options to the command line."""
     server = sub.add_parser("server", help="run the fusion server")
+    _add_server_options(server)
+    _add_output_options(server.add_argument_group("outputs (docs/outputs.md)"))
+    server.set_defaults(func=run)
+
+
+def _add_server_options(server: argparse.ArgumentParser) -> None:
+    """The server's own options: where it listens, its data, its security, its logging."""
     server.add_argument(
         "--http",
         default=f"127.0.0.1:{DEFAULT_HTTP_PORT}",
@@ -68,7 +75,10 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         action="store_true",
         help="log every HTTP request (off by default: the viewer polls, one line each)",
     )
-    outputs = server.add_argument_group("outputs (docs/outputs.md)")
+
+
+def _add_output_options(outputs: argparse._ArgumentGroup) -> None:
+    """Where fused frames go besides the WebSocket feed: OSC, VMC, LSL, NATS, a TOML file."""
     outputs.add_argument(
         "--osc", action="append", default=None, metavar="HOST:PORT",
         help="send fused frames as OSC bundles over UDP to HOST:PORT (repeatable)",
@@ -99,7 +109,6 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "--outputs-config", default=None, metavar="FILE",
         help="TOML file with [[outputs]] tables (kind = osc|vmc|lsl|nats, host, port, ...)",
     )  # fmt: skip
-    server.set_defaults(func=run)
 
 
 def output_specs(args: argparse.Namespace) -> tuple[Any, ...]:
