@@ -13,8 +13,8 @@ Methods (``FusionSettings`` variants, one run):
   hindsight by MPJPE: an oracle no live system has;
 - plain mean: Inferred and Tracked joints weigh the same;
 - tracking-state weights: report A's baseline (NotTracked 0, Inferred 0.3, Tracked 0.7);
-- + bone length (online reference lengths, chain propagation), + range of motion, + facing and
-  distance, + mirrored-view correction: each adds one term to the previous row;
+- + bone length (online reference lengths, chain propagation), + range of motion, + facing,
+  + mirrored-view correction: each adds one term to the previous row;
 - full: + the damped-acceleration Kalman filter (``kalman_ca``) and reference bone lengths on
   the output (the default settings); the same with One Euro (the default before) and with the
   constant-velocity Kalman filter.
@@ -33,8 +33,8 @@ by the Hungarian algorithm on trunk distance, gated at 1 m):
 Run: ``python bench/accuracy.py`` (``--runs N`` seeds per scenario, ``--quick`` for a short
 subset, ``--json FILE`` raw results, ``--paper`` report A's own experiment only,
 ``--latency`` the filters' added latency only, ``--birth`` the birth-labelling scenarios only,
-``--no-mirror-redecide`` with ``FusionSettings.mirror_redecide`` off, as before,
-``--no-mirror-turns`` with ``mirror_unbiased_facing`` off and ``mirror_redecide_views = 1``,
+``--no-mirror-redecide`` with ``FusionSettings.mirror.redecide`` off, as before,
+``--no-mirror-turns`` with ``mirror.unbiased_facing`` off and ``mirror.redecide_views = 1``,
 as before they became the defaults; ``--alignment`` the alignment policies side by side only:
 MPJPE against ``aligned`` and the alignment wait (aligned, phased, deadline 5/10/20 ms),
 ``--jitter-ms`` adding delivery jitter).
@@ -155,12 +155,17 @@ def _methods(args: argparse.Namespace) -> dict[str, FusionSettings]:
     """The methods compared, with the command line's variants applied to each."""
     methods = METHODS
     if args.no_mirror_redecide:
-        methods = {label: replace(m, mirror_redecide=False) for label, m in METHODS.items()}
+        methods = {
+            label: replace(m, mirror=replace(m.mirror, redecide=False))
+            for label, m in METHODS.items()
+        }
     if args.view_reliability:
         methods = with_reliability(methods)
     if args.no_mirror_turns:
-        methods = {label: replace(m, mirror_unbiased_facing=False, mirror_redecide_views=1)
-                   for label, m in methods.items()}  # fmt: skip
+        methods = {
+            label: replace(m, mirror=replace(m.mirror, unbiased_facing=False, redecide_views=1))
+            for label, m in methods.items()
+        }
     return methods
 
 

@@ -37,49 +37,65 @@ from skelfuse.server.hub import FusionHub
 from skelfuse.server.settings import FusionSettings
 
 DEFAULT = FusionSettings()
-OWN = replace(DEFAULT, alignment="deadline", alignment_predictor="own")
-TRACK = replace(DEFAULT, alignment="deadline", alignment_predictor="track")
-HORIZON = replace(TRACK, alignment_grid="horizon", alignment_skip_expected_late=True)
-VIEWS = replace(HORIZON, alignment_predictor="views")
+OWN = replace(DEFAULT, alignment=replace(DEFAULT.alignment, policy="deadline", predictor="own"))
+TRACK = replace(DEFAULT, alignment=replace(DEFAULT.alignment, policy="deadline", predictor="track"))
+HORIZON = replace(
+    TRACK, alignment=replace(TRACK.alignment, grid="horizon", skip_expected_late=True)
+)
+VIEWS = replace(HORIZON, alignment=replace(HORIZON.alignment, predictor="views"))
 ALL_POLICIES: dict[str, FusionSettings] = {
-    "aligned": replace(DEFAULT, alignment="aligned"),
-    "phased": replace(DEFAULT, alignment="phased"),
+    "aligned": replace(DEFAULT, alignment=replace(DEFAULT.alignment, policy="aligned")),
+    "phased": replace(DEFAULT, alignment=replace(DEFAULT.alignment, policy="phased")),
     # The first version: late sensors linear from their own two newest frames.
-    "own 5 ms": replace(OWN, alignment_deadline_s=0.005),
-    "own 10 ms": replace(OWN, alignment_deadline_s=0.010),
-    "own 20 ms": replace(OWN, alignment_deadline_s=0.020),
+    "own 5 ms": replace(OWN, alignment=replace(OWN.alignment, deadline_s=0.005)),
+    "own 10 ms": replace(OWN, alignment=replace(OWN.alignment, deadline_s=0.010)),
+    "own 20 ms": replace(OWN, alignment=replace(OWN.alignment, deadline_s=0.020)),
     # Late sensors carried by their person's filtered motion (velocity and acceleration).
-    "track 5 ms": replace(TRACK, alignment_deadline_s=0.005),
-    "track 10 ms": replace(TRACK, alignment_deadline_s=0.010),
-    "track 20 ms": replace(TRACK, alignment_deadline_s=0.020),
-    "track v 10 ms": replace(TRACK, alignment_predict_acceleration=False),
+    "track 5 ms": replace(TRACK, alignment=replace(TRACK.alignment, deadline_s=0.005)),
+    "track 10 ms": replace(TRACK, alignment=replace(TRACK.alignment, deadline_s=0.010)),
+    "track 20 ms": replace(TRACK, alignment=replace(TRACK.alignment, deadline_s=0.020)),
+    "track v 10 ms": replace(TRACK, alignment=replace(TRACK.alignment, predict_acceleration=False)),
     # ... with the grid put for the shortest extrapolation, expected-late sensors not waited for.
-    "horizon 5 ms": replace(HORIZON, alignment_deadline_s=0.005),
-    "horizon 10 ms": replace(HORIZON, alignment_deadline_s=0.010),
-    "horizon 15 ms": replace(HORIZON, alignment_deadline_s=0.015),
-    "horizon 20 ms": replace(HORIZON, alignment_deadline_s=0.020),
-    "horizon no skip 10 ms": replace(HORIZON, alignment_skip_expected_late=False),
-    "horizon own 10 ms": replace(HORIZON, alignment_predictor="own"),
-    "horizon own 15 ms": replace(HORIZON, alignment_predictor="own", alignment_deadline_s=0.015),
-    "horizon own 20 ms": replace(HORIZON, alignment_predictor="own", alignment_deadline_s=0.020),
+    "horizon 5 ms": replace(HORIZON, alignment=replace(HORIZON.alignment, deadline_s=0.005)),
+    "horizon 10 ms": replace(HORIZON, alignment=replace(HORIZON.alignment, deadline_s=0.010)),
+    "horizon 15 ms": replace(HORIZON, alignment=replace(HORIZON.alignment, deadline_s=0.015)),
+    "horizon 20 ms": replace(HORIZON, alignment=replace(HORIZON.alignment, deadline_s=0.020)),
+    "horizon no skip 10 ms": replace(
+        HORIZON, alignment=replace(HORIZON.alignment, skip_expected_late=False)
+    ),
+    "horizon own 10 ms": replace(HORIZON, alignment=replace(HORIZON.alignment, predictor="own")),
+    "horizon own 15 ms": replace(
+        HORIZON, alignment=replace(HORIZON.alignment, predictor="own", deadline_s=0.015)
+    ),
+    "horizon own 20 ms": replace(
+        HORIZON, alignment=replace(HORIZON.alignment, predictor="own", deadline_s=0.020)
+    ),
     # ... late sensors carried by what their person's on-time views saw meanwhile (horizon grid).
-    "views 2 ms": replace(VIEWS, alignment_deadline_s=0.002),
-    "views 3 ms": replace(VIEWS, alignment_deadline_s=0.003),
-    "views 5 ms": replace(VIEWS, alignment_deadline_s=0.005),
-    "views 6 ms": replace(VIEWS, alignment_deadline_s=0.006),
-    "views 7 ms": replace(VIEWS, alignment_deadline_s=0.007),
-    "views 8 ms": replace(VIEWS, alignment_deadline_s=0.008),
-    "views 10 ms": replace(VIEWS, alignment_deadline_s=0.010),
-    "views 12 ms": replace(VIEWS, alignment_deadline_s=0.012),
-    "views 15 ms": replace(VIEWS, alignment_deadline_s=0.015),
-    "views no skip 10 ms": replace(VIEWS, alignment_skip_expected_late=False),
+    "views 2 ms": replace(VIEWS, alignment=replace(VIEWS.alignment, deadline_s=0.002)),
+    "views 3 ms": replace(VIEWS, alignment=replace(VIEWS.alignment, deadline_s=0.003)),
+    "views 5 ms": replace(VIEWS, alignment=replace(VIEWS.alignment, deadline_s=0.005)),
+    "views 6 ms": replace(VIEWS, alignment=replace(VIEWS.alignment, deadline_s=0.006)),
+    "views 7 ms": replace(VIEWS, alignment=replace(VIEWS.alignment, deadline_s=0.007)),
+    "views 8 ms": replace(VIEWS, alignment=replace(VIEWS.alignment, deadline_s=0.008)),
+    "views 10 ms": replace(VIEWS, alignment=replace(VIEWS.alignment, deadline_s=0.010)),
+    "views 12 ms": replace(VIEWS, alignment=replace(VIEWS.alignment, deadline_s=0.012)),
+    "views 15 ms": replace(VIEWS, alignment=replace(VIEWS.alignment, deadline_s=0.015)),
+    "views no skip 10 ms": replace(
+        VIEWS, alignment=replace(VIEWS.alignment, skip_expected_late=False)
+    ),
     # ... without the fall-back to ``phased``'s wait on a jittery link (before 2026-11-24).
-    "views 7 ms no fallback": replace(VIEWS, alignment_jitter_fallback_s=0.0),
-    "views 7 ms fallback 3 ms": replace(VIEWS, alignment_jitter_fallback_s=0.003),
+    "views 7 ms no fallback": replace(
+        VIEWS, alignment=replace(VIEWS.alignment, jitter_fallback_s=0.0)
+    ),
+    "views 7 ms fallback 3 ms": replace(
+        VIEWS, alignment=replace(VIEWS.alignment, jitter_fallback_s=0.003)
+    ),
     # ... without the grace for a sensor expected on time that missed the deadline (before
     # 2026-11-24 20:30), and with a longer one.
-    "views 7 ms no grace": replace(VIEWS, alignment_deadline_grace_s=0.0),
-    "views 7 ms grace 10 ms": replace(VIEWS, alignment_deadline_grace_s=0.010),
+    "views 7 ms no grace": replace(VIEWS, alignment=replace(VIEWS.alignment, deadline_grace_s=0.0)),
+    "views 7 ms grace 10 ms": replace(
+        VIEWS, alignment=replace(VIEWS.alignment, deadline_grace_s=0.010)
+    ),
 }
 """Every policy the bench knows (the extrapolation bound is the default's, 34 ms, for every
 one); ``--policies`` picks some (``aligned`` always runs: the differences are against it)."""

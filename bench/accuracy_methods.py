@@ -5,35 +5,39 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from skelfuse.server.settings import FusionSettings
+from skelfuse.fusion.settings import (
+    BoneSettings,
+    FusionSettings,
+    MirrorSettings,
+    SmoothingSettings,
+    WeightSettings,
+)
 
 # Report A's tracking-state weights and nothing more: the baseline every other row builds on.
 BASE = FusionSettings(
-    use_bone_length=False,
-    use_range_of_motion=False,
-    use_facing=False,
-    use_distance=False,
-    use_mirror_correction=False,
-    correct_view_yaw=False,
-    filter="none",
-    enforce_bone_lengths=False,
+    weights=WeightSettings(bone_length=False, range_of_motion=False, facing=False),
+    mirror=MirrorSettings(enabled=False),
+    smoothing=SmoothingSettings(filter="none"),
+    bones=BoneSettings(enforce=False),
 )
-BONE = replace(BASE, use_bone_length=True)  # the baseline + bone-length weights (report A's own)
-_ROM = replace(BONE, use_range_of_motion=True)
-_MIRROR = replace(_ROM, use_mirror_correction=True)
-_FACING = replace(_MIRROR, use_facing=True)
-_DISTANCE = replace(_FACING, use_distance=True)
+BONE = replace(
+    BASE, weights=replace(BASE.weights, bone_length=True)
+)  # the baseline + bone-length weights (report A's own)
+_ROM = replace(BONE, weights=replace(BONE.weights, range_of_motion=True))
+_MIRROR = replace(_ROM, mirror=replace(_ROM.mirror, enabled=True))
+_FACING = replace(_MIRROR, weights=replace(_MIRROR.weights, facing=True))
 METHODS: dict[str, FusionSettings] = {
-    "plain mean": replace(BASE, state_weights=(0.0, 1.0, 1.0)),
+    "plain mean": replace(BASE, weights=replace(BASE.weights, state_weights=(0.0, 1.0, 1.0))),
     "tracking-state weights (report A baseline)": BASE,
     "+ bone length": BONE,
     "+ range of motion": _ROM,
     "+ mirrored-view correction": _MIRROR,
     "+ facing": _FACING,
-    "+ distance (off by default)": _DISTANCE,
     "full (defaults): + facing, Kalman CA filter, bone-length fit": FusionSettings(),
-    "full, One Euro filter instead (the default before)": FusionSettings(filter="one_euro"),
-    "full, Kalman CV filter instead": FusionSettings(filter="kalman"),
+    "full, One Euro filter instead (the default before)": FusionSettings(
+        smoothing=SmoothingSettings(filter="one_euro")
+    ),
+    "full, Kalman CV filter instead": FusionSettings(smoothing=SmoothingSettings(filter="kalman")),
 }
 BASELINE = "tracking-state weights (report A baseline)"
 FULL = "full (defaults): + facing, Kalman CA filter, bone-length fit"

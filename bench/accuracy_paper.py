@@ -47,7 +47,7 @@ def paper_experiment(seed: int = 0) -> dict[str, dict[str, float]]:
     collected: dict[str, list[FloatArray]] = {label: [] for label in methods}
 
     def set_reference(label: str, hub: FusionHub) -> None:
-        if label in methods and methods[label].use_bone_length:
+        if label in methods and methods[label].weights.bone_length:
             hub.pipeline.set_default_bone_lengths(premeasured)
 
     scenario = Scenario("paper", Segment(ProceduralPerformer(1), 0.0, 6.3), 62 / FPS, 2, "")

@@ -124,7 +124,7 @@ def print_labels(
     for group, names in groups.items():
         runs = [run for name in names for run in results[name]]
         for label, settings in METHODS.items():
-            if not settings.use_mirror_correction:
+            if not settings.mirror.enabled:
                 continue
             rates = [run[label]["wrong_labels"] for run in runs]
             longest = [run[label]["wrong_after_front_s"] for run in runs]

@@ -2,7 +2,7 @@
 
 Simulated Kinect v2 sensors (3 on a 3 m circle, ``bench.accuracy_runner.sensor_poses``) watch
 the built-in routine (walk a circle, turn, arm raises, squats, looped). One production
-:class:`server.hub.FusionHub` with ``drift_detection`` on receives every frame as wire bytes in
+:class:`server.hub.FusionHub` with ``drift.enabled`` on receives every frame as wire bytes in
 simulated time (as ``bench/accuracy_runner.py`` drives it), calibrated with the true poses.
 
 - **bump**: ``--bump-at`` seconds into the take, or whole routine loops later (the same point
@@ -44,12 +44,13 @@ from bench.accuracy_runner import FPS, NETWORK_DELAY_S, T0, sensor_poses
 from skelfuse.agent.sim.kinect_model import KinectV2Params, SimulatedKinect
 from skelfuse.agent.sim.performer import Choreography, ProceduralPerformer
 from skelfuse.fusion.drift import ROTATION_MIN_SPREAD_M
+from skelfuse.fusion.settings import DriftSettings
 from skelfuse.protocol.transform import axis_rotation, invert
 from skelfuse.protocol.wire import Body, Frame, Hello, encode
 from skelfuse.server.hub import FusionHub
 from skelfuse.server.settings import FusionSettings, Settings
 
-SETTINGS = FusionSettings(drift_detection=True)
+SETTINGS = FusionSettings(drift=DriftSettings(enabled=True))
 LOOP_S = Choreography(radius_m=0.9).loop_s
 """The routine's loop (its first person's: ``ProceduralPerformer``), seconds."""
 

@@ -37,6 +37,7 @@ from bench.accuracy_metrics import Log
 from bench.accuracy_runner import T0, SimulatedRig, _new_hub, feed
 from bench.accuracy_scenarios import Scenario, scenarios
 from skelfuse.agent.sim.kinect_model import KinectV2Params
+from skelfuse.fusion.settings import SmoothingSettings
 from skelfuse.protocol.skeleton import JointId
 from skelfuse.server.settings import FusionSettings
 
@@ -53,12 +54,14 @@ SHIFTS_S = np.arange(-0.060, 0.0601, 0.002)
 """Shifts tried (s); the fit is refined between grid points."""
 
 METHODS: dict[str, FusionSettings] = {
-    "none": FusionSettings(filter="none"),
-    "One Euro (the default before)": FusionSettings(filter="one_euro"),
-    "Kalman CV": FusionSettings(filter="kalman"),
-    "Kalman CV + 33 ms prediction": FusionSettings(filter="kalman", kalman_predict_s=1 / 30),
+    "none": FusionSettings(smoothing=SmoothingSettings(filter="none")),
+    "One Euro (the default before)": FusionSettings(smoothing=SmoothingSettings(filter="one_euro")),
+    "Kalman CV": FusionSettings(smoothing=SmoothingSettings(filter="kalman")),
+    "Kalman CV + 33 ms prediction": FusionSettings(
+        smoothing=SmoothingSettings(filter="kalman", kalman_predict_s=1 / 30)
+    ),
     "Kalman CV + 12 ms lead, accel 5 (proposed)": FusionSettings(
-        filter="kalman", kalman_accel_std=5.0, kalman_predict_s=0.012
+        smoothing=SmoothingSettings(filter="kalman", kalman_accel_std=5.0, kalman_predict_s=0.012)
     ),
     "Kalman CA, damped, speed-adaptive, 6 ms lead (default)": FusionSettings(),
 }

@@ -178,7 +178,7 @@ async def run_once(config: RunConfig, seed: int, log_dir: Path) -> RunResult:
             "every sensor online and fusing",
         )  # fmt: skip
         settings = await asyncio.to_thread(http_json, base + "/api/fusion/settings")
-        result.alignment = str(settings["fusion"]["alignment"])
+        result.alignment = str(settings["fusion"]["alignment"]["policy"])
         await asyncio.sleep(config.warmup_s)
         window = await _measure(result, config, base, server.pid, load, agents_log)
         if load.calibration is not None:

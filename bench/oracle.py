@@ -9,8 +9,8 @@ the trunk alone), and picks the one with the least MPJPE. No live system can do 
 the truth. Target: fused MPJPE ≤ 0.9× the oracle's, overall and per joint group.
 
 Run through ``python bench/accuracy.py --oracle`` (with ``--quick``, ``--runs``); the methods
-compared are :data:`ORACLE_METHODS` (the defaults; with ``use_view_reliability`` added; with it in
-place of ``use_facing``).
+compared are :data:`ORACLE_METHODS` (the defaults; with ``weights.view_reliability`` added;
+with it in place of ``weights.facing``).
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from bench.accuracy_metrics import Log
 from bench.accuracy_runner import FPS, T0, SimulatedRig, _new_hub, feed
 from bench.accuracy_scenarios import Scenario
 from skelfuse.agent.sim.kinect_model import KinectV2Params
+from skelfuse.fusion.settings import WeightSettings
 from skelfuse.protocol.skeleton import MIRROR_PERMUTATION, JointId
 from skelfuse.protocol.transform import apply
 from skelfuse.server.settings import FusionSettings
@@ -44,9 +45,9 @@ GROUPS: Final[dict[str, tuple[int, ...]]] = {
 ORACLE = "hindsight oracle (best correct single view per frame)"
 ORACLE_METHODS: Final[dict[str, FusionSettings]] = {
     "full (defaults)": FusionSettings(),
-    "full + view reliability": FusionSettings(use_view_reliability=True),
+    "full + view reliability": FusionSettings(weights=WeightSettings(view_reliability=True)),
     "full, view reliability in place of facing": FusionSettings(
-        use_view_reliability=True, use_facing=False
+        weights=WeightSettings(view_reliability=True, facing=False)
     ),
 }
 
@@ -150,9 +151,9 @@ def print_oracle(results: dict[str, list[dict[str, dict[str, float]]]]) -> None:
 
 
 def with_reliability(methods: dict[str, FusionSettings]) -> dict[str, FusionSettings]:
-    """Every method with ``use_view_reliability`` on in place of ``use_facing``
+    """Every method with ``weights.view_reliability`` on in place of ``weights.facing``
     (``--view-reliability``): rows without facing gain the term, rows with it swap."""
     return {
-        label: replace(m, use_view_reliability=True, use_facing=False)
+        label: replace(m, weights=replace(m.weights, view_reliability=True, facing=False))
         for label, m in methods.items()
     }

@@ -199,9 +199,9 @@ class Alignment:
         """The policy ``settings`` choose (``alignment`` and the ``alignment_*`` fields)."""
         s = settings
         return cls(
-            s.alignment, output_hz, s.alignment_deadline_s, s.alignment_max_extrapolation_s,
-            s.alignment_grid, s.alignment_skip_expected_late, s.alignment_wait_for_phase,
-            s.alignment_jitter_fallback_s, s.alignment_deadline_grace_s,
+            s.alignment.policy, output_hz, s.alignment.deadline_s, s.alignment.max_extrapolation_s,
+            s.alignment.grid, s.alignment.skip_expected_late, s.alignment.wait_for_phase,
+            s.alignment.jitter_fallback_s, s.alignment.deadline_grace_s,
         )  # fmt: skip
 
     @property

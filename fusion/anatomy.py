@@ -329,67 +329,6 @@ def facing_loop(skeletons: FloatArray, out: FloatArray) -> None:
             out[m, 0] = out[m, 1] = out[m, 2] = math.nan
 
 
-def align_yaw(views: npt.ArrayLike, target_facing: npt.ArrayLike, max_deg: float) -> FloatArray:
-    """Turn each view about the vertical through its SpineBase to face ``target_facing``.
-
-    Corrects each sensor's bias of turning the skeleton towards itself (conventions.md §5)
-    once the person's true facing is known from the views the person faces most directly.
-
-    Args:
-        views: (S, 25, 3) joints, metres, world frame (labels already corrected).
-        target_facing: (3,) horizontal unit vector (NaN: nothing is changed).
-        max_deg: larger corrections are not applied (the view is left as it is).
-
-    Returns:
-        (S, 25, 3) float64 turned views.
-    """
-    joints = np.array(views, dtype=np.float64, copy=True)
-    target = np.asarray(target_facing, dtype=np.float64)
-    if not np.isfinite(target).all():
-        return joints
-    for i in range(joints.shape[0]):
-        own = facing_direction(joints[i])
-        pivot = joints[i, J.SPINE_BASE]
-        if not (np.isfinite(own).all() and np.isfinite(pivot).all()):
-            continue
-        # Signed yaw from own to target about +Y (heading atan2(x, z) as in the simulator).
-        angle = math.atan2(target[0], target[2]) - math.atan2(own[0], own[2])
-        angle = (angle + math.pi) % (2 * math.pi) - math.pi
-        if abs(math.degrees(angle)) > max_deg:
-            continue
-        c, s_ = math.cos(angle), math.sin(angle)
-        rotation = np.array([[c, 0.0, s_], [0.0, 1.0, 0.0], [-s_, 0.0, c]])
-        joints[i] = (joints[i] - pivot) @ rotation.T + pivot
-    return joints
-
-
-def corrected_yaw(joints: FloatArray, cosines: FloatArray, max_deg: float) -> FloatArray:
-    """One person's views turned to the facing of the views seen most squarely.
-
-    The person's facing is the mean of each view's own facing weighted by how squarely its
-    sensor sees the person (least turned by the sensor's bias), then every view is turned to it
-    (``correct_view_yaw``).
-
-    Args:
-        joints: (S, 25, 3) one person's views, metres, world frame, labels corrected.
-        cosines: (S,) each view's facing cosine (:func:`~skelfuse.fusion.confidence.
-            facing_cosines`), NaN where unknown.
-        max_deg: larger corrections are not applied.
-
-    Returns:
-        (S, 25, 3) float64.
-    """
-    frontal = np.nan_to_num(np.abs(cosines), nan=0.5) ** 4 + 1e-6
-    own = np.stack([facing_direction(v) for v in joints])
-    usable = np.isfinite(own).all(axis=1)
-    if usable.any():
-        mean = (frontal[usable, None] * own[usable]).sum(axis=0)
-        norm = float(np.linalg.norm(mean))
-        if norm > 1e-6:
-            return align_yaw(joints, mean / norm, max_deg)
-    return joints
-
-
 def warm_up() -> None:
     """Compile (or load from numba's cache) this module's loops now, for the argument types every
     call passes (:func:`~skelfuse.jit.plain`), so no frame waits for it."""

@@ -45,7 +45,7 @@ class ViewBatch:
     @classmethod
     def of(cls, clusters: list[list[View]], depth_noise: bool = True) -> ViewBatch:
         """The views of each person stacked; ``depth_noise``: look up each view's depth noise
-        ratio (``FusionSettings.use_sensor_priors``), else treat every view as isotropic."""
+        ratio (``FusionSettings.weights.sensor_priors``), else treat every view as isotropic."""
         counts = [len(cluster) for cluster in clusters]
         views = [view for cluster in clusters for view in cluster]
         places = slots(tuple(counts))  # cached per shape (read-only arrays): frames repeat

@@ -16,8 +16,6 @@ from skelfuse.fusion.bone_fit import (
     BONE_CHILD,
     BONE_COUNT,
     BONE_PARENT,
-    enforce_bone_lengths,
-    project_bone_lengths,
 )
 from skelfuse.fusion.bone_window import SampleWindow
 from skelfuse.jit import jit, jit_inline, plain
@@ -27,7 +25,6 @@ FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
 _BONE_MIRROR: Final = np.array(BONE_MIRROR_PERMUTATION)
 _TRACKED: Final = int(TrackingState.TRACKED)
-BoneFit = Literal["projection", "chain"]
 GOOD_VIEW_COS: Final = 0.5
 """A view feeds the online bone-length estimate only if the person faces it within 60°."""
 
@@ -154,25 +151,6 @@ def observe_bone_lengths(
     for p, ((good, spare), wanted) in enumerate(zip(seen, estimating, strict=True)):
         if spare and wanted:  # a person with no usable view at all adds nothing
             models[p]._add(per_bone[p, 0] if good else None, per_bone[p, 1])
-
-
-def fit_bone_lengths(
-    skeletons: FloatArray, references: FloatArray, method: BoneFit, iterations: int
-) -> FloatArray:
-    """Give each skeleton its person's reference lengths, by the method the settings name.
-
-    Args:
-        skeletons: (P, 25, 3) metres; references: (P, 24) metres (NaN: leave that bone).
-        method: ``projection`` (:func:`project_bone_lengths`, both ends of each bone move) or
-            ``chain`` (:func:`enforce_bone_lengths`, outward from SpineBase).
-        iterations: passes of the projection.
-
-    Returns:
-        (P, 25, 3) float64.
-    """
-    if method == "chain":
-        return enforce_bone_lengths(skeletons, references)
-    return project_bone_lengths(skeletons, references, iterations=iterations)
 
 
 def warm_up() -> None:

@@ -231,16 +231,16 @@ def body_weights(
     s = settings
     points = plain(joints)
     terms, of_view = sensor_terms(s, priors, len(points))
-    refs = references if s.use_bone_length else None
-    if s.use_range_of_motion and rom is None:
-        rom = range_of_motion_factors(points, s.rom_scale_deg)
-    factors = rom if s.use_range_of_motion else None
+    refs = references if s.weights.bone_length else None
+    if s.weights.range_of_motion and rom is None:
+        rom = range_of_motion_factors(points, s.weights.rom_scale_deg)
+    factors = rom if s.weights.range_of_motion else None
     out = np.empty(points.shape[:2])
     body_loop(
         points, plain(states, np.uint8), terms, plain(of_view, np.intp),
         _NOT_USED if refs is None else plain(refs),
         _NOT_USED if factors is None else plain(factors),
-        (refs is not None, factors is not None), float(s.bone_length_scale_m),
+        (refs is not None, factors is not None), float(s.weights.bone_length_scale_m),
         (plain(_BONE_PARENT, np.intp), plain(_BONE_CHILD, np.intp)),
         (plain(_CHAIN[0], np.intp), plain(_CHAIN[1], np.intp)), out,
     )  # fmt: skip

@@ -28,9 +28,9 @@ Blame: a sensor's correction is the *smallest* of its pairwise corrections, so w
 more sensors only the sensor that disagrees with every other one is flagged (the others agree
 with each other). With two sensors the pair is ambiguous: both are flagged.
 
-Hysteresis: a sensor is flagged after ``drift_confirm_checks`` consecutive checks whose
-correction relative to its baseline exceeds a threshold (``drift_threshold_deg`` or
-``drift_threshold_mm``), and cleared after as many checks below ``DRIFT_CLEAR_RATIO`` of
+Hysteresis: a sensor is flagged after ``drift.confirm_checks`` consecutive checks whose
+correction relative to its baseline exceeds a threshold (``drift.threshold_deg`` or
+``drift.threshold_mm``), and cleared after as many checks below ``DRIFT_CLEAR_RATIO`` of
 them. Checks without an estimate (nobody moving, one sensor alone, no baseline yet) change
 nothing.
 
@@ -280,7 +280,7 @@ class DriftMonitor:
                 self._sample(t_s, person.views)
         if self._last_check_t is None:
             self._last_check_t = t_s
-        elif t_s - self._last_check_t >= self.settings.drift_check_interval_s:
+        elif t_s - self._last_check_t >= self.settings.drift.check_interval_s:
             self._last_check_t = t_s
             self.check(t_s)
 
@@ -302,12 +302,12 @@ class DriftMonitor:
         """Estimate every sensor's correction over the window ending at ``t_s``, collect or
         compare with the pairs' baselines, update flags."""
         s = self.settings
-        thresholds = (s.drift_threshold_deg, s.drift_threshold_mm)
+        thresholds = (s.drift.threshold_deg, s.drift.threshold_mm)
         # per sensor: (relative severity, raw, relative, baseline, other) of its best pair;
         # raw-only candidates (no baseline yet) rank after any pair with a baseline
         best: dict[str, tuple[bool, float, Correction, Correction | None, str]] = {}
         for (a, b), window in self._pairs.items():
-            window.prune(t_s - s.drift_window_s)
+            window.prune(t_s - s.drift.window_s)
             if len(window.times) < MIN_SAMPLES:
                 continue
             first, second = np.stack(window.first), np.stack(window.second)
@@ -336,9 +336,9 @@ class DriftMonitor:
                 state.over, state.under = 0, state.under + 1
             else:
                 state.over = state.under = 0
-            if not state.moved and state.over >= s.drift_confirm_checks:
+            if not state.moved and state.over >= s.drift.confirm_checks:
                 state.moved, state.flagged_t_s = True, t_s
-            elif state.moved and state.under >= s.drift_confirm_checks:
+            elif state.moved and state.under >= s.drift.confirm_checks:
                 state.moved, state.flagged_t_s = False, None
 
     def _against_baseline(self, pair: tuple[str, str], correction: Correction) -> Correction | None:
@@ -353,7 +353,7 @@ class DriftMonitor:
             if len(candidates) >= BASELINE_CHECKS:
                 s = self.settings
                 self._baselines[pair] = medoid(
-                    candidates, s.drift_threshold_deg, s.drift_threshold_mm
+                    candidates, s.drift.threshold_deg, s.drift.threshold_mm
                 )
                 del self._candidates[pair]
         return None

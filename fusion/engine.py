@@ -65,8 +65,8 @@ class FusionEngine:
         """The output grid and when its next instant is fused (its ``due_s``: the deadline)."""
         self.fusion_lag = RollingStats()
         """Server time when fusing minus the fused instant (the deliberate alignment wait)."""
-        self.drift = DriftMonitor(settings.fusion) if settings.fusion.drift_detection else None
-        """Has a sensor moved since its calibration? (None: ``drift_detection`` off.)"""
+        self.drift = DriftMonitor(settings.fusion) if settings.fusion.drift.enabled else None
+        """Has a sensor moved since its calibration? (None: ``drift.enabled`` off.)"""
 
     # --- calibration ----------------------------------------------------------------------
 
@@ -158,7 +158,7 @@ class FusionEngine:
 
     def fuse_step(self, now_s: float) -> FusedFrame | None:
         """Fuse the next instant of the output grid when the alignment policy says it is due
-        (``FusionSettings.alignment``, :mod:`skelfuse.fusion.alignment`; None until then).
+        (``FusionSettings.alignment.policy``, :mod:`skelfuse.fusion.alignment`; None until then).
 
         Instants lie on a grid (``output_hz``, server clock), so the output rate is the sensors'
         rate however many sensors there are; each sensor contributes a sample interpolated (late
@@ -175,10 +175,11 @@ class FusionEngine:
         t_target = instant.t_s
         pose_of = {sid: self.pose_of(sid)[0] for sid in self.sensors}.get  # once, not ~10 times
         if instant.late or instant.left_out:
-            views = views_with_late(
-                self.sensors.values(), pose_of, t_target, s.interpolation_gap_s,
-                dict(instant.late), instant.left_out, late_motions(self.pipeline, s.fusion),
-            )  # fmt: skip
+            with self.pipeline.timer.stage("views"):  # 1–2 with the late sensors carried
+                views = views_with_late(
+                    self.sensors.values(), pose_of, t_target, s.interpolation_gap_s,
+                    dict(instant.late), instant.left_out, late_motions(self.pipeline, s.fusion),
+                )  # fmt: skip
             persons = self.pipeline.update(views, t_target)
         else:
             persons, views = self.pipeline.step(

@@ -5,7 +5,7 @@ The ``deadline`` policy (:mod:`skelfuse.fusion.alignment`) bounds how far (``ali
 extrapolation_s``, about one frame period); this module only does the arithmetic and builds the
 instant's views: on-time sensors interpolated as always (:func:`~skelfuse.fusion.pipeline.
 views_at`), late ones carried forward, those beyond the bound left out. Three predictors
-(``alignment_predictor``):
+(``alignment.predictor``):
 
 - ``views`` (the default): the newest frame moved by what the *on-time* views of the same person
   saw happen between that frame's capture and the instant: each on-time view interpolated at
@@ -54,7 +54,7 @@ Rows = list[FloatArray] | FloatArray
 
 @dataclass(frozen=True, slots=True)
 class LatePredictor:
-    """How :func:`views_with_late` carries late bodies (``alignment_predictor``): the persons'
+    """How :func:`views_with_late` carries late bodies (``alignment.predictor``): the persons'
     filtered motions (``track``, and ``views`` for the joints the on-time views miss), and for
     ``views`` which person each body was at the last step (None under ``track``)."""
 
@@ -155,10 +155,10 @@ def carried_by_motion(
 def late_motions(pipeline: FusionPipeline, settings: FusionSettings) -> LatePredictor | None:
     """What :func:`views_with_late` carries late bodies with under ``settings``: each body's
     person motion (``track``), that and each body's person (``views``), or None (``own``)."""
-    if settings.alignment_predictor == "own":
+    if settings.alignment.predictor == "own":
         return None
-    motions = _MotionsOnDemand(pipeline, settings.alignment_predict_acceleration)
-    if settings.alignment_predictor == "track":
+    motions = _MotionsOnDemand(pipeline, settings.alignment.predict_acceleration)
+    if settings.alignment.predictor == "track":
         return LatePredictor(motions)
     return LatePredictor(motions, track_members(pipeline))
 
@@ -222,6 +222,23 @@ def views_with_late(
         carried = _carried_late(
             resolved[-1], late, (reach, measured), predictor, t_s, newest_worlds
         )
+    return _in_sensor_order(sensors, now, carried, (late, left_out), pose_of, predictor, t_s, gap_s)
+
+
+def _in_sensor_order(
+    sensors: list[SensorState],
+    now: dict[str, list[View]],
+    carried: dict[str, Rows],
+    late_and_left_out: tuple[Mapping[str, float], Collection[str]],
+    pose_of: PoseLookup,
+    predictor: LatePredictor | None,
+    t_s: float,
+    gap_s: float,
+) -> list[View]:
+    """Every sensor's views at ``t_s`` in sensor order: the on-time ones as interpolated
+    (``now``), the late ones as carried (``carried``; by their own frames without a
+    predictor), none of those left out."""
+    late, left_out = late_and_left_out
     views: list[View] = []
     for sensor in sensors:
         if sensor.sensor_id in left_out:

@@ -11,10 +11,10 @@ Each fusion step receives every sensor's bodies at one instant, already in the w
    Hungarian algorithm on midline-joint distance to the predicted position, gated (a sensor
    never gives one person two bodies).
 3. **Birth**: bodies left over are grouped across sensors (gated) into new persons; a new
-   person is published only after ``track_min_frames`` consecutive steps.
+   person is published only after ``tracking.min_frames`` consecutive steps.
 4. **No duplicates**: two persons whose views come from different sensors and whose trunks are
    within half the gate are one person seen twice; the younger is merged into the older.
-5. **Death**: a person no sensor has seen for ``track_timeout_s`` is dropped.
+5. **Death**: a person no sensor has seen for ``tracking.timeout_s`` is dropped.
 
 The tracker keeps identity and motion only (where each person is, how fast they move, which
 bodies are theirs); what fusion remembers per person (filter, bone lengths, mirror labels) is in
@@ -91,22 +91,22 @@ class PersonTracker:
     def confirm(self, clusters: dict[int, list[View]], t_s: float) -> set[int]:
         """Step 5 and publication, after the step's fusion: the ids published now.
 
-        Each person seen counts a hit (published after ``track_min_frames`` in a row) and keeps
+        Each person seen counts a hit (published after ``tracking.min_frames`` in a row) and keeps
         its bodies for the sticky step; a person not seen starts its confirmation over if not
-        yet published, and is dropped after ``track_timeout_s``.
+        yet published, and is dropped after ``tracking.timeout_s``.
         """
         for person_id, cluster in clusters.items():
             track = self.tracks[person_id]
             track.hits += 1
             track.members = {(v.sensor_id, v.tracking_id) for v in cluster}
-            if track.hits >= self.settings.track_min_frames:
+            if track.hits >= self.settings.tracking.min_frames:
                 track.published = True
         for person_id, track in list(self.tracks.items()):
             if person_id in clusters:
                 continue
             if not track.published:
                 track.hits = 0
-            if t_s - track.last_seen_s > self.settings.track_timeout_s:
+            if t_s - track.last_seen_s > self.settings.tracking.timeout_s:
                 del self.tracks[person_id]
         return {pid for pid in clusters if self.tracks[pid].published}
 
@@ -205,7 +205,7 @@ class PersonTracker:
                 spread = np.full(len(views), np.inf)
                 spread[with_track] = found
                 distances = spread.tolist()
-        sticky_gate = 2 * self.settings.association_gate_m
+        sticky_gate = 2 * self.settings.tracking.gate_m
         clusters: dict[int, list[View]] = {}
         seen: dict[int, set[str]] = {}
         remaining: list[View] = []
@@ -237,7 +237,7 @@ class PersonTracker:
         """2. Hungarian assignment of the ``remaining`` views (``stacked``: their trunks and
         each one's row there, by id) to existing tracks, sensor by sensor, within the gate;
         adds to ``clusters`` and ``seen``; returns the views left over."""
-        gate = self.settings.association_gate_m
+        gate = self.settings.tracking.gate_m
         trunks, index_of = stacked
         predicted = _predicted_trunks(tracks, t_s)
         leftovers: list[View] = []
@@ -273,7 +273,7 @@ class PersonTracker:
         trunks, index_of = stacked
         new_clusters: list[list[View]] = []
         for view in leftovers:
-            best, best_distance = None, self.settings.association_gate_m
+            best, best_distance = None, self.settings.tracking.gate_m
             own = trunks[index_of[id(view)]][None]
             for cluster in new_clusters:
                 if any(v.sensor_id == view.sensor_id for v in cluster):
@@ -292,7 +292,7 @@ class PersonTracker:
 
     def _merge_duplicates(self, clusters: dict[int, list[View]]) -> None:
         """4. Merge persons that are one person seen by disjoint sets of sensors (older id wins)."""
-        half_gate = self.settings.association_gate_m / 2
+        half_gate = self.settings.tracking.gate_m / 2
         ids = sorted(clusters)
         sensors = {pid: {v.sensor_id for v in clusters[pid]} for pid in ids}
         for i, older in enumerate(ids):

@@ -2,7 +2,7 @@
 label_views`.
 
 :func:`scored_labels` chooses every view's labelling and measures how much each view's anatomy
-speaks against it (:func:`view_evidence`), which ``mirror_redecide`` sums per person, in one
+speaks against it (:func:`view_evidence`), which ``mirror.redecide`` sums per person, in one
 compiled call (:func:`skelfuse.fusion.mirror.score`).
 """
 
@@ -50,13 +50,13 @@ def scored_labels(
             it needs the range-of-motion factors.
     """
     s = settings
-    weights = (s.mirror_track_weight, s.mirror_geometry_weight_m, s.mirror_anatomy_weight_m)
+    weights = (s.mirror.track_weight, s.mirror.geometry_weight_m, s.mirror.anatomy_weight_m)
     return score(
         joints,
         sensor_positions,
         counts,
         (references, reference_facings, previous),
-        (*weights, s.mirror_hysteresis_m, s.rom_scale_deg),
+        (*weights, s.mirror.hysteresis_m, s.weights.rom_scale_deg),
         need_rom=need_rom,
         want_evidence=want_evidence,
     )

@@ -5,9 +5,9 @@ swapped when their anatomy speaks against their labels.
 labelling at once, remembers each (sensor, body)'s decision for the next step's hysteresis, and
 swaps the mirrored views in place (:func:`settle`, one compiled loop). Two cues can swap a whole
 person whose labels were wrong from its birth: :func:`skelfuse.fusion.walking.walking_backwards`,
-which does not depend on labels (docs/fusion.md §5), and, with ``mirror_redecide``, the anatomy
+which does not depend on labels (docs/fusion.md §5), and, with ``mirror.redecide``, the anatomy
 of all its views (:func:`redecide`), which works standing still too. With
-``mirror_unbiased_facing`` the facing the geometry term compares each sensor with is the
+``mirror.unbiased_facing`` the facing the geometry term compares each sensor with is the
 person's facing with every sensor's bias of turning the body towards itself taken out
 (:func:`skelfuse.fusion.unbiased_facing.unbiased_facings`).
 """
@@ -37,17 +37,17 @@ Labels = dict[tuple[str, int], bool]
 """Per (sensor id, tracking id): whether that body was mirrored at the last step."""
 VIEW_AGAINST = 0.5
 """A view's evidence against its labels (joints) from which it counts as a view against them
-(``mirror_redecide_views``): more than a glitch of one joint at its range-of-motion's edge."""
+(``mirror.redecide_views``): more than a glitch of one joint at its range-of-motion's edge."""
 
 
 @dataclass(slots=True)
 class LabelDoubt:
-    """One person's running evidence against its labels (``mirror_redecide``).
+    """One person's running evidence against its labels (``mirror.redecide``).
 
     against: the running sum of evidence (joints, :func:`redecide`); sensors: the sensors that
     saw the person at the last step; born_s, last_s: first and last step seen (seconds);
     facing: (3,) the last step's :func:`~skelfuse.fusion.unbiased_facing.unbiased_facings`
-    (``mirror_unbiased_facing``; NaN: unknown).
+    (``mirror.unbiased_facing``; NaN: unknown).
     """
 
     against: float = 0.0
@@ -86,7 +86,7 @@ def label_views(
         memories: each person's labels from the last step; replaced by this step's.
         settings: the mirror term weights, and whether range of motion is wanted too.
         doubts: each person's evidence against its labels and unbiased facing, updated here
-            (with ``mirror_redecide`` or ``mirror_unbiased_facing``; None: neither).
+            (with ``mirror.redecide`` or ``mirror.unbiased_facing``; None: neither).
         t_s: the instant, seconds (for the running evidence).
 
     Returns:
@@ -104,13 +104,11 @@ def label_views(
         memories[p].get(k, -1) for p, k in zip(person_of.tolist(), keys, strict=True)
     ]
     previous = np.array(last, dtype=np.intp)  # 1, 0, or −1 (unknown)
-    unbiased = s.mirror_unbiased_facing and doubts is not None
-    if unbiased:  # the last step's facing without the sensors' turn, where known
+    unbiased = s.mirror.unbiased_facing and doubts is not None
+    if unbiased:
         assert doubts is not None
-        remembered = np.array([d.facing for d in doubts], dtype=np.float64)
-        known = np.logical_and.reduce(np.isfinite(remembered), axis=1, keepdims=True)
-        reference_facings = np.where(known, remembered, reference_facings)
-    redeciding = s.mirror_redecide and doubts is not None
+        reference_facings = _unbiased_references(doubts, reference_facings)
+    redeciding = s.mirror.redecide and doubts is not None
     mirrored, both_rom, forward, per_view, summed = scored_labels(
         joints,
         sensor_positions,
@@ -119,7 +117,7 @@ def label_views(
         reference_facings,
         previous,
         s,
-        need_rom=s.use_range_of_motion or redeciding,
+        need_rom=s.weights.range_of_motion or redeciding,
         want_evidence=redeciding,
     )
     swapped = np.zeros(len(counts), dtype=bool)
@@ -130,14 +128,25 @@ def label_views(
     _remember(memories, mirrored.tolist(), last, keys, starts)
     facings, rom = settle(
         (joints, states, mirrored),
-        (sensor_positions, forward, places.starts, s.view_lean_fraction) if unbiased else None,
-        both_rom if s.use_range_of_motion or s.mirror_anatomy_weight_m > 0 else None,
+        (sensor_positions, forward, places.starts, s.weights.view_lean_fraction)
+        if unbiased
+        else None,
+        both_rom if s.weights.range_of_motion or s.mirror.anatomy_weight_m > 0 else None,
     )
     if facings is not None:
         assert doubts is not None
         for doubt, facing in zip(doubts, facings, strict=True):
             doubt.facing = facing
     return mirrored, rom, swapped
+
+
+def _unbiased_references(doubts: Sequence[LabelDoubt], facings: FloatArray) -> FloatArray:
+    """(P, 3) each person's facing of the last step without the sensors' turn towards
+    themselves where it is known (its doubt's), else ``facings``' row."""
+    remembered = np.array([d.facing for d in doubts], dtype=np.float64)
+    known = np.logical_and.reduce(np.isfinite(remembered), axis=1, keepdims=True)
+    result: FloatArray = np.where(known, remembered, facings)
+    return result
 
 
 def _redecide_all(
@@ -163,7 +172,7 @@ def _redecide_all(
         if not redecide(doubt, against[p], sensors[p], t_s, s):
             continue
         swapped[p] = turned = True
-        if s.mirror_redecide_views > 1:
+        if s.mirror.redecide_views > 1:
             alone = views_alone(per_view[starts[p] : starts[p + 1]], doubt, t_s, s)
             if alone is not None:  # a view or two, not the person: they turn, not the track
                 mirrored[starts[p] : starts[p + 1]] ^= alone
@@ -305,15 +314,15 @@ def views_alone(
     per_view: FloatArray, doubt: LabelDoubt, t_s: float, s: FusionSettings
 ) -> npt.NDArray[np.bool_] | None:
     """The views to turn over alone when :func:`redecide` would turn a whole person over, or
-    None to turn the person (``mirror_redecide_views``).
+    None to turn the person (``mirror.redecide_views``).
 
     A track mirrored as a whole shows it in every view that sees the legs; when the evidence of
-    this step comes from fewer than ``mirror_redecide_views`` views (those with at least
+    this step comes from fewer than ``mirror.redecide_views`` views (those with at least
     ``VIEW_AGAINST`` joints against), while the person has more, it is those views whose labels
     are stale, not the track: a sensor near its side flips its labels as the person turns, and
     its view's feet are the least reliable there. Turning the whole person over would make every
     other view wrong until it turns again (the crossing scenario's in-place turns). A young
-    person (``mirror_redecide_young_s``; its labels were a guess) and a person with fewer views
+    person (``mirror.redecide_young_s``; its labels were a guess) and a person with fewer views
     turn over as a whole.
 
     Args:
@@ -322,10 +331,10 @@ def views_alone(
         t_s: the instant, seconds.
     """
     against = per_view >= VIEW_AGAINST
-    young = doubt.born_s is not None and t_s - doubt.born_s < s.mirror_redecide_young_s
-    if young or len(per_view) < s.mirror_redecide_views:
+    young = doubt.born_s is not None and t_s - doubt.born_s < s.mirror.redecide_young_s
+    if young or len(per_view) < s.mirror.redecide_views:
         return None
-    if int(against.sum()) >= s.mirror_redecide_views:
+    if int(against.sum()) >= s.mirror.redecide_views:
         return None
     result: npt.NDArray[np.bool_] = against
     return result
@@ -337,20 +346,20 @@ def redecide(
     """Whether a person's labels are turned over now; updates its running ``doubt``.
 
     The evidence of each step (:func:`~skelfuse.fusion.label_scores.evidence_against`) is
-    summed, decaying with ``mirror_redecide_tau_s``; past ``mirror_redecide_evidence`` the
+    summed, decaying with ``mirror.redecide_tau_s``; past ``mirror.redecide_evidence`` the
     person is swapped and the sum starts over. A person younger than
-    ``mirror_redecide_young_s`` that a sensor has just joined re-decides on this step's
+    ``mirror.redecide_young_s`` that a sensor has just joined re-decides on this step's
     evidence alone, against half the threshold: its labels were a guess from fewer views.
     """
     if doubt.born_s is None:
         doubt.born_s = t_s
     dt = 0.0 if doubt.last_s is None else max(t_s - doubt.last_s, 0.0)
-    decay = math.exp(-dt / s.mirror_redecide_tau_s) if s.mirror_redecide_tau_s > 0 else 0.0
+    decay = math.exp(-dt / s.mirror.redecide_tau_s) if s.mirror.redecide_tau_s > 0 else 0.0
     joined = bool(sensors - doubt.sensors) and doubt.last_s is not None
-    young = t_s - doubt.born_s < s.mirror_redecide_young_s
+    young = t_s - doubt.born_s < s.mirror.redecide_young_s
     doubt.against = max(doubt.against * decay + evidence, 0.0)
     doubt.sensors, doubt.last_s = sensors, t_s
-    threshold = s.mirror_redecide_evidence
+    threshold = s.mirror.redecide_evidence
     if joined and young:
         doubt.against, threshold = max(evidence, 0.0), 0.5 * threshold
     if doubt.against <= threshold:

@@ -32,16 +32,18 @@ clock.
 from __future__ import annotations
 
 from collections.abc import Iterable
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
+from typing import Final, Protocol
 
 import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.anatomy import facing_directions
 from skelfuse.fusion.batch import ViewBatch
+from skelfuse.fusion.bone_fit import project_bone_lengths
 from skelfuse.fusion.bones import (
     BoneModel,
-    fit_bone_lengths,
     observe_bone_lengths,
     references_of,
 )
@@ -49,17 +51,49 @@ from skelfuse.fusion.filters import JointFilter, Stacks, filter_all, make_filter
 from skelfuse.fusion.identity import PersonTracker, Track
 from skelfuse.fusion.labels import LabelDoubt, Labels, label_views
 from skelfuse.fusion.mirror_labellings import MAX_VIEWS
-from skelfuse.fusion.priors import priors_of
+from skelfuse.fusion.priors import SensorPrior, priors_of
 from skelfuse.fusion.sensors import SensorState
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.views import FusedPerson, View, fused_persons
 from skelfuse.fusion.walking import walking_backwards, walking_backwards_now
-from skelfuse.fusion.weigh import weigh_and_fuse
+from skelfuse.fusion.weigh import Weighed, weigh_and_fuse
 from skelfuse.fusion.world_views import PoseLookup, views_at
 
-__all__ = ["FusionPipeline", "PersonMemory", "PoseLookup", "views_at"]
+__all__ = ["NO_TIMER", "STAGES", "FusionPipeline", "PersonMemory", "PoseLookup", "StageTimer"]
 
 FloatArray = npt.NDArray[np.float64]
+
+STAGES: Final = (
+    "views", "update", "associate", "labels", "weights", "bones observe", "walking check",
+    "filter", "bone fit",
+)  # fmt: skip
+"""The stages a :class:`StageTimer` hears of, in order: steps 1–2 (each sensor's bodies at the
+instant, in the world frame: also the engine's late-sensor path), then ``update``, the whole of
+steps 3–8, around the others: 3, 4, 5–6, the online bone observation, the walking check, 7
+and 8."""
+
+
+class StageTimer(Protocol):
+    """Told when each stage of a fusion step starts and ends: :meth:`stage` is entered as the
+    stage ``name`` (one of :data:`STAGES`) starts and left as it ends. The benchmarks time the
+    stages with one; the pipeline itself reads no clock."""
+
+    def stage(self, name: str) -> AbstractContextManager[object]:
+        """A context manager around the stage ``name``."""
+        ...
+
+
+class _NoTimer:
+    """The default :class:`StageTimer`: hears nothing (one shared, reusable null context)."""
+
+    _nothing: Final = nullcontext()
+
+    def stage(self, name: str) -> AbstractContextManager[object]:
+        return self._nothing
+
+
+NO_TIMER: Final[StageTimer] = _NoTimer()
+"""The pipeline's timer unless one is given: nothing is timed."""
 
 
 @dataclass(slots=True)
@@ -73,14 +107,17 @@ class PersonMemory:
     walk_swaps: int = 0
     """How often the whole person was swapped for walking backwards (diagnostics, tests)."""
     doubt: LabelDoubt = field(default_factory=LabelDoubt)
-    """Running evidence against the labels (``mirror_redecide``, fusion.labels.redecide)."""
+    """Running evidence against the labels (``mirror.redecide``, fusion.labels.redecide)."""
 
 
 class FusionPipeline:
     """The state fusion keeps between instants, and the step (module docstring)."""
 
-    def __init__(self, settings: FusionSettings) -> None:
+    def __init__(self, settings: FusionSettings, timer: StageTimer = NO_TIMER) -> None:
         self.settings = settings
+        self.timer = timer
+        """Told when each stage starts and ends (:class:`StageTimer`; by default nothing): the
+        benchmarks' stage timing, settable at any time."""
         self.tracker = PersonTracker(settings)
         self.memories: dict[int, PersonMemory] = {}
         self._default_bone_lengths: FloatArray | None = None
@@ -94,52 +131,39 @@ class FusionPipeline:
         self, sensors: Iterable[SensorState], pose_of: PoseLookup, t_s: float, gap_s: float
     ) -> tuple[list[FusedPerson], list[View]]:
         """Fuse the instant ``t_s``: the published persons by id, and every view used."""
-        views = views_at(sensors, pose_of, t_s, gap_s)  # 1. align in time, 2. world frame
+        with self.timer.stage("views"):  # 1. align in time, 2. world frame
+            views = views_at(sensors, pose_of, t_s, gap_s)
         return self.update(views, t_s), views
 
     def update(self, views: list[View], t_s: float) -> list[FusedPerson]:
         """Steps 3–8 on the views of one instant (world frame); the published persons, by id."""
-        return self._update(views, t_s)
+        timer = self.timer
+        with timer.stage("update"):
+            with timer.stage("associate"):
+                clusters = self.tracker.associate(views, t_s)  # 3. associate
+            ids = sorted(clusters)
+            outputs = self._fuse(ids, clusters, t_s) if ids else {}
+            published = self.tracker.confirm(clusters, t_s)
+            for person_id in list(self.memories):
+                if person_id not in self.tracker.tracks:
+                    del self.memories[person_id]
+            return [outputs[pid] for pid in sorted(published) if pid in outputs]
 
-    def _update(self, views: list[View], t_s: float) -> list[FusedPerson]:
-        s = self.settings
-        clusters = self.tracker.associate(views, t_s)  # 3. associate
-        ids = sorted(clusters)
+    def _fuse(
+        self, ids: list[int], clusters: dict[int, list[View]], t_s: float
+    ) -> dict[int, FusedPerson]:
+        """Steps 4–8 for the persons ``ids`` (sorted), whose views ``clusters`` holds."""
+        s, timer = self.settings, self.timer
         for person_id in ids:
             if person_id not in self.memories:
                 self.memories[person_id] = self._new_memory()
         tracks = [self.tracker.tracks[pid] for pid in ids]
         memories = [self.memories[pid] for pid in ids]
-        outputs: dict[int, FusedPerson] = {}
-        if ids:
-            batch = ViewBatch.of([clusters[pid][:MAX_VIEWS] for pid in ids], s.use_sensor_priors)
-            track_facing = self._track_facings(ids, tracks)
-
-            # 4. Mirror labels: swap mirrored views back before anything looks at left or right.
-            mirrored = np.zeros(len(batch.views), dtype=bool)
-            rom = None
-            if s.use_mirror_correction:
-                mirrored, rom, swapped = label_views(
-                    batch.joints,
-                    batch.states,
-                    batch.sensors,
-                    [(v.sensor_id, v.tracking_id) for v in batch.views],
-                    batch.counts,
-                    [t.joints if t.fused_once else None for t in tracks],
-                    track_facing,
-                    [m.labels for m in memories],
-                    s,
-                    [m.doubt for m in memories]
-                    if s.mirror_redecide or s.mirror_unbiased_facing
-                    else None,
-                    t_s,
-                )
-                for p in swapped.nonzero()[0].tolist():  # turned over: the track goes too
-                    self._swap_person(ids[p], relabel=False)
-                    track_facing[p] = facing_directions(tracks[p].joints[None])[0]
-
-            # 5. Per-joint confidence, 6. weighted fusion (fusion/weigh.py).
-            types = [v.sensor_type for v in batch.views]
+        batch = ViewBatch.of([clusters[pid][:MAX_VIEWS] for pid in ids], s.weights.sensor_priors)
+        track_facing = self._track_facings(ids, tracks)
+        with timer.stage("labels"):  # 4. mirror labels
+            mirrored, rom = self._label(batch, ids, tracks, memories, track_facing, t_s)
+        with timer.stage("weights"):  # 5. per-joint confidence, 6. weighted fusion
             weighed = weigh_and_fuse(
                 batch,
                 rom,
@@ -147,78 +171,137 @@ class FusionPipeline:
                 track_facing,
                 [t.fused_once for t in tracks],
                 s,
-                priors_of(types) if s.use_sensor_priors else None,  # fusion/priors.py
+                priors_of([v.sensor_type for v in batch.views])
+                if s.weights.sensor_priors
+                else None,
             )
-            fused, cosines = weighed.fused, weighed.cosines
-            confidence, carried = weighed.confidence, weighed.carried
-
+        with timer.stage("bones observe"):
             observe_bone_lengths(
-                [m.bones for m in memories],
-                batch.joints,
-                batch.states,
-                cosines,
-                batch.person_of,
-                batch.slot_of,
-                batch.widest,
-            )
-            moved = self.tracker.move_all(ids, fused, t_s)
-            self._check_walking_directions(ids, t_s, moved)  # each looks at its own person only
+                [m.bones for m in memories], batch.joints, batch.states, weighed.cosines,
+                batch.person_of, batch.slot_of, batch.widest,
+            )  # fmt: skip
+        moved = self.tracker.move_all(ids, weighed.fused, t_s)
+        with timer.stage("walking check"):  # each looks at its own person only
+            self._check_walking_directions(ids, t_s, moved)
+        # The ufunc's own reduce: what .any() calls after a Python wrapper's checks.
+        seen: list[bool] = np.logical_or.reduce(np.isfinite(weighed.fused), axis=(1, 2)).tolist()
+        alive = [p for p, any_joint in enumerate(seen) if any_joint]
+        with timer.stage("filter"):  # 7. filter
+            skeletons = self._filter(memories, weighed.fused, alive, len(ids), t_s)
+        with timer.stage("bone fit"):  # 8. bone-length fit
+            self._fit_bones(memories, skeletons, alive)
+        return self._outputs(ids, alive, skeletons, weighed, batch, mirrored)
 
-            # 7. Filter, 8. bone-length fit.
-            # The ufunc's own reduce: what .any() calls after a Python wrapper's checks.
-            seen: list[bool] = np.logical_or.reduce(np.isfinite(fused), axis=(1, 2)).tolist()
-            alive = [p for p, any_joint in enumerate(seen) if any_joint]
-            # Everyone alive (the usual step): the arrays as they are, not copies by a gather.
-            everyone = len(alive) == len(ids)
-            filtered = filter_all(
-                [memories[p].filter for p in alive],
-                fused if everyone else fused[alive],
-                t_s,
-                self._filter_stacks,
-            )
-            skeletons = dict(zip(alive, filtered, strict=True))
-            if s.enforce_bone_lengths and alive:
-                # The references as they are now: this step's observations are in.
-                lengths = references_of([memories[p].bones for p in alive])
-                known = np.logical_or.reduce(np.isfinite(lengths), axis=1)
-                usable: list[bool] = known.tolist()
-                fitted = [p for p, k in zip(alive, usable, strict=True) if k]
-                if fitted:
-                    fit = fit_bone_lengths(
-                        np.array([skeletons[p] for p in fitted], dtype=np.float64),
-                        lengths if len(fitted) == len(alive) else lengths[known],
-                        s.bone_length_fit,
-                        s.bone_fit_iterations,
-                    )
-                    skeletons.update(zip(fitted, fit, strict=True))
-            flags = mirrored.tolist()
-            starts = batch.starts.tolist()
-            spans = [(starts[p], starts[p + 1]) for p in alive]
-            persons = fused_persons(
-                [ids[p] for p in alive],
-                [skeletons[p] for p in alive],
-                confidence if everyone else confidence[alive],
-                [batch.views[lo:hi] for lo, hi in spans],
-                carried if everyone else carried[alive],
-                [flags[lo:hi] for lo, hi in spans],
-            )
-            outputs.update(zip([ids[p] for p in alive], persons, strict=True))
+    def _priors(self, batch: ViewBatch) -> list[SensorPrior] | None:
+        """Each view's sensor prior (fusion/priors.py), or None with the priors off."""
+        if not self.settings.weights.sensor_priors:
+            return None
+        return priors_of([v.sensor_type for v in batch.views])
 
-        published = self.tracker.confirm(clusters, t_s)
-        for person_id in list(self.memories):
-            if person_id not in self.tracker.tracks:
-                del self.memories[person_id]
-        return [outputs[pid] for pid in sorted(published) if pid in outputs]
+    def _label(
+        self,
+        batch: ViewBatch,
+        ids: list[int],
+        tracks: list[Track],
+        memories: list[PersonMemory],
+        track_facing: FloatArray,
+        t_s: float,
+    ) -> tuple[npt.NDArray[np.bool_], FloatArray | None]:
+        """Step 4: swap mirrored views back before anything looks at left or right (in place in
+        ``batch``); a person turned over as a whole takes its track with it (``track_facing``
+        updated). Returns which views were mirrored (N,) and their range-of-motion factors as
+        labelled (N, 25), or None when the labels are off."""
+        s = self.settings
+        if not s.mirror.enabled:
+            return np.zeros(len(batch.views), dtype=bool), None
+        mirrored, rom, swapped = label_views(
+            batch.joints,
+            batch.states,
+            batch.sensors,
+            [(v.sensor_id, v.tracking_id) for v in batch.views],
+            batch.counts,
+            [t.joints if t.fused_once else None for t in tracks],
+            track_facing,
+            [m.labels for m in memories],
+            s,
+            [m.doubt for m in memories] if s.mirror.redecide or s.mirror.unbiased_facing else None,
+            t_s,
+        )
+        for p in swapped.nonzero()[0].tolist():  # turned over: the track goes too
+            self._swap_person(ids[p], relabel=False)
+            track_facing[p] = facing_directions(tracks[p].joints[None])[0]
+        return mirrored, rom
+
+    def _filter(
+        self,
+        memories: list[PersonMemory],
+        fused: FloatArray,
+        alive: list[int],
+        persons: int,
+        t_s: float,
+    ) -> dict[int, FloatArray]:
+        """Step 7: each living person's (25, 3) skeleton through its filter, by row."""
+        everyone = len(alive) == persons  # the usual step: the array as it is, not a gather
+        filtered = filter_all(
+            [memories[p].filter for p in alive],
+            fused if everyone else fused[alive],
+            t_s,
+            self._filter_stacks,
+        )
+        return dict(zip(alive, filtered, strict=True))
+
+    def _fit_bones(
+        self, memories: list[PersonMemory], skeletons: dict[int, FloatArray], alive: list[int]
+    ) -> None:
+        """Step 8: give each filtered skeleton its person's reference bone lengths, as they are
+        now that this step's observations are in (in place in ``skeletons``)."""
+        if not (self.settings.bones.enforce and alive):
+            return
+        lengths = references_of([memories[p].bones for p in alive])
+        known = np.logical_or.reduce(np.isfinite(lengths), axis=1)
+        usable: list[bool] = known.tolist()
+        fitted = [p for p, k in zip(alive, usable, strict=True) if k]
+        if fitted:
+            fit = project_bone_lengths(
+                np.array([skeletons[p] for p in fitted], dtype=np.float64),
+                lengths if len(fitted) == len(alive) else lengths[known],
+                iterations=self.settings.bones.fit_iterations,
+            )
+            skeletons.update(zip(fitted, fit, strict=True))
+
+    def _outputs(
+        self,
+        ids: list[int],
+        alive: list[int],
+        skeletons: dict[int, FloatArray],
+        weighed: Weighed,
+        batch: ViewBatch,
+        mirrored: npt.NDArray[np.bool_],
+    ) -> dict[int, FusedPerson]:
+        """The living persons as published, by id: skeleton, confidence, views, carriers."""
+        everyone = len(alive) == len(ids)
+        flags = mirrored.tolist()
+        starts = batch.starts.tolist()
+        spans = [(starts[p], starts[p + 1]) for p in alive]
+        persons = fused_persons(
+            [ids[p] for p in alive],
+            [skeletons[p] for p in alive],
+            weighed.confidence if everyone else weighed.confidence[alive],
+            [batch.views[lo:hi] for lo, hi in spans],
+            weighed.carried if everyone else weighed.carried[alive],
+            [flags[lo:hi] for lo, hi in spans],
+        )
+        return dict(zip([ids[p] for p in alive], persons, strict=True))
 
     # --- per-person state ----------------------------------------------------------------------
 
     def _new_memory(self) -> PersonMemory:
         s = self.settings
         bones = BoneModel(
-            s.bone_estimate_window,
-            s.bone_estimate_min_samples,
-            s.bone_estimate_symmetric,
-            s.bone_estimate_lock_samples,
+            s.bones.window,
+            s.bones.min_samples,
+            s.bones.symmetric,
+            s.bones.lock_samples,
         )
         if self._default_bone_lengths is not None:
             bones.set_lengths = self._default_bone_lengths.copy()
@@ -227,18 +310,18 @@ class FusionPipeline:
     def _new_filter(self) -> JointFilter:
         s = self.settings
         return make_filter(
-            s.filter,
-            min_cutoff_hz=s.one_euro_min_cutoff_hz,
-            beta=s.one_euro_beta,
-            d_cutoff_hz=s.one_euro_d_cutoff_hz,
-            accel_std=s.kalman_accel_std,
-            meas_std_m=s.kalman_meas_std_m,
-            predict_s=s.kalman_predict_s,
-            jerk_std=s.kalman_ca_jerk_std,
-            accel_tau_s=s.kalman_ca_accel_tau_s,
-            ca_meas_std_m=s.kalman_ca_meas_std_m,
-            ca_predict_s=s.kalman_ca_predict_s,
-            jerk_per_speed=s.kalman_ca_jerk_per_speed,
+            s.smoothing.filter,
+            min_cutoff_hz=s.smoothing.one_euro_min_cutoff_hz,
+            beta=s.smoothing.one_euro_beta,
+            d_cutoff_hz=s.smoothing.one_euro_d_cutoff_hz,
+            accel_std=s.smoothing.kalman_accel_std,
+            meas_std_m=s.smoothing.kalman_meas_std_m,
+            predict_s=s.smoothing.kalman_predict_s,
+            jerk_std=s.smoothing.kalman_ca_jerk_std,
+            accel_tau_s=s.smoothing.kalman_ca_accel_tau_s,
+            ca_meas_std_m=s.smoothing.kalman_ca_meas_std_m,
+            ca_predict_s=s.smoothing.kalman_ca_predict_s,
+            jerk_per_speed=s.smoothing.kalman_ca_jerk_per_speed,
         )
 
     def _check_walking_directions(
@@ -258,7 +341,7 @@ class FusionPipeline:
         facings: list[FloatArray | None] = [None] * len(ids)
         computed: FloatArray | None = None
         self._facings = {}
-        if tracks and s.mirror_walk_check_s > 0 and s.use_mirror_correction:
+        if tracks and s.mirror.walk_check_s > 0 and s.mirror.enabled:
             joints = [track.joints for track in tracks]
             stacked = moved[0] if moved is not None else np.array(joints, dtype=np.float64)
             computed = facing_directions(stacked)
@@ -273,7 +356,7 @@ class FusionPipeline:
                 if moved is not None
                 else np.array([t.velocity for t in tracks], dtype=np.float64)
             )
-            backwards = walking_backwards_now(velocities, computed, s.mirror_walk_min_speed_mps)
+            backwards = walking_backwards_now(velocities, computed, s.mirror.walk_min_speed_mps)
             ahead = (~backwards).tolist()
         for person_id, track, facing, forwards in zip(ids, tracks, facings, ahead, strict=True):
             memory = self.memories[person_id]

@@ -4,7 +4,7 @@ The sensor type is what an agent announces in its hello (``protocol.wire.SENSOR_
 :class:`fusion.sensors.SensorState` keeps; :func:`fusion.pipeline.views_at` copies it onto each
 :class:`fusion.views.View`, and :func:`fusion.confidence.body_weights` /
 :func:`fusion.view_factors.view_factors` use each view's prior (when
-``FusionSettings.use_sensor_priors`` is on). The table and what each value rests on:
+``FusionSettings.weights.sensor_priors`` is on). The table and what each value rests on:
 docs/fusion.md §7, "Priors per sensor type".
 
 A field left ``None`` takes the :class:`FusionSettings` value, so the Kinect v2 prior *is* the
@@ -47,7 +47,7 @@ class SensorPrior:
         (:func:`fusion.view_factors.facing_factors`).
     may_mirror: whether the sensor can report a person seen from behind with left and right
         swapped. Informational for now: the mirror step (fusion/mirror.py) checks every view.
-    rom_scale: multiplies ``FusionSettings.rom_scale_deg`` for this sensor's views (> 1: its
+    rom_scale: multiplies ``FusionSettings.weights.rom_scale_deg`` for this sensor's views (> 1: its
         out-of-range angles are doubted less, e.g. a body model that already limits them).
     fixed_bone_lengths: the sensor fits a body model whose bone lengths are fixed per person,
         so a length that differs from the person's reference is a systematic offset of that
@@ -72,15 +72,17 @@ class SensorPrior:
 
     def table(self, settings: FusionSettings) -> tuple[float, float, float]:
         """The state weights in force: this prior's, else the settings'."""
-        return settings.state_weights if self.state_weights is None else self.state_weights
+        return settings.weights.state_weights if self.state_weights is None else self.state_weights
 
     def facing(self, settings: FusionSettings) -> tuple[float, float, float]:
         """(power, floor, back_factor) in force for the facing term."""
         s = settings
         return (
-            s.facing_power if self.facing_power is None else self.facing_power,
-            s.facing_floor if self.facing_floor is None else self.facing_floor,
-            s.facing_back_factor if self.facing_back_factor is None else self.facing_back_factor,
+            s.weights.facing_power if self.facing_power is None else self.facing_power,
+            s.weights.facing_floor if self.facing_floor is None else self.facing_floor,
+            s.weights.facing_back_factor
+            if self.facing_back_factor is None
+            else self.facing_back_factor,
         )
 
 

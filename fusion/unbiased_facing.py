@@ -1,4 +1,4 @@
-"""Each person's facing with every sensor's yaw bias taken out (``mirror_unbiased_facing``).
+"""Each person's facing with every sensor's yaw bias taken out (``mirror.unbiased_facing``).
 
 A Kinect turns the body it reports towards itself by ``lean`` × the person's yaw θ to it
 (clamped to ±90°; the simulator's ``facing_bias``): a view's own facing is at φ = θ − lean ×

@@ -1,20 +1,15 @@
-"""Each view's factor from where its sensor stands: facing and distance.
+"""Each view's factor from where its sensor stands: how frontally the person faces it.
 
-Facing and distance
--------------------
-A Kinect v2 is best when the person faces it at 1.5–3 m: it assumes the person faces it, turns
-the skeleton towards itself by about half the person's yaw relative to it (conventions.md §5),
-and its depth noise grows with distance. ``facing = floor + (1 − floor)·|cos θ|^p``, θ the
-angle between the person's forward direction and the direction to the sensor (1 facing it or
-with its back to it, ``floor`` side-on), times ``back_factor`` from behind (:func:`facing_factors`);
-``distance = exp(−(d_out / scale)²)`` with ``d_out``
-how far the horizontal distance is outside the best band.
+A Kinect v2 is best when the person faces it: it assumes the person faces it and turns the
+skeleton towards itself by about half the person's yaw relative to it (conventions.md §5).
+``facing = floor + (1 − floor)·|cos θ|^p``, θ the angle between the person's forward direction
+and the direction to the sensor (1 facing it or with its back to it, ``floor`` side-on), times
+``back_factor`` from behind (:func:`facing_factors`).
 
 :func:`view_factors` is one loop compiled with numba (:func:`view_factor_loop`, the facing
-factor from :func:`facing_factors_loop`), each view with its
-sensor's facing model (:func:`~skelfuse.fusion.confidence.sensor_terms`); the horizontal distance
-is ``sqrt((x² + y²) + z²)`` and ``exp`` and ``pow`` the C library's. :func:`warm_up` compiles the
-loops (or loads numba's cache) at start, so no frame waits for a compilation.
+factor from :func:`facing_factors_loop`), each view with its sensor's facing model
+(:func:`~skelfuse.fusion.confidence.sensor_terms`); ``pow`` is the C library's. :func:`warm_up`
+compiles the loops (or loads numba's cache) at start, so no frame waits for a compilation.
 """
 
 from __future__ import annotations
@@ -25,7 +20,7 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.confidence import TERM_COLUMNS, sensor_terms
+from skelfuse.fusion.confidence import sensor_terms
 from skelfuse.fusion.priors import SensorPrior
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.jit import jit, plain
@@ -132,99 +127,44 @@ def facing_factors(
     return out
 
 
-def distance_factors(
-    body_position: npt.ArrayLike,
-    sensor_positions: npt.ArrayLike,
-    best_m: tuple[float, float],
-    scale_m: float,
-) -> FloatArray:
-    """Distance term per view, (S,) in (0, 1]: 1 inside ``best_m``, Gaussian fall-off outside.
-
-    Args:
-        body_position: (3,) SpineBase, metres, world.
-        sensor_positions: (S, 3) metres, world; NaN rows give 1.
-    """
-    sensors = plain(np.atleast_2d(np.asarray(sensor_positions, dtype=np.float64)))
-    bodies = plain(np.broadcast_to(np.asarray(body_position, dtype=np.float64), sensors.shape))
-    out = np.empty(len(sensors))
-    terms = np.zeros((1, TERM_COLUMNS))
-    flags = (False, True)
-    view_factor_loop(
-        np.zeros(len(sensors)), bodies, sensors, terms, np.zeros(len(sensors), np.intp),
-        flags, (float(best_m[0]), float(best_m[1]), float(scale_m)), out,
-    )  # fmt: skip
-    return out
-
-
 def view_factors(
     cosines: FloatArray,
-    body_positions: FloatArray,
-    sensor_positions: FloatArray,
     settings: FusionSettings,
     priors: Sequence[SensorPrior] | None = None,
 ) -> FloatArray:
-    """Each view's factor from where its sensor stands: facing × distance (the ones switched on).
+    """Each view's facing factor, each with its sensor type's facing model.
 
     Args:
         cosines: (N,) :func:`facing_cosines` of each view (NaN: unknown, factor 1).
-        body_positions: (N, 3) where each view's person stands (SpineBase), metres, world.
-        sensor_positions: (N, 3) each view's sensor, metres, world (NaN rows: unknown).
+        settings: the facing model of sensors without a prior of their own.
         priors: (N,) each view's sensor prior (its facing model), or None: the settings'.
 
     Returns:
         (N,) float64 in (0, 1].
     """
-    s = settings
     cos = plain(cosines)
-    terms, of_view = sensor_terms(s, priors, len(cos))
+    terms, of_view = sensor_terms(settings, priors, len(cos))
     out = np.empty(len(cos))
-    view_factor_loop(
-        cos, plain(body_positions), plain(sensor_positions), terms, plain(of_view, np.intp),
-        (s.use_facing, s.use_distance),
-        (float(s.distance_best_m[0]), float(s.distance_best_m[1]), float(s.distance_scale_m)),
-        out,
-    )  # fmt: skip
+    view_factor_loop(cos, terms, plain(of_view, np.intp), out)
     return out
 
 
 @jit
-def view_factor_loop(  # pragma: no cover - compiled
-    cosines: FloatArray,
-    bodies: FloatArray,
-    sensors: FloatArray,
-    terms: FloatArray,
-    of_view: IntArray,
-    flags: tuple[bool, bool],
-    distance: tuple[float, float, float],
-    out: FloatArray,
+def view_factor_loop(
+    cosines: FloatArray, terms: FloatArray, of_view: IntArray, out: FloatArray
 ) -> None:
-    """Fill ``out`` (N,) with each view's facing × distance factor (``view_factors``).
+    """Fill ``out`` (N,) with each view's facing factor (:func:`view_factors`).
 
-    cosines: (N,) facing cosines (NaN: factor 1); bodies, sensors: (N, 3) where each view's
-    person and sensor stand (NaN: factor 1); terms, of_view: :func:`sensor_terms` (the facing
-    model in columns 6–8); flags: facing on, distance on; distance: the best band's ends and
-    the fall-off scale, metres.
+    cosines: (N,) facing cosines (NaN: factor 1); terms, of_view: :func:`sensor_terms` (the
+    facing model in columns 6–8).
     """
-    near, far, scale = distance
     for v in range(len(out)):
-        factor = 1.0
-        if flags[0]:
-            row = terms[of_view[v]]
-            facing_factors_loop(cosines[v : v + 1], row[6], row[7], row[8], out[v : v + 1])
-            factor *= out[v]
-        if flags[1]:  # |horizontal offset| as np.linalg.norm: (x² + y²) + z²
-            d0 = (sensors[v, 0] - bodies[v, 0]) * 1.0
-            d1 = (sensors[v, 1] - bodies[v, 1]) * 0.0
-            d2 = (sensors[v, 2] - bodies[v, 2]) * 1.0
-            length = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-            outside = max(near - length, 0.0) + max(length - far, 0.0)
-            q = outside / scale
-            factor *= math.exp(-(q * q)) if math.isfinite(length) else 1.0
-        out[v] = factor
+        row = terms[of_view[v]]
+        facing_factors_loop(cosines[v : v + 1], row[6], row[7], row[8], out[v : v + 1])
 
 
 def warm_up() -> None:
     """Compile (or load from numba's cache) this module's loops now."""
     views = np.zeros((2, 25, 3))
-    view_factors(np.zeros(2), views[:, 0], views[:, 1], FusionSettings(use_distance=True))
+    view_factors(np.zeros(2), FusionSettings())
     facing_factors(facing_cosines(views[0], views[1], views[0]), 2.0, 0.1, 0.5)

@@ -29,7 +29,7 @@ def walking_backwards(
     facing: FloatArray | None = None,
 ) -> tuple[bool, float | None]:
     """Whether a person has walked backwards long enough to be taken as mirrored as a whole:
-    at ``mirror_walk_min_speed_mps`` or more for ``mirror_walk_check_s``.
+    at ``mirror.walk_min_speed_mps`` or more for ``mirror.walk_check_s``.
 
     Args:
         joints: (25, 3) the person's fused skeleton, metres, world; velocity: (3,) m/s.
@@ -41,17 +41,17 @@ def walking_backwards(
         (swap now, when the stretch began or None): after a swap the stretch starts over.
     """
     s = settings
-    if s.mirror_walk_check_s <= 0 or not s.use_mirror_correction:
+    if s.mirror.walk_check_s <= 0 or not s.mirror.enabled:
         return False, backward_since_s
     if facing is None:
         facing = facing_direction(joints)
     velocities = np.asarray(velocity, dtype=np.float64).reshape(1, 3)
     facings = np.asarray(facing, dtype=np.float64).reshape(1, 3)
-    if not walking_backwards_now(velocities, facings, s.mirror_walk_min_speed_mps)[0]:
+    if not walking_backwards_now(velocities, facings, s.mirror.walk_min_speed_mps)[0]:
         return False, None
     if backward_since_s is None:
         return False, t_s
-    if t_s - backward_since_s < s.mirror_walk_check_s:
+    if t_s - backward_since_s < s.mirror.walk_check_s:
         return False, backward_since_s
     return True, None
 

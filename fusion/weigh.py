@@ -2,21 +2,21 @@
 
 :func:`weigh_and_fuse` weighs each view's joints by the body terms alone (tracking state, bone
 length, range of motion: :func:`~skelfuse.fusion.confidence.body_weights`) and fuses them, which
-tells where each person stands; then by where its sensor stands (facing, distance), how well it
-sees each joint (``use_view_reliability``) and one Cauchy pass (``outlier_scale_m``), fusing
-after each; last, the confidence apps receive and which views carried each joint.
+tells where each person stands; then by how frontally the person faces each sensor and how well
+each view sees each joint (``weights.view_reliability``), fusing after each; last, the
+confidence apps receive and which views carried each joint.
 
 In numpy that is a dozen calls with their arguments' gathers and pads, ~140 µs at 4 sensors ×
 6 people for ~20 µs of arithmetic, so the step is one loop compiled with numba (:func:`_weigh_loop`)
 running the stages' own loops in order: :func:`~skelfuse.fusion.confidence.body_loop`,
 :func:`~skelfuse.fusion.weighted.weighted_loop` on the views padded as
 :meth:`~skelfuse.fusion.batch.ViewBatch.pad` pads them (NaN joints, weight 0), the facing and
-:func:`~skelfuse.fusion.view_factors.view_factor_loop`, the Cauchy pass and
+:func:`~skelfuse.fusion.view_factors.view_factor_loop` and
 :func:`~skelfuse.fusion.confidence.confidence_loop`. The loop runs in phases (:data:`BODY` …
-:data:`CONFIDENCE`); three terms that are numpy code of their own stage run between two phases
+:data:`CONFIDENCE`); two terms that are numpy code of their own stage run between two phases
 when they are on: the ray weighting of a camera that guesses depth after each fusion
-(:meth:`~skelfuse.fusion.batch.ViewBatch.fuse`), the yaw correction (``correct_view_yaw``) after
-the facing and the view reliability after the view factors. :func:`warm_up` compiles the loop
+(:meth:`~skelfuse.fusion.batch.ViewBatch.fuse`) and the view reliability after the view
+factors. :func:`warm_up` compiles the loop
 (or loads numba's cache) at start, so no frame waits for a compilation.
 """
 
@@ -29,7 +29,7 @@ from typing import Final, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.anatomy import corrected_yaw, facing_loop
+from skelfuse.fusion.anatomy import facing_loop
 from skelfuse.fusion.batch import ViewBatch
 from skelfuse.fusion.confidence import (
     BODY_TABLES,
@@ -56,10 +56,8 @@ BODY: Final = 0
 FACING: Final = 1
 """Phase: each person's facing and where it stands, each view's facing cosine."""
 VIEWS: Final = 2
-"""Phase: the view factors (facing, distance) and the fusion under them."""
-CAUCHY: Final = 3
-"""Phase: the Cauchy pass and the fusion after it."""
-CONFIDENCE: Final = 4
+"""Phase: the view factors (facing) and the fusion under them."""
+CONFIDENCE: Final = 3
 """Phase: the confidence and the carriers."""
 _NOT_USED: Final = np.ones((1, 1))
 """What the loop gets for a term that is off (it reads nothing of it; never written)."""
@@ -107,10 +105,9 @@ def weigh_and_fuse(
     """Steps 5–6 (module docstring) for P persons' N views, labels corrected.
 
     Args:
-        batch: the views, each person's consecutive (with ``correct_view_yaw`` their joints are
-            turned in place).
+        batch: the views, each person's consecutive.
         rom: (N, 25) range-of-motion factors of each view as labelled, or None (computed here
-            when ``use_range_of_motion``).
+            when ``weights.range_of_motion``).
         references: (P, 24) each person's reference bone lengths, metres (NaN: unknown; the
             bone-length term is off while no person has any).
         track_facings: (P, 3) each person's facing from its track, horizontal unit vectors
@@ -131,20 +128,18 @@ def weigh_and_fuse(
     )
     stands = np.empty((count, 3))
     terms, of_view = sensor_terms(s, priors, count)
-    if s.use_range_of_motion and rom is None:
-        rom = range_of_motion_factors(batch.joints, s.rom_scale_deg)
-    factors = rom if s.use_range_of_motion else None
+    if s.weights.range_of_motion and rom is None:
+        rom = range_of_motion_factors(batch.joints, s.weights.rom_scale_deg)
+    factors = rom if s.weights.range_of_motion else None
     body: _Body = (
         terms, plain(of_view, np.intp),
-        plain(references) if s.use_bone_length else _NOT_USED,
+        plain(references) if s.weights.bone_length else _NOT_USED,
         _NOT_USED if factors is None else plain(factors),
-        (s.use_bone_length, factors is not None), float(s.bone_length_scale_m), _TABLES,
+        (s.weights.bone_length, factors is not None), float(s.weights.bone_length_scale_m), _TABLES,
     )  # fmt: skip
     views = (
         plain(track_facings), plain(np.asarray(fused_once, dtype=np.bool_), np.bool_),
-        (s.use_facing, s.use_distance, s.use_facing or s.use_distance or s.correct_view_yaw),
-        (float(s.distance_best_m[0]), float(s.distance_best_m[1]), float(s.distance_scale_m)),
-        float(s.outlier_scale_m),
+        bool(s.weights.facing),
     )  # fmt: skip
     phase = BODY
     for stop in _stops(batch, s):
@@ -163,36 +158,27 @@ def _stops(batch: ViewBatch, settings: FusionSettings) -> list[int]:
     s = settings
     stops = {CONFIDENCE}
     if batch.depth_ratios is not None:
-        stops |= {BODY, VIEWS, CAUCHY}
-    if s.correct_view_yaw:
-        stops.add(FACING)
-    if s.use_view_reliability:
+        stops |= {BODY, VIEWS}
+    if s.weights.view_reliability:
         stops.add(VIEWS)
     return sorted(stops)
 
 
 def _between(stop: int, batch: ViewBatch, out: Weighed, settings: FusionSettings) -> None:
-    """The terms that run after phase ``stop``: the yaw correction after :data:`FACING`, the view
-    reliability after :data:`VIEWS` and the ray weighting after each fusion (in place in
-    ``out`` and ``batch.joints``)."""
+    """The terms that run after phase ``stop``: the view reliability after :data:`VIEWS` and the
+    ray weighting after each fusion (in place in ``out``)."""
     s = settings
-    if stop == FACING and s.correct_view_yaw:
-        for lo, hi in zip(batch.starts[:-1], batch.starts[1:], strict=True):
-            if hi - lo > 1:
-                batch.joints[lo:hi] = corrected_yaw(
-                    batch.joints[lo:hi], out.cosines[lo:hi], s.yaw_max_deg
-                )
-    refuse = batch.depth_ratios is not None and stop in (BODY, VIEWS, CAUCHY)
-    if stop == VIEWS and s.use_view_reliability:  # 5. how well each view sees each joint
+    refuse = batch.depth_ratios is not None and stop in (BODY, VIEWS)
+    if stop == VIEWS and s.weights.view_reliability:  # 5. how well each view sees each joint
         out.weights[:] *= reliability_factors(
             batch.joints,
             out.cosines,
             batch.sensors,
             batch.starts.tolist(),
-            s.view_lean_fraction,
-            s.view_error_m,
-            s.view_jitter_per_m2,
-            s.view_occlusion_m,
+            s.weights.view_lean_fraction,
+            s.weights.view_error_m,
+            s.weights.view_jitter_per_m2,
+            s.weights.view_occlusion_m,
             batch.states,
         )
         refuse = True
@@ -209,7 +195,7 @@ def _weigh_loop(  # pragma: no cover - compiled
     sensors: FloatArray,
     places: tuple[IntArray, int],
     body: _Body,
-    views: tuple[FloatArray, BoolArray, tuple[bool, bool, bool], tuple[float, float, float], float],
+    views: tuple[FloatArray, BoolArray, bool],
     out: tuple[FloatArray, FloatArray, FloatArray, FloatArray, BoolArray, FloatArray],
 ) -> None:
     """Run the phases ``first`` to ``last`` of :func:`weigh_and_fuse` (module docstring).
@@ -218,13 +204,12 @@ def _weigh_loop(  # pragma: no cover - compiled
     person's first view, then N, and the widest person; body: the :func:`sensor_terms` rows and
     each view's, the references (P, 24), the rom factors (N, 25), whether each of these two
     terms is on, the bone-length scale; views: the track facings (P, 3), whether each person
-    was fused before (P,), the facing and distance terms on and whether they fuse again, the
-    distance band and scale, the Cauchy scale (0: off); out: weights, fused, cosines,
+    was fused before (P,), the facing term on; out: weights, fused, cosines,
     confidence, carried (:class:`Weighed`) and where each view's person stands (N, 3).
     """
     weights, fused, cosines, confidence, carried, stands = out
     starts, widest = places
-    facings, once, flags, distance, outlier_scale = views
+    facings, once, facing_on = views
     padded = np.empty((len(starts) - 1, widest, joints.shape[1], 3))
     padded_weights = np.empty(padded.shape[:3])
     if first <= BODY <= last:
@@ -232,18 +217,12 @@ def _weigh_loop(  # pragma: no cover - compiled
         _fuse(joints, weights, starts, padded, padded_weights, fused)
     if first <= FACING <= last:
         _facing_phase(joints, sensors, starts, facings, once, fused, stands, cosines)
-    if first <= VIEWS <= last and flags[2]:
+    if first <= VIEWS <= last and facing_on:
         factors = np.empty(len(cosines))
-        terms, of_view = body[0], body[1]
-        view_factor_loop(
-            cosines, stands, sensors, terms, of_view, (flags[0], flags[1]), distance, factors
-        )
+        view_factor_loop(cosines, body[0], body[1], factors)
         for v in range(len(factors)):
             for j in range(weights.shape[1]):
                 weights[v, j] = weights[v, j] * factors[v]
-        _fuse(joints, weights, starts, padded, padded_weights, fused)
-    several = first <= CAUCHY <= last and outlier_scale > 0
-    if several and _cauchy_phase(joints, starts, fused, outlier_scale, weights):
         _fuse(joints, weights, starts, padded, padded_weights, fused)
     if first <= CONFIDENCE <= last:
         _pad(joints, weights, starts, padded, padded_weights)
@@ -351,30 +330,6 @@ def _facing_phase(  # pragma: no cover - compiled
     cosines_loop(gathered, stands, sensors, cosines)
 
 
-@jit
-def _cauchy_phase(  # pragma: no cover - compiled
-    joints: FloatArray, starts: IntArray, fused: FloatArray, scale: float, weights: FloatArray
-) -> bool:
-    """The Cauchy pass on the views of persons seen more than once, in place:
-    ``× 1 / (1 + (d / scale)²)``, d the view's distance to its person's fusion (factor 1 where
-    unknown). Whether any person was."""
-    several = False
-    for p in range(len(starts) - 1):
-        if starts[p + 1] - starts[p] < 2:
-            continue
-        several = True
-        for v in range(starts[p], starts[p + 1]):
-            for j in range(weights.shape[1]):
-                d0 = joints[v, j, 0] - fused[p, j, 0]
-                d1 = joints[v, j, 1] - fused[p, j, 1]
-                d2 = joints[v, j, 2] - fused[p, j, 2]
-                d = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-                q = d / scale
-                factor = 1.0 / (1.0 + q * q) if math.isfinite(d) else 1.0
-                weights[v, j] = weights[v, j] * factor
-    return several
-
-
 def warm_up() -> None:
     """Compile (or load from numba's cache) the loop now, every phase."""
     views = np.zeros((2, 25, 3))
@@ -387,6 +342,6 @@ def warm_up() -> None:
         BODY, CONFIDENCE, views, np.zeros((2, 25), np.uint8), np.ones((2, 3)),
         (np.array([0, 2], dtype=np.intp), 2),
         (terms, of_view, np.ones((1, 24)), np.ones((2, 25)), (True, True), 0.05, _TABLES),
-        (np.ones((1, 3)), np.zeros(1, dtype=np.bool_), (True, True, True), (1.5, 3.0, 1.0), 0.1),
+        (np.ones((1, 3)), np.zeros(1, dtype=np.bool_), True),
         out,
     )  # fmt: skip

@@ -99,7 +99,12 @@ def replay(
     with RecordingReader(path, strict=strict) as reader:
         stats.read = reader.status
         settings = settings or HubSettings()
-        offline = replace(settings, fusion=replace(settings.fusion, alignment="aligned"))
+        offline = replace(
+            settings,
+            fusion=replace(
+                settings.fusion, alignment=replace(settings.fusion.alignment, policy="aligned")
+            ),
+        )
         engine = FusionEngine(offline, calibration_of(reader.header))
         liveness_every_s = offline.heartbeat_interval_s / 2
         next_liveness: float | None = None

@@ -13,6 +13,12 @@ import numpy as np
 import pytest
 
 from skelfuse.agent.sim.performer import ProceduralPerformer
+from skelfuse.fusion.settings import (
+    MirrorSettings,
+    SmoothingSettings,
+    TrackingSettings,
+    WeightSettings,
+)
 from skelfuse.fusion.views import View
 from skelfuse.protocol.skeleton import BONE_NAMES, JOINT_COUNT, TrackingState
 from skelfuse.server.app import create_app
@@ -24,7 +30,7 @@ from tests.integration.conftest import LiveServer
 
 @pytest.fixture
 async def client() -> AsyncIterator[httpx.AsyncClient]:
-    settings = Settings(fusion=FusionSettings(track_min_frames=1))
+    settings = Settings(fusion=FusionSettings(tracking=TrackingSettings(min_frames=1)))
     app = create_app(settings)
     if not any(getattr(r, "path", "") == "/api/persons/{person_id}/bones" for r in app.routes):
         app.include_router(router)
@@ -84,13 +90,18 @@ async def test_default_bones_apply_to_new_persons(client: httpx.AsyncClient) -> 
 
 def test_fusion_settings_in_use_are_shown(server_factory: Callable[..., LiveServer]) -> None:
     """On a real uvicorn server started with a deployment's settings."""
-    fusion = FusionSettings(filter="kalman", mirror_walk_check_s=0.0, state_weights=(0, 0.5, 1))
+    fusion = FusionSettings(
+        smoothing=SmoothingSettings(filter="kalman"),
+        mirror=MirrorSettings(walk_check_s=0.0),
+        weights=WeightSettings(state_weights=(0, 0.5, 1)),
+    )
     live = server_factory(fusion=fusion)
     response = httpx.get(live.http_url + "/api/fusion/settings", timeout=5)
     assert response.status_code == 200
     shown = response.json()["fusion"]
-    assert shown["filter"] == "kalman"
-    assert shown["mirror_walk_check_s"] == 0.0
-    assert shown["state_weights"] == [0, 0.5, 1]
-    assert shown["use_distance"] is False and shown["bone_length_fit"] == "projection"
+    assert shown["smoothing"]["filter"] == "kalman"
+    assert shown["mirror"]["walk_check_s"] == 0.0
+    assert shown["weights"]["state_weights"] == [0, 0.5, 1]
+    assert shown["weights"]["facing"] is True and shown["alignment"]["policy"] == "deadline"
     assert set(shown) == set(FusionSettings.__dataclass_fields__)
+    assert set(shown["mirror"]) == set(MirrorSettings.__dataclass_fields__)

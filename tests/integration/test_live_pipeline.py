@@ -16,6 +16,7 @@ import zmq
 from websockets.asyncio.client import connect
 
 from skelfuse.client import FeedClient
+from skelfuse.fusion.settings import DriftSettings
 from skelfuse.protocol.skeleton import JOINT_COUNT, SKELETON_NAME
 from skelfuse.protocol.wire import Body, ErrorMessage, Frame, Hello, decode, encode
 from skelfuse.server.settings import FusionSettings
@@ -321,7 +322,7 @@ def test_drift_detection_shows_in_sensor_rows_and_metrics(
     server_factory: Callable[..., LiveServer], agent_factory: Callable[..., AgentThread]
 ) -> None:
     """With drift detection on, two well-placed sensors are watched and not flagged."""
-    live = server_factory(fusion=FusionSettings(drift_detection=True))
+    live = server_factory(fusion=FusionSettings(drift=DriftSettings(enabled=True)))
     start_two(live, agent_factory)
 
     def watched() -> bool:

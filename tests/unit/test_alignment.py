@@ -29,6 +29,7 @@ from skelfuse.fusion.config import FusionConfigError, fusion_settings_from_mappi
 from skelfuse.fusion.engine import FusedFrame
 from skelfuse.fusion.extrapolation import extrapolated_bodies
 from skelfuse.fusion.sensors import TimedFrame
+from skelfuse.fusion.settings import AlignmentSettings, BoneSettings, SmoothingSettings
 from skelfuse.protocol.feed import frame_json
 from skelfuse.protocol.skeleton import JOINT_COUNT
 from skelfuse.protocol.transform import look_at_pose
@@ -195,13 +196,13 @@ def test_a_sensor_expected_on_time_gets_the_grace_after_the_deadline() -> None:
 
 
 def test_the_grace_is_a_deadline_setting_and_checked() -> None:
-    assert FusionSettings().alignment_deadline_grace_s == 0.003
-    phased = Alignment.of(replace(FusionSettings(), alignment="phased"), 30.0)
+    assert FusionSettings().alignment.deadline_grace_s == 0.003
+    phased = Alignment.of(FusionSettings(alignment=AlignmentSettings(policy="phased")), 30.0)
     assert phased.deadline_grace_s == 0.0, "phased has no deadline to extend"
     assert Alignment.of(FusionSettings(), 30.0).deadline_grace_s == 0.003
     for value in (-0.001, 0.2):
-        with pytest.raises(FusionConfigError, match="alignment_deadline_grace_s"):
-            fusion_settings_from_mapping({"alignment_deadline_grace_s": value})
+        with pytest.raises(FusionConfigError, match=r"alignment\.deadline_grace_s"):
+            fusion_settings_from_mapping({"alignment": {"deadline_grace_s": value}})
 
 
 def test_an_instant_nobody_can_give_waits_for_the_first_frame_not_fused_empty() -> None:
@@ -382,17 +383,23 @@ def drive(hub: FusionHub, periods: int) -> list[FusedFrame]:
 
 def test_a_late_sensor_is_extrapolated_to_the_instant_and_marked_in_the_feed() -> None:
     fusion = FusionSettings(
-        alignment="deadline", alignment_predictor="own", alignment_grid="wait",
-        alignment_skip_expected_late=False, filter="none", enforce_bone_lengths=False,
-        alignment_wait_for_phase=False,
-    )  # fmt: skip
+        alignment=AlignmentSettings(
+            policy="deadline",
+            predictor="own",
+            grid="wait",
+            skip_expected_late=False,
+            wait_for_phase=False,
+        ),
+        smoothing=SmoothingSettings(filter="none"),
+        bones=BoneSettings(enforce=False),
+    )
     fused = drive(hub_with_sensors(Settings(fusion=fusion)), periods=60)
     late = [f for f in fused if f.extrapolated and f.persons]  # published from the 3rd frame
     assert len(late) >= 50, "b's frames come 17 ms after a's instants: after a 10 ms deadline"
     for frame in late:
         ((sensor, behind),) = frame.extrapolated
-        assert sensor == "b" and 0 < behind <= fusion.alignment_max_extrapolation_s
-        assert frame.fused_at_s - frame.t_s <= fusion.alignment_deadline_s + 1e-9
+        assert sensor == "b" and 0 < behind <= fusion.alignment.max_extrapolation_s
+        assert frame.fused_at_s - frame.t_s <= fusion.alignment.deadline_s + 1e-9
         (person,) = frame.persons
         # b's view carried along the line (the server's clock reads captures 2 ms late, the
         # one-way delivery): held instead, the mean would be ~9 mm behind
@@ -404,7 +411,9 @@ def test_a_late_sensor_is_extrapolated_to_the_instant_and_marked_in_the_feed() -
 
 
 def test_aligned_hub_output_has_no_extrapolation_mark() -> None:
-    hub = hub_with_sensors(Settings(fusion=FusionSettings(alignment="aligned")))
+    hub = hub_with_sensors(
+        Settings(fusion=FusionSettings(alignment=AlignmentSettings(policy="aligned")))
+    )
     fused = drive(hub, periods=30)
     assert len(fused) >= 29 and all(f.extrapolated == () for f in fused)
     assert all(f.fused_at_s - f.t_s > 0.015 for f in fused[1:]), "waits for b"
@@ -415,7 +424,7 @@ def test_aligned_hub_output_has_no_extrapolation_mark() -> None:
 
 
 def test_the_loop_sleeps_until_the_deadline_not_the_idle_poll() -> None:
-    fusion = FusionSettings(alignment="deadline", alignment_wait_for_phase=False)
+    fusion = FusionSettings(alignment=AlignmentSettings(policy="deadline", wait_for_phase=False))
     hub = FusionHub(Settings(fusion=fusion))
     assert wake_in_s(hub, T0) == IDLE_WAKE_S, "nothing pending"
     hub.alignment.next_instant([timing("a", T0 + 0.002), timing("b", T0 - 0.02)], T0 + 0.003)
@@ -430,9 +439,11 @@ def test_the_fusion_loop_publishes_at_the_deadline_with_no_further_frame() -> No
     nothing more arrives, and the instant is still fused, b extrapolated."""
     deadline_s = 0.02
     fusion = FusionSettings(
-        alignment="deadline", alignment_deadline_s=deadline_s, alignment_wait_for_phase=False
+        alignment=AlignmentSettings(policy="deadline", deadline_s=deadline_s, wait_for_phase=False)
     )
-    hub = hub_with_sensors(Settings(fusion=replace(fusion, filter="none")))
+    hub = hub_with_sensors(
+        Settings(fusion=replace(fusion, smoothing=replace(fusion.smoothing, filter="none")))
+    )
 
     async def run() -> None:
         broadcaster = Broadcaster()
@@ -460,13 +471,13 @@ def test_deadline_with_the_views_predictor_is_the_default() -> None:
     # Measured (docs/benchmarks.md "Alignment policies", "Load"): within 1 mm of aligned in every
     # accuracy scenario, and the live latency target with 10 sensors at random phases.
     default = FusionSettings()
-    assert default.alignment == "deadline" and default.alignment_deadline_s == 0.007
-    assert default.alignment_predictor == "views" and default.alignment_wait_for_phase
+    assert default.alignment.policy == "deadline" and default.alignment.deadline_s == 0.007
+    assert default.alignment.predictor == "views" and default.alignment.wait_for_phase
 
 
 def test_offline_replay_always_waits_for_every_sensor() -> None:
     take = Path(__file__).resolve().parents[1] / "data" / "golden" / "take.sfrec"
-    deadline = Settings(fusion=FusionSettings(alignment="deadline"))
+    deadline = Settings(fusion=FusionSettings(alignment=AlignmentSettings(policy="deadline")))
     as_set = [frame_json(f, include_raw=False) for f in replay(take, deadline)]
     aligned = [frame_json(f, include_raw=False) for f in replay(take)]
     assert len(aligned) == 180 and as_set == aligned
@@ -474,15 +485,15 @@ def test_offline_replay_always_waits_for_every_sensor() -> None:
 
 def test_the_toml_settings_are_checked() -> None:
     chosen = fusion_settings_from_mapping(
-        {"alignment": "deadline", "alignment_deadline_s": 0.005, "alignment_max_extrapolation_s": 0}
+        {"alignment": {"policy": "deadline", "deadline_s": 0.005, "max_extrapolation_s": 0}}
     )
-    assert chosen.alignment == "deadline" and chosen.alignment_max_extrapolation_s == 0.0
+    assert chosen.alignment.policy == "deadline" and chosen.alignment.max_extrapolation_s == 0.0
     with pytest.raises(FusionConfigError) as caught:
         fusion_settings_from_mapping(
-            {"alignment": "soon", "alignment_deadline_s": 0.5, "alignment_max_extrapolation_s": 1}
+            {"alignment": {"policy": "soon", "deadline_s": 0.5, "max_extrapolation_s": 1}}
         )
     message = str(caught.value)
-    for key in ("alignment:", "alignment_deadline_s:", "alignment_max_extrapolation_s:"):
+    for key in ("alignment.policy:", "alignment.deadline_s:", "alignment.max_extrapolation_s:"):
         assert key in message
 
 
@@ -680,8 +691,8 @@ def test_the_fallback_has_hysteresis_and_can_be_turned_off() -> None:
 
 @pytest.mark.parametrize("value", [-0.001, 0.2])
 def test_the_jitter_fallback_is_checked(value: float) -> None:
-    with pytest.raises(FusionConfigError, match="alignment_jitter_fallback_s"):
-        fusion_settings_from_mapping({"alignment_jitter_fallback_s": value})
+    with pytest.raises(FusionConfigError, match=r"alignment\.jitter_fallback_s"):
+        fusion_settings_from_mapping({"alignment": {"jitter_fallback_s": value}})
 
 
 def test_the_hub_falls_back_on_a_jittery_link_says_so_and_comes_back(

@@ -4,7 +4,6 @@ behind, legs out of view, by one sensor, then from the front and sides by two mo
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -13,7 +12,7 @@ from skelfuse.agent.sim.performer import BodyShape, Pose, pose_joints
 from skelfuse.fusion.label_scores import evidence_against
 from skelfuse.fusion.labels import LabelDoubt, redecide
 from skelfuse.fusion.pipeline import FusionPipeline
-from skelfuse.fusion.settings import FusionSettings
+from skelfuse.fusion.settings import FusionSettings, MirrorSettings
 from skelfuse.fusion.views import View
 from skelfuse.protocol.skeleton import MIRROR_PERMUTATION, JointId, TrackingState
 
@@ -65,7 +64,7 @@ def run(settings: FusionSettings, steps: int = 20) -> list[tuple[str, ...]]:
 def test_without_redeciding_the_birth_guess_stays() -> None:
     # The behaviour before mirror_redecide, pinned: the rear view alone cannot tell its sides,
     # it is kept as reported, and the front views are then labelled to agree with the track.
-    labels = run(replace(FusionSettings(), mirror_redecide=False))
+    labels = run(FusionSettings(mirror=MirrorSettings(redecide=False)))
     assert labels[-1] == ("left", "right")
 
 
@@ -96,14 +95,14 @@ def test_a_view_without_legs_gives_next_to_no_evidence() -> None:
 def test_redecide_needs_evidence_that_persists_unless_a_sensor_joins_a_young_track(
     young: bool,
 ) -> None:
-    s = replace(FusionSettings(), mirror_redecide=True)
+    s = FusionSettings(mirror=MirrorSettings(redecide=True))
     doubt = LabelDoubt()
     start = 0.0 if young else -10.0
     assert not redecide(doubt, 0.0, frozenset({"a"}), start, s)
     # A sensor joins with evidence just under the full threshold.
-    joined = redecide(doubt, 0.9 * s.mirror_redecide_evidence, frozenset({"a", "b"}), 0.1, s)
+    joined = redecide(doubt, 0.9 * s.mirror.redecide_evidence, frozenset({"a", "b"}), 0.1, s)
     assert joined is young
     if not young:
         # The same evidence again a frame later adds up past the threshold.
-        assert redecide(doubt, 0.9 * s.mirror_redecide_evidence, frozenset({"a", "b"}), 0.133, s)
+        assert redecide(doubt, 0.9 * s.mirror.redecide_evidence, frozenset({"a", "b"}), 0.133, s)
     assert doubt.against == 0.0 and doubt.swaps == 1

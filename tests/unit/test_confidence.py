@@ -8,8 +8,8 @@ import pytest
 from skelfuse.agent.sim.performer import BodyShape, Pose, pose_joints
 from skelfuse.fusion.anatomy import CHAIN_ORDER, facing_direction, joint_angles
 from skelfuse.fusion.confidence import body_weights, range_of_motion_factors
-from skelfuse.fusion.settings import FusionSettings
-from skelfuse.fusion.view_factors import distance_factors, facing_cosines, facing_factors
+from skelfuse.fusion.settings import FusionSettings, WeightSettings
+from skelfuse.fusion.view_factors import facing_cosines, facing_factors
 from skelfuse.protocol.skeleton import BONES, MIRROR_PERMUTATION, PARENTS, JointId, bone_lengths
 
 J = JointId
@@ -30,7 +30,9 @@ def bone_terms(view: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """(25,) the bone-length term alone (scale 5 cm), propagated (state weights 1, no other
     term)."""
     settings = FusionSettings(
-        state_weights=(1.0, 1.0, 1.0), use_range_of_motion=False, bone_length_scale_m=0.05
+        weights=WeightSettings(
+            state_weights=(1.0, 1.0, 1.0), range_of_motion=False, bone_length_scale_m=0.05
+        )
     )
     states = np.full((1, 25), 2, dtype=np.uint8)
     weights: np.ndarray = body_weights(view[None], states, reference[None], None, settings)[0]
@@ -86,7 +88,7 @@ def test_hyperextended_knee_is_penalised_smoothly() -> None:
     assert factor == pytest.approx(np.exp(-15.0 / 15.0), rel=1e-6)
 
 
-def test_facing_and_distance_terms() -> None:
+def test_facing_terms() -> None:
     view = body(heading=0.0)  # faces +Z
     facing = facing_direction(view)
     np.testing.assert_allclose(facing, [0.0, 0.0, 1.0], atol=1e-9)
@@ -96,10 +98,6 @@ def test_facing_and_distance_terms() -> None:
     f = facing_factors(cos, 2.0, 0.1, 0.5)
     assert f[0] == pytest.approx(1.0) and f[1] == pytest.approx(0.1)
     assert f[2] == pytest.approx(0.5) and f[3] == 1.0
-    d = distance_factors(view[J.SPINE_BASE], sensors, (1.5, 3.0), 1.0)
-    assert np.allclose(d[:3], 1.0)
-    far = distance_factors(view[J.SPINE_BASE], np.array([[0.0, 1.0, 4.0]]), (1.5, 3.0), 1.0)
-    assert far[0] == pytest.approx(np.exp(-1.0))
 
 
 def test_batched_facing_and_range_of_motion_match_single_skeletons() -> None:

@@ -8,14 +8,14 @@ points, with and without each term: weights and factors to 1e-9.
 
 from __future__ import annotations
 
-import dataclasses
+from typing import Any
 
 import numpy as np
 import pytest
 
 from skelfuse.fusion import anatomy, confidence, view_factors, weighted
 from skelfuse.fusion.priors import AZURE_BODY_TRACKING, KINECT_V2, RGB_MONO, SensorPrior
-from skelfuse.fusion.settings import FusionSettings
+from skelfuse.fusion.settings import FusionSettings, WeightSettings
 from skelfuse.protocol.skeleton import BONES, PARENTS
 from tests.support import random_views as _views
 
@@ -47,13 +47,13 @@ def _body_reference(
     """state weight × Π over the joint and its ancestors of (bone length × rom) / noise²."""
     s = settings
     local = np.ones(views.shape[:2])
-    if s.use_bone_length and references is not None:
+    if s.weights.bone_length and references is not None:
         parent, child = np.array(BONES).T
         diff = np.abs(np.linalg.norm(views[:, child] - views[:, parent], axis=-1) - references)
-        bones = np.where(np.isfinite(diff), np.exp(-diff / s.bone_length_scale_m), 1.0)
+        bones = np.where(np.isfinite(diff), np.exp(-diff / s.weights.bone_length_scale_m), 1.0)
         fixed = np.array([p.fixed_bone_lengths for p in priors])
         local[:, child] = np.where(fixed[:, None], 1.0, bones)
-    if s.use_range_of_motion and rom is not None:
+    if s.weights.range_of_motion and rom is not None:
         k = np.array([p.rom_scale for p in priors])[:, None]
         local = local * rom ** (1.0 / k)
     chained = local.copy()
@@ -72,11 +72,11 @@ def _body_reference(
 @pytest.mark.parametrize("seed", range(3))
 @pytest.mark.parametrize(
     "change",
-    [{}, {"use_bone_length": False}, {"use_range_of_motion": False}, {"bone_length_scale_m": 0.2}],
+    [{}, {"bone_length": False}, {"range_of_motion": False}, {"bone_length_scale_m": 0.2}],
 )
-def test_body_weights_match_the_reference(seed: int, change: dict[str, object]) -> None:
+def test_body_weights_match_the_reference(seed: int, change: dict[str, Any]) -> None:
     views, states, references, rom = _inputs(seed)
-    settings = FusionSettings(**change)  # type: ignore[arg-type]
+    settings = FusionSettings(weights=WeightSettings(**change))
     odd = SensorPrior("odd", state_weights=(0.1, 0.4, 0.8), noise_scale=1.5, rom_scale=2.0)
     kinds = [KINECT_V2, AZURE_BODY_TRACKING, RGB_MONO, odd]
     mixed = [kinds[i % 4] for i in range(len(views))]
@@ -84,8 +84,8 @@ def test_body_weights_match_the_reference(seed: int, change: dict[str, object]) 
         for priors in (None, mixed):
             got = confidence.body_weights(views, states, refs, factors, settings, priors)
             own_rom = factors
-            if own_rom is None and settings.use_range_of_motion:
-                own_rom = anatomy.rom_factors_and_forward(views, settings.rom_scale_deg)[0]
+            if own_rom is None and settings.weights.range_of_motion:
+                own_rom = anatomy.rom_factors_and_forward(views, settings.weights.rom_scale_deg)[0]
             expected = _body_reference(
                 views, states, refs, own_rom, settings, priors or [KINECT_V2] * len(views)
             )
@@ -155,27 +155,14 @@ def test_facing_terms_match_the_reference(seed: int) -> None:
     assert np.isnan(cosines).sum() >= 6 and (cosines < 0).any()
 
 
-def test_view_factors_are_facing_times_distance() -> None:
+def test_view_factors_are_the_facing_factors_of_each_sensor_type() -> None:
     rng = np.random.default_rng(4)
     cosines = rng.uniform(-1.0, 1.0, 50)
     cosines[:3] = np.nan
-    bodies, sensors = rng.normal(0.0, 1.0, (50, 3)), rng.normal(0.0, 4.0, (50, 3))
-    sensors[3] = np.nan
-    settings = FusionSettings(use_distance=True, distance_best_m=(1.5, 3.0), distance_scale_m=1.0)
-    distance = np.linalg.norm((sensors - bodies) * [1.0, 0.0, 1.0], axis=-1)
-    outside = np.maximum(1.5 - distance, 0.0) + np.maximum(distance - 3.0, 0.0)
-    far = np.where(np.isfinite(outside), np.exp(-(outside**2)), 1.0)
-    s = settings
+    w = FusionSettings().weights
     facing = view_factors.facing_factors(
-        cosines, s.facing_power, s.facing_floor, s.facing_back_factor
+        cosines, w.facing_power, w.facing_floor, w.facing_back_factor
     )
-    got = view_factors.view_factors(cosines, bodies, sensors, settings)
-    np.testing.assert_allclose(got, facing * far, rtol=0.0, atol=TOLERANCE)
-    for one in range(5):
-        alone = view_factors.distance_factors(bodies[one], sensors[one : one + 1], (1.5, 3.0), 1.0)
-        assert alone[0] == pytest.approx(far[one], abs=TOLERANCE)
-    assert (far < 0.5).any() and (far == 1.0).any()
-    only_facing = dataclasses.replace(settings, use_distance=False)
-    np.testing.assert_allclose(
-        view_factors.view_factors(cosines, bodies, sensors, only_facing), facing, atol=0.0
-    )
+    got = view_factors.view_factors(cosines, FusionSettings())
+    np.testing.assert_allclose(got, facing, rtol=0.0, atol=TOLERANCE)
+    assert (got[:3] == 1.0).all() and (got[3:] < 1.0).any()

@@ -16,7 +16,7 @@ import pytest
 
 from skelfuse.agent.sim.performer import ProceduralPerformer
 from skelfuse.fusion.drift import DriftMonitor, estimate_correction, trunk_points
-from skelfuse.fusion.settings import FusionSettings
+from skelfuse.fusion.settings import DriftSettings, FusionSettings
 from skelfuse.fusion.views import FusedPerson, View
 from skelfuse.protocol.skeleton import JOINT_COUNT, JointId, TrackingState
 from skelfuse.protocol.transform import Matrix4, apply, axis_rotation, invert, look_at_pose
@@ -25,7 +25,7 @@ from skelfuse.server.hub import FusionHub
 from skelfuse.server.metrics import _drift_metrics
 from skelfuse.server.settings import Settings
 
-SETTINGS = FusionSettings(drift_detection=True)
+SETTINGS = FusionSettings(drift=DriftSettings(enabled=True))
 PERFORMER = ProceduralPerformer(1)
 POSES = {
     f"cam-{k}": look_at_pose(
@@ -250,7 +250,7 @@ def test_the_hub_shows_the_flag_in_its_sensor_rows_and_forgets_on_a_new_calibrat
 
 
 def test_without_drift_detection_the_rows_say_none() -> None:
-    hub = FusionHub(Settings(fusion=FusionSettings(drift_detection=False)))
+    hub = FusionHub(Settings(fusion=FusionSettings(drift=DriftSettings(enabled=False))))
     hello = Hello("cam-0", "sim", "t", FPS, 0, pose_hint=POSES["cam-0"], pose_hint_source="manual")
     hub.handle_message(b"\x00", [encode(hello)], 1.0, 0.0)
     assert hub.drift is None and hub.sensor_summary(0.0)[0]["drift"] is None

@@ -8,7 +8,13 @@ import pytest
 from skelfuse.agent.sim.performer import ProceduralPerformer
 from skelfuse.fusion.confidence import state_weights
 from skelfuse.fusion.pipeline import FusionPipeline
-from skelfuse.fusion.settings import FusionSettings
+from skelfuse.fusion.settings import (
+    BoneSettings,
+    FusionSettings,
+    MirrorSettings,
+    SmoothingSettings,
+    TrackingSettings,
+)
 from skelfuse.fusion.trunks import trunk_distance
 from skelfuse.fusion.views import FusedPerson, View
 from skelfuse.fusion.weighted import fuse_views
@@ -101,14 +107,14 @@ def views_for(people: list[np.ndarray], sensors: int, t_ids: int = 100) -> list[
 
 
 def test_one_person_seen_by_three_sensors_is_one_person() -> None:
-    tracker = FusionPipeline(FusionSettings(track_min_frames=1))
+    tracker = FusionPipeline(FusionSettings(tracking=TrackingSettings(min_frames=1)))
     person = standing()
     out = tracker.update(views_for([person], 3), 0.0)
     assert len(out) == 1 and out[0].sources == ("s0", "s1", "s2")
 
 
 def test_ids_are_stable_and_people_are_not_merged() -> None:
-    tracker = FusionPipeline(FusionSettings(track_min_frames=1))
+    tracker = FusionPipeline(FusionSettings(tracking=TrackingSettings(min_frames=1)))
     ids_seen: list[tuple[int, ...]] = []
     for step in range(60):
         t = step / 30
@@ -121,7 +127,7 @@ def test_ids_are_stable_and_people_are_not_merged() -> None:
 
 def test_tracking_id_change_keeps_person_id() -> None:
     """A sensor re-acquiring a body under a new tracking id must not create a new person."""
-    tracker = FusionPipeline(FusionSettings(track_min_frames=1))
+    tracker = FusionPipeline(FusionSettings(tracking=TrackingSettings(min_frames=1)))
     person = standing()
     first = tracker.update(views_for([person], 2), 0.0)[0].person_id
     renamed = [View(v.sensor_id, v.tracking_id + 7, v.joints_world, v.states)
@@ -130,14 +136,14 @@ def test_tracking_id_change_keeps_person_id() -> None:
 
 
 def test_new_person_waits_for_min_frames() -> None:
-    tracker = FusionPipeline(FusionSettings(track_min_frames=3))
+    tracker = FusionPipeline(FusionSettings(tracking=TrackingSettings(min_frames=3)))
     person = standing()
     published = [len(tracker.update(views_for([person], 1), i / 30)) for i in range(4)]
     assert published == [0, 0, 1, 1]
 
 
 def test_person_dies_after_timeout_and_returns_with_new_id() -> None:
-    tracker = FusionPipeline(FusionSettings(track_min_frames=1, track_timeout_s=0.5))
+    tracker = FusionPipeline(FusionSettings(tracking=TrackingSettings(min_frames=1, timeout_s=0.5)))
     person = standing()
     first = tracker.update(views_for([person], 1), 0.0)[0].person_id
     tracker.update([], 0.3)
@@ -149,7 +155,7 @@ def test_person_dies_after_timeout_and_returns_with_new_id() -> None:
 
 
 def test_one_sensor_never_gives_one_person_two_bodies() -> None:
-    tracker = FusionPipeline(FusionSettings(track_min_frames=1))
+    tracker = FusionPipeline(FusionSettings(tracking=TrackingSettings(min_frames=1)))
     person = standing()
     views = [View("s0", 1, person, TRACKED), View("s0", 2, person + 0.05, TRACKED)]
     out = tracker.update(views, 0.0)
@@ -170,16 +176,24 @@ def test_mirrored_view_is_swapped_back_before_fusion() -> None:
         View("front", 1, truth, TRACKED, np.array([0.0, 1.0, 2.5])),
         View("back", 2, back, TRACKED, np.array([0.0, 1.0, -2.5])),
     ]
-    tracker = FusionPipeline(FusionSettings(track_min_frames=1, filter="none"))
+    tracker = FusionPipeline(
+        FusionSettings(
+            tracking=TrackingSettings(min_frames=1), smoothing=SmoothingSettings(filter="none")
+        )
+    )
     person = tracker.update(views, 0.0)[0]
     assert person.mirrored == ("back",)
     np.testing.assert_allclose(person.joints, truth, atol=1e-9)
-    baseline = FusionPipeline(FusionSettings(track_min_frames=1, use_mirror_correction=False))
+    baseline = FusionPipeline(
+        FusionSettings(
+            tracking=TrackingSettings(min_frames=1), mirror=MirrorSettings(enabled=False)
+        )
+    )
     assert mpjpe(baseline.update(views, 0.0)[0].joints, truth)[0] > 0.05
 
 
 def test_joint_sources_name_the_contributing_sensors() -> None:
-    tracker = FusionPipeline(FusionSettings(track_min_frames=1))
+    tracker = FusionPipeline(FusionSettings(tracking=TrackingSettings(min_frames=1)))
     person = standing()
     views = views_for([person], 2)
     missing = person.copy()
@@ -193,7 +207,9 @@ def test_joint_sources_name_the_contributing_sensors() -> None:
 def test_bone_lengths_are_estimated_online_and_can_be_set() -> None:
     from skelfuse.protocol.skeleton import bone_lengths
 
-    tracker = FusionPipeline(FusionSettings(track_min_frames=1, bone_estimate_min_samples=5))
+    tracker = FusionPipeline(
+        FusionSettings(tracking=TrackingSettings(min_frames=1), bones=BoneSettings(min_samples=5))
+    )
     from skelfuse.fusion.anatomy import facing_direction
 
     person = standing()
@@ -209,7 +225,11 @@ def test_bone_lengths_are_estimated_online_and_can_be_set() -> None:
 
 
 def test_crossing_people_keep_their_ids() -> None:
-    tracker = FusionPipeline(FusionSettings(track_min_frames=1, filter="none"))
+    tracker = FusionPipeline(
+        FusionSettings(
+            tracking=TrackingSettings(min_frames=1), smoothing=SmoothingSettings(filter="none")
+        )
+    )
     history: dict[int, set[int]] = {0: set(), 1: set()}
     for step in range(90):
         t = step / 30
@@ -224,7 +244,7 @@ def test_crossing_people_keep_their_ids() -> None:
 
 
 def test_duplicate_person_from_disjoint_sensors_is_merged() -> None:
-    tracker = FusionPipeline(FusionSettings(track_min_frames=1))
+    tracker = FusionPipeline(FusionSettings(tracking=TrackingSettings(min_frames=1)))
     person = standing()
     tracker.update([View("s0", 1, person, TRACKED)], 0.0)
     tracker.update([View("s1", 2, person + [0.6, 0, 0], TRACKED)], 1 / 30)  # a second person
@@ -411,7 +431,8 @@ def test_a_person_walking_backwards_is_unmirrored_as_a_whole(walk_check_s: float
     # The walking check alone: mirror_redecide (on by default) would also undo this mirrored
     # track, from the anatomy of the views, and must not hide whether the check works.
     settings = FusionSettings(
-        mirror_walk_check_s=walk_check_s, filter="none", mirror_redecide=False
+        mirror=MirrorSettings(walk_check_s=walk_check_s, redecide=False),
+        smoothing=SmoothingSettings(filter="none"),
     )
     tracker = FusionPipeline(settings)
 

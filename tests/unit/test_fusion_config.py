@@ -10,6 +10,8 @@ import pytest
 from bench.replay import generate_recording
 from skelfuse.cli import main
 from skelfuse.fusion.config import (
+    REMOVED,
+    RENAMED,
     FusionConfigError,
     fusion_settings_as_dict,
     fusion_settings_from_mapping,
@@ -28,51 +30,81 @@ def test_a_file_overrides_only_what_it_names(tmp_path: Path) -> None:
     path = write(
         tmp_path,
         """
-        [fusion]
+        [fusion.smoothing]
         filter = "kalman"
-        mirror_walk_check_s = 0          # an int where a float is expected
-        use_distance = true
+
+        [fusion.mirror]
+        walk_check_s = 0          # an int where a float is expected
+
+        [fusion.weights]
+        facing = false
         state_weights = [0, 0.5, 1]
-        bone_estimate_lock_samples = 120
+
+        [fusion.bones]
+        lock_samples = 120
         """,
     )
     settings = load_fusion_settings(path)
-    assert settings.filter == "kalman"
-    assert settings.mirror_walk_check_s == 0.0 and isinstance(settings.mirror_walk_check_s, float)
-    assert settings.use_distance is True
-    assert settings.state_weights == (0.0, 0.5, 1.0)
-    assert settings.bone_estimate_lock_samples == 120
+    assert settings.smoothing.filter == "kalman"
+    assert settings.mirror.walk_check_s == 0.0 and isinstance(settings.mirror.walk_check_s, float)
+    assert settings.weights.facing is False
+    assert settings.weights.state_weights == (0.0, 0.5, 1.0)
+    assert settings.bones.lock_samples == 120
     defaults = FusionSettings()
-    assert settings.one_euro_beta == defaults.one_euro_beta
-    assert settings.bone_length_fit == defaults.bone_length_fit
+    assert settings.smoothing.one_euro_beta == defaults.smoothing.one_euro_beta
+    assert settings.mirror.redecide == defaults.mirror.redecide
+    assert settings.tracking == defaults.tracking
     assert load_fusion_settings(write(tmp_path, "", "empty.toml")) == defaults
 
 
-def test_every_problem_is_reported_at_once_by_key(tmp_path: Path) -> None:
+def test_the_flat_keys_of_before_are_read_with_one_warning_naming_the_new_ones(
+    tmp_path: Path,
+) -> None:
+    path = write(tmp_path, "[fusion]\nfilter = 'kalman'\nmirror_walk_check_s = 0\n")
+    with pytest.warns(DeprecationWarning, match="flat keys are deprecated") as caught:
+        settings = load_fusion_settings(path)
+    assert len(caught) == 1
+    message = str(caught[0].message)
+    assert "filter -> smoothing.filter" in message
+    assert "mirror_walk_check_s -> mirror.walk_check_s" in message
+    assert settings.smoothing.filter == "kalman" and settings.mirror.walk_check_s == 0.0
+    # The flat policy and the [fusion.alignment] table share a name: both are read.
+    with pytest.warns(DeprecationWarning, match="alignment -> alignment.policy"):
+        assert fusion_settings_from_mapping({"alignment": "phased"}).alignment.policy == "phased"
+    with pytest.raises(FusionConfigError, match="filter: given twice"):
+        fusion_settings_from_mapping({"filter": "none", "smoothing": {"filter": "kalman"}})
+
+
+def test_every_problem_is_reported_at_once_by_key() -> None:
     with pytest.raises(FusionConfigError) as caught:
         fusion_settings_from_mapping(
             {
                 "filtr": "kalman",
-                "filter": "median",
-                "use_facing": 1,
-                "one_euro_beta": -1,
-                "track_min_frames": 2.5,
-                "state_weights": [0, 2, 1],
-                "distance_best_m": [1.5],
-                "outlier_scale_m": float("nan"),
+                "smoothing": {"filter": "median", "one_euro_beta": -1, "walk_check_s": 1},
+                "mirror": {"walk_chek_s": 0.5},
+                "weights": {"facing": 1, "state_weights": [0, 2, 1], "view_error_m": [1.5]},
+                "tracking": {"min_frames": 2.5},
+                "bones": 3,
             }
         )
     message = str(caught.value)
-    assert "filtr: not a fusion setting (did you mean 'filter'?)" in message
-    assert "filter: expected one of 'one_euro', 'kalman', 'none', 'kalman_ca', got 'median'" in (
+    assert "filtr: not a fusion setting (did you mean 'smoothing.filter'?)" in message
+    assert (
+        "smoothing.filter: expected one of 'one_euro', 'kalman', 'none', 'kalman_ca', got 'median'"
+        in message
+    )
+    assert "smoothing.walk_check_s: not a fusion setting (did you mean 'mirror.walk_check_s'?)" in (
         message
     )
-    assert "use_facing: expected true or false, got 1" in message
-    assert "one_euro_beta: expected a finite number ≥ 0, got -1" in message
-    assert "track_min_frames: expected a whole number ≥ 0, got 2.5" in message
-    assert "state_weights: each weight must be in [0, 1]" in message
-    assert "distance_best_m: expected a list of 2 numbers" in message
-    assert "outlier_scale_m: expected a finite number" in message
+    assert "mirror.walk_chek_s: not a fusion setting (did you mean 'mirror.walk_check_s'?)" in (
+        message
+    )
+    assert "weights.facing: expected true or false, got 1" in message
+    assert "smoothing.one_euro_beta: expected a finite number ≥ 0, got -1" in message
+    assert "tracking.min_frames: expected a whole number ≥ 0, got 2.5" in message
+    assert "weights.state_weights: each weight must be in [0, 1]" in message
+    assert "weights.view_error_m: expected a list of 3 numbers" in message
+    assert "bones: expected a table ([fusion.bones]), got 3" in message
 
 
 @pytest.mark.parametrize(
@@ -81,7 +113,7 @@ def test_every_problem_is_reported_at_once_by_key(tmp_path: Path) -> None:
         ("[fusion\nfilter = 1", "not valid TOML"),
         ("[fusion]\n[server]\nport = 1", "only a [fusion] table is read here; also found server"),
         ("fusion = 3", "'fusion' must be a table"),
-        ("[fusion]\nbone_length_fit = 'spline'", "bone_length_fit: expected one of"),
+        ("[fusion.alignment]\ngrid = 'spline'", "alignment.grid: expected one of"),
     ],
 )
 def test_bad_files_name_the_file_and_the_problem(tmp_path: Path, text: str, expected: str) -> None:
@@ -94,12 +126,30 @@ def test_bad_files_name_the_file_and_the_problem(tmp_path: Path, text: str, expe
 
 
 def test_every_setting_can_be_written_in_a_file() -> None:
-    """A new FusionSettings field of a type the checker does not know fails here first."""
+    """A new settings field of a type the checker does not know fails here first."""
     as_dict = fusion_settings_as_dict(FusionSettings())
     assert set(as_dict) == set(FusionSettings.__dataclass_fields__)
+    for group, values in as_dict.items():
+        assert set(values) == set(type(getattr(FusionSettings(), group)).__dataclass_fields__)
     json.dumps(as_dict)  # JSON-ready for the API
-    written = {key: value for key, value in as_dict.items() if value is not None}
+    written = {
+        group: {key: value for key, value in values.items() if value is not None}
+        for group, values in as_dict.items()
+    }
     assert fusion_settings_from_mapping(written) == FusionSettings()
+
+
+def test_every_flat_key_of_before_has_a_new_place_or_a_reason() -> None:
+    """The record the codemod and the loader share: each old key maps to a field that exists."""
+    as_dict = fusion_settings_as_dict(FusionSettings())
+    for old, new in RENAMED.items():
+        group, key = new.split(".")
+        assert key in as_dict[group], f"{old} -> {new}: no such field"
+    assert not set(RENAMED) & set(REMOVED)
+    for old, reason in REMOVED.items():
+        with pytest.raises(FusionConfigError, match=f"{old}: removed: "):
+            fusion_settings_from_mapping({old: 1})
+        assert reason and "\n" not in reason
 
 
 def test_replay_fuses_with_the_files_settings_and_refuses_a_bad_file(
@@ -108,7 +158,7 @@ def test_replay_fuses_with_the_files_settings_and_refuses_a_bad_file(
     recording = tmp_path / "take.sfrec"
     generate_recording(recording, sensors=2, persons=1, duration_s=2.0, seed=5)
     outputs = {}
-    for name, text in [("defaults", ""), ("none", '[fusion]\nfilter = "none"\n')]:
+    for name, text in [("defaults", ""), ("none", '[fusion.smoothing]\nfilter = "none"\n')]:
         config = write(tmp_path, text, f"{name}.toml")
         out = tmp_path / f"{name}.jsonl"
         argv = ["replay", str(recording), "--out", str(out), "--fusion-config", str(config)]
@@ -116,7 +166,7 @@ def test_replay_fuses_with_the_files_settings_and_refuses_a_bad_file(
         outputs[name] = out.read_text(encoding="utf-8")
     assert outputs["defaults"] != outputs["none"], "the filter setting changed nothing"
 
-    bad = write(tmp_path, "[fusion]\nfilter = 'median'\n", "bad.toml")
+    bad = write(tmp_path, "[fusion.smoothing]\nfilter = 'median'\n", "bad.toml")
     assert main(["replay", str(recording), "--fusion-config", str(bad)]) == 2
     assert "filter: expected one of" in capsys.readouterr().err
     jsonl = tmp_path / "defaults.jsonl"

@@ -50,7 +50,7 @@ def test_the_scoring_gives_what_was_asked_for_any_step(edit: str, need_rom: bool
         facings[3] = np.nan
         frame = replace(frame, reference_facings=facings)
     if not need_rom:
-        settings = replace(settings, mirror_anatomy_weight_m=0.0)
+        settings = replace(settings, mirror=replace(settings.mirror, anatomy_weight_m=0.0))
     got = _scored(frame, settings, need_rom=need_rom, evidence=need_rom)
     assert got.mirrored.any() and not got.mirrored.all()
     if not need_rom:
@@ -101,7 +101,7 @@ def test_the_labels_after_the_choice_swap_back_and_give_the_facings_of_the_swapp
     expected = frame.views.copy()
     expected[mirrored] = expected[mirrored][:, PERMUTATION]
     assert np.array_equal(joints, expected, equal_nan=True)
-    lean = FusionSettings().view_lean_fraction
+    lean = FusionSettings().weights.view_lean_fraction
     remade = unbiased_facings(joints, frame.sensor_positions, mirrored, frame.counts, lean)
     np.testing.assert_allclose(facings, remade, rtol=0, atol=1e-12)  # from the swapped joints
     assert rom is not None and rom.shape == (len(joints), 25)

@@ -18,6 +18,7 @@ from skelfuse.fusion.extrapolation import LatePredictor, carried_by_motion, view
 from skelfuse.fusion.measured_motion import measured_displacements, measured_from_arrays
 from skelfuse.fusion.pipeline import FusionPipeline
 from skelfuse.fusion.sensors import BodyArrays, SensorState, TimedFrame
+from skelfuse.fusion.settings import AlignmentSettings, BoneSettings, SmoothingSettings
 from skelfuse.fusion.track_motion import PersonMotion, track_motions
 from skelfuse.fusion.views import View
 from skelfuse.fusion.world_views import SensorBodies
@@ -74,7 +75,11 @@ def test_joints_without_an_estimate_and_bodies_without_a_person_are_held() -> No
 def test_a_mirrored_body_gets_its_persons_motion_with_sides_swapped() -> None:
     """Two sensors see one person walking; sensor b's body is remembered as mirrored (the
     pipeline swapped its left and right): its motion is the person's, left and right swapped."""
-    pipeline = FusionPipeline(FusionSettings(filter="kalman", enforce_bone_lengths=False))
+    pipeline = FusionPipeline(
+        FusionSettings(
+            smoothing=SmoothingSettings(filter="kalman"), bones=BoneSettings(enforce=False)
+        )
+    )
     for n in range(10):
         t = T0 + n * P
         world = walker(t)
@@ -135,9 +140,13 @@ def late_view(frame: FusedFrame) -> np.ndarray:
     return view.joints_world
 
 
-TRACK = FusionSettings(alignment="deadline", alignment_predictor="track", filter="kalman_ca",
-                       alignment_grid="wait", alignment_skip_expected_late=False,
-                       enforce_bone_lengths=False)  # fmt: skip
+TRACK = FusionSettings(
+    alignment=AlignmentSettings(
+        policy="deadline", predictor="track", grid="wait", skip_expected_late=False
+    ),
+    smoothing=SmoothingSettings(filter="kalman_ca"),
+    bones=BoneSettings(enforce=False),
+)
 """b late at every instant (the wait grid, just before a)."""
 
 
@@ -151,7 +160,7 @@ def test_a_late_view_carried_by_its_persons_motion_lands_on_a_constant_velocity_
         ((sensor, behind),) = frame.extrapolated
         assert sensor == "b" and behind == pytest.approx(P - 0.015, abs=0.001)
         np.testing.assert_allclose(late_view(frame), walker(frame.t_s - DELIVERY_S), atol=1e-4)
-    held = drive(replace(TRACK, filter="none"), 90)
+    held = drive(replace(TRACK, smoothing=replace(TRACK.smoothing, filter="none")), 90)
     off = [np.abs(late_view(f) - walker(f.t_s - DELIVERY_S)).max() for f in held if f.extrapolated]
     assert min(off[5:]) > 0.015, "without a filter there is no motion: held, 18 mm behind"
 
@@ -256,7 +265,12 @@ def test_the_hub_under_the_default_deadline_settings_uses_the_horizon_grid() -> 
     """``alignment = "deadline"`` with the other fields left alone: once the phase is chosen, a
     (15 ms before b) is the late one, carried 11 ms, and each instant is fused as b arrives: 4 ms
     after it (the one-way clock mapping puts b's capture at its arrival: no delivery delay)."""
-    fused = drive(FusionSettings(alignment="deadline", enforce_bone_lengths=False), periods=90)
+    fused = drive(
+        FusionSettings(
+            alignment=AlignmentSettings(policy="deadline"), bones=BoneSettings(enforce=False)
+        ),
+        periods=90,
+    )
     settled = [f for f in fused if f.t_s > T0 + 2.5]
     assert len(settled) >= 25
     for frame in settled:
@@ -268,7 +282,7 @@ def test_the_hub_under_the_default_deadline_settings_uses_the_horizon_grid() -> 
 # --- the ``views`` predictor: what the on-time views saw meanwhile -------------------------------
 
 
-VIEWS = replace(TRACK, alignment_predictor="views")
+VIEWS = replace(TRACK, alignment=replace(TRACK.alignment, predictor="views"))
 """b late at every instant, carried by a's views."""
 
 
@@ -406,7 +420,7 @@ def test_a_late_view_carried_by_the_on_time_views_needs_no_filter() -> None:
     """b's frame is 18 ms old at every instant; a, on time, saw the walker move meanwhile:
     carried by that, b's view is exactly where the walker is, with the filter off (no motion
     estimate at all: the ``track`` predictor holds it 18 mm behind)."""
-    for fusion in (VIEWS, replace(VIEWS, filter="none")):
+    for fusion in (VIEWS, replace(VIEWS, smoothing=replace(VIEWS.smoothing, filter="none"))):
         late = [f for f in drive(fusion, periods=90) if f.extrapolated and f.t_s > T0 + 2.0]
         assert len(late) >= 25
         for frame in late:
@@ -431,7 +445,7 @@ def test_no_deadline_until_the_grid_has_its_phase() -> None:
     30 frames and the grid its phase, each instant waits for both sensors (no timer, nobody
     carried); from then on the deadline applies as before. Without it, the first instants are
     already fused at the deadline, on the grid the first frames put."""
-    assert FusionSettings().alignment_wait_for_phase
+    assert FusionSettings().alignment.wait_for_phase
     waiting = Alignment("deadline", 30.0, deadline_s=0.010, wait_for_phase=True)
     rows = run_policy(waiting)
     first = [row for row in rows if row[1] < T0 + 0.9]

@@ -25,8 +25,6 @@ MAX_MODULE_LINES = 800
 LONG_FUNCTIONS: dict[str, str] = {
     "agent/reproject_raster.py::raster_loop": "a numba kernel: one loop nest over the mesh's "
     "blocks, whose six triangle cases share a dozen scalars a helper would take as arguments",
-    "fusion/pipeline.py::FusionPipeline._update": "the fusion step's stages, being split",
-    "fusion/extrapolation.py::views_with_late": "late views, being split",
 }
 """``path::qualname`` of the functions allowed past :data:`MAX_FUNCTION_LINES`, with why."""
 

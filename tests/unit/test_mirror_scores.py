@@ -14,6 +14,7 @@ import pytest
 from skelfuse.fusion import anatomy, label_scores, labels, mirror, walking
 from skelfuse.fusion.mirror_distances import LATERAL_JOINTS, LATERAL_SWAP, lateral_loop
 from skelfuse.fusion.mirror_labellings import layout
+from skelfuse.fusion.settings import MirrorSettings
 from tests.support import random_views as _views, same_bits as _same_bits
 
 FloatArray = np.ndarray
@@ -238,7 +239,7 @@ def _expected(facing: FloatArray, velocity: FloatArray) -> bool | None:
 def test_walking_check_decides_by_speed_and_direction() -> None:
     from skelfuse.fusion.settings import FusionSettings
 
-    settings = FusionSettings(mirror_walk_check_s=0.5, mirror_walk_min_speed_mps=0.5)
+    settings = FusionSettings(mirror=MirrorSettings(walk_check_s=0.5, walk_min_speed_mps=0.5))
     joints = _views(0)[0]
     facings, velocities = _walks(np.random.default_rng(4), 2000)
     decided = 0

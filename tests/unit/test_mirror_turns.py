@@ -1,6 +1,6 @@
 """Mirror labels through fast in-place turns (the crossing scenario's): the person's facing
-without the sensors' turn towards themselves (``mirror_unbiased_facing``), and a stale view
-turned over alone instead of the whole person (``mirror_redecide_views``)."""
+without the sensors' turn towards themselves (``mirror.unbiased_facing``), and a stale view
+turned over alone instead of the whole person (``mirror.redecide_views``)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import pytest
 from skelfuse.agent.sim.performer import BodyShape, Pose, pose_joints
 from skelfuse.fusion.anatomy import facing_direction
 from skelfuse.fusion.labels import LabelDoubt, label_views, views_alone
-from skelfuse.fusion.settings import FusionSettings
+from skelfuse.fusion.settings import FusionSettings, MirrorSettings
 from skelfuse.fusion.unbiased_facing import unbiased_facings
 from skelfuse.protocol.skeleton import MIRROR_PERMUTATION, JointId, TrackingState
 
@@ -129,24 +129,26 @@ def relabel(settings: FusionSettings) -> tuple[list[bool], int]:
 
 
 def test_a_stale_view_turns_alone_when_the_other_views_do_not_doubt() -> None:
-    s = replace(FusionSettings(), mirror_hysteresis_m=1.0, mirror_redecide=True)
+    s = FusionSettings(mirror=MirrorSettings(hysteresis_m=1.0, redecide=True))
     _, _, _, truth = stale_side_view()
     # Before: the whole person turns over, which makes the two right views wrong.
-    whole, swaps = relabel(replace(s, mirror_redecide_views=1))
+    whole, swaps = relabel(replace(s, mirror=replace(s.mirror, redecide_views=1)))
     assert swaps == 1
     assert whole == [truth[0], not truth[1], not truth[2]]  # side right, the others wrong
     # With it: only the stale view turns; the track stays.
-    alone, swaps = relabel(replace(s, mirror_redecide_views=2))
+    alone, swaps = relabel(replace(s, mirror=replace(s.mirror, redecide_views=2)))
     assert swaps == 0
     assert alone == truth
 
 
 def test_views_alone_leaves_young_persons_and_wide_doubt_to_the_whole_turn() -> None:
-    s = replace(FusionSettings(), mirror_redecide_views=2)
+    s = FusionSettings(mirror=MirrorSettings(redecide_views=2))
     old = LabelDoubt(born_s=0.0)
     one = np.array([2.0, 0.1, -0.3])
     assert views_alone(one, old, 5.0, s).tolist() == [True, False, False]
     assert views_alone(np.array([2.0, 0.8, -0.3]), old, 5.0, s) is None  # two views doubt
     assert views_alone(one, old, 0.5, s) is None  # young: its labels were a guess
     assert views_alone(np.array([2.0]), old, 5.0, s) is None  # one view: it is the person
-    assert views_alone(one, old, 5.0, replace(s, mirror_redecide_views=1)) is None
+    assert (
+        views_alone(one, old, 5.0, replace(s, mirror=replace(s.mirror, redecide_views=1))) is None
+    )

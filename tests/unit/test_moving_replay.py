@@ -70,7 +70,11 @@ def test_the_replay_fuses_moving_sensors_as_the_live_hub_does(tmp_path: Path) ->
     records = mutual_records(2.0)
     settings = HubSettings()
     settings = dataclasses.replace(
-        settings, fusion=dataclasses.replace(settings.fusion, alignment="aligned")
+        settings,
+        fusion=dataclasses.replace(
+            settings.fusion,
+            alignment=dataclasses.replace(settings.fusion.alignment, policy="aligned"),
+        ),
     )
     calibration = Calibration(1, 0.0, {}, spaces={"room": SpaceCalibration(WORLD_FROM_SPACE, "m")})
     live = FusionHub(settings, calibration)

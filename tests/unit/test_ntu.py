@@ -9,6 +9,7 @@ import pytest
 
 from skelfuse.agent.sources.base import SensorError
 from skelfuse.agent.sources.ntu import NtuSource
+from skelfuse.fusion.settings import BoneSettings
 from skelfuse.protocol.ntu import NtuFormatError, parse_ntu_name, read_ntu_skeleton
 from skelfuse.protocol.transform import apply, invert, look_at_pose
 from skelfuse.protocol.wire import Frame, encode
@@ -91,7 +92,7 @@ def test_three_cameras_with_poses_fuse_into_one_person(tmp_path: Path) -> None:
     # the default online bone estimate pools left and right and would (rightly) even them out.
     # This test is about the import and the poses: every view agrees, so fusion must give back
     # exactly the world skeleton.
-    settings = Settings(fusion=FusionSettings(bone_estimate_symmetric=False))
+    settings = Settings(fusion=FusionSettings(bones=BoneSettings(symmetric=False)))
     fused = list(replay(recording, settings))
     last = fused[-1]
     assert len(last.persons) == 1

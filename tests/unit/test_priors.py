@@ -21,7 +21,12 @@ from skelfuse.fusion.priors import (
     prior_for,
     priors_of,
 )
-from skelfuse.fusion.settings import FusionSettings
+from skelfuse.fusion.settings import (
+    BoneSettings,
+    FusionSettings,
+    SmoothingSettings,
+    TrackingSettings,
+)
 from skelfuse.fusion.view_factors import view_factors
 from skelfuse.fusion.views import View
 from skelfuse.protocol.skeleton import JOINT_COUNT, JointId, bone_lengths
@@ -49,7 +54,7 @@ def test_every_wire_type_has_a_prior_and_the_v2_like_ones_are_the_settings() -> 
     for name in ("kinect_v2", "sim", "replay"):
         prior = PRIORS[name]
         assert dataclasses.replace(prior, name="kinect_v2") == KINECT_V2
-        assert prior.table(SETTINGS) == SETTINGS.state_weights
+        assert prior.table(SETTINGS) == SETTINGS.weights.state_weights
     femto = dataclasses.replace(PRIORS["femto"], name=AZURE_BODY_TRACKING.name)
     assert femto == AZURE_BODY_TRACKING  # the same Body Tracking SDK
 
@@ -60,17 +65,12 @@ def test_kinect_v2_prior_gives_todays_weights_bit_for_bit() -> None:
     priors = [KINECT_V2] * 6
     today = body_weights(joints, states, refs, None, SETTINGS)
     assert np.array_equal(body_weights(joints, states, refs, None, SETTINGS, priors), today)
-    assert (today < np.array(SETTINGS.state_weights)[states]).any()  # the body terms bite
+    assert (today < np.array(SETTINGS.weights.state_weights)[states]).any()  # the body terms bite
 
     rng = np.random.default_rng(1)
     cosines = rng.uniform(-1.0, 1.0, 6)
     cosines[0] = np.nan
-    stands, sensors = rng.normal(size=(6, 3)), rng.normal(size=(6, 3)) * 3
-    settings = dataclasses.replace(SETTINGS, use_distance=True)
-    assert np.array_equal(
-        view_factors(cosines, stands, sensors, settings, priors),
-        view_factors(cosines, stands, sensors, settings),
-    )
+    assert np.array_equal(view_factors(cosines, SETTINGS, priors), view_factors(cosines, SETTINGS))
 
 
 def test_azure_view_gets_its_own_table_and_no_bone_length_term() -> None:
@@ -79,7 +79,13 @@ def test_azure_view_gets_its_own_table_and_no_bone_length_term() -> None:
     v2 = body_weights(joints, states, refs, None, SETTINGS, [KINECT_V2])
     azure = body_weights(joints, states, refs, None, SETTINGS, [AZURE_BODY_TRACKING])
     no_bones = body_weights(
-        joints, states, refs, None, dataclasses.replace(SETTINGS, use_bone_length=False)
+        joints,
+        states,
+        refs,
+        None,
+        dataclasses.replace(
+            SETTINGS, weights=dataclasses.replace(SETTINGS.weights, bone_length=False)
+        ),
     )
     assert np.array_equal(azure, no_bones)  # its fixed-length model's offset is not noise
     knee = JointId.KNEE_LEFT
@@ -87,7 +93,12 @@ def test_azure_view_gets_its_own_table_and_no_bone_length_term() -> None:
 
     own = dataclasses.replace(AZURE_BODY_TRACKING, state_weights=(0.0, 0.5, 0.9))
     weights = body_weights(joints, states, refs, None, SETTINGS, [own])
-    settings_nb = dataclasses.replace(SETTINGS, use_bone_length=False, state_weights=(0, 0.5, 0.9))
+    settings_nb = dataclasses.replace(
+        SETTINGS,
+        weights=dataclasses.replace(
+            SETTINGS.weights, bone_length=False, state_weights=(0, 0.5, 0.9)
+        ),
+    )
     assert np.array_equal(weights, body_weights(joints, states, refs, None, settings_nb))
 
 
@@ -104,8 +115,7 @@ def test_mixed_types_in_one_batch_each_row_as_alone() -> None:
     assert np.array_equal(mixed[[0, 3]], body_weights(joints, states, refs, None, SETTINGS)[[0, 3]])
 
     cosines = np.array([0.5, 0.5, -0.5, np.nan])
-    positions = np.zeros((4, 3))
-    factors = view_factors(cosines, positions, positions, SETTINGS, priors)
+    factors = view_factors(cosines, SETTINGS, priors)
     assert factors[0] == pytest.approx(0.1 + 0.9 * 0.25)
     assert factors[1] == pytest.approx(0.1 + 0.9 * 0.5**4)  # its own facing power
     assert factors[2] == pytest.approx((0.1 + 0.9 * 0.25) * 0.5)
@@ -124,7 +134,12 @@ def test_noise_and_range_of_motion_scale() -> None:
     loose = body_weights(
         joints, states, refs, None, SETTINGS, [dataclasses.replace(base, rom_scale=2.0)]
     )
-    wider = dataclasses.replace(SETTINGS, rom_scale_deg=2.0 * SETTINGS.rom_scale_deg)
+    wider = dataclasses.replace(
+        SETTINGS,
+        weights=dataclasses.replace(
+            SETTINGS.weights, rom_scale_deg=2.0 * SETTINGS.weights.rom_scale_deg
+        ),
+    )
     np.testing.assert_allclose(loose, body_weights(joints, states, refs, None, wider, [base]))
 
 
@@ -177,8 +192,14 @@ def _fuse(types: list[str], settings: FusionSettings, thigh_m: float) -> np.ndar
 
 
 def test_pipeline_mixes_kinect_and_azure_views_of_one_person() -> None:
-    settings = FusionSettings(track_min_frames=1, filter="none", enforce_bone_lengths=False)
-    off = dataclasses.replace(settings, use_sensor_priors=False)
+    settings = FusionSettings(
+        tracking=TrackingSettings(min_frames=1),
+        smoothing=SmoothingSettings(filter="none"),
+        bones=BoneSettings(enforce=False),
+    )
+    off = dataclasses.replace(
+        settings, weights=dataclasses.replace(settings.weights, sensor_priors=False)
+    )
     same = _fuse(["kinect_v2", "azure_kinect"], off, 0.06)
     assert np.array_equal(same, _fuse(["kinect_v2", "kinect_v2"], settings, 0.06))
     mixed = _fuse(["kinect_v2", "azure_kinect"], settings, 0.06)

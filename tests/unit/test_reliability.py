@@ -9,7 +9,7 @@ import numpy as np
 from bench.oracle import best_view, group_mpjpe, view_errors
 from skelfuse.fusion.pipeline import FusionPipeline
 from skelfuse.fusion.reliability import hidden_by_trunk, lean_errors, reliability_factors
-from skelfuse.fusion.settings import FusionSettings
+from skelfuse.fusion.settings import BoneSettings, FusionSettings, SmoothingSettings, WeightSettings
 from skelfuse.fusion.views import View
 from skelfuse.protocol.skeleton import MIRROR_PERMUTATION, JointId as J
 
@@ -74,7 +74,7 @@ def test_the_front_view_wins_the_leaning_ankle_and_a_single_view_is_untouched() 
 
 
 def test_off_by_default_and_on_moves_the_fused_ankle_towards_the_front_view() -> None:
-    assert FusionSettings().use_view_reliability is False
+    assert FusionSettings().weights.view_reliability is False
     truth = _body()
     front = truth.copy()
     side = truth.copy()
@@ -86,8 +86,11 @@ def test_off_by_default_and_on_moves_the_fused_ankle_towards_the_front_view() ->
     ]
     errors = {}
     for on in (False, True):
-        settings = FusionSettings(use_view_reliability=on, filter="none",
-                                  enforce_bone_lengths=False, use_facing=False)  # fmt: skip
+        settings = FusionSettings(
+            weights=WeightSettings(view_reliability=on, facing=False),
+            smoothing=SmoothingSettings(filter="none"),
+            bones=BoneSettings(enforce=False),
+        )
         pipeline = FusionPipeline(settings)
         out = []
         for n in range(5):

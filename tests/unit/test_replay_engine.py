@@ -50,7 +50,11 @@ def through_the_hub(path: Path) -> list[FusedFrame]:
     header, records = read_recording(path)
     settings = Settings()
     offline = dataclasses.replace(
-        settings, fusion=dataclasses.replace(settings.fusion, alignment="aligned")
+        settings,
+        fusion=dataclasses.replace(
+            settings.fusion,
+            alignment=dataclasses.replace(settings.fusion.alignment, policy="aligned"),
+        ),
     )
     hub = FusionHub(offline, calibration_of(header))
     every_s = offline.heartbeat_interval_s / 2

@@ -12,19 +12,18 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Sequence
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
 import pytest
 
 from skelfuse.fusion import weigh
-from skelfuse.fusion.anatomy import corrected_yaw, facing_directions
+from skelfuse.fusion.anatomy import facing_directions
 from skelfuse.fusion.batch import ViewBatch
 from skelfuse.fusion.confidence import body_weights
 from skelfuse.fusion.priors import SensorPrior, priors_of
 from skelfuse.fusion.reliability import reliability_factors
-from skelfuse.fusion.settings import FusionSettings
+from skelfuse.fusion.settings import FusionSettings, WeightSettings
 from skelfuse.fusion.view_factors import facing_cosines, view_factors
 from skelfuse.fusion.views import View
 from skelfuse.fusion.weighted import confidence_and_carriers
@@ -85,26 +84,15 @@ def _term_by_term(
     facing = np.where(once[:, None], track_facings, facing_directions(fused))
     stands = batch.body_positions(fused)[batch.person_of]
     cosines = facing_cosines(facing[batch.person_of], stands, batch.sensors)
-    if s.correct_view_yaw:
-        for lo, hi in zip(batch.starts[:-1], batch.starts[1:], strict=True):
-            if hi - lo > 1:
-                batch.joints[lo:hi] = corrected_yaw(
-                    batch.joints[lo:hi], cosines[lo:hi], s.yaw_max_deg
-                )
-    if s.use_facing or s.use_distance or s.correct_view_yaw:
-        weights = weights * view_factors(cosines, stands, batch.sensors, s, priors)[:, None]
+    if s.weights.facing:
+        weights = weights * view_factors(cosines, s, priors)[:, None]
         fused = batch.fuse(weights)
-    if s.use_view_reliability:
+    if s.weights.view_reliability:
+        w = s.weights
         weights = weights * reliability_factors(
-            batch.joints, cosines, batch.sensors, batch.starts.tolist(), s.view_lean_fraction,
-            s.view_error_m, s.view_jitter_per_m2, s.view_occlusion_m, batch.states,
+            batch.joints, cosines, batch.sensors, batch.starts.tolist(), w.view_lean_fraction,
+            w.view_error_m, w.view_jitter_per_m2, w.view_occlusion_m, batch.states,
         )  # fmt: skip
-        fused = batch.fuse(weights)
-    several = np.array(batch.counts)[batch.person_of] > 1
-    if s.outlier_scale_m > 0 and several.any():  # 1 / (1 + (d / scale)²), 1 where d unknown
-        d = np.linalg.norm(batch.joints - fused[batch.person_of], axis=-1)
-        factor = np.where(np.isfinite(d), 1.0 / (1.0 + (d / s.outlier_scale_m) ** 2), 1.0)
-        weights = np.where(several[:, None], weights * factor, weights)
         fused = batch.fuse(weights)
     padded_joints, padded_weights = batch.pad(batch.joints, np.nan), batch.pad(weights, 0.0)
     confidence, carried = confidence_and_carriers(padded_joints, padded_weights)
@@ -115,12 +103,12 @@ def _both(
     batch: ViewBatch, fused_once: list[bool], settings: FusionSettings, seed: int
 ) -> tuple[weigh.Weighed, weigh.Weighed]:
     """The step from :func:`weigh.weigh_and_fuse` and from :func:`_term_by_term`, each on its
-    own copy of ``batch`` (``correct_view_yaw`` turns the joints in place)."""
+    own copy of ``batch``."""
     results = []
     for run in (weigh.weigh_and_fuse, _term_by_term):
         own = copy.deepcopy(batch)
         rom, references, facings = _inputs(seed, own)
-        use = settings.use_sensor_priors
+        use = settings.weights.sensor_priors
         priors = priors_of([v.sensor_type for v in own.views]) if use else None
         results.append(run(own, rom, references, facings, fused_once, settings, priors))
     return results[0], results[1]
@@ -140,10 +128,10 @@ def _close(got: weigh.Weighed, expected: weigh.Weighed) -> None:
 @pytest.mark.parametrize("seed", range(6))
 @pytest.mark.parametrize(
     "change",
-    [{}, {"use_bone_length": False}, {"use_range_of_motion": False}, {"facing_power": 1.5}],
+    [{}, {"bone_length": False}, {"range_of_motion": False}, {"facing_power": 1.5}],
 )
 def test_the_step_gives_the_stages_results(seed: int, change: dict[str, Any]) -> None:
-    settings = replace(FusionSettings(), **change)
+    settings = FusionSettings(weights=WeightSettings(**change))
     got, expected = _both(_batch(seed), [True] * len(COUNTS), settings, seed)
     _close(got, expected)
     # The terms reached the result: weights below the state table's, views that did not carry.
@@ -166,24 +154,20 @@ def test_a_person_whose_spine_no_view_sees_stands_at_its_views_mean(seed: int) -
     ("case", "change", "fused_once", "sensor_type"),
     [
         ("a person fused the first time", {}, [True, False, True, True, False], "kinect_v2"),
-        ("the distance term", {"use_distance": True}, [True] * 5, "kinect_v2"),
-        ("the yaw correction", {"correct_view_yaw": True}, [True] * 5, "kinect_v2"),
-        ("the view reliability", {"use_view_reliability": True}, [True] * 5, "kinect_v2"),
-        ("the Cauchy pass", {"outlier_scale_m": 0.05}, [True] * 5, "kinect_v2"),
-        ("no facing term", {"use_facing": False}, [True] * 5, "kinect_v2"),
-        ("no view factor at all", {"use_facing": False, "use_view_reliability": True}, [True] * 5,
+        ("the view reliability", {"view_reliability": True}, [True] * 5, "kinect_v2"),
+        ("no facing term", {"facing": False}, [True] * 5, "kinect_v2"),
+        ("no view factor at all", {"facing": False, "view_reliability": True}, [True] * 5,
          "kinect_v2"),
         ("a camera that guesses depth", {}, [True] * 5, "rgb"),
-        ("depth guessed, every term", {"outlier_scale_m": 0.05, "use_distance": True,
-         "use_view_reliability": True, "correct_view_yaw": True}, [True] * 5, "rgb"),
+        ("depth guessed, every term", {"view_reliability": True}, [True] * 5, "rgb"),
         ("a sensor prior's own table", {}, [True] * 5, "azure_kinect"),
-        ("priors off", {"use_sensor_priors": False}, [True] * 5, "azure_kinect"),
+        ("priors off", {"sensor_priors": False}, [True] * 5, "azure_kinect"),
     ],
 )  # fmt: skip
 def test_every_setting_gives_the_stages_results(
     case: str, change: dict[str, Any], fused_once: list[bool], sensor_type: str
 ) -> None:
-    settings = replace(FusionSettings(), **change)
+    settings = FusionSettings(weights=WeightSettings(**change))
     batch = _batch(3, sensor_type)
     if sensor_type == "azure_kinect":  # (its prior must differ from the settings to count)
         assert any(
@@ -192,21 +176,3 @@ def test_every_setting_gives_the_stages_results(
     got, expected = _both(batch, fused_once, settings, 3)
     _close(got, expected)
     assert np.isfinite(got.fused).any(), case
-
-
-def test_the_cauchy_pass_discounts_the_view_far_from_the_others() -> None:
-    """Three views agree, a fourth is 30 cm off: its weight falls by 1 / (1 + (d / scale)²)."""
-    batch = _batch(0)
-    lo = int(batch.starts[0])  # the first person: four views
-    batch.joints[lo : lo + 4] = _views(0)[0]  # a simulated pose, every joint known
-    batch.states[lo : lo + 4] = 2
-    batch.joints[lo + 3, :, 0] += 0.3
-    settings = replace(FusionSettings(), outlier_scale_m=0.1)
-    off = replace(settings, outlier_scale_m=0.0)
-    plain, _ = _both(batch, [True] * len(COUNTS), off, 0)
-    got, _ = _both(batch, [True] * len(COUNTS), settings, 0)
-    joint = JointId.SPINE_MID
-    assert got.weights[lo + 3, joint] < 0.5 * plain.weights[lo + 3, joint]
-    assert abs(got.fused[0, joint, 0] - batch.joints[lo, joint, 0]) < abs(
-        plain.fused[0, joint, 0] - batch.joints[lo, joint, 0]
-    )
