@@ -1,1 +1,4 @@
-"""Benchmarks (run as scripts: python bench/<name>.py); results in docs/benchmarks.md."""
+"""Benchmarks by subject; run one with ``python -m bench NAME`` (the list: ``python -m bench``).
+
+Results and their commands are in docs/benchmarks.md.
+"""

@@ -1,8 +1,8 @@
 """No hidden threads in the real server (issue 11 item 0), as ``skelfuse server`` runs it.
 
 The server is ``python -m skelfuse server`` on loopback with a stored calibration for 10 fake
-sensors (``bench/load_server.py``); the load is the load benchmark's agents process, 10 agents ×
-30 fps × 6 bodies (``bench/load_agents.py``). With ≥ ~9 views of a person a matrix product in
+sensors (``bench/live/server.py``); the load is the load benchmark's agents process, 10 agents ×
+30 fps × 6 bodies (``bench/live/agents.py``). With ≥ ~9 views of a person a matrix product in
 fusion is big enough for an unpinned OpenBLAS to wake a worker thread that busy-waits between
 the 30 Hz calls: that thread then burns a large share of a core. Per-thread CPU is read from
 ``/proc/<pid>/task/*/stat`` (Linux only).
@@ -25,8 +25,8 @@ from typing import Any
 
 import pytest
 
-from bench.load_agents import agents_process, sensor_layout
-from bench.load_server import http_json, start_server
+from bench.live.agents import agents_process, sensor_layout
+from bench.live.server import http_json, start_server
 from tests.support import free_port, wait_until
 
 pytestmark = pytest.mark.e2e

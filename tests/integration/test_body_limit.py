@@ -3,7 +3,7 @@
 Issue 12: a chunked body (no Content-Length) was read in full and then parsed; 8 MiB got a 422 and
 128 MiB took the server to 504 MB. These tests upload from outside over a raw socket, the way any
 HTTP/1.1 client streams a body, and read the answer as soon as the server gives it
-(``bench/body_limit.py``'s upload, which also prints the figures).
+(``bench/live/body_limit.py``'s upload, which also prints the figures).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from bench.body_limit import MiB, chunked_upload, reset_peak_rss, rss_bytes
+from bench.live.body_limit import MiB, chunked_upload, reset_peak_rss, rss_bytes
 from tests.conftest import PROJECT_ROOT
 from tests.integration.conftest import LiveServer
 from tests.support import free_port, wait_until

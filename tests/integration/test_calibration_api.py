@@ -24,7 +24,7 @@ WALKER = Segment(ProceduralPerformer(1), 0.0, 6.3)
 """The routine's walk around the room, looped: what a user does for a calibration. The whole
 routine, whose phase follows the wall clock, sometimes left a 15 s capture with only a few
 seconds of walking (turning, arm raises, squats on the spot): a poorly conditioned skeleton fit
-that CI caught as a 3° / 212 mm pose (the fit's trust level says so; bench/calibration.py
+that CI caught as a 3° / 212 mm pose (the fit's trust level says so; bench/calibration/methods.py
 measures that)."""
 
 
@@ -276,8 +276,9 @@ def test_auto_calibration_finds_sensors_and_floor_with_no_equipment(
         estimate = invert(reference) @ np.asarray(results[sensor_id]["T_world_from_sensor"])
         truth = invert(true_pose("cam-a")) @ true_pose(sensor_id)
         rotation_deg, translation_mm = pose_error(estimate, truth)
-        # Accuracy targets are bench/calibration.py's job; here: the API path ends near truth
-        # (ICP can be only partly constrained when two sensors share little besides the floor).
+        # Accuracy targets are bench/calibration/methods.py's job; here: the API path ends near
+        # truth (ICP can be only partly constrained when two sensors share little besides the
+        # floor).
         assert rotation_deg < 2.0 and translation_mm < 80, (
             sensor_id,
             rotation_deg,

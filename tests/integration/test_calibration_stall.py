@@ -6,8 +6,8 @@ again and again (here 0.05–0.8 s at a time, depending on the machine's load; 2
 11). The solvers now run in a worker process. The agents are processes of their own, as on a rig
 (in this process their depth rendering would take its GIL too). On a shared 2-core machine the
 idle server itself stalls now and then (the process waits for a core), so the check is the rate
-of stalls over 50 ms while ICP runs against the idle rate just before; bench/calibration_stall.py
-reports the figures.
+of stalls over 50 ms while ICP runs against the idle rate just before;
+bench/live/calibration_stall.py reports the figures.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The live feed conflates, from outside (issue 12, defect 2).
 
-A real ``python -m skelfuse server`` process (bench/load_server.py: loopback, stored
+A real ``python -m skelfuse server`` process (bench/live/server.py: loopback, stored
 calibration, uvicorn as ``skelfuse server`` runs it) fed by the load benchmark's fake agents (a
 child process of real ZeroMQ agents at 30 fps), and three real clients at once:
 
@@ -36,8 +36,8 @@ import orjson
 import pytest
 from websockets.asyncio.client import connect
 
-from bench.load_agents import agents_process, sensor_layout
-from bench.load_server import free_port, http_json, proc_rss_mb, start_server, wait_for
+from bench.live.agents import agents_process, sensor_layout
+from bench.live.server import free_port, http_json, proc_rss_mb, start_server, wait_for
 
 pytestmark = pytest.mark.timeout(150)
 

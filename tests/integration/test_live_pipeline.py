@@ -280,7 +280,7 @@ def test_metrics_expose_sensors_fusion_and_clients(
 
 def test_start_up_objects_are_out_of_the_cycle_collectors_reach(live_server: LiveServer) -> None:
     # A full collection walking them took 154 ms on the event loop during a calibration
-    # (bench/calibration_stall.py); frozen after start-up, it walks only what came since.
+    # (bench/live/calibration_stall.py); frozen after start-up, it walks only what came since.
     assert gc.get_freeze_count() > 10_000
 
 

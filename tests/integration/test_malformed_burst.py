@@ -7,7 +7,7 @@ the real ingest loop and hub, while a real agent link streams well-formed frames
 - the well-formed agent loses nothing.
 
 Counting messages between turns rather than timing them keeps the test meaningful on a loaded
-machine; ``bench/malformed_burst.py`` measures the feed's longest pause with real processes.
+machine; ``bench/live/malformed_burst.py`` measures the feed's longest pause with real processes.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import pytest
 import zmq
 import zmq.asyncio
 
-from bench.malformed_burst import malformed
+from bench.live.malformed_burst import malformed
 from skelfuse.agent.link import AgentLink
 from skelfuse.protocol.wire import Frame, Hello
 from skelfuse.server.hub import FusionHub

@@ -1,4 +1,4 @@
-"""The leave-one-out pipeline of bench/mono_accuracy.py end to end on the clip's first frames:
+"""The leave-one-out pipeline of bench/mono/accuracy.py end to end on the clip's first frames:
 two cameras' landmark bodies through the real agent loop to a real server (a subprocess on
 loopback), the fused person projected into a third camera and judged there.
 Everything it needs is in the repository (tests/data: the landmarks and the calibration).
@@ -9,10 +9,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.mono_accuracy_geometry import load_cameras
-from bench.mono_accuracy_live import run_live
-from bench.mono_accuracy_loo import judge, live_limbs
-from bench.mono_accuracy_single import CALIBRATION, Clip, load_clip
+from bench.mono.geometry import load_cameras
+from bench.mono.live import run_live
+from bench.mono.loo import judge, live_limbs
+from bench.mono.single import CALIBRATION, Clip, load_clip
 
 FRAMES = 30
 

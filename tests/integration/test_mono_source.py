@@ -4,7 +4,7 @@ by the real agent loop to a real server. Every Python socket connect and name lo
 agent's process is refused and counted: the model loads from the wheel, nothing downloads.
 
 Skips with a visible reason without ``.venv-mono`` or the clip (``../shared/data``), and fails
-under CI, which makes both. CPU per frame is a figure for bench/mono_source.py, not asserted.
+under CI, which makes both. CPU per frame is a figure for bench/mono/source.py, not asserted.
 """
 
 from __future__ import annotations

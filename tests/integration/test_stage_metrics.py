@@ -7,7 +7,7 @@ from collections.abc import Callable
 
 import httpx
 
-from bench.load_stages import parse_stages
+from bench.live.stages import parse_stages
 from tests.integration.conftest import AgentThread, LiveServer
 from tests.support import wait_until
 

@@ -6,11 +6,11 @@ import math
 
 import pytest
 
-from bench.accuracy_methods import BASELINE, FULL, METHODS
-from bench.accuracy_metrics import Log
-from bench.accuracy_report import group_row
-from bench.accuracy_runner import run_once
-from bench.accuracy_scenarios import Scenario
+from bench.accuracy.methods import BASELINE, FULL, METHODS
+from bench.accuracy.metrics import Log
+from bench.accuracy.report import group_row
+from bench.accuracy.runner import run_once
+from bench.accuracy.scenarios import Scenario
 from skelfuse.agent.sim.kinect_model import KinectV2Params
 from skelfuse.agent.sim.performer import ProceduralPerformer
 from skelfuse.agent.sim.scenarios import Segment

@@ -12,7 +12,7 @@ import msgpack
 import numpy as np
 import pytest
 
-from bench.load_encode import sample_frame
+from bench.live.encode import sample_frame
 from skelfuse.client import Backoff, feed_url
 from skelfuse.client.connection import redact
 from skelfuse.client.frames import decode, frame_from, skeleton_from

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.load_encode import sample_frame
+from bench.live.encode import sample_frame
 from skelfuse.protocol.feed import frame_json, person_json, persons_json, round_like_python
 from skelfuse.protocol.skeleton import skeleton_definition
 from skelfuse.recording.replay import replay

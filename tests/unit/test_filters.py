@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from bench.lag import SHIFTS_S, best_shift, shift_errors
+from bench.accuracy.lag import SHIFTS_S, best_shift, shift_errors
 from skelfuse.fusion.filters import (
     ConstantVelocityKalman,
     JointFilter,

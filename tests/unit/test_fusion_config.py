@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from bench.replay import generate_recording
+from bench.recording.replay import generate_recording
 from skelfuse.cli import main
 from skelfuse.fusion.config import (
     REMOVED,

@@ -1,12 +1,12 @@
-"""The bench's per-stage breakdown of a fusion step (bench/fusion_stages.py), through the
+"""The bench's per-stage breakdown of a fusion step (bench/live/fusion_stages.py), through the
 pipeline's public stage timer."""
 
 from __future__ import annotations
 
 import math
 
-from bench.fusion_stages import STAGES, StageClock, stage_timers
-from bench.fusion_timing import fusion_timing
+from bench.live.fusion_stages import STAGES, StageClock, stage_timers
+from bench.live.fusion_timing import fusion_timing
 from skelfuse.fusion import pipeline as module
 from skelfuse.fusion.pipeline import NO_TIMER, FusionPipeline
 from skelfuse.fusion.settings import FusionSettings

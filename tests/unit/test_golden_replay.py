@@ -2,8 +2,8 @@
 feed's rounding.
 
 The take (``tests/data/golden/take.sfrec``: 3 simulated Kinect v2, 2 people, 6 s, made with
-``bench.replay.generate_recording(sensors=3, persons=2, duration_s=6.0, seed=11)``) is a file, not
-regenerated, so a change to the simulator cannot hide a change to fusion. Each
+``bench.recording.replay.generate_recording(sensors=3, persons=2, duration_s=6.0, seed=11)``)
+is a file, not regenerated, so a change to the simulator cannot hide a change to fusion. Each
 ``fused-<config>.jsonl.gz`` beside it is ``skelfuse replay take.sfrec [--fusion-config
 <config>.toml] --out fused.jsonl`` as it was; a deliberate change to fusion writes them again in
 the same commit and says why (:func:`write_references`).

@@ -1,4 +1,4 @@
-"""The bench's host speed probes (bench/host_speed.py) and where the load report shows them."""
+"""The bench's host speed probes (bench/live/host_speed.py) and where the load report shows them."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ from collections.abc import Iterator
 
 import pytest
 
-from bench import host_speed as module, load_encode
-from bench.host_speed import HostSpeed, host_speed
+from bench.live import encode as load_encode, host_speed as module
+from bench.live.host_speed import HostSpeed, host_speed
 
 
 def test_the_median_of_the_timed_runs_is_reported(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -39,8 +39,8 @@ def test_both_workloads_are_timed() -> None:
 def test_the_fusion_table_shows_the_host_speed_before_and_after(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    from bench.fusion_timing import fusion_timing
-    from bench.load_report import print_fusion
+    from bench.live.fusion_timing import fusion_timing
+    from bench.live.report import print_fusion
 
     timing = fusion_timing(sensors=2, bodies=2, steps=3, warmup=10)
     print_fusion([timing], [HostSpeed(211.6, 640.2), HostSpeed(480.0, 901.0)])

@@ -1,4 +1,4 @@
-"""bench/load.py's alignment-wait reconstruction against a simulated server (issue 11 item 6).
+"""bench/live/load.py's alignment-wait reconstruction against a simulated server (issue 11 item 6).
 
 The server's rule, simulated here: instant ``t`` is fused once every sensor has a frame whose
 capture, mapped with the offset estimate the server held when the frame arrived, is at or past
@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from bench.load_waits import OffsetSeries, alignment_waits, offset_series
+from bench.live.waits import OffsetSeries, alignment_waits, offset_series
 
 Arr = npt.NDArray[np.floating[Any]]
 PERIOD = 1 / 30

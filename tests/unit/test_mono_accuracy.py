@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.mono_accuracy_loo import judge
-from bench.mono_accuracy_metrics import (
+from bench.mono.loo import judge
+from bench.mono.metrics import (
     LIMB_LANDMARKS,
     median,
     mpjpe,
@@ -18,7 +18,7 @@ from bench.mono_accuracy_metrics import (
     shifted,
     torso_px,
 )
-from bench.mono_accuracy_single import Clip
+from bench.mono.single import Clip
 from skelfuse.calibration.camera import Camera, CameraIntrinsics
 
 

@@ -1,12 +1,12 @@
-"""bench/moving_sensors.py on short runs: per-frame poses cut report B's erroneous frames, and
+"""bench/moving/sensors.py on short runs: per-frame poses cut report B's erroneous frames, and
 the fused error of mutual capture grows with the pose-to-frame mismatch (issue 15 item 5)."""
 
 from __future__ import annotations
 
-from bench.moving_sensors_frames import FrameCase, erroneous_frames
-from bench.moving_sensors_fused import FusedCase, minimal_errors
-from bench.moving_sensors_hub import hub_errors
-from bench.moving_sensors_spaces import solved_spaces, stored_spaces
+from bench.moving.frames import FrameCase, erroneous_frames
+from bench.moving.fused import FusedCase, minimal_errors
+from bench.moving.hub import hub_errors
+from bench.moving.spaces import solved_spaces, stored_spaces
 
 
 def test_per_frame_poses_cut_the_erroneous_frames_of_a_turning_head() -> None:

@@ -1,4 +1,4 @@
-"""bench/outputs.py runs (one second instead of sixty) and reports no frame lost."""
+"""bench/live/outputs.py runs (one second instead of sixty) and reports no frame lost."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ pytest.importorskip("pylsl", reason="pylsl is not installed (pip install 'skelfu
 
 
 def test_the_outputs_bench_loses_nothing_in_a_second() -> None:
-    from bench.outputs import run
+    from bench.live.outputs import run
 
     report = run(1.0, 30.0)
     assert report["frames"] == 30

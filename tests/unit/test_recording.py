@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.replay import generate_recording
+from bench.recording.replay import generate_recording
 from skelfuse.protocol.feed import frame_json
 from skelfuse.protocol.recording_file import (
     Header,

@@ -12,7 +12,7 @@ import msgpack
 import numpy as np
 import pytest
 
-from bench.replay import generate_recording
+from bench.recording.replay import generate_recording
 from skelfuse.calibration.store import Calibration, SensorCalibration
 from skelfuse.protocol.feed import frame_json
 from skelfuse.protocol.recording_file import (

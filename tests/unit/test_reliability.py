@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from bench.oracle import best_view, group_mpjpe, view_errors
+from bench.accuracy.oracle import best_view, group_mpjpe, view_errors
 from skelfuse.fusion.pipeline import FusionPipeline
 from skelfuse.fusion.reliability import hidden_by_trunk, lean_errors, reliability_factors
 from skelfuse.fusion.settings import BoneSettings, FusionSettings, SmoothingSettings, WeightSettings

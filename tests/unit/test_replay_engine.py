@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.replay import generate_recording
+from bench.recording.replay import generate_recording
 from skelfuse.fusion.engine import FusedFrame
 from skelfuse.protocol.recording_file import Record, read_recording, write_recording
 from skelfuse.recording.replay import calibration_of, replay

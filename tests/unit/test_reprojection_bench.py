@@ -1,9 +1,10 @@
-"""bench/reprojection.py's figures at 20° pitch + roll about the neck pivot, against issue 15's
-targets for re-projection (holes about the input's own, ghosts <= 0.05 % of the image)."""
+"""bench/moving/reprojection.py's figures at 20° pitch + roll about the neck pivot, against
+issue 15's targets for re-projection (holes about the input's own, ghosts <= 0.05 % of the
+image)."""
 
 from __future__ import annotations
 
-from bench.reprojection import case_figures
+from bench.moving.reprojection import case_figures
 
 
 def test_the_20_degree_case_meets_the_targets() -> None:

@@ -1,5 +1,5 @@
 """The live path's stage histograms (server/stage_timing.py) as /metrics shows them, and the load
-bench's quantile over a window of two scrapes (bench/load_stages.py)."""
+bench's quantile over a window of two scrapes (bench/live/stages.py)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import math
 import pytest
 from prometheus_client import CollectorRegistry, generate_latest
 
-from bench.load_stages import parse_stages, window_quantile
+from bench.live.stages import parse_stages, window_quantile
 from skelfuse.server.stage_timing import STAGES, StageTimes, StageTimesCollector
 
 

@@ -147,9 +147,9 @@ def test_a_track_without_camera_or_rate_is_refused(
 def test_the_floor_beats_pnp_against_the_four_view_reference(
     videos: list[VideoLandmarks], cameras: dict[str, Camera]
 ) -> None:
-    """bench/floor_depth.py's table: the floor's distance is nearer the triangulated reference
+    """bench/mono/floor_depth.py's table: the floor's distance is nearer the triangulated reference
     than PnP's on three cameras of four and on average (199 -> 161 mm absolute)."""
-    from bench.floor_depth import errors_mm, reference, variants
+    from bench.mono.floor_depth import errors_mm, reference, variants
 
     ref, lags = reference(videos, cameras)
     assert lags == {"cam01": 0, "cam02": 0, "cam03": 2, "cam04": 0}

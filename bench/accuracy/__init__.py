@@ -1,0 +1,1 @@
+"""Fusion accuracy against simulated ground truth: the methods, alignment policies, lag."""

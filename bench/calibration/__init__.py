@@ -1,0 +1,1 @@
+"""Calibration: how well each method places the sensors, and drift detection."""

@@ -1,0 +1,1 @@
+"""One ordinary camera (the mono source) on the real four-camera clip."""

@@ -1,0 +1,1 @@
+"""Recordings: replay speed, determinism and export."""
