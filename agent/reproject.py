@@ -12,7 +12,7 @@ together with the points themselves, z-buffered (:mod:`skelfuse.agent.reproject_
 lone pixel the sensor dropped is covered from its neighbours under the same rule. On the
 simulator's ray caster at ±10–20° pitch and roll with 2 % dropout: points alone leave 3–13 %
 of the person's silhouette as holes, mesh plus points 0.5–1.3 % (1.8–3.5 % before dropouts
-were filled), below the level camera's own 1.9–2.2 % (bench/reprojection.py).
+were filled), below the level camera's own 1.9–2.2 % (bench/moving/reprojection.py).
 
 Frames and pixels are those of :mod:`skelfuse.agent.sim.depth_camera` (Kinect camera frame:
 +X sensor-left, +Y up, +Z forward, metres; depth is Z, 0 = no reading). The world is +Y up.

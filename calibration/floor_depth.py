@@ -16,7 +16,7 @@ the ends): PnP's distance error comes mostly from the body's size, which does no
 one frame to the next. Only where no frame at all had a foot on the floor does the placement
 keep its own distance (scale 1.0).
 
-Measured on the real clip against the four-view reference (bench/floor_depth.py,
+Measured on the real clip against the four-view reference (bench/mono/floor_depth.py,
 docs/benchmarks.md): absolute error 199 -> 161 mm on average over the four cameras, better on
 three of them; the fourth, whose PnP distance was already within 5 cm, loses 8 mm. With the
 feet hidden for 40 frames, carrying the scale across beats falling back to PnP there

@@ -83,7 +83,7 @@ with these; ``tests/unit/test_skeleton_mono.py``)."""
 
 SKELETON_ERROR_BOUND: Final = (2.5, 75.0)
 """(degrees, millimetres) a skeleton estimate is rarely further off than (about twice the p95
-measured by bench/calibration.py): ICP refinements that move a skeleton estimate further are
+measured by bench/calibration/methods.py): ICP refinements that move a skeleton estimate further are
 refused (``refine_icp(max_correction=...)``)."""
 
 

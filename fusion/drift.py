@@ -66,8 +66,8 @@ MIN_SPREAD_M: Final = 0.3
 deviation, metres) for an estimate: a person standing still pins the fit poorly."""
 ROTATION_MIN_SPREAD_M: Final = 0.45
 """The rotation counts against a sensor only from this spread on: below it, its noise reached
-1.5° in normal motion (bench/drift.py), while the shift of the person stayed under 15 mm. A
-bumped sensor's rotation shows as a shift too (2° at 3 m moves the person 100 mm), so the
+1.5° in normal motion (bench/calibration/drift.py), while the shift of the person stayed under
+15 mm. A bumped sensor's rotation shows as a shift too (2° at 3 m moves the person 100 mm), so the
 shift alone catches bumps while people move little."""
 BASELINE_CHECKS: Final = 5
 """Well-conditioned estimates (spread ≥ ``ROTATION_MIN_SPREAD_M``) a pair's baseline is taken

@@ -16,8 +16,8 @@ measurement instead of being pulled towards where it was.
   process noise ``accel_std`` (m/s²), measurement noise ``meas_std_m``; optionally outputs the
   state extrapolated ``predict_s`` ahead to cancel its own lag (and the pipeline's).
 
-Added latency of both, measured on ramps and steps, is in docs/fusion.md (``python
-bench/accuracy.py --latency``).
+Added latency of both, measured on ramps and steps, is in docs/fusion.md
+(``python -m bench accuracy --latency``).
 """
 
 from __future__ import annotations

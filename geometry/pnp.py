@@ -10,7 +10,7 @@ the body in the camera frame: the depth comes from the model's body size against
   error in pixels.
 - :func:`solve_pose`: R and t (six unknowns), Levenberg-Marquardt from the translation-only
   answer. The same minimum as ``cv2.solvePnP(..., flags=SOLVEPNP_ITERATIVE)`` with unit weights
-  (compared in bench/mono_source.py in the mono environment, where cv2 is), without needing cv2.
+  (compared in bench/mono/source.py in the mono environment, where cv2 is), without needing cv2.
 
 Frames: OpenCV camera frame (+X right, +Y down, +Z forward, metres) for model points and the
 result; pixels as :class:`skelfuse.geometry.pinhole.Intrinsics` has them. Weights (e.g.

@@ -173,7 +173,7 @@ def _freeze_start_up_objects() -> None:
     """Move what start-up made out of the cycle collector's reach (``gc.unfreeze`` undoes it)."""
     # What start-up made (modules, classes, caches) lives as long as the process: out of the
     # cycle collector's reach, a full collection no longer walks it on the event loop (one
-    # took 154 ms during a calibration, bench/calibration_stall.py; issue 11 item 5).
+    # took 154 ms during a calibration, bench/live/calibration_stall.py; issue 11 item 5).
     gc.collect()
     gc.freeze()
 
@@ -228,7 +228,7 @@ def _attach_monitors(
     loop_lag = LoopLagMonitor(SystemClock())
     registry.register(LoopLagCollector(loop_lag))
     app.state.loop_lag = loop_lag
-    stages = StageTimes()  # where the live path's time goes (bench/load.py reads it)
+    stages = StageTimes()  # where the live path's time goes (bench/live/load.py reads it)
     broadcaster.send_times = stages.send
     registry.register(StageTimesCollector(stages))
     app.state.broadcaster = broadcaster

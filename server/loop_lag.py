@@ -5,7 +5,7 @@ GIL, as open3d's ICP did) shows as lateness here, and every client, agent and fu
 as long. :class:`LoopLagMonitor` runs as one of the server's tasks; :class:`LoopLagCollector`
 exposes what it saw at ``/metrics`` (``skelfuse_event_loop_lag_seconds``, a histogram of the
 lateness of each 5 ms tick, and ``skelfuse_event_loop_lag_max_seconds``, the largest since the
-server started), which ``bench/calibration_stall.py`` reads around a calibration.
+server started), which ``bench/live/calibration_stall.py`` reads around a calibration.
 """
 
 from __future__ import annotations

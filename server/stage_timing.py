@@ -16,7 +16,7 @@ as one histogram family, ``skelfuse_live_stage_seconds{stage=...}``:
   frame's write into that client's socket (``Broadcaster.send_times``): the server's share of
   the age a client measures after ``t_sent``, without the client's own scheduling.
 
-``bench/load.py`` reads them before and after its window (the difference of the cumulative
+``bench/live/load.py`` reads them before and after its window (the difference of the cumulative
 buckets is the window's histogram).
 """
 
