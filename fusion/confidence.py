@@ -252,7 +252,7 @@ _NOT_USED: Final = np.ones((1, 1))
 
 
 @jit
-def body_loop(  # pragma: no cover - compiled
+def body_loop(
     joints: FloatArray,
     states: npt.NDArray[np.uint8],
     terms: FloatArray,
@@ -298,7 +298,7 @@ def body_loop(  # pragma: no cover - compiled
 
 
 @jit
-def confidence_loop(  # pragma: no cover - compiled
+def confidence_loop(
     joints: FloatArray,
     weights: FloatArray,
     min_share: float,

@@ -161,7 +161,10 @@ def _candidate(
         f1 += _finite(axis[1] * 0.0)
         f2 += _finite(axis[2] * 1.0)
     norm = math.sqrt((f0 * f0 + f1 * f1) + f2 * f2)
-    f0, f1, f2 = f0 / norm, f1 / norm, f2 / norm
+    if norm > 0.0:
+        f0, f1, f2 = f0 / norm, f1 / norm, f2 / norm
+    else:  # no axis known: NaN (written out, so that it holds as plain Python too)
+        f0 = f1 = f2 = math.nan
     for i in range(n):
         t = to_sensor[lo + i]
         cos = _finite((f0 * t[0] + f1 * t[1]) + f2 * t[2])

@@ -187,7 +187,7 @@ def _between(stop: int, batch: ViewBatch, out: Weighed, settings: FusionSettings
 
 
 @jit
-def _weigh_loop(  # pragma: no cover - compiled
+def _weigh_loop(
     first: int,
     last: int,
     joints: FloatArray,
@@ -230,7 +230,7 @@ def _weigh_loop(  # pragma: no cover - compiled
 
 
 @jit
-def _body_phase(  # pragma: no cover - compiled
+def _body_phase(
     joints: FloatArray,
     states: npt.NDArray[np.uint8],
     starts: IntArray,
@@ -257,7 +257,7 @@ def _body_phase(  # pragma: no cover - compiled
 
 
 @jit
-def _pad(  # pragma: no cover - compiled
+def _pad(
     joints: FloatArray,
     weights: FloatArray,
     starts: IntArray,
@@ -277,7 +277,7 @@ def _pad(  # pragma: no cover - compiled
 
 
 @jit
-def _fuse(  # pragma: no cover - compiled
+def _fuse(
     joints: FloatArray,
     weights: FloatArray,
     starts: IntArray,
@@ -291,7 +291,7 @@ def _fuse(  # pragma: no cover - compiled
 
 
 @jit
-def _facing_phase(  # pragma: no cover - compiled
+def _facing_phase(
     joints: FloatArray,
     sensors: FloatArray,
     starts: IntArray,

@@ -41,4 +41,20 @@ if [ "$status" -eq 5 ]; then
   echo "error: pytest collected no tests; that is a failure here, not a pass" >&2
   exit 1
 fi
-exit "$status"
+if [ "$status" -ne 0 ] || [ "$#" -ne 0 ]; then
+  exit "$status"  # a narrowed run (arguments given) stops here
+fi
+# The fusion stages are numba loops with no numpy twin; NUMBA_DISABLE_JIT=1 runs the same source
+# as plain Python, the way to debug one. A fast subset of their tests and the golden replay, so
+# that path keeps working. (Compiled, a 0/0 in a loop is NaN silently, numba's numpy error model;
+# numpy scalars in plain Python warn on the same arithmetic: those two warnings are ignored here.)
+echo "==> the compiled stages' tests as plain Python (NUMBA_DISABLE_JIT=1)"
+NUMBA_DISABLE_JIT=1 "$VENV/bin/python" -m pytest -q -p no:cacheprovider \
+  -W "ignore:invalid value encountered:RuntimeWarning" \
+  -W "ignore:divide by zero encountered:RuntimeWarning" \
+  tests/unit/test_confidence_loops.py tests/unit/test_mirror_scores.py tests/unit/test_anatomy.py \
+  tests/unit/test_bone_window.py tests/unit/test_bone_fit_bits.py tests/unit/test_trunks.py \
+  tests/unit/test_measured_motion.py tests/unit/test_to_world.py \
+  tests/unit/test_alignment_replay.py tests/unit/test_filters_ca.py tests/unit/test_weigh.py \
+  tests/unit/test_label_scores.py tests/unit/test_bone_observation.py \
+  tests/unit/test_golden_replay.py

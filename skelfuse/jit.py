@@ -105,12 +105,6 @@ def plain(array: npt.ArrayLike, dtype: type = np.float64) -> Any:
     return np.require(array, dtype=dtype, requirements=("C", "W"))
 
 
-def in_place(array: npt.NDArray[Any], dtype: type) -> bool:
-    """Whether a kernel can write ``array`` in place as it is: C-ordered, writable, ``dtype``
-    (what :func:`plain` returns unchanged)."""
-    return bool(array.dtype == dtype and array.flags.c_contiguous and array.flags.writeable)
-
-
 _COPIES_KEPT = 256
 _copies: dict[int, tuple[npt.NDArray[Any], npt.NDArray[Any]]] = {}
 """Writable copies of read-only arrays that own their data, by the original's id (the original
