@@ -212,7 +212,7 @@ def warm_up() -> None:
         bone_window,
         bones,
         confidence,
-        filters_ca,
+        filters,
         labels,
         measured_motion,
         mirror,
@@ -228,7 +228,7 @@ def warm_up() -> None:
     stages = (
         anatomy, mirror, labels, unbiased_facing, walking, weighted, confidence, view_factors,
         weigh, bone_fit, bones, bone_window, trunks, measured_motion, world_views,
-        alignment_replay, filters_ca,
+        alignment_replay, filters,
     )  # fmt: skip
     for stage in stages:
         stage.warm_up()

@@ -135,8 +135,8 @@ class MirrorSettings:
 
 @dataclass(frozen=True, slots=True)
 class SmoothingSettings:
-    """The temporal filter applied per person after fusion (fusion/filters.py,
-    fusion/filters_ca.py; docs/fusion.md §8)."""
+    """The temporal filter applied per person after fusion (fusion/filters.py; docs/fusion.md
+    §8)."""
 
     filter: FilterKind = "kalman_ca"
     """``kalman_ca`` (damped acceleration, least lag), ``kalman`` (constant velocity),

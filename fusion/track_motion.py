@@ -18,9 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.filters import JointFilter, OneEuroFilter
+from skelfuse.fusion.filters import JointFilter, KalmanState, OneEuroFilter
 from skelfuse.fusion.identity import ViewKey
-from skelfuse.fusion.kalman_state import KalmanState
 from skelfuse.fusion.pipeline import FusionPipeline
 from skelfuse.protocol.skeleton import MIRROR_PERMUTATION
 
