@@ -213,10 +213,10 @@ def warm_up() -> None:
         bones,
         confidence,
         filters,
+        identity,
         labels,
         measured_motion,
         mirror,
-        trunks,
         unbiased_facing,
         view_factors,
         walking,
@@ -227,7 +227,7 @@ def warm_up() -> None:
 
     stages = (
         anatomy, mirror, labels, unbiased_facing, walking, weighted, confidence, view_factors,
-        weigh, bone_fit, bones, bone_window, trunks, measured_motion, world_views,
+        weigh, bone_fit, bones, bone_window, identity, measured_motion, world_views,
         alignment_replay, filters,
     )  # fmt: skip
     for stage in stages:

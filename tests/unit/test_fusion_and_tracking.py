@@ -7,6 +7,7 @@ import pytest
 
 from skelfuse.agent.sim.performer import ProceduralPerformer
 from skelfuse.fusion.confidence import state_weights
+from skelfuse.fusion.identity import trunk_distance
 from skelfuse.fusion.pipeline import FusionPipeline
 from skelfuse.fusion.settings import (
     BoneSettings,
@@ -15,7 +16,6 @@ from skelfuse.fusion.settings import (
     SmoothingSettings,
     TrackingSettings,
 )
-from skelfuse.fusion.trunks import trunk_distance
 from skelfuse.fusion.views import FusedPerson, View
 from skelfuse.fusion.weighted import fuse_views
 from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION, JointId, TrackingState
