@@ -206,7 +206,7 @@ def warm_up() -> None:
     ``warm_up`` calls its loops once with the argument types the pipeline passes (a first start
     compiles for seconds, later starts load the cache)."""
     from skelfuse.fusion import (
-        alignment_replay,
+        alignment,
         anatomy,
         bone_fit,
         bone_window,
@@ -228,7 +228,7 @@ def warm_up() -> None:
     stages = (
         anatomy, mirror, labels, unbiased_facing, walking, weighted, confidence, view_factors,
         weigh, bone_fit, bones, bone_window, identity, measured_motion, world_views,
-        alignment_replay, filters,
+        alignment, filters,
     )  # fmt: skip
     for stage in stages:
         stage.warm_up()

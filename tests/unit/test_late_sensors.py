@@ -11,8 +11,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from skelfuse.fusion.alignment import Alignment, SensorTiming
-from skelfuse.fusion.alignment_replay import replayed_horizons
+from skelfuse.fusion.alignment import Alignment, SensorTiming, replayed_horizons
 from skelfuse.fusion.engine import FusedFrame
 from skelfuse.fusion.extrapolation import LatePredictor, carried_by_motion, views_with_late
 from skelfuse.fusion.measured_motion import measured_displacements, measured_from_arrays
