@@ -212,10 +212,10 @@ def warm_up() -> None:
         bone_window,
         bones,
         confidence,
+        extrapolation,
         filters,
         identity,
         labels,
-        measured_motion,
         mirror,
         unbiased_facing,
         view_factors,
@@ -227,7 +227,7 @@ def warm_up() -> None:
 
     stages = (
         anatomy, mirror, labels, unbiased_facing, walking, weighted, confidence, view_factors,
-        weigh, bone_fit, bones, bone_window, identity, measured_motion, world_views,
+        weigh, bone_fit, bones, bone_window, identity, extrapolation, world_views,
         alignment, filters,
     )  # fmt: skip
     for stage in stages:
