@@ -209,7 +209,6 @@ def warm_up() -> None:
         alignment,
         anatomy,
         bone_fit,
-        bone_window,
         bones,
         confidence,
         extrapolation,
@@ -227,7 +226,7 @@ def warm_up() -> None:
 
     stages = (
         anatomy, mirror, labels, unbiased_facing, walking, weighted, confidence, view_factors,
-        weigh, bone_fit, bones, bone_window, identity, extrapolation, world_views,
+        weigh, bone_fit, bones, identity, extrapolation, world_views,
         alignment, filters,
     )  # fmt: skip
     for stage in stages:

@@ -175,7 +175,7 @@ class SmoothingSettings:
 @dataclass(frozen=True, slots=True)
 class BoneSettings:
     """The person's reference bone lengths, estimated online, and the fit that gives them to
-    each fused skeleton (fusion/bones.py, fusion/bone_window.py; docs/fusion.md §8)."""
+    each fused skeleton (fusion/bones.py; docs/fusion.md §8)."""
 
     window: int = 300
     """A reference length is the median of this many last good observations per bone; longer

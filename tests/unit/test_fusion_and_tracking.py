@@ -261,7 +261,7 @@ def test_duplicate_person_from_disjoint_sensors_is_merged() -> None:
 
 def test_batched_fusion_helpers_match_single_calls() -> None:
     from skelfuse.fusion.bone_fit import enforce_bone_lengths
-    from skelfuse.fusion.bone_window import nanmedian_axis
+    from skelfuse.fusion.bones import nanmedian_axis
     from skelfuse.fusion.confidence import joint_confidence
     from skelfuse.fusion.weighted import weighted_mean
 
