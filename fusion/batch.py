@@ -13,7 +13,7 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.mirror_labellings import slots
-from skelfuse.fusion.ray_weighting import depth_noise_ratios, ray_weighted_mean
+from skelfuse.fusion.view_factors import depth_noise_ratios, ray_weighted_mean
 from skelfuse.fusion.views import View
 from skelfuse.fusion.weighted import weighted_mean
 
@@ -29,7 +29,7 @@ class ViewBatch:
     person_of, slot_of (N,) and starts (P + 1,) are shared read-only arrays.
     Per-person sums use (P, widest, ...) blocks padded after the real views (:meth:`pad`).
     depth_ratios: (N,) each view's noise along its sensor's ray over across it, None when all
-    are 1 (fusion/ray_weighting.py: only ``rgb`` views have more).
+    are 1 (fusion/view_factors.py: only ``rgb`` views have more).
     """
 
     views: list[View]

@@ -41,7 +41,7 @@ class TrackingSettings:
 @dataclass(frozen=True, slots=True)
 class WeightSettings:
     """How much each view's joint counts in the weighted mean (fusion/confidence.py,
-    fusion/weigh.py, fusion/priors.py, fusion/reliability.py)."""
+    fusion/weigh.py, fusion/priors.py, fusion/view_factors.py)."""
 
     state_weights: tuple[float, float, float] = (0.0, 0.3, 0.7)
     """Weight of a NotTracked / Inferred / Tracked joint, each in [0, 1]; equal Inferred and

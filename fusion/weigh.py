@@ -39,9 +39,8 @@ from skelfuse.fusion.confidence import (
     sensor_terms,
 )
 from skelfuse.fusion.priors import SensorPrior
-from skelfuse.fusion.reliability import reliability_factors
 from skelfuse.fusion.settings import FusionSettings
-from skelfuse.fusion.view_factors import cosines_loop, view_factor_loop
+from skelfuse.fusion.view_factors import cosines_loop, reliability_factors, view_factor_loop
 from skelfuse.fusion.weighted import MIN_SHARE, weighted_loop
 from skelfuse.jit import jit, plain
 

@@ -22,9 +22,8 @@ from skelfuse.fusion.anatomy import facing_directions
 from skelfuse.fusion.batch import ViewBatch
 from skelfuse.fusion.confidence import body_weights
 from skelfuse.fusion.priors import SensorPrior, priors_of
-from skelfuse.fusion.reliability import reliability_factors
 from skelfuse.fusion.settings import FusionSettings, WeightSettings
-from skelfuse.fusion.view_factors import facing_cosines, view_factors
+from skelfuse.fusion.view_factors import facing_cosines, reliability_factors, view_factors
 from skelfuse.fusion.views import View
 from skelfuse.fusion.weighted import confidence_and_carriers
 from skelfuse.protocol.skeleton import BONES, JointId
