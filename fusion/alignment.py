@@ -57,7 +57,7 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.mirror_distances import pairwise
+from skelfuse.fusion.mirror_scores import pairwise
 from skelfuse.fusion.sensors import SensorState
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.jit import jit, jit_inline, plain

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.mirror_labellings import slots
+from skelfuse.fusion.mirror_scores import slots
 from skelfuse.fusion.view_factors import depth_noise_ratios, ray_weighted_mean
 from skelfuse.fusion.views import View
 from skelfuse.fusion.weighted import weighted_mean

@@ -14,8 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.mirror import Scored, score
-from skelfuse.fusion.mirror_labellings import slots
-from skelfuse.fusion.mirror_scores import evidence_loop
+from skelfuse.fusion.mirror_scores import evidence_loop, slots
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.jit import plain
 

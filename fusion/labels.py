@@ -25,7 +25,7 @@ import numpy.typing as npt
 from skelfuse.fusion.anatomy import facing_loop
 from skelfuse.fusion.label_scores import scored_labels
 from skelfuse.fusion.mirror import PERMUTATION
-from skelfuse.fusion.mirror_labellings import slots
+from skelfuse.fusion.mirror_scores import slots
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.unbiased_facing import check_lean, unbiased_loop
 from skelfuse.jit import jit, plain

@@ -41,9 +41,15 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.anatomy import ANGLE_LIMITS, facing_direction
-from skelfuse.fusion.mirror_distances import LATERAL_JOINTS, LATERAL_SWAP
-from skelfuse.fusion.mirror_labellings import MAX_VIEWS, SCREEN_FROM_VIEWS, SCREEN_MARGIN_M, layout
-from skelfuse.fusion.mirror_scores import scored_loop
+from skelfuse.fusion.mirror_scores import (
+    LATERAL_JOINTS,
+    LATERAL_SWAP,
+    MAX_VIEWS,
+    SCREEN_FROM_VIEWS,
+    SCREEN_MARGIN_M,
+    layout,
+    scored_loop,
+)
 from skelfuse.jit import plain
 from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION
 

@@ -50,7 +50,7 @@ from skelfuse.fusion.bones import (
 from skelfuse.fusion.filters import JointFilter, Stacks, filter_all, make_filter
 from skelfuse.fusion.identity import PersonTracker, Track
 from skelfuse.fusion.labels import LabelDoubt, Labels, label_views
-from skelfuse.fusion.mirror_labellings import MAX_VIEWS
+from skelfuse.fusion.mirror_scores import MAX_VIEWS
 from skelfuse.fusion.priors import SensorPrior, priors_of
 from skelfuse.fusion.sensors import SensorState
 from skelfuse.fusion.settings import FusionSettings

@@ -23,7 +23,7 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.anatomy import facing_directions
-from skelfuse.fusion.mirror_labellings import slots
+from skelfuse.fusion.mirror_scores import slots
 from skelfuse.jit import jit, plain
 
 FloatArray = npt.NDArray[np.float64]

@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 
 from skelfuse.fusion import anatomy, label_scores, labels, mirror, walking
-from skelfuse.fusion.mirror_distances import LATERAL_JOINTS, LATERAL_SWAP, lateral_loop
-from skelfuse.fusion.mirror_labellings import layout
+from skelfuse.fusion.mirror_scores import LATERAL_JOINTS, LATERAL_SWAP, lateral_loop, layout
 from skelfuse.fusion.settings import MirrorSettings
 from tests.support import random_views as _views, same_bits as _same_bits
 
