@@ -216,7 +216,6 @@ def warm_up() -> None:
         identity,
         labels,
         mirror,
-        unbiased_facing,
         view_factors,
         walking,
         weigh,
@@ -225,7 +224,7 @@ def warm_up() -> None:
     )
 
     stages = (
-        anatomy, mirror, labels, unbiased_facing, walking, weighted, confidence, view_factors,
+        anatomy, mirror, labels, walking, weighted, confidence, view_factors,
         weigh, bone_fit, bones, identity, extrapolation, world_views,
         alignment, filters,
     )  # fmt: skip

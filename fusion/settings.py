@@ -90,8 +90,7 @@ class WeightSettings:
 @dataclass(frozen=True, slots=True)
 class MirrorSettings:
     """Views whose left and right are swapped (a person facing away) and whole persons
-    labelled the wrong way round (fusion/mirror.py, fusion/labels.py, fusion/label_scores.py;
-    docs/fusion.md §6)."""
+    labelled the wrong way round (fusion/mirror.py, fusion/labels.py; docs/fusion.md §6)."""
 
     enabled: bool = True
     """Detect mirrored views and swap them back; off only to compare without it."""

@@ -11,7 +11,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pytest
 
-from skelfuse.fusion import anatomy, label_scores, labels, mirror, walking
+from skelfuse.fusion import anatomy, labels, mirror, walking
 from skelfuse.fusion.mirror_scores import LATERAL_JOINTS, LATERAL_SWAP, lateral_loop, layout
 from skelfuse.fusion.settings import MirrorSettings
 from tests.support import random_views as _views, same_bits as _same_bits
@@ -193,7 +193,7 @@ def test_the_evidence_is_the_joints_out_of_range_as_labelled_against_as_swapped(
     factors = factors.copy()
     factors[1, 0, 3] = np.nan  # not finite: 0
     factors[2, 1, 4] = -np.inf  # a sum of +inf against the labelling: the largest float
-    per_view = label_scores.view_evidence(factors, mirrored)
+    per_view = labels.view_evidence(factors, mirrored)
     out_of_range = (1.0 - factors).sum(axis=2)
     rows = np.arange(len(mirrored))
     chosen = mirrored.astype(int)
@@ -201,7 +201,7 @@ def test_the_evidence_is_the_joints_out_of_range_as_labelled_against_as_swapped(
         expected = np.nan_to_num(out_of_range[rows, chosen] - out_of_range[rows, 1 - chosen])
     np.testing.assert_allclose(per_view, expected, rtol=1e-12, atol=1e-12)
     assert per_view[1] == 0.0 and abs(per_view[2]) == np.finfo(np.float64).max
-    summed = label_scores.evidence_against(factors, mirrored, frame.counts)
+    summed = labels.evidence_against(factors, mirrored, frame.counts)
     person_of = layout(frame.counts).person_of
     np.testing.assert_allclose(summed, np.bincount(person_of, expected), rtol=1e-12)
 
