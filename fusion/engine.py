@@ -217,14 +217,13 @@ def warm_up() -> None:
         labels,
         mirror,
         view_factors,
-        walking,
         weigh,
         weighted,
         world_views,
     )
 
     stages = (
-        anatomy, mirror, labels, walking, weighted, confidence, view_factors,
+        anatomy, mirror, labels, weighted, confidence, view_factors,
         weigh, bone_fit, bones, identity, extrapolation, world_views,
         alignment, filters,
     )  # fmt: skip

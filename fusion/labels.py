@@ -4,7 +4,7 @@ swapped when their anatomy speaks against their labels.
 :func:`label_views` asks :func:`scored_labels` for every person's
 labelling at once, remembers each (sensor, body)'s decision for the next step's hysteresis, and
 swaps the mirrored views in place (:func:`settle`, one compiled loop). Two cues can swap a whole
-person whose labels were wrong from its birth: :func:`skelfuse.fusion.walking.walking_backwards`,
+person whose labels were wrong from its birth: :func:`skelfuse.fusion.mirror.walking_backwards`,
 which does not depend on labels (docs/fusion.md §5), and, with ``mirror.redecide``, the anatomy
 of all its views (:func:`redecide`), which works standing still too. With
 ``mirror.unbiased_facing`` the facing the geometry term compares each sensor with is the

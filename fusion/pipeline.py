@@ -50,12 +50,12 @@ from skelfuse.fusion.bones import (
 from skelfuse.fusion.filters import JointFilter, Stacks, filter_all, make_filter
 from skelfuse.fusion.identity import PersonTracker, Track
 from skelfuse.fusion.labels import LabelDoubt, Labels, label_views
+from skelfuse.fusion.mirror import walking_backwards, walking_backwards_now
 from skelfuse.fusion.mirror_scores import MAX_VIEWS
 from skelfuse.fusion.priors import SensorPrior, priors_of
 from skelfuse.fusion.sensors import SensorState
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.views import FusedPerson, View, fused_persons
-from skelfuse.fusion.walking import walking_backwards, walking_backwards_now
 from skelfuse.fusion.weigh import Weighed, weigh_and_fuse
 from skelfuse.fusion.world_views import PoseLookup, views_at
 
@@ -327,7 +327,7 @@ class FusionPipeline:
     def _check_walking_directions(
         self, ids: list[int], t_s: float, moved: tuple[FloatArray, FloatArray] | None = None
     ) -> None:
-        """Swap each whole person that walks backwards for too long (walking.walking_backwards).
+        """Swap each whole person that walks backwards for too long (mirror.walking_backwards).
 
         The swap takes effect from the next step: the person's skeleton and every view's
         remembered label are swapped, the filter restarts (it would otherwise sweep the limbs

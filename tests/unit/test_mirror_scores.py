@@ -11,7 +11,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pytest
 
-from skelfuse.fusion import anatomy, labels, mirror, walking
+from skelfuse.fusion import anatomy, labels, mirror
 from skelfuse.fusion.mirror_scores import LATERAL_JOINTS, LATERAL_SWAP, lateral_loop, layout
 from skelfuse.fusion.settings import MirrorSettings
 from tests.support import random_views as _views, same_bits as _same_bits
@@ -246,7 +246,7 @@ def test_walking_check_decides_by_speed_and_direction() -> None:
         expected = _expected(facing, velocity)
         if expected is None:
             continue
-        got = walking.walking_backwards(joints, velocity, 1.0, 0.0, settings, facing)
+        got = mirror.walking_backwards(joints, velocity, 1.0, 0.0, settings, facing)
         assert got == ((True, None) if expected else (False, None))
         decided += expected
     assert 100 < decided < 1900
@@ -257,7 +257,7 @@ def test_walking_backwards_now_decides_for_every_person() -> None:
     rng = np.random.default_rng(5)
     facings, velocities = _walks(rng, 3000)
     facings[rng.random(3000) < 0.05, rng.integers(0, 3)] = np.nan  # unknown facings
-    got = walking.walking_backwards_now(velocities, facings, 0.5).tolist()
+    got = mirror.walking_backwards_now(velocities, facings, 0.5).tolist()
     expected = [_expected(f, v) for f, v in zip(facings, velocities, strict=True)]
     pairs = [(g, e) for g, e in zip(got, expected, strict=True) if e is not None]
     assert [g for g, _ in pairs] == [e for _, e in pairs]
