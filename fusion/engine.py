@@ -18,8 +18,7 @@ from skelfuse.fusion.alignment import Alignment, live_timings
 from skelfuse.fusion.drift import DriftMonitor
 from skelfuse.fusion.extrapolation import late_motions, views_with_late
 from skelfuse.fusion.pipeline import FusionPipeline
-from skelfuse.fusion.sensor_rows import sensor_rows
-from skelfuse.fusion.sensors import SensorState, calibrated_lag_s, new_sensor
+from skelfuse.fusion.sensors import SensorState, calibrated_lag_s, new_sensor, sensor_rows
 from skelfuse.fusion.settings import HubSettings
 from skelfuse.fusion.spaces import resolve_pose
 from skelfuse.fusion.stats import RollingStats

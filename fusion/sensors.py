@@ -19,6 +19,9 @@ is subtracted from its mapped times (:meth:`SensorState.use_lag`; 0 when none is
 
 Frames whose mapped capture time is more than :data:`STALE_S` old on arrival (a backlog after an
 outage) or :data:`FUTURE_S` in the future (a clock jump, a replayed recording) are rejected.
+
+What ``GET /api/sensors`` shows of them (last section, :func:`sensor_rows`): one JSON-ready row
+per known sensor, its session, health counters, clock, calibration and drift.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from __future__ import annotations
 import math
 from bisect import bisect_left
 from collections import Counter, deque
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -33,6 +37,7 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.calibration.store import Calibration
+from skelfuse.fusion.drift import DriftMonitor
 from skelfuse.fusion.moving import NO_POSE, placed_in_space
 from skelfuse.fusion.points import finite_points
 from skelfuse.protocol.hands import Hands
@@ -291,7 +296,7 @@ def new_sensor(hello: Hello, routing_id: bytes, now_mono: float) -> SensorState:
     )
 
 
-# --- alignment: a sensor's bodies at an arbitrary instant --------------------------------------
+# --- alignment: a sensor's bodies at an arbitrary instant ----------------------------------------
 
 
 def bodies_at(
@@ -398,3 +403,54 @@ def _lerp(
     states[~both] = nearer_states[~both]
     states[~finite_points(joints)] = TrackingState.NOT_TRACKED
     return joints.astype(np.float32), states
+
+
+# --- The sensors table of GET /api/sensors: one JSON-ready row per known sensor ------------------
+
+
+def sensor_rows(
+    sensors: Iterable[SensorState],
+    pose_of: Callable[[str], tuple[Matrix4 | None, str]],
+    drift: DriftMonitor | None,
+    now_mono: float,
+) -> list[dict[str, object]]:
+    """Session, health counters, clock, calibration and drift of each sensor, sorted by id.
+
+    ``pose_of`` gives a sensor's ``T_world_from_sensor`` and where it comes from (the engine's
+    :meth:`~skelfuse.fusion.engine.FusionEngine.pose_of`; a moving sensor's is its tracking
+    space's, and its row names the space: ``pose_space``); ``now_mono``: monotonic seconds.
+    """
+    rows: list[dict[str, object]] = []
+    for sensor in sorted(sensors, key=lambda x: x.sensor_id):
+        pose, state = pose_of(sensor.sensor_id)
+        age = None if sensor.last_frame_mono is None else now_mono - sensor.last_frame_mono
+        rows.append(
+            {
+                "id": sensor.sensor_id,
+                "type": sensor.sensor_type,
+                "agent_version": sensor.agent_version,
+                "connected": sensor.connected,
+                "fps": round(sensor.fps(now_mono), 2) if sensor.connected else 0.0,
+                "last_frame_age_s": None if age is None else round(age, 4),
+                "bodies": sensor.bodies_last if sensor.connected else 0,
+                "frames_received": sensor.frames_received,
+                "frames_rejected": dict(sensor.frames_rejected),
+                "sequence_gaps": sensor.sequence_gaps,
+                "clock_offset_s": sensor.clock_offset_s,
+                "clock_source": sensor.clock_source,
+                "clock_lag_s": sensor.lag_s,
+                "round_trip_ms": None
+                if sensor.round_trip.rtt_s is None
+                else round(sensor.round_trip.rtt_s * 1000, 3),
+                "calibration": {
+                    "state": state,
+                    "T_world_from_sensor": None if pose is None else pose.tolist(),
+                },
+                "drift": None
+                if drift is None or (status := drift.status(sensor.sensor_id)) is None
+                else status.to_json(),
+            }
+        )
+        if sensor.moving:  # only then, so fixed sensors' rows are as before
+            rows[-1]["pose_space"] = sensor.pose_space
+    return rows
