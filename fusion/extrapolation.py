@@ -51,9 +51,8 @@ import numpy.typing as npt
 
 from skelfuse.fusion.filters import JointFilter, KalmanState, OneEuroFilter
 from skelfuse.fusion.identity import ViewKey
-from skelfuse.fusion.moving import world_position
 from skelfuse.fusion.pipeline import FusionPipeline, PoseLookup
-from skelfuse.fusion.sensors import SensorState, TimedFrame
+from skelfuse.fusion.sensors import SensorState, TimedFrame, world_position
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.views import View
 from skelfuse.fusion.world_views import (
