@@ -40,7 +40,6 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.anatomy import facing_directions
-from skelfuse.fusion.batch import ViewBatch
 from skelfuse.fusion.bone_fit import project_bone_lengths
 from skelfuse.fusion.bones import (
     BoneModel,
@@ -56,7 +55,7 @@ from skelfuse.fusion.priors import SensorPrior, priors_of
 from skelfuse.fusion.sensors import SensorState
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.views import FusedPerson, View, fused_persons
-from skelfuse.fusion.weigh import Weighed, weigh_and_fuse
+from skelfuse.fusion.weigh import ViewBatch, Weighed, weigh_and_fuse
 from skelfuse.fusion.world_views import PoseLookup, views_at
 
 __all__ = ["NO_TIMER", "STAGES", "FusionPipeline", "PersonMemory", "PoseLookup", "StageTimer"]

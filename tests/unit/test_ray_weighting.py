@@ -1,15 +1,15 @@
 """Fusion with noise stretched along a camera's viewing ray (fusion/view_factors.py) and its
-use by the view batch for ``rgb`` views (fusion/batch.py)."""
+use by the view batch for ``rgb`` views (fusion/weigh.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from skelfuse.fusion.batch import ViewBatch
 from skelfuse.fusion.priors import RGB_MONO
 from skelfuse.fusion.view_factors import depth_noise_ratios, ray_weighted_mean
 from skelfuse.fusion.views import View
+from skelfuse.fusion.weigh import ViewBatch
 from skelfuse.fusion.weighted import weighted_mean
 from skelfuse.protocol.skeleton import JOINT_COUNT
 
