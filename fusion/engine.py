@@ -221,12 +221,11 @@ def warm_up() -> None:
         mirror,
         view_factors,
         weigh,
-        weighted,
         world_views,
     )
 
     stages = (
-        anatomy, mirror, labels, weighted, confidence, view_factors,
+        anatomy, mirror, labels, confidence, view_factors,
         weigh, bone_fit, bones, identity, extrapolation, world_views,
         alignment, filters,
     )  # fmt: skip

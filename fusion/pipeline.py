@@ -11,7 +11,7 @@
    (:mod:`skelfuse.fusion.labels`, :mod:`skelfuse.fusion.mirror`);
 5. **per-joint confidence**: tracking state × bone length × range of motion, propagated along
    the body, then × facing × distance per view (:mod:`skelfuse.fusion.confidence`);
-6. **weighted fusion**: the weighted mean of the views (:mod:`skelfuse.fusion.weighted`);
+6. **weighted fusion**: the weighted mean of the views (:mod:`skelfuse.fusion.weigh`);
    the confidence apps receive with each joint (:func:`~skelfuse.fusion.confidence.
    joint_confidence`);
 7. **filter**: each person's joints smoothed over time (:mod:`skelfuse.fusion.filters`);

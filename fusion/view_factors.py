@@ -42,11 +42,11 @@ as 1/σ², the fused joint is the information-weighted mean::
 
     x = (Σ w·A)⁻¹ · Σ w·A·x_view,   A = I + (1/ratio² − 1)·d·dᵀ  (the inverse covariance shape)
 
-With every ratio 1 this is :func:`fusion.weighted.weighted_mean`; with one view it is that view.
+With every ratio 1 this is :func:`fusion.weigh.weighted_mean`; with one view it is that view.
 A second view from another direction then fixes the camera's depth while the camera keeps its
 say across the image. Only persons with at least one such view are recomputed, so fusion of
 Kinect-only rigs keeps its exact bits (the golden replay digests). Shapes as in
-:mod:`fusion.weighted`: P persons, S views each (padded with NaN views of weight 0), J joints;
+:mod:`fusion.weigh`: P persons, S views each (padded with NaN views of weight 0), J joints;
 metres, world frame.
 """
 

@@ -17,7 +17,7 @@ from skelfuse.fusion.settings import (
     TrackingSettings,
 )
 from skelfuse.fusion.views import FusedPerson, View
-from skelfuse.fusion.weighted import fuse_views
+from skelfuse.fusion.weigh import fuse_views
 from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION, JointId, TrackingState
 from tests.support import mpjpe
 
@@ -263,7 +263,7 @@ def test_batched_fusion_helpers_match_single_calls() -> None:
     from skelfuse.fusion.bone_fit import enforce_bone_lengths
     from skelfuse.fusion.bones import nanmedian_axis
     from skelfuse.fusion.confidence import joint_confidence
-    from skelfuse.fusion.weighted import weighted_mean
+    from skelfuse.fusion.weigh import weighted_mean
 
     rng = np.random.default_rng(5)
     joints = rng.normal(size=(3, 4, JOINT_COUNT, 3))

@@ -9,8 +9,7 @@ import pytest
 from skelfuse.fusion.priors import RGB_MONO
 from skelfuse.fusion.view_factors import depth_noise_ratios, ray_weighted_mean
 from skelfuse.fusion.views import View
-from skelfuse.fusion.weigh import ViewBatch
-from skelfuse.fusion.weighted import weighted_mean
+from skelfuse.fusion.weigh import ViewBatch, weighted_mean
 from skelfuse.protocol.skeleton import JOINT_COUNT
 
 TRUTH = np.array([0.0, 1.0, 3.0])

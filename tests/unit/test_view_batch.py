@@ -8,8 +8,7 @@ import numpy.typing as npt
 import pytest
 
 from skelfuse.fusion.views import View
-from skelfuse.fusion.weigh import ViewBatch
-from skelfuse.fusion.weighted import weighted_mean
+from skelfuse.fusion.weigh import ViewBatch, weighted_mean
 from skelfuse.protocol.skeleton import JOINT_COUNT
 
 
