@@ -3,9 +3,8 @@
 Report A (``shared/papers.md``) multiplies body-based terms into the tracking-state weight of
 each joint of each view. Everything here is a pure function on arrays;
 :mod:`skelfuse.fusion.weigh` combines the terms (:func:`body_weights`, and the facing and distance
-of :mod:`skelfuse.fusion.view_factors`)
-and :mod:`skelfuse.fusion.weighted` fuses with them. :func:`joint_confidence` is the one place the
-confidence apps receive with each fused joint is computed.
+of :mod:`skelfuse.fusion.view_factors`) and fuses with them. :func:`joint_confidence` is the one
+place the confidence apps receive with each fused joint is computed.
 
 Shapes: S views of one person, 25 joints, 24 bones (:data:`protocol.skeleton.BONES` order).
 Positions in metres, world frame (+Y up). Every term is in (0, 1], 1 meaning "no doubt", and a

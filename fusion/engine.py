@@ -5,24 +5,27 @@ time as arguments (``now_s``: wall clock, Unix seconds; ``now_mono``: monotonic 
 same engine runs live, in recorded time and in simulated time. The server's sessions
 (:class:`skelfuse.server.hub.FusionHub`) feed it what agents send; offline replay
 (:mod:`skelfuse.recording.replay`) feeds it a recording's decoded messages.
+
+Its health figures (the fusion lag here, the server's fusion time) are rolling statistics over
+the last samples (:class:`RollingStats`, last section), without unbounded memory.
 """
 
 from __future__ import annotations
 
 import logging
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
+from statistics import median
 
 from skelfuse.calibration.store import Calibration
 from skelfuse.fusion.alignment import Alignment, live_timings
 from skelfuse.fusion.drift import DriftMonitor
 from skelfuse.fusion.extrapolation import late_motions, views_with_late
 from skelfuse.fusion.pipeline import FusionPipeline
-from skelfuse.fusion.sensor_rows import sensor_rows
-from skelfuse.fusion.sensors import SensorState, calibrated_lag_s, new_sensor
+from skelfuse.fusion.sensors import SensorState, calibrated_lag_s, new_sensor, sensor_rows
 from skelfuse.fusion.settings import HubSettings
 from skelfuse.fusion.spaces import resolve_pose
-from skelfuse.fusion.stats import RollingStats
 from skelfuse.fusion.views import FusedPerson, View
 from skelfuse.protocol.transform import Matrix4
 from skelfuse.protocol.wire import Frame, Hello
@@ -206,29 +209,48 @@ def warm_up() -> None:
     ``warm_up`` calls its loops once with the argument types the pipeline passes (a first start
     compiles for seconds, later starts load the cache)."""
     from skelfuse.fusion import (
-        alignment_replay,
+        alignment,
         anatomy,
         bone_fit,
-        bone_window,
         bones,
         confidence,
-        filters_ca,
+        extrapolation,
+        filters,
+        identity,
         labels,
-        measured_motion,
         mirror,
-        trunks,
-        unbiased_facing,
         view_factors,
-        walking,
         weigh,
-        weighted,
         world_views,
     )
 
     stages = (
-        anatomy, mirror, labels, unbiased_facing, walking, weighted, confidence, view_factors,
-        weigh, bone_fit, bones, bone_window, trunks, measured_motion, world_views,
-        alignment_replay, filters_ca,
+        anatomy, mirror, labels, confidence, view_factors,
+        weigh, bone_fit, bones, identity, extrapolation, world_views,
+        alignment, filters,
     )  # fmt: skip
     for stage in stages:
         stage.warm_up()
+
+
+# --- Rolling statistics for health figures (fusion time, lag) without unbounded memory -----------
+
+
+class RollingStats:
+    """The last ``size`` samples of one quantity."""
+
+    def __init__(self, size: int = 300) -> None:
+        self._samples: deque[float] = deque(maxlen=size)
+
+    def add(self, value: float) -> None:
+        self._samples.append(value)
+
+    @property
+    def count(self) -> int:
+        return len(self._samples)
+
+    def median(self) -> float:
+        return median(self._samples) if self._samples else 0.0
+
+    def maximum(self) -> float:
+        return max(self._samples, default=0.0)

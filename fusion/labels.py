@@ -1,15 +1,31 @@
 """The mirror-labels step: which views are swapped back, remembered per body, and whole persons
 swapped when their anatomy speaks against their labels.
 
-:func:`label_views` asks :func:`skelfuse.fusion.label_scores.scored_labels` for every person's
+:func:`label_views` asks :func:`scored_labels` for every person's
 labelling at once, remembers each (sensor, body)'s decision for the next step's hysteresis, and
 swaps the mirrored views in place (:func:`settle`, one compiled loop). Two cues can swap a whole
-person whose labels were wrong from its birth: :func:`skelfuse.fusion.walking.walking_backwards`,
+person whose labels were wrong from its birth: :func:`skelfuse.fusion.mirror.walking_backwards`,
 which does not depend on labels (docs/fusion.md §5), and, with ``mirror.redecide``, the anatomy
 of all its views (:func:`redecide`), which works standing still too. With
 ``mirror.unbiased_facing`` the facing the geometry term compares each sensor with is the
 person's facing with every sensor's bias of turning the body towards itself taken out
-(:func:`skelfuse.fusion.unbiased_facing.unbiased_facings`).
+(:func:`unbiased_facings`).
+
+The labels' choice (:func:`scored_labels`, second section) chooses every view's labelling and
+measures how much each view's anatomy speaks against it (:func:`view_evidence`), which
+``mirror.redecide`` sums per person, in one compiled call (:func:`skelfuse.fusion.mirror.score`).
+
+The unbiased facing (last section): a Kinect turns the body it reports towards itself by
+``lean`` × the person's yaw θ to it (clamped to ±90°; the simulator's ``facing_bias``): a view's
+own facing is at φ = θ − lean × clamp(θ) from its sensor. A view the sensor mirrored was fitted
+to the back, at the apparent yaw θ ∓ 180°, and turned by that; swapped back, its facing is
+reversed again. A fused skeleton inherits these turns: a person seen side-on by two sensors
+looks turned by 40–60° (the crossing scenario's turns), enough to put a side sensor behind them
+and to keep that view's old labels after the sensor flips. Inverting each view's turn under the
+labelling chosen, and averaging the unit vectors, gives the facing back. One loop compiled with
+numba (:func:`unbiased_loop`): ``%`` as numpy's floating remainder (the divisor's sign), the
+sign of 0 as 0, sums over a person's views from 0 view after view, ``atan2`` / ``sin`` / ``cos``
+from the C library.
 """
 
 from __future__ import annotations
@@ -22,12 +38,10 @@ from itertools import pairwise
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.anatomy import facing_loop
-from skelfuse.fusion.label_scores import scored_labels
-from skelfuse.fusion.mirror import PERMUTATION
-from skelfuse.fusion.mirror_labellings import slots
+from skelfuse.fusion.anatomy import facing_directions, facing_loop
+from skelfuse.fusion.mirror import PERMUTATION, Scored, score
+from skelfuse.fusion.mirror_scores import evidence_loop, slots
 from skelfuse.fusion.settings import FusionSettings
-from skelfuse.fusion.unbiased_facing import check_lean, unbiased_loop
 from skelfuse.jit import jit, plain
 from skelfuse.protocol.skeleton import JOINT_COUNT
 
@@ -46,7 +60,7 @@ class LabelDoubt:
 
     against: the running sum of evidence (joints, :func:`redecide`); sensors: the sensors that
     saw the person at the last step; born_s, last_s: first and last step seen (seconds);
-    facing: (3,) the last step's :func:`~skelfuse.fusion.unbiased_facing.unbiased_facings`
+    facing: (3,) the last step's :func:`unbiased_facings`
     (``mirror.unbiased_facing``; NaN: unknown).
     """
 
@@ -345,7 +359,7 @@ def redecide(
 ) -> bool:
     """Whether a person's labels are turned over now; updates its running ``doubt``.
 
-    The evidence of each step (:func:`~skelfuse.fusion.label_scores.evidence_against`) is
+    The evidence of each step (:func:`evidence_against`) is
     summed, decaying with ``mirror.redecide_tau_s``; past ``mirror.redecide_evidence`` the
     person is swapped and the sum starts over. A person younger than
     ``mirror.redecide_young_s`` that a sensor has just joined re-decides on this step's
@@ -377,3 +391,203 @@ def warm_up() -> None:
     for forward in (np.ones((2, 2, 3)), None):
         settle(labelled, (np.ones((2, 3)), forward, np.array([0, 2]), 0.5), np.ones((2, 2, 25)))
     settle(labelled, None, None)
+    unbiased_facings(views, np.ones((2, 3)), np.zeros(2, bool), [2], 0.5)
+
+
+# --- The labels' choice and its anatomical evidence ----------------------------------------------
+
+
+def scored_labels(
+    joints: FloatArray,
+    sensor_positions: FloatArray,
+    counts: Sequence[int],
+    references: Sequence[FloatArray | None],
+    reference_facings: FloatArray,
+    previous: npt.NDArray[np.intp],
+    settings: FusionSettings,
+    need_rom: bool,
+    want_evidence: bool,
+) -> Scored:
+    """Every view's labelling, and each view's evidence against it when ``want_evidence``.
+
+    Args:
+        joints: (N, 25, 3) all persons' views, each person's consecutive; metres, world.
+        sensor_positions: (N, 3) metres, world (NaN rows: unknown).
+        counts: views per person (P).
+        references: each person's last fused skeleton (25, 3), or None before its first fusion.
+        reference_facings: (P, 3) each person's facing (NaN: unknown).
+        previous: (N,) each view's last decision (1, 0, −1 unknown).
+        settings: the mirror terms' weights and the range-of-motion scale.
+        need_rom: the range-of-motion factors are wanted even without the anatomy term.
+        want_evidence: measure the evidence (``per_view`` and ``evidence`` of the result);
+            it needs the range-of-motion factors.
+    """
+    s = settings
+    weights = (s.mirror.track_weight, s.mirror.geometry_weight_m, s.mirror.anatomy_weight_m)
+    return score(
+        joints,
+        sensor_positions,
+        counts,
+        (references, reference_facings, previous),
+        (*weights, s.mirror.hysteresis_m, s.weights.rom_scale_deg),
+        need_rom=need_rom,
+        want_evidence=want_evidence,
+    )
+
+
+def evidence_against(
+    both_rom: FloatArray, mirrored: npt.NDArray[np.bool_], counts: Sequence[int]
+) -> FloatArray:
+    """(P,) each person's anatomical evidence against its labelling, in joints.
+
+    Σ over the person's views of (joints out of range of motion as labelled) − (as swapped),
+    a joint counting 1 − its range-of-motion factor. Agreement between views and the geometry
+    term cannot tell a labelling from its reverse (turning every view over keeps the views in
+    agreement and reverses the facing they imply); anatomy can: with left and right swapped,
+    feet point backwards and bent knees look hyperextended. A view that does not see the legs
+    (close to a sensor behind the person) adds next to nothing, however it was labelled.
+
+    Args:
+        both_rom: (N, 2, 25) range-of-motion factors of each view as reported (0) and swapped
+            (1), as :func:`~skelfuse.fusion.mirror.choose_labellings` gives them.
+        mirrored: (N,) the labelling chosen.
+        counts: views per person.
+    """
+    evidence = np.empty(len(counts))
+    person_of = plain(slots(tuple(counts)).person_of, np.intp)
+    evidence_loop(plain(both_rom), plain(mirrored, np.bool_), person_of, np.empty(len(mirrored)),
+                  evidence)  # fmt: skip
+    return evidence
+
+
+def view_evidence(both_rom: FloatArray, mirrored: npt.NDArray[np.bool_]) -> FloatArray:
+    """(N,) each view's anatomical evidence against its labelling, in joints
+    (:func:`evidence_against` before the sum over a person's views; 0 where unknown)."""
+    per_view = np.empty(len(mirrored))
+    evidence_loop(plain(both_rom), plain(mirrored, np.bool_),
+                  np.zeros(len(mirrored), dtype=np.intp), per_view, np.empty(1))  # fmt: skip
+    return per_view
+
+
+# --- The unbiased facing: each person's facing with every sensor's yaw bias taken out ------------
+
+
+BoolArray = npt.NDArray[np.bool_]
+
+_PI = math.pi
+
+
+def unbiased_facings(
+    joints: FloatArray,
+    sensor_positions: FloatArray,
+    mirrored: BoolArray,
+    counts: Sequence[int],
+    lean: float,
+    own: FloatArray | None = None,
+) -> FloatArray:
+    """(P, 3) each person's horizontal facing from its labelled views, each sensor's yaw bias
+    taken out; NaN rows where no view gives one.
+
+    Args:
+        joints: (N, 25, 3) every person's views, labels corrected; metres, world.
+        sensor_positions: (N, 3) metres, world (NaN rows: unknown).
+        mirrored: (N,) whether each view was swapped back (the sensor reported it mirrored).
+        counts: views per person.
+        lean: the share of its yaw a sensor turns a body towards itself, in [0, 1).
+        own: (N, 3) each view's :func:`~skelfuse.fusion.anatomy.facing_directions` as
+            labelled, when the caller has them (None: computed here).
+
+    Returns:
+        (P, 3) horizontal unit vectors (y = 0), NaN where unknown.
+
+    Raises:
+        ValueError: when ``lean`` is not in [0, 1).
+    """
+    check_lean(lean)
+    points = plain(joints)
+    facings = facing_directions(points) if own is None else plain(own)
+    out = np.empty((len(counts), 3))
+    unbiased_loop(
+        np.ascontiguousarray(points[:, 0]),
+        plain(sensor_positions),
+        facings,
+        plain(mirrored, np.bool_),
+        plain(slots(tuple(counts)).starts, np.intp),
+        float(lean),
+        out,
+    )
+    return out
+
+
+def check_lean(lean: float) -> None:
+    """Raises ValueError when ``lean`` (a share of the yaw) is not in [0, 1)."""
+    if not 0.0 <= lean < 1.0:
+        raise ValueError(f"lean must be in [0, 1), got {lean}")
+
+
+@jit
+def _wrap(angle: float) -> float:
+    """An angle (radians) wrapped to [−π, π): (angle + π) mod 2π − π."""
+    return (angle + _PI) % (2 * _PI) - _PI
+
+
+@jit
+def _sign(x: float) -> float:
+    """±1, 0 at ±0, NaN stays NaN (``np.sign``)."""
+    if x > 0:
+        return 1.0
+    if x < 0:
+        return -1.0
+    if x == 0:
+        return 0.0
+    return x
+
+
+@jit
+def _unturn(phi: float, lean: float) -> float:
+    """The yaw θ whose view is at φ = θ − lean × clamp(θ, ±90°) (monotonic: one θ per φ)."""
+    knee = (1.0 - lean) * (_PI / 2)
+    if abs(phi) <= knee:
+        return phi / (1.0 - lean)
+    return phi + lean * (_PI / 2) * _sign(phi)
+
+
+@jit
+def unbiased_loop(
+    origins: FloatArray,
+    sensor_positions: FloatArray,
+    own: FloatArray,
+    mirrored: BoolArray,
+    starts: IntArray,
+    lean: float,
+    out: FloatArray,
+) -> None:
+    """Fill ``out`` (P, 3) with each person's unbiased facing (NaN rows where unknown).
+
+    origins: (N, 3) each view's SpineBase; sensor_positions: (N, 3); own: (N, 3) each view's
+    horizontal unit facing as labelled (NaN: unknown); mirrored: (N,) the labelling chosen;
+    starts: (P + 1,) each person's first view, then N; lean: in [0, 1).
+    """
+    for p in range(len(starts) - 1):
+        m0 = m1 = m2 = 0.0
+        for v in range(starts[p], starts[p + 1]):
+            flipped = mirrored[v]
+            sensor_angle = math.atan2(
+                sensor_positions[v, 0] - origins[v, 0], sensor_positions[v, 2] - origins[v, 2]
+            )
+            phi = _wrap(sensor_angle - math.atan2(own[v, 0], own[v, 2]))
+            if flipped:  # turned at its apparent yaw (facing reversed): invert there, turn back
+                phi = _wrap(phi - _PI)
+            theta = _unturn(phi, lean)
+            if flipped:
+                theta = _wrap(theta + _PI)
+            angle = sensor_angle - theta
+            if math.isfinite(angle):
+                m0 += math.sin(angle)
+                m1 += 0.0
+                m2 += math.cos(angle)
+        norm = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+        if norm > 1e-6:
+            out[p, 0], out[p, 1], out[p, 2] = m0 / norm, m1 / norm, m2 / norm
+        else:
+            out[p, 0] = out[p, 1] = out[p, 2] = math.nan

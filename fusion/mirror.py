@@ -30,10 +30,17 @@ All 2^S combinations are scored (S ≤ 10 sensors per person; 3 views: 8 combina
 person in one compiled call (:func:`score`, the loops in :mod:`skelfuse.fusion.mirror_scores`).
 Pure functions on arrays; the per-(sensor, body) memory for the hysteresis is kept by
 :mod:`skelfuse.fusion.labels`.
+
+The walking check (last section): a person born mirrored (every sensor seeing them from the side
+or behind) stays mirrored, since each view is labelled to agree with them and their own facing,
+reversed, makes the back views look like front ones. People walk forwards (docs/fusion.md §5),
+so a person who walks backwards for long is taken as mirrored as a whole. The check for every
+person at once is one loop compiled with numba (:func:`walking_backwards_now`).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Final, NamedTuple
 
@@ -41,10 +48,17 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.anatomy import ANGLE_LIMITS, facing_direction
-from skelfuse.fusion.mirror_distances import LATERAL_JOINTS, LATERAL_SWAP
-from skelfuse.fusion.mirror_labellings import MAX_VIEWS, SCREEN_FROM_VIEWS, SCREEN_MARGIN_M, layout
-from skelfuse.fusion.mirror_scores import scored_loop
-from skelfuse.jit import plain
+from skelfuse.fusion.mirror_scores import (
+    LATERAL_JOINTS,
+    LATERAL_SWAP,
+    MAX_VIEWS,
+    SCREEN_FROM_VIEWS,
+    SCREEN_MARGIN_M,
+    layout,
+    scored_loop,
+)
+from skelfuse.fusion.settings import FusionSettings
+from skelfuse.jit import jit, plain
 from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION
 
 FloatArray = npt.NDArray[np.float64]
@@ -277,9 +291,77 @@ def score(
 
 
 def warm_up() -> None:
-    """Compile (or load from numba's cache) the scoring loop now, for the argument types every
-    call passes (:func:`~skelfuse.jit.plain`), so no frame waits for it."""
+    """Compile (or load from numba's cache) the scoring and walking loops now, for the argument
+    types every call passes (:func:`~skelfuse.jit.plain`), so no frame waits for it."""
     views = np.zeros((2, 25, 3))
     for references in ([views[0]], [None]):
         score(views, np.ones((2, 3)), [2], (references, np.ones((1, 3)), np.zeros(2, np.intp)),
               (1.0, 0.15, 0.1, 0.05, 15.0), need_rom=True, want_evidence=True)  # fmt: skip
+    walking_backwards_now(np.ones((2, 3)), np.ones((2, 3)), 0.3)
+
+
+# --- The walking check: a person who walks backwards for long is mirrored as a whole -------------
+
+
+def walking_backwards(
+    joints: FloatArray,
+    velocity: FloatArray,
+    t_s: float,
+    backward_since_s: float | None,
+    settings: FusionSettings,
+    facing: FloatArray | None = None,
+) -> tuple[bool, float | None]:
+    """Whether a person has walked backwards long enough to be taken as mirrored as a whole:
+    at ``mirror.walk_min_speed_mps`` or more for ``mirror.walk_check_s``.
+
+    Args:
+        joints: (25, 3) the person's fused skeleton, metres, world; velocity: (3,) m/s.
+        backward_since_s: when the current stretch of walking backwards began, or None.
+        facing: the skeleton's ``facing_direction`` (3,) if the caller has it (one batched
+            call for every person is cheaper); None: worked out here.
+
+    Returns:
+        (swap now, when the stretch began or None): after a swap the stretch starts over.
+    """
+    s = settings
+    if s.mirror.walk_check_s <= 0 or not s.mirror.enabled:
+        return False, backward_since_s
+    if facing is None:
+        facing = facing_direction(joints)
+    velocities = np.asarray(velocity, dtype=np.float64).reshape(1, 3)
+    facings = np.asarray(facing, dtype=np.float64).reshape(1, 3)
+    if not walking_backwards_now(velocities, facings, s.mirror.walk_min_speed_mps)[0]:
+        return False, None
+    if backward_since_s is None:
+        return False, t_s
+    if t_s - backward_since_s < s.mirror.walk_check_s:
+        return False, backward_since_s
+    return True, None
+
+
+def walking_backwards_now(
+    velocities: FloatArray, facings: FloatArray, min_speed: float
+) -> npt.NDArray[np.bool_]:
+    """(P,) whether each of P persons walks backwards now, before :func:`walking_backwards`'s
+    timing: at least ``min_speed`` (m/s) with a finite facing against the velocity by more than
+    half the speed. velocities, facings: (P, 3), m/s and unit vectors, world frame."""
+    out = np.empty(len(velocities), dtype=np.bool_)
+    _backwards_loop(plain(velocities), plain(facings), float(min_speed), out)
+    return out
+
+
+@jit
+def _backwards_loop(
+    velocities: FloatArray, facings: FloatArray, min_speed: float, out: npt.NDArray[np.bool_]
+) -> None:
+    """Fill ``out`` (P,) for :func:`walking_backwards_now` (``np.linalg.norm`` and ``np.dot``
+    of three components as (a₀b₀ + a₁b₁) + a₂b₂)."""
+    for p in range(len(out)):
+        v0, v1, v2 = velocities[p, 0], velocities[p, 1], velocities[p, 2]
+        speed = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+        backwards = False
+        if speed >= min_speed:
+            f0, f1, f2 = facings[p, 0], facings[p, 1], facings[p, 2]
+            finite = math.isfinite(f0) and math.isfinite(f1) and math.isfinite(f2)
+            backwards = finite and f0 * v0 + f1 * v1 + f2 * v2 < -0.5 * speed
+        out[p] = backwards

@@ -4,24 +4,39 @@ costed, the cheapest chosen, and each view's anatomical evidence against its lab
 :func:`scored_loop` runs the whole stage in one call (the per-call cost of many small steps
 outweighed their work): the range-of-motion factors and forward axes of both labellings
 (:func:`~skelfuse.fusion.anatomy.rom_loop`), the agreement terms
-(:func:`~skelfuse.fusion.mirror_distances.lateral_loop`), the costs (:func:`score_loop`) and
+(:func:`lateral_loop`), the costs (:func:`score_loop`) and
 the evidence (:func:`evidence_loop`). Costs are summed term by term as
 :mod:`skelfuse.fusion.mirror` describes, each sum over a person's views or a view's joints as
-numpy's over a last axis (:func:`~skelfuse.fusion.mirror_distances.pairwise`); ties go to the
+numpy's over a last axis (:func:`pairwise`); ties go to the
 first labelling in index order. From ``screen_from`` views on, persons whose facing is known
 are screened first (:func:`_screen`).
+
+The agreement terms of the cost (second section) are mean distances between the lateral joints
+of two views, or of a view and the person's last fused skeleton, under both labellings:
+:func:`lateral_loop` fills every pair's (2, 2) and every view's (2,) table at once. Its sums are
+numpy's over a last axis (:func:`pairwise`), so a mean is what ``d.sum(-1) / count`` gives.
+
+Where each person's views and view pairs are among a frame's views (last section), as index
+arrays built once per shape (:func:`slots`, :func:`layout`), and the constants of the
+labellings' screen. A labelling gives each of a person's n views a label, as reported (0) or
+swapped (1); there are C = 2^n. :mod:`skelfuse.fusion.mirror` scores them all; from
+:data:`SCREEN_FROM_VIEWS` views on, persons whose facing is known are screened with a quick
+estimate first.
 """
 
 from __future__ import annotations
 
+import functools
 import math
+from dataclasses import dataclass
+from typing import Final
 
 import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.anatomy import rom_loop
-from skelfuse.fusion.mirror_distances import lateral_loop, pairwise
 from skelfuse.jit import jit
+from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
@@ -278,7 +293,7 @@ def score_loop(
     views: (N, 25, 3); sensor_positions: (N, 3); people: (P + 1,) each person's first view
     then N, (P, 2) whether it has a reference and a known facing, (P, 3) the facings;
     measured: pair (K, 2, 2) and to_ref (N, 2) from
-    :func:`~skelfuse.fusion.mirror_distances.lateral_loop`, the range-of-motion factors
+    :func:`lateral_loop`, the range-of-motion factors
     (N, 2, 25) and forward axes (N, 2, 3) of both labellings; previous: (N,) last decisions
     (−1 unknown); terms: see :data:`Terms`; screen: the view count from which persons with a
     known facing are screened, and the margin.
@@ -396,3 +411,205 @@ def scored_loop(
     score_loop(views, sensor_positions, (starts, kinds, facings), (pair, to_ref, factors, forward),
                previous, terms, (settings[0], settings[1]), mirrored)  # fmt: skip
     evidence_loop(factors, mirrored, person_of, per_view, evidence)
+
+
+# --- The agreement terms: lateral-joint distances under both labellings --------------------------
+
+
+LATERAL_JOINTS: Final = np.array([j for j in range(JOINT_COUNT) if MIRROR_PERMUTATION[j] != j])
+"""The 20 joints that have a left or right side."""
+LATERAL_SWAP: Final = np.array(
+    [LATERAL_JOINTS.tolist().index(MIRROR_PERMUTATION[j]) for j in LATERAL_JOINTS]
+)
+"""Where each lateral joint's other side is in :data:`LATERAL_JOINTS`."""
+
+
+@jit
+def pairwise(values: FloatArray, n: int) -> float:
+    """numpy's sum of the first ``n`` (≤ 128) ``values`` along a contiguous last axis: one by one
+    below 8, else eight running sums, added as a tree, then the rest one by one; from 0."""
+    total: float = 0.0
+    if n < 8:
+        for i in range(n):
+            total += values[i]
+        return 0.0 + total
+    r0, r1, r2, r3 = values[0], values[1], values[2], values[3]
+    r4, r5, r6, r7 = values[4], values[5], values[6], values[7]
+    i = 8
+    while i < n - (n % 8):
+        r0 += values[i]
+        r1 += values[i + 1]
+        r2 += values[i + 2]
+        r3 += values[i + 3]
+        r4 += values[i + 4]
+        r5 += values[i + 5]
+        r6 += values[i + 6]
+        r7 += values[i + 7]
+        i += 8
+    total = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        total += values[i]
+        i += 1
+    return 0.0 + total
+
+
+@jit
+def _distance(points: FloatArray, i: int, a: int, others: FloatArray, j: int, b: int) -> float:
+    """``sqrt((dx² + dy²) + dz²)`` between ``points[i, a]`` and ``others[j, b]`` (3,), the
+    order ``np.linalg.norm`` sums three squares in (scalar reads: no array views in loops)."""
+    dx = points[i, a, 0] - others[j, b, 0]
+    dy = points[i, a, 1] - others[j, b, 1]
+    dz = points[i, a, 2] - others[j, b, 2]
+    return math.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+@jit
+def _mean_of_finite(d: FloatArray, scratch: FloatArray) -> float:
+    """The mean of the finite distances ``d`` (L,), 0 where none is (``scratch`` (L,): 0 where
+    not finite)."""
+    count = 0
+    for m in range(len(d)):
+        if math.isfinite(d[m]):
+            scratch[m] = d[m]
+            count += 1
+        else:
+            scratch[m] = 0.0
+    if count == 0:
+        return 0.0
+    return pairwise(scratch, len(d)) / count
+
+
+@jit
+def lateral_loop(
+    views: FloatArray,
+    lateral: IntArray,
+    swap: IntArray,
+    first: IntArray,
+    second: IntArray,
+    references: FloatArray,
+    has_reference: BoolArray,
+    pair: FloatArray,
+    to_ref: FloatArray,
+) -> None:
+    """Fill ``pair`` (K, 2, 2) with each pair's mean lateral distance under labellings
+    (c_first, c_second) and ``to_ref`` (N, 2) with each labelling's to the reference.
+
+    views: (N, 25, 3) metres; lateral: (L,) the lateral joints; swap: (L,) where each one's
+    other side is among them; first, second: (K,) each pair's views; references: (N, 25, 3)
+    each view's person's skeleton, read where ``has_reference`` (N,); ``to_ref`` is 0
+    elsewhere. A mean is over the joints finite in both (0 where none is). The swapped
+    labelling only reorders a view's lateral joints (an involution), so of a pair's four
+    label combinations two are measured and the other two read through the swap.
+    """
+    size = len(lateral)
+    d0 = np.empty(size)
+    d1 = np.empty(size)
+    row = np.empty(size)
+    scratch = np.empty(size)
+    for k in range(len(first)):
+        i, j = first[k], second[k]
+        for m in range(size):  # i as reported against j as reported (0, 0), swapped (0, 1)
+            d0[m] = _distance(views, i, lateral[m], views, j, lateral[m])
+            d1[m] = _distance(views, i, lateral[m], views, j, lateral[swap[m]])
+        pair[k, 0, 0] = _mean_of_finite(d0, scratch)
+        pair[k, 0, 1] = _mean_of_finite(d1, scratch)
+        for m in range(size):  # (1, 0) is (0, 1) read through the swap, (1, 1) is (0, 0)
+            row[m] = d1[swap[m]]
+        pair[k, 1, 0] = _mean_of_finite(row, scratch)
+        for m in range(size):
+            row[m] = d0[swap[m]]
+        pair[k, 1, 1] = _mean_of_finite(row, scratch)
+    for v in range(views.shape[0]):
+        if not has_reference[v]:
+            to_ref[v, 0] = to_ref[v, 1] = 0.0
+            continue
+        for m in range(size):
+            d0[m] = _distance(views, v, lateral[m], references, v, lateral[m])
+            d1[m] = _distance(views, v, lateral[swap[m]], references, v, lateral[m])
+        to_ref[v, 0] = _mean_of_finite(d0, scratch)
+        to_ref[v, 1] = _mean_of_finite(d1, scratch)
+
+
+# --- Where a frame's views are: index arrays built once per shape; the screen's constants --------
+
+
+MAX_VIEWS: Final = 10
+
+
+PAIRS: Final = tuple(
+    (
+        np.array([i for i in range(n) for j in range(i + 1, n)], dtype=np.intp),
+        np.array([j for i in range(n) for j in range(i + 1, n)], dtype=np.intp),
+    )
+    for n in range(MAX_VIEWS + 1)
+)
+"""Per view count n: the view pairs i < j in the order they are summed."""
+
+
+SCREEN_FROM_VIEWS: Final = 6
+"""From this many views on, labellings are screened with a quick estimate before exact scoring."""
+
+
+SCREEN_MARGIN_M: Final = 1e-9
+"""Labellings whose estimate is within this of the best are scored exactly. The estimate differs
+from the exact cost by rounding only (≈ 1e-14 m), far below it, so the exact minimum is always
+among them and the choice is the one the full enumeration makes."""
+
+
+def _frozen(array: npt.ArrayLike) -> IntArray:
+    """An index array that stays as built: layouts are shared between calls."""
+    result: IntArray = np.array(array, dtype=np.intp)
+    result.flags.writeable = False
+    return result
+
+
+@dataclass(frozen=True, slots=True)
+class Slots:
+    """Where each person's views are: starts (P + 1,) first view of each person, then N;
+    person_of, slot_of (N,) each view's person and place among its views; widest: the most
+    views of one person."""
+
+    starts: IntArray
+    person_of: IntArray
+    slot_of: IntArray
+    widest: int
+
+
+@functools.lru_cache(maxsize=256)
+def slots(counts: tuple[int, ...]) -> Slots:
+    """The :class:`Slots` of persons with ``counts`` views each (cached: frames repeat)."""
+    starts = np.cumsum([0, *counts])
+    person_of = np.repeat(np.arange(len(counts)), counts)
+    slot_of = np.arange(int(starts[-1])) - starts[person_of]
+    return Slots(_frozen(starts), _frozen(person_of), _frozen(slot_of), max(counts, default=0))
+
+
+@dataclass(frozen=True, slots=True)
+class Layout:
+    """Index arrays for one frame's persons (:func:`layout`): starts (P + 1,) first view of each
+    person, then N; person_of (N,) each view's person; first, second (K,) the views of each
+    pair i < j, person by person in :data:`PAIRS` order."""
+
+    starts: IntArray
+    person_of: IntArray
+    first: IntArray
+    second: IntArray
+
+
+@functools.lru_cache(maxsize=256)
+def layout(counts: tuple[int, ...]) -> Layout:
+    """The :class:`Layout` of persons with ``counts`` views each (1 … :data:`MAX_VIEWS`).
+    Frames repeat the same shapes, so the layouts are cached."""
+    places = slots(counts)
+    starts = places.starts
+    firsts: list[IntArray] = [np.zeros(0, dtype=np.intp)]
+    seconds: list[IntArray] = [np.zeros(0, dtype=np.intp)]
+    for p, n in enumerate(counts):
+        firsts.append(PAIRS[n][0] + starts[p])
+        seconds.append(PAIRS[n][1] + starts[p])
+    return Layout(
+        starts,
+        places.person_of,
+        _frozen(np.concatenate(firsts)),
+        _frozen(np.concatenate(seconds)),
+    )

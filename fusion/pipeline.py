@@ -11,7 +11,7 @@
    (:mod:`skelfuse.fusion.labels`, :mod:`skelfuse.fusion.mirror`);
 5. **per-joint confidence**: tracking state × bone length × range of motion, propagated along
    the body, then × facing × distance per view (:mod:`skelfuse.fusion.confidence`);
-6. **weighted fusion**: the weighted mean of the views (:mod:`skelfuse.fusion.weighted`);
+6. **weighted fusion**: the weighted mean of the views (:mod:`skelfuse.fusion.weigh`);
    the confidence apps receive with each joint (:func:`~skelfuse.fusion.confidence.
    joint_confidence`);
 7. **filter**: each person's joints smoothed over time (:mod:`skelfuse.fusion.filters`);
@@ -40,7 +40,6 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.anatomy import facing_directions
-from skelfuse.fusion.batch import ViewBatch
 from skelfuse.fusion.bone_fit import project_bone_lengths
 from skelfuse.fusion.bones import (
     BoneModel,
@@ -50,13 +49,13 @@ from skelfuse.fusion.bones import (
 from skelfuse.fusion.filters import JointFilter, Stacks, filter_all, make_filter
 from skelfuse.fusion.identity import PersonTracker, Track
 from skelfuse.fusion.labels import LabelDoubt, Labels, label_views
-from skelfuse.fusion.mirror_labellings import MAX_VIEWS
+from skelfuse.fusion.mirror import walking_backwards, walking_backwards_now
+from skelfuse.fusion.mirror_scores import MAX_VIEWS
 from skelfuse.fusion.priors import SensorPrior, priors_of
 from skelfuse.fusion.sensors import SensorState
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.views import FusedPerson, View, fused_persons
-from skelfuse.fusion.walking import walking_backwards, walking_backwards_now
-from skelfuse.fusion.weigh import Weighed, weigh_and_fuse
+from skelfuse.fusion.weigh import ViewBatch, Weighed, weigh_and_fuse
 from skelfuse.fusion.world_views import PoseLookup, views_at
 
 __all__ = ["NO_TIMER", "STAGES", "FusionPipeline", "PersonMemory", "PoseLookup", "StageTimer"]
@@ -327,7 +326,7 @@ class FusionPipeline:
     def _check_walking_directions(
         self, ids: list[int], t_s: float, moved: tuple[FloatArray, FloatArray] | None = None
     ) -> None:
-        """Swap each whole person that walks backwards for too long (walking.walking_backwards).
+        """Swap each whole person that walks backwards for too long (mirror.walking_backwards).
 
         The swap takes effect from the next step: the person's skeleton and every view's
         remembered label are swapped, the filter restarts (it would otherwise sweep the limbs

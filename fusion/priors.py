@@ -56,7 +56,7 @@ class SensorPrior:
         it (1: the same in every direction). A camera that guesses depth from the body's
         apparent size has > 1: its variance along the ray from the sensor to the joint is
         ``ratio²`` times that across it, and the weighted mean weights its joints per axis
-        (fusion/ray_weighting.py), so another view's depth wins where there is one.
+        (fusion/view_factors.py), so another view's depth wins where there is one.
     """
 
     name: str

@@ -41,7 +41,7 @@ class TrackingSettings:
 @dataclass(frozen=True, slots=True)
 class WeightSettings:
     """How much each view's joint counts in the weighted mean (fusion/confidence.py,
-    fusion/weigh.py, fusion/priors.py, fusion/reliability.py)."""
+    fusion/weigh.py, fusion/priors.py, fusion/view_factors.py)."""
 
     state_weights: tuple[float, float, float] = (0.0, 0.3, 0.7)
     """Weight of a NotTracked / Inferred / Tracked joint, each in [0, 1]; equal Inferred and
@@ -90,8 +90,7 @@ class WeightSettings:
 @dataclass(frozen=True, slots=True)
 class MirrorSettings:
     """Views whose left and right are swapped (a person facing away) and whole persons
-    labelled the wrong way round (fusion/mirror.py, fusion/labels.py, fusion/label_scores.py;
-    docs/fusion.md §6)."""
+    labelled the wrong way round (fusion/mirror.py, fusion/labels.py; docs/fusion.md §6)."""
 
     enabled: bool = True
     """Detect mirrored views and swap them back; off only to compare without it."""
@@ -135,8 +134,8 @@ class MirrorSettings:
 
 @dataclass(frozen=True, slots=True)
 class SmoothingSettings:
-    """The temporal filter applied per person after fusion (fusion/filters.py,
-    fusion/filters_ca.py; docs/fusion.md §8)."""
+    """The temporal filter applied per person after fusion (fusion/filters.py; docs/fusion.md
+    §8)."""
 
     filter: FilterKind = "kalman_ca"
     """``kalman_ca`` (damped acceleration, least lag), ``kalman`` (constant velocity),
@@ -175,7 +174,7 @@ class SmoothingSettings:
 @dataclass(frozen=True, slots=True)
 class BoneSettings:
     """The person's reference bone lengths, estimated online, and the fit that gives them to
-    each fused skeleton (fusion/bones.py, fusion/bone_window.py; docs/fusion.md §8)."""
+    each fused skeleton (fusion/bones.py; docs/fusion.md §8)."""
 
     window: int = 300
     """A reference length is the median of this many last good observations per bone; longer

@@ -2,9 +2,9 @@
 
 A fixed sensor's ``T_world_from_sensor`` is its stored calibration, else its agent's
 ``pose_hint``. A moving sensor's frames are placed in its tracking space as they arrive
-(:mod:`skelfuse.fusion.moving`), so what fusion needs of it is the space's ``T_world_from_space``,
-one per space, shared by all its sensors (docs/calibration.md "Tracking spaces"), taken from the
-first of:
+(:func:`skelfuse.fusion.sensors.placed_in_space`), so what fusion needs of it is the space's
+``T_world_from_space``, one per space, shared by all its sensors (docs/calibration.md "Tracking
+spaces"), taken from the first of:
 
 1. ``stored``: the calibration's ``spaces`` entry;
 2. ``sim_truth`` / ``manual``: a ``pose_hint`` of one of the space's moving sensors (for a moving
@@ -24,8 +24,7 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.calibration.store import Calibration, SensorCalibration, SpaceCalibration
-from skelfuse.fusion.moving import sensor_pose_at
-from skelfuse.fusion.sensors import SensorState
+from skelfuse.fusion.sensors import SensorState, sensor_pose_at
 from skelfuse.protocol.constants import MOVING_SENSORS
 from skelfuse.protocol.sensor_pose import pose_matrix
 from skelfuse.protocol.transform import Matrix4, apply

@@ -9,47 +9,79 @@ confidence apps receive and which views carried each joint.
 In numpy that is a dozen calls with their arguments' gathers and pads, ~140 µs at 4 sensors ×
 6 people for ~20 µs of arithmetic, so the step is one loop compiled with numba (:func:`_weigh_loop`)
 running the stages' own loops in order: :func:`~skelfuse.fusion.confidence.body_loop`,
-:func:`~skelfuse.fusion.weighted.weighted_loop` on the views padded as
-:meth:`~skelfuse.fusion.batch.ViewBatch.pad` pads them (NaN joints, weight 0), the facing and
+:func:`weighted_loop` on the views padded as
+:meth:`ViewBatch.pad` pads them (NaN joints, weight 0), the facing and
 :func:`~skelfuse.fusion.view_factors.view_factor_loop` and
 :func:`~skelfuse.fusion.confidence.confidence_loop`. The loop runs in phases (:data:`BODY` …
 :data:`CONFIDENCE`); two terms that are numpy code of their own stage run between two phases
 when they are on: the ray weighting of a camera that guesses depth after each fusion
-(:meth:`~skelfuse.fusion.batch.ViewBatch.fuse`) and the view reliability after the view
+(:meth:`ViewBatch.fuse`) and the view reliability after the view
 factors. :func:`warm_up` compiles the loop
 (or loads numba's cache) at start, so no frame waits for a compilation.
+
+Weighted fusion (second section): each joint as the weighted mean of the views that have it.
+Report A (``shared/papers.md``): sensor k sees joint n at J_kn with confidence C_kn; the fused
+joint is ``J_n = Σ_k C_kn·J_kn / Σ_k C_kn``, C the weights of :mod:`skelfuse.fusion.confidence`.
+:func:`carriers` tells which views a fused joint came from (the Cauchy pass can discount views
+far from that consensus). Shapes: P persons fused at once, each with up to S views (a person
+with fewer is padded with NaN views of weight 0, which changes no sum or product), J = 25
+joints; metres, world frame. :func:`weighted_mean` is one loop compiled with numba
+(:func:`weighted_loop`): per joint, the sums over the views start from 0 and add view after
+view, a view counting where its point is finite and its weight positive.
+
+The batch it works on (:class:`ViewBatch`, last section): the views of P persons stacked (N
+views; person ``person_of[i]``, its ``slot_of[i]``-th view); per-person sums use (P, widest,
+...) blocks padded after the real views with NaN views of weight 0, which leaves every sum and
+product as it is for one person alone.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Final, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.anatomy import facing_loop
-from skelfuse.fusion.batch import ViewBatch
 from skelfuse.fusion.confidence import (
     BODY_TABLES,
     body_loop,
     confidence_loop,
+    joint_confidence,
     range_of_motion_factors,
     sensor_terms,
 )
+from skelfuse.fusion.mirror_scores import slots
 from skelfuse.fusion.priors import SensorPrior
-from skelfuse.fusion.reliability import reliability_factors
 from skelfuse.fusion.settings import FusionSettings
-from skelfuse.fusion.view_factors import cosines_loop, view_factor_loop
-from skelfuse.fusion.weighted import MIN_SHARE, weighted_loop
+from skelfuse.fusion.view_factors import (
+    cosines_loop,
+    depth_noise_ratios,
+    ray_weighted_mean,
+    reliability_factors,
+    view_factor_loop,
+)
+from skelfuse.fusion.views import View
 from skelfuse.jit import jit, plain
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
 BoolArray = npt.NDArray[np.bool_]
 
-__all__ = ["Weighed", "weigh_and_fuse"]
+__all__ = [
+    "MIN_SHARE",
+    "ViewBatch",
+    "Weighed",
+    "carriers",
+    "confidence_and_carriers",
+    "fuse_views",
+    "weigh_and_fuse",
+    "weighted_loop",
+    "weighted_mean",
+]
 
 BODY: Final = 0
 """Phase: the body weights and the first fusion."""
@@ -331,7 +363,8 @@ def _facing_phase(
 
 
 def warm_up() -> None:
-    """Compile (or load from numba's cache) the loop now, every phase."""
+    """Compile (or load from numba's cache) the loops now: the step's, every phase, and the
+    weighted mean's."""
     views = np.zeros((2, 25, 3))
     terms, of_view = sensor_terms(FusionSettings(), None, 2)
     out = (
@@ -345,3 +378,206 @@ def warm_up() -> None:
         (np.ones((1, 3)), np.zeros(1, dtype=np.bool_), True),
         out,
     )  # fmt: skip
+    weighted_mean(np.zeros((1, 2, 25, 3)), np.ones((1, 2, 25)))
+
+
+# --- Weighted fusion: each joint as the weighted mean of the views that have it ------------------
+
+
+MIN_SHARE: Final = 0.05
+"""A view is a source of a fused joint when it carries at least this share of the weight."""
+
+
+def weighted_mean(joints: FloatArray, weights: FloatArray) -> FloatArray:
+    """The confidence-weighted mean of each person's views (report A, eq. 2).
+
+    Args:
+        joints: (P, S, J, 3) positions; NaN where a view has no position (it contributes
+            nothing whatever its weight).
+        weights: (P, S, J) non-negative (negative or NaN counts as 0); broadcast to that shape.
+
+    Returns:
+        (P, J, 3) float64; NaN where no view has a position with a positive weight.
+    """
+    points = plain(joints)
+    if weights.shape != points.shape[:3]:
+        weights = np.broadcast_to(weights, points.shape[:3])
+    out = np.empty((points.shape[0], points.shape[2], 3))
+    weighted_loop(points, plain(weights), out)
+    return out
+
+
+@jit
+def weighted_loop(joints: FloatArray, weights: FloatArray, out: FloatArray) -> None:
+    """Fill ``out`` (P, J, 3) with the weighted mean of ``joints`` (P, S, J, 3) under
+    ``weights`` (P, S, J): a view counts where its point is finite and its weight positive;
+    NaN where no view counts."""
+    for p in range(joints.shape[0]):
+        for j in range(joints.shape[2]):
+            total = 0.0
+            s0 = s1 = s2 = 0.0
+            for s in range(joints.shape[1]):
+                x0, x1, x2 = joints[p, s, j, 0], joints[p, s, j, 1], joints[p, s, j, 2]
+                weight = weights[p, s, j]
+                usable = (
+                    math.isfinite(x0) and math.isfinite(x1) and math.isfinite(x2) and weight > 0
+                )
+                if not usable:
+                    weight, x0, x1, x2 = 0.0, 0.0, 0.0, 0.0
+                total += weight
+                s0 += weight * x0
+                s1 += weight * x1
+                s2 += weight * x2
+            if total <= 0:
+                out[p, j, 0] = out[p, j, 1] = out[p, j, 2] = math.nan
+            else:
+                out[p, j, 0], out[p, j, 1], out[p, j, 2] = s0 / total, s1 / total, s2 / total
+
+
+def fuse_views(joints: npt.ArrayLike, weights: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """One person's views fused, with the confidence apps receive.
+
+    Args:
+        joints: (S, J, 3) positions, metres, world frame; NaN where a view has no position.
+        weights: (S, J) non-negative weights.
+
+    Returns:
+        fused (J, 3) as :func:`weighted_mean`, and its
+        :func:`~skelfuse.fusion.confidence.joint_confidence` (J,).
+
+    Raises:
+        ValueError: on shapes other than (S, J, 3) and (S, J).
+    """
+    views = np.asarray(joints, dtype=np.float64)
+    w = np.asarray(weights, dtype=np.float64)
+    if views.ndim != 3 or views.shape[2] != 3 or w.shape != views.shape[:2]:
+        raise ValueError(
+            f"expected joints (S, J, 3) and weights (S, J), got {views.shape} and {w.shape}"
+        )
+    return weighted_mean(views[None], w[None])[0], joint_confidence(views[None], w[None])[0]
+
+
+def confidence_and_carriers(
+    joints: FloatArray, weights: FloatArray
+) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
+    """:func:`~skelfuse.fusion.confidence.joint_confidence` and :func:`carriers` of the same
+    views, from one pass (:func:`~skelfuse.fusion.confidence.confidence_loop`).
+
+    Args:
+        joints: (P, S, J, 3) as fused (NaN: no position); weights: (P, S, J) the final weights.
+
+    Returns:
+        confidence (P, J) float64 and carried (P, S, J) bool.
+    """
+    w = plain(weights)
+    confidence = np.empty((w.shape[0], w.shape[2]))
+    carried = np.empty(w.shape, dtype=np.bool_)
+    confidence_loop(plain(joints), w, MIN_SHARE, confidence, carried)
+    return confidence, carried
+
+
+def carriers(joints: FloatArray, weights: FloatArray) -> npt.NDArray[np.bool_]:
+    """Which views carried each fused joint: at least :data:`MIN_SHARE` of its weight (the
+    weight of the views with a position).
+
+    Args:
+        joints: (P, S, J, 3) as fused (NaN: no position); weights: (P, S, J) the final weights.
+
+    Returns:
+        (P, S, J) bool.
+    """
+    return confidence_and_carriers(joints, weights)[1]
+
+
+# --- The view batch: many persons' views stacked, so every per-view step runs once per instant ---
+
+
+_NO_POSITION = np.full(3, np.nan)
+
+
+@dataclass(slots=True)
+class ViewBatch:
+    """The views of P persons stacked: person ``person_of[i]``'s ``slot_of[i]``-th view.
+
+    joints: (N, 25, 3) float64 metres, world; states: (N, 25) uint8; sensors: (N, 3) metres.
+    person_of, slot_of (N,) and starts (P + 1,) are shared read-only arrays.
+    Per-person sums use (P, widest, ...) blocks padded after the real views (:meth:`pad`).
+    depth_ratios: (N,) each view's noise along its sensor's ray over across it, None when all
+    are 1 (fusion/view_factors.py: only ``rgb`` views have more).
+    """
+
+    views: list[View]
+    counts: list[int]
+    joints: FloatArray
+    states: npt.NDArray[np.uint8]
+    sensors: FloatArray
+    person_of: npt.NDArray[np.intp]
+    slot_of: npt.NDArray[np.intp]
+    starts: npt.NDArray[np.intp]
+    depth_ratios: FloatArray | None = None
+
+    @classmethod
+    def of(cls, clusters: list[list[View]], depth_noise: bool = True) -> ViewBatch:
+        """The views of each person stacked; ``depth_noise``: look up each view's depth noise
+        ratio (``FusionSettings.weights.sensor_priors``), else treat every view as isotropic."""
+        counts = [len(cluster) for cluster in clusters]
+        views = [view for cluster in clusters for view in cluster]
+        places = slots(tuple(counts))  # cached per shape (read-only arrays): frames repeat
+        # np.array on the lists: np.stack's values, a few times faster on these small arrays.
+        return cls(
+            views,
+            counts,
+            np.array([v.joints_world for v in views], dtype=np.float64),
+            np.array([v.states for v in views]),
+            np.array(
+                [_NO_POSITION if v.sensor_position is None else v.sensor_position for v in views],
+                dtype=np.float64,
+            ),
+            places.person_of,
+            places.slot_of,
+            places.starts,
+            depth_noise_ratios([v.sensor_type for v in views]) if depth_noise else None,
+        )
+
+    @property
+    def widest(self) -> int:
+        return max(self.counts)
+
+    def pad(self, values: FloatArray, fill: float) -> FloatArray:
+        """(N, ...) per-view values as (P, widest, ...), ``fill`` after each person's views.
+
+        When every person has the same number of views there is nothing to fill: the result is
+        ``values`` reshaped (sharing its memory, float64); callers read it, never write to it.
+        """
+        widest = self.widest
+        if widest * len(self.counts) == len(self.views):  # every person as wide as the widest
+            same: FloatArray = np.ascontiguousarray(values, dtype=np.float64)
+            return same.reshape(len(self.counts), widest, *values.shape[1:])
+        padded = np.full((len(self.counts), widest, *values.shape[1:]), fill, np.float64)
+        padded[self.person_of, self.slot_of] = values
+        return padded
+
+    def fuse(self, weights: FloatArray) -> FloatArray:
+        """Step 6 on the batch: (P, 25, 3) each person's weighted mean (with each view's noise
+        stretched along its sensor's ray for persons seen by a camera that guesses depth)."""
+        joints, padded = self.pad(self.joints, np.nan), self.pad(weights, 0.0)
+        fused = weighted_mean(joints, padded)
+        if self.depth_ratios is None:
+            return fused
+        sensors, ratios = self.pad(self.sensors, np.nan), self.pad(self.depth_ratios, 1.0)
+        return ray_weighted_mean(joints, padded, sensors, ratios, fused)
+
+    def body_positions(self, fused: FloatArray) -> FloatArray:
+        """(P, 3) where each person stands: fused SpineBase, else the mean of the views'."""
+        fused_spine_ok = np.isfinite(fused[:, 0]).all(axis=-1, keepdims=True)
+        if fused_spine_ok.all():  # every person's fused SpineBase known (the usual step)
+            known: FloatArray = fused[:, 0].copy()
+            return known
+        spine = self.joints[:, 0]
+        seen = np.isfinite(spine)
+        sums = self.pad(np.where(seen, spine, 0.0), 0.0).sum(axis=1)
+        counts = self.pad(seen.astype(np.float64), 0.0).sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean_spine = sums / counts
+        positions: FloatArray = np.where(fused_spine_ok, fused[:, 0], mean_spine)
+        return positions

@@ -27,8 +27,13 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.moving import world_position
-from skelfuse.fusion.sensors import BodyArrays, SensorState, TimedFrame, body_arrays_at
+from skelfuse.fusion.sensors import (
+    BodyArrays,
+    SensorState,
+    TimedFrame,
+    body_arrays_at,
+    world_position,
+)
 from skelfuse.fusion.views import View
 from skelfuse.jit import jit, plain
 from skelfuse.protocol.skeleton import JOINT_COUNT, TrackingState
@@ -80,9 +85,9 @@ def views_at(
     Args:
         sensors: the sensors' frame buffers (times on the server clock).
         pose_of: each sensor's ``T_world_from_sensor`` (4×4, metres); None leaves it out. A
-            moving sensor's frames are in its tracking space (:mod:`skelfuse.fusion.moving`):
-            its pose is ``T_world_from_space`` and its views' ``sensor_position`` is where its
-            frames' poses put it at ``t_s``.
+            moving sensor's frames are in its tracking space
+            (:func:`skelfuse.fusion.sensors.placed_in_space`): its pose is ``T_world_from_space``
+            and its views' ``sensor_position`` is where its frames' poses put it at ``t_s``.
         t_s: the instant, server clock, seconds.
         gap_s: frames further apart than this are not interpolated between.
 

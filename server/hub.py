@@ -23,11 +23,10 @@ from collections import Counter
 
 from skelfuse import __version__
 from skelfuse.calibration.store import Calibration
-from skelfuse.fusion.engine import FusedFrame, FusionEngine
+from skelfuse.fusion.engine import FusedFrame, FusionEngine, RollingStats
 from skelfuse.fusion.sensors import SensorState
 from skelfuse.fusion.settings import HubSettings
 from skelfuse.fusion.spaces import SERVER_FEATURES
-from skelfuse.fusion.stats import RollingStats
 from skelfuse.protocol.constants import MAX_MESSAGE_BYTES, MAX_RESPONSE_BYTES
 from skelfuse.protocol.errors import DecodeError
 from skelfuse.protocol.wire import (

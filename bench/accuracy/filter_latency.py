@@ -8,8 +8,12 @@ from collections.abc import Callable
 import numpy as np
 
 from bench.accuracy.runner import FPS
-from skelfuse.fusion.filters import ConstantVelocityKalman, JointFilter, OneEuroFilter
-from skelfuse.fusion.filters_ca import DampedAccelerationKalman
+from skelfuse.fusion.filters import (
+    ConstantVelocityKalman,
+    DampedAccelerationKalman,
+    JointFilter,
+    OneEuroFilter,
+)
 
 
 def filter_latency() -> dict[str, dict[str, float]]:

@@ -11,7 +11,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.optimize import linear_sum_assignment
 
-from skelfuse.fusion.trunks import TRUNK_JOINTS
+from skelfuse.fusion.identity import TRUNK_JOINTS
 from skelfuse.protocol.skeleton import JOINT_COUNT, JointId, bone_lengths
 
 MATCH_GATE_M = 1.0

@@ -8,7 +8,7 @@ error of the twelve limb joints):
   axes: a camera j facing k (angle near 180°) has its depth error along k's own line of sight,
   where k cannot see it, so it looks better in k than it is;
 - the plain mean of the three (what fusion does when every direction counts the same);
-- the product's ray-weighted mean (:func:`skelfuse.fusion.ray_weighting.ray_weighted_mean`,
+- the product's ray-weighted mean (:func:`skelfuse.fusion.view_factors.ray_weighted_mean`,
   equal weights) at several depth-noise ratios; the ``rgb`` prior's is
   ``fusion/priors.py``'s ``depth_noise_ratio``;
 - the three views' 2-D landmarks triangulated (no single-camera depth at all): how far fusing
@@ -27,7 +27,7 @@ from bench.mono.loo import judge
 from bench.mono.metrics import LIMB_LANDMARKS
 from bench.mono.single import CAMERAS, Clip, reference, single_camera
 from skelfuse.calibration.camera import Camera
-from skelfuse.fusion.ray_weighting import ray_weighted_mean
+from skelfuse.fusion.view_factors import ray_weighted_mean
 
 RATIOS = (1.0, 3.0, 5.0, 10.0)
 

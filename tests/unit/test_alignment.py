@@ -17,9 +17,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from skelfuse.fusion import alignment_replay
-from skelfuse.fusion.alignment import Alignment, Instant, SensorTiming
-from skelfuse.fusion.alignment_replay import (
+from skelfuse.fusion import alignment
+from skelfuse.fusion.alignment import (
+    Alignment,
+    Instant,
+    SensorTiming,
     circular_phase,
     delay_spread,
     replayed_horizons,
@@ -509,10 +511,10 @@ def test_replays_in_parts_give_the_bits_of_all_at_once(
     periods = rng.choice([1 / 30, 1 / 15, 1 / 60], 16)
     captures = rng.uniform(0.0, 1 / 30, (16, 60)) % periods[:, None]
     delays = rng.uniform(0.0, 0.02, (16, 60))
-    monkeypatch.setattr(alignment_replay, "REPLAYED_AT_ONCE", 10**9)
+    monkeypatch.setattr(alignment, "REPLAYED_AT_ONCE", 10**9)
     want_waits = replayed_waits(phases, captures, delays, periods)
-    monkeypatch.setattr(alignment_replay, "REPLAYED_AT_ONCE", budget)
-    parts = alignment_replay._parts(phases, captures)
+    monkeypatch.setattr(alignment, "REPLAYED_AT_ONCE", budget)
+    parts = alignment._parts(phases, captures)
     assert np.concatenate(parts).tobytes() == phases.tobytes()
     assert len(parts) == 129 if budget < 960 else len(parts) > 1  # every budget here splits
     assert all(len(p) * 960 <= max(budget, 960) for p in parts)

@@ -1,4 +1,4 @@
-"""The re-phase replay (alignment_replay.replayed_horizons) against the rule written in numpy.
+"""The re-phase replay (alignment.replayed_horizons) against the rule written in numpy.
 
 Candidates from 1 to 150, 1 to 16 sensors at 15, 30 and 60 fps, 1 to 300 frames (below, at
 and past the pairwise sum's blocks of 8 and of 128), phases on a capture (a modulo of zero),
@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from skelfuse.fusion import alignment_replay
+from skelfuse.fusion import alignment
 
 
 def _window(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
@@ -57,7 +57,7 @@ def plain_rule(
 @pytest.mark.parametrize("seed", range(40))
 def test_the_replay_is_the_rule(seed: int) -> None:
     phases, captures, delays, periods, deadline = _window(seed)
-    got = alignment_replay.replayed_horizons(phases, captures, delays, periods, deadline)
+    got = alignment.replayed_horizons(phases, captures, delays, periods, deadline)
     want = plain_rule(phases, captures, delays, periods, deadline)
     for g, w in zip(got, want, strict=True):
         assert g.shape == w.shape
@@ -83,7 +83,7 @@ def test_a_nan_reaches_the_same_answers(which: str, sensor: int, frame: int) -> 
     phases, captures, delays, periods, deadline = _window(3)
     assert captures.shape[0] >= 3 and captures.shape[1] >= 6
     (delays if which == "delays" else captures)[sensor, frame] = np.nan
-    got = alignment_replay.replayed_horizons(phases, captures, delays, periods, deadline)
+    got = alignment.replayed_horizons(phases, captures, delays, periods, deadline)
     want = plain_rule(phases, captures, delays, periods, deadline)
     assert np.isnan(want[1]).any()
     for g, w in zip(got, want, strict=True):

@@ -1,9 +1,9 @@
 """Association on stacked arrays: the distances, predictions and moves of the pair-by-pair rule.
 
 :class:`~skelfuse.fusion.identity.PersonTracker` computes its cost matrices, birth and merge
-distances for many pairs at once (:func:`~skelfuse.fusion.trunks.trunk_distances` broadcast
+distances for many pairs at once (:func:`~skelfuse.fusion.identity.trunk_distances` broadcast
 over views × tracks): every distance must be the one
-:func:`~skelfuse.fusion.trunks.trunk_distance` gives for the pair, and moving persons together
+:func:`~skelfuse.fusion.identity.trunk_distance` gives for the pair, and moving persons together
 must give each its own motion (the move as written for one person, below).
 """
 
@@ -13,9 +13,15 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from skelfuse.fusion.identity import PersonTracker, Track, _predicted_trunks
+from skelfuse.fusion.identity import (
+    TRUNK_JOINTS,
+    PersonTracker,
+    Track,
+    _predicted_trunks,
+    trunk_distance,
+    trunk_distances,
+)
 from skelfuse.fusion.settings import FusionSettings
-from skelfuse.fusion.trunks import TRUNK_JOINTS, trunk_distance, trunk_distances
 from skelfuse.fusion.views import View
 from skelfuse.protocol.skeleton import JOINT_COUNT
 

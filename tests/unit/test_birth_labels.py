@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 
 from skelfuse.agent.sim.performer import BodyShape, Pose, pose_joints
-from skelfuse.fusion.label_scores import evidence_against
-from skelfuse.fusion.labels import LabelDoubt, redecide
+from skelfuse.fusion.labels import LabelDoubt, evidence_against, redecide
 from skelfuse.fusion.pipeline import FusionPipeline
 from skelfuse.fusion.settings import FusionSettings, MirrorSettings
 from skelfuse.fusion.views import View

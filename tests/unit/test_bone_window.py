@@ -1,4 +1,4 @@
-"""The online bone estimate's window (fusion/bone_window.py) against a plain deque of samples,
+"""The online bone estimate's window (fusion/bones.py) against a plain deque of samples,
 and its medians against np.nanmedian and a sort written below (the rule with infinities)."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from skelfuse.fusion.bone_window import (
+from skelfuse.fusion.bones import (
     BONE_MIRROR,
     SampleWindow,
     nanmedian_axis,

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import skelfuse.fusion
-from skelfuse.fusion import weighted
+from skelfuse.fusion import weigh
 from skelfuse.fusion.engine import warm_up
 from skelfuse.jit import plain
 from tests.support import random_views
@@ -68,10 +68,10 @@ def test_weighted_mean_matches_the_reference(seed: int) -> None:
                 axis=1
             ) / used.sum(axis=1)[..., None]
         expected[used.sum(axis=1) <= 0] = np.nan
-        fused = weighted.weighted_mean(points, w)
+        fused = weigh.weighted_mean(points, w)
         np.testing.assert_allclose(fused, expected, rtol=0.0, atol=1e-6)
         assert np.isnan(fused).any() and np.isfinite(fused).any()
-    one = weighted.weighted_mean(joints[:, :2], np.array([1.0, 0.5])[None, :, None])  # broadcast
+    one = weigh.weighted_mean(joints[:, :2], np.array([1.0, 0.5])[None, :, None])  # broadcast
     np.testing.assert_allclose(one, (joints[:, 0] + 0.5 * joints[:, 1]) / 1.5, atol=1e-6)
 
 

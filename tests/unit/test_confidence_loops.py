@@ -2,7 +2,7 @@
 
 skelfuse.fusion.confidence (each joint's weight from its view alone, with and without sensor
 priors; the facing and distance terms; the confidence apps receive) and
-skelfuse.fusion.weighted.carriers, on simulated views with noise, unknown joints and random
+skelfuse.fusion.weigh.carriers, on simulated views with noise, unknown joints and random
 points, with and without each term: weights and factors to 1e-9.
 """
 
@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from skelfuse.fusion import anatomy, confidence, view_factors, weighted
+from skelfuse.fusion import anatomy, confidence, view_factors, weigh
 from skelfuse.fusion.priors import AZURE_BODY_TRACKING, KINECT_V2, RGB_MONO, SensorPrior
 from skelfuse.fusion.settings import FusionSettings, WeightSettings
 from skelfuse.protocol.skeleton import BONES, PARENTS
@@ -112,13 +112,13 @@ def test_confidence_and_carriers_match_the_reference(seed: int) -> None:
         total = final.sum(axis=1, keepdims=True)
         with np.errstate(invalid="ignore", divide="ignore"):
             share = np.where(total > 0, final / total, 0.0)
-        carried = (share >= weighted.MIN_SHARE) & (final > 0)
+        carried = (share >= weigh.MIN_SHARE) & (final > 0)
         got = confidence.joint_confidence(points, w)
         np.testing.assert_allclose(got, expected, rtol=0.0, atol=TOLERANCE)
-        both = weighted.confidence_and_carriers(points, w)
+        both = weigh.confidence_and_carriers(points, w)
         np.testing.assert_allclose(both[0], expected, rtol=0.0, atol=TOLERANCE)
         np.testing.assert_array_equal(both[1], carried)
-        np.testing.assert_array_equal(weighted.carriers(points, w), carried)
+        np.testing.assert_array_equal(weigh.carriers(points, w), carried)
     assert (got == 0).any() and carried.any() and not carried.all()
 
 

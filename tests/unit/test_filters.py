@@ -11,12 +11,12 @@ import pytest
 from bench.accuracy.lag import SHIFTS_S, best_shift, shift_errors
 from skelfuse.fusion.filters import (
     ConstantVelocityKalman,
+    DampedAccelerationKalman,
     JointFilter,
     OneEuroFilter,
     PassThrough,
     make_filter,
 )
-from skelfuse.fusion.filters_ca import DampedAccelerationKalman
 
 
 class ScalarOneEuro:

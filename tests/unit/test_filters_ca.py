@@ -12,9 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from skelfuse.fusion import filters_ca
-from skelfuse.fusion.filters import filter_all
-from skelfuse.fusion.filters_ca import DampedAccelerationKalman
+from skelfuse.fusion import filters as filters_module
+from skelfuse.fusion.filters import DampedAccelerationKalman, filter_all
 
 
 def _filters(count: int) -> list[DampedAccelerationKalman]:
@@ -107,8 +106,8 @@ def test_the_usual_steps_loop_gives_up_whenever_a_coordinate_does_not_step_by_it
 
 def test_the_warm_up_compiles_the_loop_for_every_step() -> None:
     """Stacked persons, a missing coordinate, one filter alone: no second compilation."""
-    filters_ca.warm_up()
-    if not hasattr(filters_ca.step_loop, "signatures"):
+    filters_module.warm_up()
+    if not hasattr(filters_module.step_loop, "signatures"):
         pytest.skip("the loop is not compiled (NUMBA_DISABLE_JIT)")
     filters = _filters(3)
     joints = np.zeros((3, 25, 3))
@@ -116,4 +115,4 @@ def test_the_warm_up_compiles_the_loop_for_every_step() -> None:
     joints[1, 4] = np.nan
     filter_all(list(filters), joints[:, :, :][::1], 1.0 + 1 / 30)
     filters[0](joints[0], 1.1)
-    assert len(filters_ca.step_loop.signatures) == 1
+    assert len(filters_module.step_loop.signatures) == 1

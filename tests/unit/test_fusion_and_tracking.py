@@ -7,6 +7,7 @@ import pytest
 
 from skelfuse.agent.sim.performer import ProceduralPerformer
 from skelfuse.fusion.confidence import state_weights
+from skelfuse.fusion.identity import trunk_distance
 from skelfuse.fusion.pipeline import FusionPipeline
 from skelfuse.fusion.settings import (
     BoneSettings,
@@ -15,9 +16,8 @@ from skelfuse.fusion.settings import (
     SmoothingSettings,
     TrackingSettings,
 )
-from skelfuse.fusion.trunks import trunk_distance
 from skelfuse.fusion.views import FusedPerson, View
-from skelfuse.fusion.weighted import fuse_views
+from skelfuse.fusion.weigh import fuse_views
 from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION, JointId, TrackingState
 from tests.support import mpjpe
 
@@ -261,9 +261,9 @@ def test_duplicate_person_from_disjoint_sensors_is_merged() -> None:
 
 def test_batched_fusion_helpers_match_single_calls() -> None:
     from skelfuse.fusion.bone_fit import enforce_bone_lengths
-    from skelfuse.fusion.bone_window import nanmedian_axis
+    from skelfuse.fusion.bones import nanmedian_axis
     from skelfuse.fusion.confidence import joint_confidence
-    from skelfuse.fusion.weighted import weighted_mean
+    from skelfuse.fusion.weigh import weighted_mean
 
     rng = np.random.default_rng(5)
     joints = rng.normal(size=(3, 4, JOINT_COUNT, 3))

@@ -12,19 +12,18 @@ from typing import Any
 import numpy as np
 import pytest
 
-from skelfuse.fusion import label_scores
-from skelfuse.fusion.labels import LabelDoubt, label_views
-from skelfuse.fusion.mirror import PERMUTATION
+from skelfuse.fusion import labels
+from skelfuse.fusion.labels import LabelDoubt, label_views, unbiased_facings
+from skelfuse.fusion.mirror import PERMUTATION, Scored
 from skelfuse.fusion.settings import FusionSettings
-from skelfuse.fusion.unbiased_facing import unbiased_facings
 from tests.unit.test_mirror_scores import Frame, _frame
 
 
 def _scored(
     frame: Frame, settings: FusionSettings, need_rom: bool = True, evidence: bool = True
-) -> label_scores.Scored:
+) -> Scored:
     previous = np.asarray(frame.previous, dtype=np.intp)
-    return label_scores.scored_labels(
+    return labels.scored_labels(
         frame.views.copy(),
         frame.sensor_positions,
         frame.counts,
@@ -57,11 +56,9 @@ def test_the_scoring_gives_what_was_asked_for_any_step(edit: str, need_rom: bool
         assert got.factors is None and got.per_view is None and got.evidence is None
         return
     assert got.factors is not None and got.per_view is not None and got.evidence is not None
-    np.testing.assert_array_equal(
-        got.per_view, label_scores.view_evidence(got.factors, got.mirrored)
-    )
+    np.testing.assert_array_equal(got.per_view, labels.view_evidence(got.factors, got.mirrored))
     np.testing.assert_allclose(
-        got.evidence, label_scores.evidence_against(got.factors, got.mirrored, frame.counts)
+        got.evidence, labels.evidence_against(got.factors, got.mirrored, frame.counts)
     )
 
 

@@ -1,7 +1,7 @@
 """The late-sensor treatment under the ``deadline`` alignment (issue 11's raw latency target):
-late views carried by their person's filtered motion (fusion/track_motion.py,
-fusion/extrapolation.py), and the grid put where late sensors are carried least, not waiting for
-sensors expected late anyway (fusion/alignment.py), all driven by clocks of the test's own."""
+late views carried by their person's filtered motion (fusion/extrapolation.py), and the grid
+put where late sensors are carried least, not waiting for sensors expected late anyway
+(fusion/alignment.py), all driven by clocks of the test's own."""
 
 from __future__ import annotations
 
@@ -11,15 +11,20 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from skelfuse.fusion.alignment import Alignment, SensorTiming
-from skelfuse.fusion.alignment_replay import replayed_horizons
+from skelfuse.fusion.alignment import Alignment, SensorTiming, replayed_horizons
 from skelfuse.fusion.engine import FusedFrame
-from skelfuse.fusion.extrapolation import LatePredictor, carried_by_motion, views_with_late
-from skelfuse.fusion.measured_motion import measured_displacements, measured_from_arrays
+from skelfuse.fusion.extrapolation import (
+    LatePredictor,
+    PersonMotion,
+    carried_by_motion,
+    measured_displacements,
+    measured_from_arrays,
+    track_motions,
+    views_with_late,
+)
 from skelfuse.fusion.pipeline import FusionPipeline
 from skelfuse.fusion.sensors import BodyArrays, SensorState, TimedFrame
 from skelfuse.fusion.settings import AlignmentSettings, BoneSettings, SmoothingSettings
-from skelfuse.fusion.track_motion import PersonMotion, track_motions
 from skelfuse.fusion.views import View
 from skelfuse.fusion.world_views import SensorBodies
 from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION

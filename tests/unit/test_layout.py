@@ -5,7 +5,7 @@
 - No module over 800 lines: a concept owns its module, and one that long holds several.
 - Every file path the README and docs/ name in backticks exists.
 - Every cross-reference in a docstring or a doc (``:mod:`skelfuse.fusion.pipeline```,
-  ``:func:`fusion.weighted.weighted_mean```...) names a module, and a name in it, that exist.
+  ``:func:`fusion.weigh.weighted_mean```...) names a module, and a name in it, that exist.
 """
 
 from __future__ import annotations

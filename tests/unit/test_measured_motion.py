@@ -1,6 +1,6 @@
 """The ``views`` predictor's measurement and carry against the rule, written below.
 
-skelfuse.fusion.measured_motion through the function the live path calls (``_displacements``),
+skelfuse.fusion.extrapolation through the function the live path calls (``_displacements``),
 on random rigs: persons with one to twelve on-time views, mirrored views, Inferred and
 untracked joints, unknown and infinite coordinates, zero and negative-zero displacements, late
 bodies of nobody, of a person no on-time view sees, and labelled True; then ``carried_worlds``
@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from skelfuse.fusion import measured_motion
+from skelfuse.fusion import extrapolation
 from skelfuse.fusion.identity import ViewKey
 from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION, TrackingState
 
@@ -58,7 +58,7 @@ def test_the_rule_body_by_body(seed: int) -> None:
     without a measurement is all NaN."""
     late, members, keys, joints, states = _rig(seed)
     with np.errstate(invalid="ignore"):
-        got = measured_motion._displacements(late, members, keys, joints, states)
+        got = extrapolation._displacements(late, members, keys, joints, states)
     mirror = np.array(MIRROR_PERMUTATION)
     count = len(keys)
     for row, key in enumerate(late):
@@ -99,7 +99,7 @@ def test_the_carry_adds_the_scaled_measurement_where_it_is_known(seed: int) -> N
     with np.errstate(invalid="ignore"):
         carried = scales[:, None, None] * measured
     finite = np.isfinite(carried)
-    got, seen, whole = measured_motion.carried_worlds(worlds, scales, measured)
+    got, seen, whole = extrapolation.carried_worlds(worlds, scales, measured)
     np.testing.assert_allclose(got, worlds + np.where(finite, carried, 0.0), rtol=0.0, atol=1e-9)
     np.testing.assert_array_equal(seen, finite)
     np.testing.assert_array_equal(whole, finite.all(axis=(1, 2)))

@@ -11,9 +11,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pytest
 
-from skelfuse.fusion import anatomy, label_scores, labels, mirror, walking
-from skelfuse.fusion.mirror_distances import LATERAL_JOINTS, LATERAL_SWAP, lateral_loop
-from skelfuse.fusion.mirror_labellings import layout
+from skelfuse.fusion import anatomy, labels, mirror
+from skelfuse.fusion.mirror_scores import LATERAL_JOINTS, LATERAL_SWAP, lateral_loop, layout
 from skelfuse.fusion.settings import MirrorSettings
 from tests.support import random_views as _views, same_bits as _same_bits
 
@@ -194,7 +193,7 @@ def test_the_evidence_is_the_joints_out_of_range_as_labelled_against_as_swapped(
     factors = factors.copy()
     factors[1, 0, 3] = np.nan  # not finite: 0
     factors[2, 1, 4] = -np.inf  # a sum of +inf against the labelling: the largest float
-    per_view = label_scores.view_evidence(factors, mirrored)
+    per_view = labels.view_evidence(factors, mirrored)
     out_of_range = (1.0 - factors).sum(axis=2)
     rows = np.arange(len(mirrored))
     chosen = mirrored.astype(int)
@@ -202,7 +201,7 @@ def test_the_evidence_is_the_joints_out_of_range_as_labelled_against_as_swapped(
         expected = np.nan_to_num(out_of_range[rows, chosen] - out_of_range[rows, 1 - chosen])
     np.testing.assert_allclose(per_view, expected, rtol=1e-12, atol=1e-12)
     assert per_view[1] == 0.0 and abs(per_view[2]) == np.finfo(np.float64).max
-    summed = label_scores.evidence_against(factors, mirrored, frame.counts)
+    summed = labels.evidence_against(factors, mirrored, frame.counts)
     person_of = layout(frame.counts).person_of
     np.testing.assert_allclose(summed, np.bincount(person_of, expected), rtol=1e-12)
 
@@ -247,7 +246,7 @@ def test_walking_check_decides_by_speed_and_direction() -> None:
         expected = _expected(facing, velocity)
         if expected is None:
             continue
-        got = walking.walking_backwards(joints, velocity, 1.0, 0.0, settings, facing)
+        got = mirror.walking_backwards(joints, velocity, 1.0, 0.0, settings, facing)
         assert got == ((True, None) if expected else (False, None))
         decided += expected
     assert 100 < decided < 1900
@@ -258,7 +257,7 @@ def test_walking_backwards_now_decides_for_every_person() -> None:
     rng = np.random.default_rng(5)
     facings, velocities = _walks(rng, 3000)
     facings[rng.random(3000) < 0.05, rng.integers(0, 3)] = np.nan  # unknown facings
-    got = walking.walking_backwards_now(velocities, facings, 0.5).tolist()
+    got = mirror.walking_backwards_now(velocities, facings, 0.5).tolist()
     expected = [_expected(f, v) for f, v in zip(facings, velocities, strict=True)]
     pairs = [(g, e) for g, e in zip(got, expected, strict=True) if e is not None]
     assert [g for g, _ in pairs] == [e for _, e in pairs]

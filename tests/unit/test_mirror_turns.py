@@ -12,9 +12,8 @@ import pytest
 
 from skelfuse.agent.sim.performer import BodyShape, Pose, pose_joints
 from skelfuse.fusion.anatomy import facing_direction
-from skelfuse.fusion.labels import LabelDoubt, label_views, views_alone
+from skelfuse.fusion.labels import LabelDoubt, label_views, unbiased_facings, views_alone
 from skelfuse.fusion.settings import FusionSettings, MirrorSettings
-from skelfuse.fusion.unbiased_facing import unbiased_facings
 from skelfuse.protocol.skeleton import MIRROR_PERMUTATION, JointId, TrackingState
 
 LEAN = 0.5  # the simulator's facing_bias, FusionSettings.view_lean_fraction

@@ -13,8 +13,7 @@ import numpy.typing as npt
 from skelfuse.agent.sim.performer import standing_pose
 from skelfuse.calibration.store import Calibration, SensorCalibration, SpaceCalibration
 from skelfuse.fusion.extrapolation import views_with_late
-from skelfuse.fusion.moving import placed_in_space, world_position
-from skelfuse.fusion.sensors import TimedFrame
+from skelfuse.fusion.sensors import TimedFrame, placed_in_space, world_position
 from skelfuse.fusion.settings import HubSettings
 from skelfuse.fusion.spaces import split_by_space
 from skelfuse.fusion.world_views import views_at

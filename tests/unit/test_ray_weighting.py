@@ -1,16 +1,15 @@
-"""Fusion with noise stretched along a camera's viewing ray (fusion/ray_weighting.py) and its
-use by the view batch for ``rgb`` views (fusion/batch.py)."""
+"""Fusion with noise stretched along a camera's viewing ray (fusion/view_factors.py) and its
+use by the view batch for ``rgb`` views (fusion/weigh.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from skelfuse.fusion.batch import ViewBatch
 from skelfuse.fusion.priors import RGB_MONO
-from skelfuse.fusion.ray_weighting import depth_noise_ratios, ray_weighted_mean
+from skelfuse.fusion.view_factors import depth_noise_ratios, ray_weighted_mean
 from skelfuse.fusion.views import View
-from skelfuse.fusion.weighted import weighted_mean
+from skelfuse.fusion.weigh import ViewBatch, weighted_mean
 from skelfuse.protocol.skeleton import JOINT_COUNT
 
 TRUTH = np.array([0.0, 1.0, 3.0])

@@ -1,4 +1,4 @@
-"""Per-joint view reliability (fusion/reliability.py): lean, self-occlusion, relative factors."""
+"""Per-joint view reliability (fusion/view_factors.py): lean, self-occlusion, relative factors."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import numpy as np
 
 from bench.accuracy.oracle import best_view, group_mpjpe, view_errors
 from skelfuse.fusion.pipeline import FusionPipeline
-from skelfuse.fusion.reliability import hidden_by_trunk, lean_errors, reliability_factors
 from skelfuse.fusion.settings import BoneSettings, FusionSettings, SmoothingSettings, WeightSettings
+from skelfuse.fusion.view_factors import hidden_by_trunk, lean_errors, reliability_factors
 from skelfuse.fusion.views import View
 from skelfuse.protocol.skeleton import MIRROR_PERMUTATION, JointId as J
 

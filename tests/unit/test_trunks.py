@@ -1,6 +1,6 @@
 """Association's trunk distances against the rule written below, pair by pair.
 
-skelfuse.fusion.trunks.trunk_distances on pairs with unknown coordinates, infinities, pairs
+skelfuse.fusion.identity.trunk_distances on pairs with unknown coordinates, infinities, pairs
 sharing zero, one, two or five joints, equal points and distances over many magnitudes, as
 stacked pairs and broadcast views × tracks; sticky_distances against the tracks' predictions;
 then the tracker keeps the persons of an episode apart and finds them again.
@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from skelfuse.fusion import identity, trunks
+from skelfuse.fusion import identity
 
 
 def _pairs(seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -40,7 +40,7 @@ def one_pair(a: np.ndarray, b: np.ndarray) -> float:
 @pytest.mark.parametrize("seed", range(40))
 def test_trunk_distances_are_each_pairs_mean_distance(seed: int) -> None:
     a, b = _pairs(seed)
-    got = trunks.trunk_distances(a, b)
+    got = identity.trunk_distances(a, b)
     want = [one_pair(a[m], b[m]) for m in range(len(a))]
     np.testing.assert_allclose(got, want, rtol=1e-12, atol=0.0)
     assert np.isinf(got[0])  # one joint in common
@@ -48,11 +48,11 @@ def test_trunk_distances_are_each_pairs_mean_distance(seed: int) -> None:
 
 def test_views_against_tracks_broadcast() -> None:
     a, b = _pairs(5)
-    got = trunks.trunk_distances(a[:, None], b[None, :])
+    got = identity.trunk_distances(a[:, None], b[None, :])
     assert got.shape == (len(a), len(b))
     want = [[one_pair(x, y) for y in b] for x in a]
     np.testing.assert_allclose(got, want, rtol=1e-12, atol=0.0)
-    assert trunks.trunk_distances(a[:1], b[:3]).shape == (3,)  # one against many
+    assert identity.trunk_distances(a[:1], b[:3]).shape == (3,)  # one against many
 
 
 @pytest.mark.parametrize("seed", range(12))
@@ -67,11 +67,11 @@ def test_sticky_distances_are_those_to_the_tracks_predictions(seed: int) -> None
         )
         for k in range(int(rng.integers(1, 7)))
     ]  # fmt: skip
-    tracks[0].joints[trunks.TRUNK_JOINTS[:2]] = np.nan  # a track missing trunk joints
+    tracks[0].joints[identity.TRUNK_JOINTS[:2]] = np.nan  # a track missing trunk joints
     rows = rng.integers(0, len(tracks), int(rng.integers(1, 25)))
     joints = np.array([tracks[r].joints for r in rows]) + rng.normal(0.0, 0.1, (len(rows), 25, 3))
     joints[rng.random(joints.shape[:2]) < 0.1] = np.nan
-    got = trunks.sticky_distances(
+    got = identity.sticky_distances(
         joints,
         (
             np.array([t.joints for t in tracks]),
@@ -82,7 +82,7 @@ def test_sticky_distances_are_those_to_the_tracks_predictions(seed: int) -> None
         1.0,
     )
     want = [
-        one_pair(j[trunks.TRUNK_JOINTS], tracks[r].predicted(1.0)[trunks.TRUNK_JOINTS])
+        one_pair(j[identity.TRUNK_JOINTS], tracks[r].predicted(1.0)[identity.TRUNK_JOINTS])
         for j, r in zip(joints, rows, strict=True)
     ]
     np.testing.assert_allclose(got, want, rtol=1e-12, atol=0.0)

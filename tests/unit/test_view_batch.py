@@ -1,4 +1,5 @@
-"""The stacked views of one instant (fusion.batch): padding, and fusion as one person alone."""
+"""The stacked views of one instant (fusion/weigh.py, ViewBatch): padding, and fusion as one
+person alone."""
 
 from __future__ import annotations
 
@@ -6,9 +7,8 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from skelfuse.fusion.batch import ViewBatch
 from skelfuse.fusion.views import View
-from skelfuse.fusion.weighted import weighted_mean
+from skelfuse.fusion.weigh import ViewBatch, weighted_mean
 from skelfuse.protocol.skeleton import JOINT_COUNT
 
 

@@ -19,14 +19,12 @@ import pytest
 
 from skelfuse.fusion import weigh
 from skelfuse.fusion.anatomy import facing_directions
-from skelfuse.fusion.batch import ViewBatch
 from skelfuse.fusion.confidence import body_weights
 from skelfuse.fusion.priors import SensorPrior, priors_of
-from skelfuse.fusion.reliability import reliability_factors
 from skelfuse.fusion.settings import FusionSettings, WeightSettings
-from skelfuse.fusion.view_factors import facing_cosines, view_factors
+from skelfuse.fusion.view_factors import facing_cosines, reliability_factors, view_factors
 from skelfuse.fusion.views import View
-from skelfuse.fusion.weighted import confidence_and_carriers
+from skelfuse.fusion.weigh import ViewBatch, confidence_and_carriers
 from skelfuse.protocol.skeleton import BONES, JointId
 from tests.support import random_views as _views
 
