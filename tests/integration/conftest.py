@@ -42,8 +42,13 @@ class LiveServer:
         return self.settings.zmq_endpoint
 
     def stop(self) -> None:
+        """Shut the server down and wait until it has released its ports (its thread ends after
+        the lifespan closes the ZeroMQ socket): a test that starts another server on the same
+        ports must not race the first one's shut-down."""
         self.server.should_exit = True
-        self.thread.join(timeout=10)
+        self.thread.join(timeout=30)
+        if self.thread.is_alive():
+            raise RuntimeError("uvicorn did not stop within 30 s: its ports are still bound")
 
 
 def start_server(settings: Settings) -> LiveServer:
