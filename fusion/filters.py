@@ -19,11 +19,11 @@ measurement instead of being pulled towards where it was.
 
 What the Kalman filters share (:class:`KalmanState`): per coordinate, a state ``x`` (position
 first), its covariance ``P`` and the time of its last measurement ``t``; a subclass says how the
-state starts (:meth:`_init`) and how one sample moves it (:meth:`_update`: predict over ``h``
-seconds, then correct with the measurement). :meth:`_step` does the rest for both, on any stack
-of states, so that :func:`filter_all` can step several persons' filters in one pass: a missing
-coordinate keeps its state, one missing longer than ``reset_gap_s`` (or never seen) restarts
-from its next measurement.
+state starts (:meth:`_init`) and how one sample moves a stack of states (:meth:`_step`), so
+that :func:`filter_all` can step several persons' filters in one pass: a missing coordinate
+keeps its state, one missing longer than ``reset_gap_s`` (or never seen) restarts from its next
+measurement. The constant-velocity filter steps in numpy (predict over ``h`` seconds, then
+correct); the damped-acceleration one in one compiled loop.
 
 Constant-acceleration Kalman with a damped acceleration (Singer model). Why: a
 constant-velocity Kalman has no lag on a ramp but lags whenever the joint accelerates, which a
@@ -265,39 +265,14 @@ class KalmanState(ABC):
         """The state and covariance a filter starts from at its first sample ``z``."""
 
     @abstractmethod
-    def _update(
-        self, z: FloatArray, last_x: FloatArray, last_p: FloatArray, h: FloatArray, step: BoolArray
-    ) -> tuple[FloatArray, FloatArray]:
-        """Predict ``h`` seconds ahead and correct with ``z`` where ``step``; new state and P."""
-
-    @abstractmethod
     def _output(self, x: FloatArray) -> FloatArray:
         """The position the filter gives out from its state (with its lead, if any)."""
 
+    @abstractmethod
     def _step(
         self, z: FloatArray, last_x: FloatArray, last_p: FloatArray, last_t: FloatArray, t_s: float
     ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
         """One sample on any stack of states: output, new state, new covariance, new t."""
-        present = np.isfinite(z)
-        dt = t_s - last_t
-        fresh = present & (~np.isfinite(last_x[..., 0]) | (dt > self.reset_gap_s))
-        step = present & ~fresh & (dt > 0)
-        if step.all():
-            # The usual case, every coordinate steps: the masks below would pick the update
-            # everywhere. The same values with a dozen fewer array operations.
-            new_x, new_p = self._update(z, last_x, last_p, dt, step)
-            return self._output(new_x), new_x, new_p, np.full(z.shape, t_s)
-        new_x, new_p = self._update(
-            np.where(step, z, 0.0), last_x, last_p, np.where(step, dt, 0.0), step
-        )
-        if fresh.any():
-            init_x, init_p = self._init(np.where(fresh, z, 0.0))
-            last_x = np.where(_per(fresh, init_x), init_x, last_x)
-            last_p = np.where(_per(fresh, init_p), init_p, last_p)
-        x = np.where(_per(step, new_x), new_x, last_x)
-        p = np.where(_per(step, new_p), new_p, last_p)
-        t = np.where(present, t_s, last_t)
-        return np.where(present, self._output(x), np.nan), x, p, t
 
     @abstractmethod
     def _params(self) -> tuple[float, ...]:
@@ -356,6 +331,31 @@ class ConstantVelocityKalman(KalmanState):
         x = np.stack([z, np.zeros_like(z)], axis=-1)
         p = np.stack([np.full_like(z, self.r), np.zeros_like(z), np.full_like(z, 1.0)], axis=-1)
         return x, p
+
+    def _step(
+        self, z: FloatArray, last_x: FloatArray, last_p: FloatArray, last_t: FloatArray, t_s: float
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """One sample on any stack of states: output, new state, new covariance, new t."""
+        present = np.isfinite(z)
+        dt = t_s - last_t
+        fresh = present & (~np.isfinite(last_x[..., 0]) | (dt > self.reset_gap_s))
+        step = present & ~fresh & (dt > 0)
+        if step.all():
+            # The usual case, every coordinate steps: the masks below would pick the update
+            # everywhere. The same values with a dozen fewer array operations.
+            new_x, new_p = self._update(z, last_x, last_p, dt, step)
+            return self._output(new_x), new_x, new_p, np.full(z.shape, t_s)
+        new_x, new_p = self._update(
+            np.where(step, z, 0.0), last_x, last_p, np.where(step, dt, 0.0), step
+        )
+        if fresh.any():
+            init_x, init_p = self._init(np.where(fresh, z, 0.0))
+            last_x = np.where(_per(fresh, init_x), init_x, last_x)
+            last_p = np.where(_per(fresh, init_p), init_p, last_p)
+        x = np.where(_per(step, new_x), new_x, last_x)
+        p = np.where(_per(step, new_p), new_p, last_p)
+        t = np.where(present, t_s, last_t)
+        return np.where(present, self._output(x), np.nan), x, p, t
 
     def _update(
         self, z: FloatArray, last_x: FloatArray, last_p: FloatArray, h: FloatArray, step: BoolArray
@@ -477,12 +477,6 @@ class DampedAccelerationKalman(KalmanState):
             (out.reshape(-1), new_x.reshape(-1, 3), new_p.reshape(-1, 3, 3), new_t.reshape(-1)),
         )  # fmt: skip
         return (out, new_x, new_p, new_t) if stepped else None
-
-    def _update(
-        self, z: FloatArray, last_x: FloatArray, last_p: FloatArray, h: FloatArray, step: BoolArray
-    ) -> tuple[FloatArray, FloatArray]:
-        """Not used: :meth:`_step` predicts and corrects in its loop."""
-        raise NotImplementedError("DampedAccelerationKalman steps in one loop: call _step")
 
     def _kept_transition(self, one: FloatArray) -> tuple[FloatArray, FloatArray]:
         """F and Q (1, 3, 3) for the one step length ``one`` (1,): the frame period takes

@@ -139,7 +139,7 @@ class FusionHub(FusionEngine):
             case Heartbeat(echo_ns=echo) if echo is not None:
                 sensor.round_trip.add(echo / 1e9, message.t_ns / 1e9, now_s)
             case Heartbeat():
-                pass
+                pass  # heard (above) is all a heartbeat without an echo tells
             case Bye():
                 sensor.connected = False
                 self._by_routing.pop(routing_id, None)
