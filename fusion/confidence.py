@@ -1,9 +1,10 @@
 """Body-based confidence of each joint of each view: tracking state, bone length, range of motion.
 
 Report A (``shared/papers.md``) multiplies body-based terms into the tracking-state weight of
-each joint of each view. Everything here is a pure function on arrays;
-:mod:`skelfuse.fusion.weigh` combines the terms (:func:`body_weights`, and the facing and distance
-of :mod:`skelfuse.fusion.view_factors`) and fuses with them. :func:`joint_confidence` is the one
+each joint of each view; here they multiply the inverse of the view's learned error variance
+(fusion/rig_errors.py), which covers the tracking state. Everything here is a pure function on
+arrays; :mod:`skelfuse.fusion.weigh` combines the terms (:func:`body_weights` and the learned
+variances) and fuses with them. :func:`joint_confidence` is the one
 place the confidence apps receive with each fused joint is computed.
 
 Shapes: S views of one person, 25 joints, 24 bones (:data:`protocol.skeleton.BONES` order).
@@ -58,8 +59,8 @@ hyperextended and every foot points backwards.
 Implementation
 --------------
 Each term is a loop compiled with numba, so a step pays one call per term, not a dozen numpy
-operations on arrays of a few dozen rows: :func:`body_loop` (state table × bone length × range
-of motion, propagated, over noise²) and :func:`confidence_loop` (the confidence and the views
+operations on arrays of a few dozen rows: :func:`body_loop` (bone length × range of motion,
+propagated, where the state counts) and :func:`confidence_loop` (the confidence and the views
 that carried each joint). A bone length is ``sqrt((dx² + dy²) + dz²)``, products and sums over a
 person's views start from 1 and 0 and take view after view, and ``exp`` and ``pow`` are the C
 library's. Each sensor's prior enters as one row of :func:`sensor_terms` (fusion/priors.py).
@@ -95,10 +96,11 @@ BODY_TABLES: Final = ((_BONE_PARENT, _BONE_CHILD), _CHAIN)
 """The body terms' index tables: each bone's parent and child joint; the joints below
 SpineBase, parents first, and their parents (what :func:`body_loop` takes)."""
 
-TERM_COLUMNS: Final = 9
-"""Columns of a :func:`sensor_terms` row: the state table (NotTracked, Inferred, Tracked),
-fixed bone lengths (1.0: the bone-length term leaves the view alone), the range-of-motion scale
-k, the noise scale, and the facing term's power, floor and back factor."""
+TERM_COLUMNS: Final = 5
+"""Columns of a :func:`sensor_terms` row: whether a NotTracked, Inferred, Tracked joint counts
+at all (1.0 or 0.0: the prior's state weight is positive; how much it counts is its learned
+variance's, fusion/rig_errors.py), fixed bone lengths (1.0: the bone-length term leaves the
+view alone), and the range-of-motion scale k."""
 
 
 def range_of_motion_factors(views: npt.ArrayLike, scale_deg: float) -> FloatArray:
@@ -147,13 +149,8 @@ def sensor_terms(
 def _row(prior: SensorPrior, settings: FusionSettings) -> list[float]:
     """``prior``'s row of :func:`sensor_terms`."""
     fixed = 1.0 if prior.fixed_bone_lengths else 0.0
-    return [
-        *prior.table(settings),
-        fixed,
-        prior.rom_scale,
-        prior.noise_scale,
-        *prior.facing(settings),
-    ]
+    counts = [1.0 if weight > 0 else 0.0 for weight in prior.table(settings)]
+    return [*counts, fixed, prior.rom_scale]
 
 
 _KEPT: Final = 64
@@ -206,12 +203,13 @@ def body_weights(
     settings: FusionSettings,
     priors: Sequence[SensorPrior] | None = None,
 ) -> FloatArray:
-    """Each joint's weight from its view alone: tracking state × the body terms, propagated.
+    """Each joint's factor from its view alone: the body terms, propagated.
 
-    ``state weight × Π (bone length × range of motion) / noise²``, the product over the joint
-    and every joint between it and SpineBase (module docstring): a joint is doubted as much as
-    its own bone and angle and its ancestors'. With ``priors`` each view uses its sensor's
-    state table, range-of-motion scale (``factor^(1/k)``: ``exp(−e/(k·s))``), noise and, for
+    ``Π (bone length × range of motion)``, the product over the joint and every joint between
+    it and SpineBase (module docstring): a joint is doubted as much as its own bone and angle
+    and its ancestors'; 0 for a tracking state whose prior weight is 0. The view's learned
+    variance (fusion/rig_errors.py) scales it in the fusion. With ``priors`` each view uses its
+    sensor's state table, range-of-motion scale (``factor^(1/k)``: ``exp(−e/(k·s))``) and, for
     a fixed-length body model, no bone-length term (fusion/priors.py); a Kinect v2 prior gives
     the same numbers as none.
 
@@ -225,7 +223,7 @@ def body_weights(
         priors: (N,) each view's sensor prior, or None: the settings' values for every view.
 
     Returns:
-        (N, 25) float64 weights ≥ 0.
+        (N, 25) float64 factors in [0, 1].
     """
     s = settings
     points = plain(joints)
@@ -264,9 +262,9 @@ def body_loop(
     chain: tuple[IntArray, IntArray],
     out: FloatArray,
 ) -> None:
-    """Fill ``out`` (N, 25) with each joint's weight from its view alone (``body_weights``).
+    """Fill ``out`` (N, 25) with each joint's factor from its view alone (``body_weights``).
 
-    joints: (N, 25, 3); states: (N, 25) tracking states; terms: (K, 9) the
+    joints: (N, 25, 3); states: (N, 25) tracking states; terms: (K, 5) the
     :func:`sensor_terms` rows, of_view: (N,) each view's; references: (N, 24) reference bone
     lengths (read when ``flags[0]``); rom: (N, 25) range-of-motion factors (read when
     ``flags[1]``); scale_m: the bone-length scale; bones: each bone's parent and child joint;
@@ -291,9 +289,8 @@ def body_loop(
                 local[j] *= rom[v, j] if k == 1.0 else rom[v, j] ** (1.0 / k)
         for i in range(len(order)):  # outward from SpineBase: each parent already final
             local[order[i]] *= local[parent_of[i]]
-        variance = row[5] * row[5]  # inverse-variance weighting against a Kinect v2 view
         for j in range(len(local)):
-            out[v, j] = row[states[v, j]] * local[j] / variance
+            out[v, j] = row[states[v, j]] * local[j]
 
 
 @jit

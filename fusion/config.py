@@ -45,16 +45,9 @@ RENAMED: dict[str, str] = {
     "bone_length_scale_m": "weights.bone_length_scale_m",
     "use_range_of_motion": "weights.range_of_motion",
     "rom_scale_deg": "weights.rom_scale_deg",
-    "use_facing": "weights.facing",
-    "facing_power": "weights.facing_power",
-    "facing_floor": "weights.facing_floor",
-    "facing_back_factor": "weights.facing_back_factor",
     "use_sensor_priors": "weights.sensor_priors",
-    "use_view_reliability": "weights.view_reliability",
     "view_lean_fraction": "weights.view_lean_fraction",
-    "view_error_m": "weights.view_error_m",
     "view_jitter_per_m2": "weights.view_jitter_per_m2",
-    "view_occlusion_m": "weights.view_occlusion_m",
     "use_mirror_correction": "mirror.enabled",
     "mirror_geometry_weight_m": "mirror.geometry_weight_m",
     "mirror_hysteresis_m": "mirror.hysteresis_m",
@@ -109,7 +102,16 @@ with a DeprecationWarning, and the record scripts/codemod_settings.py rewrites c
 _YAW = "the yaw correction measured worse (a view's own facing is too noisy to turn it by)"
 _DISTANCE = "the distance term cost accuracy in the benchmark; far views are often the frontal ones"
 _CAUCHY = "the Cauchy re-weighting pass was off by default and no benchmark showed it helping"
+_LEARNED = (
+    "each sensor's error is learned from the rig ([fusion.learning]); its type's prior is "
+    "in fusion/priors.py"
+)
+_LEARNED_KEYS = ("facing_power", "facing_floor", "facing_back_factor", "view_error_m",
+                 "view_jitter_per_m2", "view_occlusion_m")  # fmt: skip
 REMOVED: dict[str, str] = {
+    **dict.fromkeys(("use_facing", "use_view_reliability", *_LEARNED_KEYS), _LEARNED),
+    **dict.fromkeys(("weights.facing", "weights.view_reliability"), _LEARNED),
+    **dict.fromkeys((f"weights.{key}" for key in _LEARNED_KEYS), _LEARNED),
     "correct_view_yaw": _YAW,
     "yaw_max_deg": _YAW,
     "use_distance": _DISTANCE,
@@ -244,6 +246,9 @@ def fusion_settings_from_mapping(
     for group, values in _regroup(table, problems).items():
         for key, value in values.items():
             name = f"{group}.{key}"
+            if name in REMOVED:
+                problems.append(f"{name}: removed: {REMOVED[name]}")
+                continue
             if key not in _HINTS[group]:
                 problems.append(_unknown(name, group))
                 continue

@@ -219,13 +219,14 @@ def warm_up() -> None:
         identity,
         labels,
         mirror,
+        rig_errors,
         view_factors,
         weigh,
         world_views,
     )
 
     stages = (
-        anatomy, mirror, labels, confidence, view_factors,
+        anatomy, mirror, labels, confidence, view_factors, rig_errors,
         weigh, bone_fit, bones, identity, extrapolation, world_views,
         alignment, filters,
     )  # fmt: skip

@@ -9,8 +9,10 @@
 3. **associate**: views grouped into persons with stable ids (:mod:`skelfuse.fusion.identity`);
 4. **mirror labels**: views whose left and right are swapped are swapped back
    (:mod:`skelfuse.fusion.labels`, :mod:`skelfuse.fusion.mirror`);
-5. **per-joint confidence**: tracking state × bone length × range of motion, propagated along
-   the body, then × facing × distance per view (:mod:`skelfuse.fusion.confidence`);
+5. **per-joint confidence**: bone length × range of motion, propagated along the body
+   (:mod:`skelfuse.fusion.confidence`), over each view's joint's error variance learned from
+   the rig, by where its sensor stands relative to the person, its tracking state and distance
+   (:mod:`skelfuse.fusion.rig_errors`), with a Student-t factor for a view far off the others;
 6. **weighted fusion**: the weighted mean of the views (:mod:`skelfuse.fusion.weigh`);
    the confidence apps receive with each joint (:func:`~skelfuse.fusion.confidence.
    joint_confidence`);
@@ -19,9 +21,11 @@
    (:mod:`skelfuse.fusion.bones`). The fit comes after the filter so that the lengths apps
    receive are exactly the reference ones.
 
-Step 5 runs twice around step 6: facing and distance need to know where the person stands and
-faces, which the first fusion (with the body terms alone) tells for a person seen the first time.
-Both are :func:`skelfuse.fusion.weigh.weigh_and_fuse`'s, one compiled call in the usual step.
+Step 5 runs three times around step 6: the bins need to know where the person stands and
+faces, which the first fusion (with the body terms alone) tells for a person seen the first
+time, and the robust factor needs the fusion under the learned variances. All are
+:func:`skelfuse.fusion.weigh.weigh_and_fuse`'s, one compiled call in the usual step. After it,
+each view's leave-one-out residuals teach its sensor's learned error (``RigErrors.observe``).
 
 Every step is a pure function on arrays except the state each person carries from one instant
 to the next: its identity and motion (:class:`~skelfuse.fusion.identity.PersonTracker`) and what
@@ -51,11 +55,12 @@ from skelfuse.fusion.identity import PersonTracker, Track
 from skelfuse.fusion.labels import LabelDoubt, Labels, label_views
 from skelfuse.fusion.mirror import walking_backwards, walking_backwards_now
 from skelfuse.fusion.mirror_scores import MAX_VIEWS
-from skelfuse.fusion.priors import SensorPrior, priors_of
+from skelfuse.fusion.priors import KINECT_V2, SensorPrior, priors_of
+from skelfuse.fusion.rig_errors import Observed, RigErrors
 from skelfuse.fusion.sensors import SensorState
 from skelfuse.fusion.settings import FusionSettings
 from skelfuse.fusion.views import FusedPerson, View, fused_persons
-from skelfuse.fusion.weigh import ViewBatch, Weighed, weigh_and_fuse
+from skelfuse.fusion.weigh import Learned, ViewBatch, Weighed, weigh_and_fuse
 from skelfuse.fusion.world_views import PoseLookup, views_at
 
 __all__ = ["NO_TIMER", "STAGES", "FusionPipeline", "PersonMemory", "PoseLookup", "StageTimer"]
@@ -125,6 +130,8 @@ class FusionPipeline:
         facing of, and that facing: the next step's mirror labels start from the same one."""
         self._filter_stacks: Stacks = {}
         """The filters' stacked states of the last step (:func:`filter_all` reuses them)."""
+        self.errors = RigErrors(settings)
+        """Each sensor's error learned from the rig (steps 5–6 weigh by it)."""
 
     def step(
         self, sensors: Iterable[SensorState], pose_of: PoseLookup, t_s: float, gap_s: float
@@ -163,6 +170,10 @@ class FusionPipeline:
         with timer.stage("labels"):  # 4. mirror labels
             mirrored, rom = self._label(batch, ids, tracks, memories, track_facing, t_s)
         with timer.stage("weights"):  # 5. per-joint confidence, 6. weighted fusion
+            priors = self._priors(batch)
+            rows = self.errors.rows_of(
+                [v.sensor_id for v in batch.views], priors or [KINECT_V2] * len(batch.views)
+            )
             weighed = weigh_and_fuse(
                 batch,
                 rom,
@@ -170,10 +181,16 @@ class FusionPipeline:
                 track_facing,
                 [t.fused_once for t in tracks],
                 s,
-                priors_of([v.sensor_type for v in batch.views])
-                if s.weights.sensor_priors
-                else None,
+                priors,
+                Learned(rows, self.errors.variance),
             )
+            self.errors.observe(
+                Observed(
+                    batch.joints, weighed.weights, weighed.variances, rows, weighed.bins,
+                    weighed.between, batch.starts,
+                ),
+                t_s,
+            )  # fmt: skip
         with timer.stage("bones observe"):
             observe_bone_lengths(
                 [m.bones for m in memories], batch.joints, batch.states, weighed.cosines,

@@ -40,12 +40,13 @@ class TrackingSettings:
 
 @dataclass(frozen=True, slots=True)
 class WeightSettings:
-    """How much each view's joint counts in the weighted mean (fusion/confidence.py,
-    fusion/weigh.py, fusion/priors.py, fusion/view_factors.py)."""
+    """How much each view's joint counts in the weighted mean besides its sensor's learned
+    error (fusion/confidence.py, fusion/weigh.py, fusion/priors.py)."""
 
     state_weights: tuple[float, float, float] = (0.0, 0.3, 0.7)
-    """Weight of a NotTracked / Inferred / Tracked joint, each in [0, 1]; equal Inferred and
-    Tracked weights trust a sensor's guesses as much as what it sees."""
+    """Kinect v2's prior of a NotTracked / Inferred / Tracked joint, each in [0, 1]: an
+    Inferred joint's variance starts at Tracked / Inferred times a Tracked one's, and a weight
+    of 0 leaves the state out; learning (``[fusion.learning]``) then replaces the ratio."""
     bone_length: bool = True
     """Weigh down joints whose bones are off the person's reference lengths; off to compare
     with the state weights alone."""
@@ -56,35 +57,43 @@ class WeightSettings:
     rom_scale_deg: float = 15.0
     """Range-of-motion term ``exp(−excess / scale)``; larger forgives poses near the limits
     (athletes, dancers)."""
-    facing: bool = True
-    """Weigh each view by how frontally the person faces its sensor; off when
-    ``view_reliability`` is on (it models the same per joint)."""
-    facing_power: float = 2.0
-    """Facing term ``floor + (1 − floor)·|cos θ|^power``; larger favours frontal views more."""
-    facing_floor: float = 0.1
-    """The facing term's least value (a side view's weight); raise it where side views are
-    as good as frontal ones."""
-    facing_back_factor: float = 0.5
-    """The facing term is multiplied by this for a view of the person's back; lower it for
-    sensors that track backs poorly."""
+    view_bins: bool = True
+    """Weigh each view's joints by where its sensor stands relative to the person and how far
+    (their bins of the learned error, fusion/rig_errors.py); off: by tracking state alone
+    (report A's baseline, for comparison)."""
     sensor_priors: bool = True
-    """Each view uses its sensor type's prior (fusion/priors.py: state table, noise, facing,
+    """Each view starts from its sensor type's prior (fusion/priors.py: errors, state table,
     no bone-length term for fixed-length body models); off to treat every type as Kinect v2."""
-    view_reliability: bool = False
-    """Weigh each view's joint by how well that view sees it (lean, depth jitter, occlusion by
-    the trunk; docs/fusion.md §7); meant for use with ``facing`` off."""
     view_lean_fraction: float = 0.5
     """Share of the person's yaw off a sensor by which its view turns towards it (also used by
     the mirror labels' unbiased facing); set it to what your sensor type is measured to do."""
-    view_error_m: tuple[float, float, float] = (0.021, 0.035, 0.06)
-    """``view_reliability``: error floor (metres, 3-D) of trunk, limb and extremity joints in
-    a frontal view; set it to your sensor's measured error."""
-    view_jitter_per_m2: float = 0.001
-    """``view_reliability``: jitter growth with the squared distance to the sensor (metres per
-    m²); raise it for sensors noisier with depth."""
-    view_occlusion_m: float = 0.08
-    """``view_reliability``: extra error (metres) of a joint hidden by the trunk or reported
-    Inferred; raise it for sensors that guess hidden joints poorly."""
+
+
+@dataclass(frozen=True, slots=True)
+class LearningSettings:
+    """Each sensor's error learned from the rig, per joint and what the view sees
+    (fusion/rig_errors.py; docs/fusion.md §7)."""
+
+    enabled: bool = True
+    """Learn each sensor's error from its residuals to the other views; off keeps every
+    sensor at its type's prior (fusion/priors.py)."""
+    forget_s: float = 30.0
+    """Time constant (seconds of a sensor seeing someone) of the evidence's exponential
+    forgetting: a moved or degraded sensor is re-learned in about this long."""
+    prior_samples: float = 60.0
+    """Weight of a sensor type's prior, in views of a joint (60: two seconds of one sensor at
+    30 fps); larger trusts the prior longer."""
+    bin_samples: float = 30.0
+    """Weight of a sensor's overall level in each of its bins, in views of a joint; larger
+    keeps rarely seen bins (backs, far views) nearer the sensor's overall level."""
+    far_m: float = 2.5
+    """Views of a person farther than this (metres, horizontal) are learned apart."""
+    cap: float = 16.0
+    """A residual counts at most this many times its expected square (a glitch or a wrong
+    label must not teach a sensor that it is bad)."""
+    robust_dof: float = 4.0
+    """Degrees of freedom of the Student-t weighting of views far off the others (a glitch
+    weighs less); 0 turns it off."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -271,6 +280,7 @@ class FusionSettings:
 
     tracking: TrackingSettings = field(default_factory=TrackingSettings)
     weights: WeightSettings = field(default_factory=WeightSettings)
+    learning: LearningSettings = field(default_factory=LearningSettings)
     mirror: MirrorSettings = field(default_factory=MirrorSettings)
     smoothing: SmoothingSettings = field(default_factory=SmoothingSettings)
     bones: BoneSettings = field(default_factory=BoneSettings)

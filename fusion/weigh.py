@@ -1,33 +1,38 @@
 """Steps 5–6 of the pipeline on a batch: every view's per-joint weights, and the fusions.
 
-:func:`weigh_and_fuse` weighs each view's joints by the body terms alone (tracking state, bone
-length, range of motion: :func:`~skelfuse.fusion.confidence.body_weights`) and fuses them, which
-tells where each person stands; then by how frontally the person faces each sensor and how well
-each view sees each joint (``weights.view_reliability``), fusing after each; last, the
-confidence apps receive and which views carried each joint.
+:func:`weigh_and_fuse` weighs each view's joints by the body terms alone (bone length, range of
+motion: :func:`~skelfuse.fusion.confidence.body_weights`) and fuses them, which tells where
+each person stands and faces; then by the inverse of each view's joint's learned error
+variance in its bin (where its sensor stands relative to the person, its tracking state, its
+distance: :mod:`skelfuse.fusion.rig_errors`), fusing again; then a view far off the others
+(a glitch) is weighed down by a Student-t factor on its leave-one-out residual and the joints
+fused a last time; last, the confidence apps receive and which views carried each joint.
 
-In numpy that is a dozen calls with their arguments' gathers and pads, ~140 µs at 4 sensors ×
-6 people for ~20 µs of arithmetic, so the step is one loop compiled with numba (:func:`_weigh_loop`)
-running the stages' own loops in order: :func:`~skelfuse.fusion.confidence.body_loop`,
-:func:`weighted_loop` on the views padded as
-:meth:`ViewBatch.pad` pads them (NaN joints, weight 0), the facing and
-:func:`~skelfuse.fusion.view_factors.view_factor_loop` and
+The scale of the weights: a joint whose learned variance is the Kinect v2 prior's for a
+Tracked joint seen from in front and near weighs ``state_weights[2]`` (0.7) before the body
+terms, so the confidence apps receive (``joint_confidence``) keeps its meaning; a better view
+weighs more, a worse one less.
+
+In numpy that is a dozen calls with their arguments' gathers and pads, so the step is one loop
+compiled with numba (:func:`_weigh_loop`) running the stages' own loops in order:
+:func:`~skelfuse.fusion.confidence.body_loop`, :func:`weighted_loop` on the views padded as
+:meth:`ViewBatch.pad` pads them (NaN joints, weight 0), the facing,
+:func:`~skelfuse.fusion.rig_errors.view_bins_loop`,
+:func:`~skelfuse.fusion.rig_errors.robust_factors_loop` and
 :func:`~skelfuse.fusion.confidence.confidence_loop`. The loop runs in phases (:data:`BODY` …
-:data:`CONFIDENCE`); two terms that are numpy code of their own stage run between two phases
-when they are on: the ray weighting of a camera that guesses depth after each fusion
-(:meth:`ViewBatch.fuse`) and the view reliability after the view
-factors. :func:`warm_up` compiles the loop
-(or loads numba's cache) at start, so no frame waits for a compilation.
+:data:`CONFIDENCE`); the ray weighting of a camera that guesses depth is numpy code of its
+own stage and runs after each fusion when a person has such a view (:meth:`ViewBatch.fuse`).
+:func:`warm_up` compiles the loop (or loads numba's cache) at start, so no frame waits for a
+compilation.
 
 Weighted fusion (second section): each joint as the weighted mean of the views that have it.
 Report A (``shared/papers.md``): sensor k sees joint n at J_kn with confidence C_kn; the fused
-joint is ``J_n = Σ_k C_kn·J_kn / Σ_k C_kn``, C the weights of :mod:`skelfuse.fusion.confidence`.
-:func:`carriers` tells which views a fused joint came from (the Cauchy pass can discount views
-far from that consensus). Shapes: P persons fused at once, each with up to S views (a person
-with fewer is padded with NaN views of weight 0, which changes no sum or product), J = 25
-joints; metres, world frame. :func:`weighted_mean` is one loop compiled with numba
-(:func:`weighted_loop`): per joint, the sums over the views start from 0 and add view after
-view, a view counting where its point is finite and its weight positive.
+joint is ``J_n = Σ_k C_kn·J_kn / Σ_k C_kn``. :func:`carriers` tells which views a fused joint
+came from. Shapes: P persons fused at once, each with up to S views (a person with fewer is
+padded with NaN views of weight 0, which changes no sum or product), J = 25 joints; metres,
+world frame. :func:`weighted_mean` is one loop compiled with numba (:func:`weighted_loop`): per
+joint, the sums over the views start from 0 and add view after view, a view counting where its
+point is finite and its weight positive.
 
 The batch it works on (:class:`ViewBatch`, last section): the views of P persons stacked (N
 views; person ``person_of[i]``, its ``slot_of[i]``-th view); per-person sums use (P, widest,
@@ -55,15 +60,10 @@ from skelfuse.fusion.confidence import (
     sensor_terms,
 )
 from skelfuse.fusion.mirror_scores import slots
-from skelfuse.fusion.priors import SensorPrior
+from skelfuse.fusion.priors import KINECT_V2, SensorPrior, prior_variances
+from skelfuse.fusion.rig_errors import robust_factors_loop, variance_at, view_bins_loop
 from skelfuse.fusion.settings import FusionSettings
-from skelfuse.fusion.view_factors import (
-    cosines_loop,
-    depth_noise_ratios,
-    ray_weighted_mean,
-    reliability_factors,
-    view_factor_loop,
-)
+from skelfuse.fusion.view_factors import cosines_loop, depth_noise_ratios, ray_weighted_mean
 from skelfuse.fusion.views import View
 from skelfuse.jit import jit, plain
 
@@ -73,6 +73,7 @@ BoolArray = npt.NDArray[np.bool_]
 
 __all__ = [
     "MIN_SHARE",
+    "Learned",
     "ViewBatch",
     "Weighed",
     "carriers",
@@ -88,11 +89,11 @@ BODY: Final = 0
 FACING: Final = 1
 """Phase: each person's facing and where it stands, each view's facing cosine."""
 VIEWS: Final = 2
-"""Phase: the view factors (facing) and the fusion under them."""
-CONFIDENCE: Final = 3
+"""Phase: each view's joints' bins and learned variances, and the fusion under them."""
+ROBUST: Final = 3
+"""Phase: the Student-t factors of views far off the others, and the last fusion."""
+CONFIDENCE: Final = 4
 """Phase: the confidence and the carriers."""
-_NOT_USED: Final = np.ones((1, 1))
-"""What the loop gets for a term that is off (it reads nothing of it; never written)."""
 _TABLES: Final[tuple[tuple[IntArray, IntArray], tuple[IntArray, IntArray]]] = (
     (plain(BODY_TABLES[0][0], np.intp), plain(BODY_TABLES[0][1], np.intp)),
     (plain(BODY_TABLES[1][0], np.intp), plain(BODY_TABLES[1][1], np.intp)),
@@ -108,6 +109,18 @@ _Body = tuple[
     tuple[tuple[IntArray, IntArray], tuple[IntArray, IntArray]],
 ]
 """The body terms' arguments of :func:`_weigh_loop` (its docstring)."""
+_NOT_USED: Final = np.ones((1, 1))
+"""What the loop gets for a term that is off (it reads nothing of it; never written)."""
+
+
+class Learned(NamedTuple):
+    """Each view's sensor in the learned error table, and the table (fusion/rig_errors.py).
+
+    rows: (N,) each view's row; variance: (R, 25, B) m², the learned (or prior) variances.
+    """
+
+    rows: IntArray
+    variance: FloatArray
 
 
 class Weighed(NamedTuple):
@@ -115,7 +128,10 @@ class Weighed(NamedTuple):
 
     weights: (N, 25) each view's final per-joint weights; fused: (P, 25, 3) metres, world, NaN
     where no view counts; cosines: (N,) each view's facing cosine (NaN: unknown); confidence:
-    (P, 25) in [0, 1]; carried: (P, S, 25) which views carried each fused joint.
+    (P, 25) in [0, 1]; carried: (P, S, 25) which views carried each fused joint; bins: (N, 25)
+    each view's joint's bin (:func:`~skelfuse.fusion.rig_errors.bin_of`, −1: NotTracked);
+    between: (N,) how far each view is towards the next sector's bin; variances: (N, 25) each
+    view's joints' learned variances (m², inf where NotTracked).
     """
 
     weights: FloatArray
@@ -123,6 +139,9 @@ class Weighed(NamedTuple):
     cosines: FloatArray
     confidence: FloatArray
     carried: BoolArray
+    bins: IntArray
+    between: FloatArray
+    variances: FloatArray
 
 
 def weigh_and_fuse(
@@ -133,6 +152,7 @@ def weigh_and_fuse(
     fused_once: Sequence[bool],
     settings: FusionSettings,
     priors: Sequence[SensorPrior] | None,
+    learned: Learned,
 ) -> Weighed:
     """Steps 5–6 (module docstring) for P persons' N views, labels corrected.
 
@@ -148,6 +168,7 @@ def weigh_and_fuse(
             this step's first fusion).
         settings: which terms are on, and their scales.
         priors: (N,) each view's sensor prior, or None: the settings' values for every view.
+        learned: each view's sensor's learned variances.
     """
     s = settings
     count, persons, size = len(batch.joints), len(batch.counts), batch.joints.shape[1]
@@ -157,8 +178,10 @@ def weigh_and_fuse(
         np.empty(count),
         np.empty((persons, size)),
         np.empty((persons, batch.widest, size), dtype=np.bool_),
+        np.empty((count, size), dtype=np.intp),
+        np.empty(count),
+        np.empty((count, size)),
     )
-    stands = np.empty((count, 3))
     terms, of_view = sensor_terms(s, priors, count)
     if s.weights.range_of_motion and rom is None:
         rom = range_of_motion_factors(batch.joints, s.weights.rom_scale_deg)
@@ -171,51 +194,39 @@ def weigh_and_fuse(
     )  # fmt: skip
     views = (
         plain(track_facings), plain(np.asarray(fused_once, dtype=np.bool_), np.bool_),
-        bool(s.weights.facing),
+        plain(learned.rows, np.intp), learned.variance, weight_scale(s),
+        (bool(s.weights.view_bins), float(s.learning.far_m), float(s.learning.robust_dof)),
     )  # fmt: skip
+    work = (np.empty((count, 3)), np.empty((count, 3)))
+    phases = (BODY, VIEWS, ROBUST, CONFIDENCE) if batch.depth_ratios is not None else (CONFIDENCE,)
     phase = BODY
-    for stop in _stops(batch, s):
+    for stop in phases:
         _weigh_loop(
             phase, stop, plain(batch.joints), plain(batch.states, np.uint8),
             plain(batch.sensors), (plain(batch.starts, np.intp), batch.widest), body, views,
-            (*out, stands),
+            out, work,
         )  # fmt: skip
-        _between(stop, batch, out, s)
+        if stop != CONFIDENCE:  # a camera that guesses depth: its fusion along the ray
+            out.fused[:] = batch.fuse(out.weights)
         phase = stop + 1
     return out
 
 
-def _stops(batch: ViewBatch, settings: FusionSettings) -> list[int]:
-    """The phases after which :func:`_between` runs a term of its own, then :data:`CONFIDENCE`."""
-    s = settings
-    stops = {CONFIDENCE}
-    if batch.depth_ratios is not None:
-        stops |= {BODY, VIEWS}
-    if s.weights.view_reliability:
-        stops.add(VIEWS)
-    return sorted(stops)
+def weight_scale(settings: FusionSettings) -> FloatArray:
+    """(25,) what a joint's weight is before its body terms when its variance is 1 m²: the
+    Kinect v2 prior's variance of a frontal, near, Tracked joint times its state weight
+    (module docstring), so that such a joint weighs ``state_weights[2]``."""
+    kept = _scales.get(id(settings))
+    if kept is None or kept[0] is not settings:
+        front = prior_variances(KINECT_V2, settings)[:, 0]
+        kept = _scales[id(settings)] = (settings, front * settings.weights.state_weights[2])
+        if len(_scales) > 16:
+            _scales.pop(next(iter(_scales)))
+    return kept[1]
 
 
-def _between(stop: int, batch: ViewBatch, out: Weighed, settings: FusionSettings) -> None:
-    """The terms that run after phase ``stop``: the view reliability after :data:`VIEWS` and the
-    ray weighting after each fusion (in place in ``out``)."""
-    s = settings
-    refuse = batch.depth_ratios is not None and stop in (BODY, VIEWS)
-    if stop == VIEWS and s.weights.view_reliability:  # 5. how well each view sees each joint
-        out.weights[:] *= reliability_factors(
-            batch.joints,
-            out.cosines,
-            batch.sensors,
-            batch.starts.tolist(),
-            s.weights.view_lean_fraction,
-            s.weights.view_error_m,
-            s.weights.view_jitter_per_m2,
-            s.weights.view_occlusion_m,
-            batch.states,
-        )
-        refuse = True
-    if refuse:
-        out.fused[:] = batch.fuse(out.weights)
+_scales: dict[int, tuple[FusionSettings, FloatArray]] = {}
+""":func:`weight_scale` by the identity of the settings (kept with them, so no id is reused)."""
 
 
 @jit
@@ -227,8 +238,13 @@ def _weigh_loop(
     sensors: FloatArray,
     places: tuple[IntArray, int],
     body: _Body,
-    views: tuple[FloatArray, BoolArray, bool],
-    out: tuple[FloatArray, FloatArray, FloatArray, FloatArray, BoolArray, FloatArray],
+    views: tuple[
+        FloatArray, BoolArray, IntArray, FloatArray, FloatArray, tuple[bool, float, float]
+    ],
+    out: tuple[
+        FloatArray, FloatArray, FloatArray, FloatArray, BoolArray, IntArray, FloatArray, FloatArray
+    ],
+    work: tuple[FloatArray, FloatArray],
 ) -> None:
     """Run the phases ``first`` to ``last`` of :func:`weigh_and_fuse` (module docstring).
 
@@ -236,25 +252,40 @@ def _weigh_loop(
     person's first view, then N, and the widest person; body: the :func:`sensor_terms` rows and
     each view's, the references (P, 24), the rom factors (N, 25), whether each of these two
     terms is on, the bone-length scale; views: the track facings (P, 3), whether each person
-    was fused before (P,), the facing term on; out: weights, fused, cosines,
-    confidence, carried (:class:`Weighed`) and where each view's person stands (N, 3).
+    was fused before (P,), each view's learned-variance row (N,), the variances (R, 25, B),
+    :func:`weight_scale` (25,), whether views are binned by where they stand, the far
+    distance and the Student-t degrees of freedom (0: no robust pass); out: weights, fused,
+    cosines, confidence, carried, bins, between, variances (:class:`Weighed`); work: where
+    each view's person stands (N, 3), its facing (N, 3).
     """
-    weights, fused, cosines, confidence, carried, stands = out
+    weights, fused, cosines, confidence, carried, bins, between, variances = out
+    stands, facing_of = work
     starts, widest = places
-    facings, once, facing_on = views
+    facings, once, rows, table, scale, (binned, far_m, dof) = views
     padded = np.empty((len(starts) - 1, widest, joints.shape[1], 3))
     padded_weights = np.empty(padded.shape[:3])
     if first <= BODY <= last:
         _body_phase(joints, states, starts, body, weights)
         _fuse(joints, weights, starts, padded, padded_weights, fused)
     if first <= FACING <= last:
-        _facing_phase(joints, sensors, starts, facings, once, fused, stands, cosines)
-    if first <= VIEWS <= last and facing_on:
-        factors = np.empty(len(cosines))
-        view_factor_loop(cosines, body[0], body[1], factors)
-        for v in range(len(factors)):
+        _facing_phase(joints, sensors, starts, facings, once, fused, stands, facing_of, cosines)
+    if first <= VIEWS <= last:
+        view_bins_loop(facing_of, stands, sensors, states, (binned, far_m), (bins, between))
+        for v in range(len(rows)):
             for j in range(weights.shape[1]):
-                weights[v, j] = weights[v, j] * factors[v]
+                b = bins[v, j]
+                if b < 0:
+                    variances[v, j], weights[v, j] = math.inf, 0.0
+                    continue
+                variances[v, j] = variance_at(table, rows[v], j, b, between[v])
+                weights[v, j] = weights[v, j] * scale[j] / variances[v, j]
+        _fuse(joints, weights, starts, padded, padded_weights, fused)
+    if first <= ROBUST <= last and dof > 0.0:
+        factors = np.empty(weights.shape)
+        robust_factors_loop(joints, weights, variances, starts, dof, factors)
+        for v in range(len(rows)):
+            for j in range(weights.shape[1]):
+                weights[v, j] = weights[v, j] * factors[v, j]
         _fuse(joints, weights, starts, padded, padded_weights, fused)
     if first <= CONFIDENCE <= last:
         _pad(joints, weights, starts, padded, padded_weights)
@@ -331,12 +362,13 @@ def _facing_phase(
     once: BoolArray,
     fused: FloatArray,
     stands: FloatArray,
+    facing_of: FloatArray,
     cosines: FloatArray,
 ) -> None:
     """Fill ``stands`` (N, 3) with where each view's person stands (``ViewBatch.body_positions``:
-    its fused SpineBase, else the mean of its views' known coordinates) and ``cosines`` (N,)
-    with each view's facing cosine; a person fused the first time faces as its fusion does."""
-    gathered = np.empty((len(cosines), 3))
+    its fused SpineBase, else the mean of its views' known coordinates), ``facing_of`` (N, 3)
+    with its facing and ``cosines`` (N,) with each view's facing cosine; a person fused the
+    first time faces as its fusion does."""
     own = np.empty((1, 3))
     stand = np.empty(3)
     for p in range(len(starts) - 1):
@@ -358,25 +390,29 @@ def _facing_phase(
             facing_loop(fused[p : p + 1], own)
         for v in range(lo, hi):
             stands[v] = stand
-            gathered[v] = own[0]
-    cosines_loop(gathered, stands, sensors, cosines)
+            facing_of[v] = own[0]
+    cosines_loop(facing_of, stands, sensors, cosines)
 
 
 def warm_up() -> None:
     """Compile (or load from numba's cache) the loops now: the step's, every phase, and the
     weighted mean's."""
     views = np.zeros((2, 25, 3))
-    terms, of_view = sensor_terms(FusionSettings(), None, 2)
+    settings = FusionSettings()
+    terms, of_view = sensor_terms(settings, None, 2)
     out = (
         np.empty((2, 25)), np.empty((1, 25, 3)), np.empty(2), np.empty((1, 25)),
-        np.empty((1, 2, 25), dtype=np.bool_), np.empty((2, 3)),
+        np.empty((1, 2, 25), dtype=np.bool_), np.empty((2, 25), dtype=np.intp), np.empty(2),
+        np.empty((2, 25)),
     )  # fmt: skip
+    table = prior_variances(KINECT_V2, settings)[None]
     _weigh_loop(
         BODY, CONFIDENCE, views, np.zeros((2, 25), np.uint8), np.ones((2, 3)),
         (np.array([0, 2], dtype=np.intp), 2),
         (terms, of_view, np.ones((1, 24)), np.ones((2, 25)), (True, True), 0.05, _TABLES),
-        (np.ones((1, 3)), np.zeros(1, dtype=np.bool_), True),
-        out,
+        (np.ones((1, 3)), np.zeros(1, dtype=np.bool_), np.zeros(2, dtype=np.intp), table,
+         weight_scale(settings), (True, 2.5, 4.0)),
+        out, (np.empty((2, 3)), np.empty((2, 3))),
     )  # fmt: skip
     weighted_mean(np.zeros((1, 2, 25, 3)), np.ones((1, 2, 25)))
 

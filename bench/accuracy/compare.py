@@ -61,7 +61,7 @@ from pathlib import Path
 from bench.accuracy.alignment import chosen_policies, print_alignment, run_alignment
 from bench.accuracy.filter_latency import filter_latency
 from bench.accuracy.methods import METHODS
-from bench.accuracy.oracle import print_oracle, run_oracle, with_reliability
+from bench.accuracy.oracle import print_oracle, run_oracle
 from bench.accuracy.paper import paper_experiment
 from bench.accuracy.report import (
     print_accuracy,
@@ -133,8 +133,6 @@ def _parser() -> argparse.ArgumentParser:
                              "(mirror_redecide off, as before issue 10)")  # fmt: skip
     parser.add_argument("--oracle", action="store_true",
                         help="only fused vs the hindsight oracle (accuracy/oracle.py)")  # fmt: skip
-    parser.add_argument("--view-reliability", action="store_true",
-                        help="every method with use_view_reliability on")  # fmt: skip
     parser.add_argument("--no-mirror-turns", action="store_true",
                         help="every method with mirror_unbiased_facing off and "
                              "mirror_redecide_views = 1 (the defaults before)")  # fmt: skip
@@ -157,8 +155,6 @@ def _methods(args: argparse.Namespace) -> dict[str, FusionSettings]:
             label: replace(m, mirror=replace(m.mirror, redecide=False))
             for label, m in METHODS.items()
         }
-    if args.view_reliability:
-        methods = with_reliability(methods)
     if args.no_mirror_turns:
         methods = {
             label: replace(m, mirror=replace(m.mirror, unbiased_facing=False, redecide_views=1))

@@ -9,14 +9,13 @@ the trunk alone), and picks the one with the least MPJPE. No live system can do 
 the truth. Target: fused MPJPE ≤ 0.9× the oracle's, overall and per joint group.
 
 Run through ``python -m bench accuracy --oracle`` (with ``--quick``, ``--runs``); the methods
-compared are :data:`ORACLE_METHODS` (the defaults; with ``weights.view_reliability`` added;
-with it in place of ``weights.facing``).
+compared are :data:`ORACLE_METHODS` (the defaults; the same with each sensor's error kept at
+its type's prior instead of learned).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 from typing import Any, Final
 
 import numpy as np
@@ -26,7 +25,7 @@ from bench.accuracy.metrics import Log
 from bench.accuracy.runner import FPS, T0, SimulatedRig, _new_hub, feed
 from bench.accuracy.scenarios import Scenario
 from skelfuse.agent.sim.kinect_model import KinectV2Params
-from skelfuse.fusion.settings import WeightSettings
+from skelfuse.fusion.settings import LearningSettings
 from skelfuse.protocol.skeleton import MIRROR_PERMUTATION, JointId
 from skelfuse.protocol.transform import apply
 from skelfuse.server.settings import FusionSettings
@@ -45,9 +44,8 @@ GROUPS: Final[dict[str, tuple[int, ...]]] = {
 ORACLE = "hindsight oracle (best correct single view per frame)"
 ORACLE_METHODS: Final[dict[str, FusionSettings]] = {
     "full (defaults)": FusionSettings(),
-    "full + view reliability": FusionSettings(weights=WeightSettings(view_reliability=True)),
-    "full, view reliability in place of facing": FusionSettings(
-        weights=WeightSettings(view_reliability=True, facing=False)
+    "errors not learned (the sensor types' priors)": FusionSettings(
+        learning=LearningSettings(enabled=False)
     ),
 }
 
@@ -148,12 +146,3 @@ def print_oracle(results: dict[str, list[dict[str, dict[str, float]]]]) -> None:
             if label != ORACLE:
                 ratio = " / ".join(f"{med[label][c] / med[ORACLE][c]:.2f}" for c in columns)
             print(f"| {scenario} | {label} | {cells} | {ratio} |")
-
-
-def with_reliability(methods: dict[str, FusionSettings]) -> dict[str, FusionSettings]:
-    """Every method with ``weights.view_reliability`` on in place of ``weights.facing``
-    (``--view-reliability``): rows without facing gain the term, rows with it swap."""
-    return {
-        label: replace(m, weights=replace(m.weights, view_reliability=True, facing=False))
-        for label, m in methods.items()
-    }
