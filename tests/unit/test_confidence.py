@@ -1,4 +1,5 @@
-"""Body-based confidence terms: bone length with chain propagation, range of motion, facing."""
+"""Body-based confidence terms: bone length with chain propagation, range of motion; facing
+cosines."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from skelfuse.agent.sim.performer import BodyShape, Pose, pose_joints
 from skelfuse.fusion.anatomy import CHAIN_ORDER, facing_direction, joint_angles
 from skelfuse.fusion.confidence import body_weights, range_of_motion_factors
 from skelfuse.fusion.settings import FusionSettings, WeightSettings
-from skelfuse.fusion.view_factors import facing_cosines, facing_factors
+from skelfuse.fusion.view_factors import facing_cosines
 from skelfuse.protocol.skeleton import BONES, MIRROR_PERMUTATION, PARENTS, JointId, bone_lengths
 
 J = JointId
@@ -88,16 +89,14 @@ def test_hyperextended_knee_is_penalised_smoothly() -> None:
     assert factor == pytest.approx(np.exp(-15.0 / 15.0), rel=1e-6)
 
 
-def test_facing_terms() -> None:
+def test_facing_cosines() -> None:
     view = body(heading=0.0)  # faces +Z
     facing = facing_direction(view)
     np.testing.assert_allclose(facing, [0.0, 0.0, 1.0], atol=1e-9)
     sensors = np.array([[0.0, 1.0, 2.5], [2.5, 1.0, 0.0], [0.0, 1.0, -2.5], [np.nan] * 3])
     cos = facing_cosines(facing, view[J.SPINE_BASE], sensors)
     np.testing.assert_allclose(cos[:3], [1.0, 0.0, -1.0], atol=1e-9)
-    f = facing_factors(cos, 2.0, 0.1, 0.5)
-    assert f[0] == pytest.approx(1.0) and f[1] == pytest.approx(0.1)
-    assert f[2] == pytest.approx(0.5) and f[3] == 1.0
+    assert np.isnan(cos[3])
 
 
 def test_batched_facing_and_range_of_motion_match_single_skeletons() -> None:

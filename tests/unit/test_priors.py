@@ -19,15 +19,16 @@ from skelfuse.fusion.priors import (
     SensorPrior,
     distinct_priors,
     prior_for,
+    prior_variances,
     priors_of,
 )
+from skelfuse.fusion.rig_errors import BINS, bin_of
 from skelfuse.fusion.settings import (
     BoneSettings,
     FusionSettings,
     SmoothingSettings,
     TrackingSettings,
 )
-from skelfuse.fusion.view_factors import view_factors
 from skelfuse.fusion.views import View
 from skelfuse.protocol.skeleton import JOINT_COUNT, JointId, bone_lengths
 from skelfuse.protocol.wire import SENSOR_TYPES
@@ -59,18 +60,39 @@ def test_every_wire_type_has_a_prior_and_the_v2_like_ones_are_the_settings() -> 
     assert femto == AZURE_BODY_TRACKING  # the same Body Tracking SDK
 
 
-def test_kinect_v2_prior_gives_todays_weights_bit_for_bit() -> None:
+def test_kinect_v2_prior_gives_the_settings_body_factors_bit_for_bit() -> None:
     joints, states, refs = noisy_views(6)
     joints[2, JointId.ELBOW_LEFT] += (0.0, -0.2, 0.25)  # a glitch: out of range, bone off
     priors = [KINECT_V2] * 6
     today = body_weights(joints, states, refs, None, SETTINGS)
     assert np.array_equal(body_weights(joints, states, refs, None, SETTINGS, priors), today)
-    assert (today < np.array(SETTINGS.weights.state_weights)[states]).any()  # the body terms bite
+    assert (today[states > 0] < 1.0).any()  # the body terms bite
+    assert (today[states == 0] == 0.0).all()  # a state of prior weight 0 never counts
+    assert ((today >= 0.0) & (today <= 1.0)).all()
 
-    rng = np.random.default_rng(1)
-    cosines = rng.uniform(-1.0, 1.0, 6)
-    cosines[0] = np.nan
-    assert np.array_equal(view_factors(cosines, SETTINGS, priors), view_factors(cosines, SETTINGS))
+
+def test_prior_variances_follow_the_direction_state_and_distance() -> None:
+    table = prior_variances(KINECT_V2, SETTINGS)  # (25, B)
+    assert table.shape == (JOINT_COUNT, BINS)
+    knee = JointId.KNEE_LEFT
+    front = table[knee, bin_of(0, True, False)]
+    assert front == pytest.approx(KINECT_V2.error_m[1] ** 2)
+    side = table[knee, bin_of(2, True, False)]
+    back = table[knee, bin_of(4, True, False)]
+    assert side == pytest.approx(front * KINECT_V2.side_ratio)
+    assert back == pytest.approx(front * KINECT_V2.back_ratio)
+    assert front < table[knee, bin_of(1, True, False)] < side  # between, by sin²
+    assert table[knee, bin_of(6, True, False)] == pytest.approx(side)  # left and right alike
+    weights = SETTINGS.weights.state_weights
+    assert table[knee, bin_of(0, False, False)] == pytest.approx(front * weights[2] / weights[1])
+    assert table[knee, bin_of(0, True, True)] == pytest.approx(front * KINECT_V2.far_ratio)
+    trunk = table[JointId.SPINE_MID, bin_of(0, True, False)]
+    hand = table[JointId.HAND_LEFT, bin_of(0, True, False)]
+    assert trunk < front < hand  # trunk, limb, extremity
+    never = dataclasses.replace(KINECT_V2, state_weights=(0.0, 0.0, 0.7))
+    assert np.isinf(prior_variances(never, SETTINGS)[knee, bin_of(0, False, False)])
+    twice = dataclasses.replace(KINECT_V2, error_m=tuple(2 * e for e in KINECT_V2.error_m))
+    np.testing.assert_allclose(prior_variances(twice, SETTINGS), 4 * table, rtol=1e-12)
 
 
 def test_azure_view_gets_its_own_table_and_no_bone_length_term() -> None:
@@ -104,8 +126,8 @@ def test_azure_view_gets_its_own_table_and_no_bone_length_term() -> None:
 
 def test_mixed_types_in_one_batch_each_row_as_alone() -> None:
     joints, states, refs = noisy_views(4, seed=3)
-    facing_prior = dataclasses.replace(AZURE_BODY_TRACKING, facing_power=4.0, rom_scale=2.0)
-    priors = [KINECT_V2, facing_prior, RGB_MONO, KINECT_V2]
+    loose_prior = dataclasses.replace(AZURE_BODY_TRACKING, rom_scale=2.0)
+    priors = [KINECT_V2, loose_prior, RGB_MONO, KINECT_V2]
     mixed = body_weights(joints, states, refs, None, SETTINGS, priors)
     for i, prior in enumerate(priors):
         alone = body_weights(
@@ -114,23 +136,11 @@ def test_mixed_types_in_one_batch_each_row_as_alone() -> None:
         np.testing.assert_allclose(mixed[i], alone[0], rtol=1e-15)
     assert np.array_equal(mixed[[0, 3]], body_weights(joints, states, refs, None, SETTINGS)[[0, 3]])
 
-    cosines = np.array([0.5, 0.5, -0.5, np.nan])
-    factors = view_factors(cosines, SETTINGS, priors)
-    assert factors[0] == pytest.approx(0.1 + 0.9 * 0.25)
-    assert factors[1] == pytest.approx(0.1 + 0.9 * 0.5**4)  # its own facing power
-    assert factors[2] == pytest.approx((0.1 + 0.9 * 0.25) * 0.5)
-    assert factors[3] == 1.0
 
-
-def test_noise_and_range_of_motion_scale() -> None:
+def test_range_of_motion_scale() -> None:
     joints, states, refs = noisy_views(1, seed=5)
     joints[0, JointId.ANKLE_LEFT] = joints[0, JointId.KNEE_LEFT] + (0.0, 0.0, -0.45)  # knee bent
     base = SensorPrior("x", fixed_bone_lengths=True)
-    plain = body_weights(joints, states, refs, None, SETTINGS, [base])
-    noisy = body_weights(
-        joints, states, refs, None, SETTINGS, [dataclasses.replace(base, noise_scale=3.0)]
-    )
-    np.testing.assert_allclose(noisy, plain / 9.0, rtol=1e-15)
     loose = body_weights(
         joints, states, refs, None, SETTINGS, [dataclasses.replace(base, rom_scale=2.0)]
     )

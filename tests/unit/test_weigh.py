@@ -1,11 +1,11 @@
 """Steps 5–6 in one compiled loop give what the stages give term by term.
 
-skelfuse.fusion.weigh.weigh_and_fuse runs the steps as one loop in phases, with the yaw
-correction, the view reliability and the ray weighting between them. It is compared with the
-stages called one after the other (body weights, fusion, facing, view factors, reliability,
-a Cauchy pass written here in numpy, confidence and carriers) on simulated views with noise,
-unknown joints, unknown sensor positions and facings, persons with different numbers of views,
-and every setting that changes the path through the steps.
+skelfuse.fusion.weigh.weigh_and_fuse runs the steps as one loop in phases, with the ray
+weighting between them. It is compared with the stages called one after the other (body
+weights, fusion, facing, each view's bins and learned variances, the Student-t pass, written
+here in numpy, confidence and carriers) on simulated views with noise, unknown joints, unknown
+sensor positions and facings, persons with different numbers of views, random learned
+variances, and every setting that changes the path through the steps.
 """
 
 from __future__ import annotations
@@ -20,11 +20,12 @@ import pytest
 from skelfuse.fusion import weigh
 from skelfuse.fusion.anatomy import facing_directions
 from skelfuse.fusion.confidence import body_weights
-from skelfuse.fusion.priors import SensorPrior, priors_of
-from skelfuse.fusion.settings import FusionSettings, WeightSettings
-from skelfuse.fusion.view_factors import facing_cosines, reliability_factors, view_factors
+from skelfuse.fusion.priors import KINECT_V2, SECTORS, SensorPrior, prior_variances, priors_of
+from skelfuse.fusion.rig_errors import BINS
+from skelfuse.fusion.settings import FusionSettings, LearningSettings, WeightSettings
+from skelfuse.fusion.view_factors import facing_cosines
 from skelfuse.fusion.views import View
-from skelfuse.fusion.weigh import ViewBatch, confidence_and_carriers
+from skelfuse.fusion.weigh import Learned, ViewBatch, confidence_and_carriers, weight_scale
 from skelfuse.protocol.skeleton import BONES, JointId
 from tests.support import random_views as _views
 
@@ -64,6 +65,55 @@ def _inputs(seed: int, batch: ViewBatch) -> tuple[Any, ...]:
     return rom, references, facings
 
 
+def _learned(seed: int, batch: ViewBatch) -> Learned:
+    """Each view's sensor a row of its own in a table of random variances around the prior."""
+    rng = np.random.default_rng(seed + 200)
+    table = prior_variances(KINECT_V2, FusionSettings())[None] * rng.uniform(
+        0.3, 3.0, (len(batch.views), 1, BINS)
+    )
+    return Learned(np.arange(len(batch.views))[::-1].copy(), table)
+
+
+def _bins(
+    facing: np.ndarray, stands: np.ndarray, batch: ViewBatch, settings: FusionSettings
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each view's joints' bins and how far towards the next sector (rig_errors.bin_of)."""
+    flat = (batch.sensors - stands) * [1.0, 0.0, 1.0]
+    distance = np.linalg.norm(flat, axis=1)
+    along = (facing * flat).sum(axis=1)
+    left = facing[:, 2] * flat[:, 0] - facing[:, 0] * flat[:, 2]
+    with np.errstate(invalid="ignore"):
+        position = (np.arctan2(left, along) % (2 * np.pi)) / (2 * np.pi / SECTORS)
+    usable = np.isfinite(position) & (distance > 0) & settings.weights.view_bins
+    sector = np.where(usable, np.minimum(np.floor(np.nan_to_num(position)), SECTORS - 1), 0)
+    between = np.where(usable, np.nan_to_num(position) - sector, 0.0)
+    far = settings.weights.view_bins & (distance > settings.learning.far_m)
+    state = np.where(batch.states == 2, 0, 2)
+    bins = (sector * 4)[:, None] + state + far[:, None]
+    return np.where(batch.states == 0, -1, bins).astype(np.intp), between
+
+
+def _robust(batch: ViewBatch, weights: np.ndarray, variances: np.ndarray, dof: float) -> np.ndarray:
+    """The Student-t factor of each view's joint on its distance to the others' weighted mean."""
+    out = np.ones(weights.shape)
+    finite = np.isfinite(batch.joints).all(axis=-1)
+    for lo, hi in zip(batch.starts[:-1], batch.starts[1:], strict=True):
+        for k in range(lo, hi):
+            others = [i for i in range(lo, hi) if i != k]
+            w = np.where(finite[others] & (weights[others] > 0), weights[others], 0.0)
+            total = w.sum(axis=0)
+            x = np.nan_to_num(batch.joints[others])
+            mean = (w[..., None] * x).sum(axis=0) / np.where(total > 0, total, 1.0)[:, None]
+            spread = (w**2 * np.where(w > 0, variances[others], 0.0)).sum(axis=0)
+            expected = variances[k] + spread / np.where(total > 0, total, 1.0) ** 2
+            distance = ((batch.joints[k] - mean) ** 2).sum(axis=-1)
+            with np.errstate(invalid="ignore"):
+                factor = (dof + 3.0) / (dof + distance / expected)
+            usable = (total > 0) & (weights[k] > 0) & finite[k]
+            out[k] = np.where(usable, factor, 1.0)
+    return out
+
+
 def _term_by_term(
     batch: ViewBatch,
     rom: np.ndarray,
@@ -72,6 +122,7 @@ def _term_by_term(
     fused_once: Sequence[bool],
     settings: FusionSettings,
     priors: Sequence[SensorPrior] | None,
+    learned: Learned,
 ) -> weigh.Weighed:
     """Steps 5–6 as the stages called one after the other (the reference)."""
     s = settings
@@ -79,22 +130,22 @@ def _term_by_term(
     weights = body_weights(batch.joints, batch.states, known, rom, s, priors)
     fused = batch.fuse(weights)
     once = np.array(fused_once, dtype=bool)
-    facing = np.where(once[:, None], track_facings, facing_directions(fused))
+    facing = np.where(once[:, None], track_facings, facing_directions(fused))[batch.person_of]
     stands = batch.body_positions(fused)[batch.person_of]
-    cosines = facing_cosines(facing[batch.person_of], stands, batch.sensors)
-    if s.weights.facing:
-        weights = weights * view_factors(cosines, s, priors)[:, None]
-        fused = batch.fuse(weights)
-    if s.weights.view_reliability:
-        w = s.weights
-        weights = weights * reliability_factors(
-            batch.joints, cosines, batch.sensors, batch.starts.tolist(), w.view_lean_fraction,
-            w.view_error_m, w.view_jitter_per_m2, w.view_occlusion_m, batch.states,
-        )  # fmt: skip
+    cosines = facing_cosines(facing, stands, batch.sensors)
+    bins, between = _bins(facing, stands, batch, s)
+    table = learned.variance[learned.rows[:, None], np.arange(25)]  # (N, 25, B)
+    at = np.take_along_axis(table, np.maximum(bins, 0)[..., None], axis=2)[..., 0]
+    after = np.take_along_axis(table, ((np.maximum(bins, 0) + 4) % BINS)[..., None], 2)[..., 0]
+    variances = np.where(bins >= 0, (1 - between[:, None]) * at + between[:, None] * after, np.inf)
+    weights = np.where(bins >= 0, weights * weight_scale(s) / variances, 0.0)
+    fused = batch.fuse(weights)
+    if s.learning.robust_dof > 0:
+        weights = weights * _robust(batch, weights, variances, s.learning.robust_dof)
         fused = batch.fuse(weights)
     padded_joints, padded_weights = batch.pad(batch.joints, np.nan), batch.pad(weights, 0.0)
     confidence, carried = confidence_and_carriers(padded_joints, padded_weights)
-    return weigh.Weighed(weights, fused, cosines, confidence, carried)
+    return weigh.Weighed(weights, fused, cosines, confidence, carried, bins, between, variances)
 
 
 def _both(
@@ -108,15 +159,19 @@ def _both(
         rom, references, facings = _inputs(seed, own)
         use = settings.weights.sensor_priors
         priors = priors_of([v.sensor_type for v in own.views]) if use else None
-        results.append(run(own, rom, references, facings, fused_once, settings, priors))
+        learned = _learned(seed, own)
+        results.append(run(own, rom, references, facings, fused_once, settings, priors, learned))
     return results[0], results[1]
 
 
 def _close(got: weigh.Weighed, expected: weigh.Weighed) -> None:
-    """Weights, cosines and confidence to 1e-9, positions to 1e-6 m, the carriers equal."""
+    """Weights, cosines and confidence to 1e-9 (relative for the weights and variances),
+    positions to 1e-6 m, the carriers and bins equal."""
     for name, a, b in zip(got._fields, got, expected, strict=True):
         assert a.shape == b.shape, name
-        if a.dtype == np.bool_:
+        if name in ("weights", "variances"):
+            np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12, err_msg=name)
+        elif a.dtype == np.bool_ or a.dtype == np.intp:
             np.testing.assert_array_equal(a, b, err_msg=name)
         else:
             tolerance = 1e-6 if name == "fused" else 1e-9
@@ -126,7 +181,7 @@ def _close(got: weigh.Weighed, expected: weigh.Weighed) -> None:
 @pytest.mark.parametrize("seed", range(6))
 @pytest.mark.parametrize(
     "change",
-    [{}, {"bone_length": False}, {"range_of_motion": False}, {"facing_power": 1.5}],
+    [{}, {"bone_length": False}, {"range_of_motion": False}, {"view_bins": False}],
 )
 def test_the_step_gives_the_stages_results(seed: int, change: dict[str, Any]) -> None:
     settings = FusionSettings(weights=WeightSettings(**change))
@@ -135,6 +190,7 @@ def test_the_step_gives_the_stages_results(seed: int, change: dict[str, Any]) ->
     # The terms reached the result: weights below the state table's, views that did not carry.
     assert (got.weights[got.weights > 0] < 0.5).any() and not got.carried.all()
     assert np.isnan(got.cosines).any() and np.isfinite(got.fused).any()
+    assert (got.bins == -1).any() and (got.bins >= 0).any()
 
 
 @pytest.mark.parametrize("seed", range(3))
@@ -152,20 +208,23 @@ def test_a_person_whose_spine_no_view_sees_stands_at_its_views_mean(seed: int) -
     ("case", "change", "fused_once", "sensor_type"),
     [
         ("a person fused the first time", {}, [True, False, True, True, False], "kinect_v2"),
-        ("the view reliability", {"view_reliability": True}, [True] * 5, "kinect_v2"),
-        ("no facing term", {"facing": False}, [True] * 5, "kinect_v2"),
-        ("no view factor at all", {"facing": False, "view_reliability": True}, [True] * 5,
-         "kinect_v2"),
+        ("no bins by where sensors stand", {"view_bins": False}, [True] * 5, "kinect_v2"),
+        ("no robust pass", {"robust_dof": 0.0}, [True] * 5, "kinect_v2"),
         ("a camera that guesses depth", {}, [True] * 5, "rgb"),
-        ("depth guessed, every term", {"view_reliability": True}, [True] * 5, "rgb"),
+        ("depth guessed, no robust pass", {"robust_dof": 0.0}, [True] * 5, "rgb"),
         ("a sensor prior's own table", {}, [True] * 5, "azure_kinect"),
         ("priors off", {"sensor_priors": False}, [True] * 5, "azure_kinect"),
+        ("every view near", {"far_m": 100.0}, [True] * 5, "kinect_v2"),
     ],
 )  # fmt: skip
 def test_every_setting_gives_the_stages_results(
     case: str, change: dict[str, Any], fused_once: list[bool], sensor_type: str
 ) -> None:
-    settings = FusionSettings(weights=WeightSettings(**change))
+    learning = {k: v for k, v in change.items() if k in ("robust_dof", "far_m")}
+    weights = {k: v for k, v in change.items() if k not in learning}
+    settings = FusionSettings(
+        weights=WeightSettings(**weights), learning=LearningSettings(**learning)
+    )
     batch = _batch(3, sensor_type)
     if sensor_type == "azure_kinect":  # (its prior must differ from the settings to count)
         assert any(
