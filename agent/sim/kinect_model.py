@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Final
+from typing import Final, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -130,13 +130,23 @@ class Observation:
 
     def labels_put_right(self) -> npt.NDArray[np.float32]:
         """(25, 3) ``joints_m`` with every joint under its true label (sensor frame, metres)."""
-        if self.true_joints is not None:
-            joints = np.full_like(self.joints_m, np.nan)
-            joints[self.true_joints] = self.joints_m
-            return joints
-        if self.mirrored:
-            return self.joints_m[list(MIRROR_PERMUTATION)]
-        return self.joints_m.copy()
+        return labels_put_right(self.joints_m, self.mirrored, self.true_joints)
+
+
+_Scalar = TypeVar("_Scalar", bound=np.generic)
+
+
+def labels_put_right(
+    joints: npt.NDArray[_Scalar], mirrored: bool, true_joints: npt.NDArray[np.intp] | None
+) -> npt.NDArray[_Scalar]:
+    """(25, 3) reported ``joints`` moved under their true labels (see :class:`Observation`)."""
+    if true_joints is not None:
+        out = np.empty_like(joints)
+        out[true_joints] = joints
+        return out
+    if mirrored:
+        return joints[list(MIRROR_PERMUTATION)]
+    return joints.copy()
 
 
 class SimulatedKinect:
