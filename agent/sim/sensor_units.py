@@ -77,6 +77,7 @@ def _value(low: float, high: float) -> Spread:
     return Spread("value", low, high)
 
 
+_UNITS_STREAM: Final = 0x5E_4507  # mixed with a units seed: a stream of its own
 _NOISE: Final = _factor(0.5, 3.0)
 _TIME: Final = _factor(0.5, 2.0)
 _RATE: Final = _factor(0.3, 3.0)
@@ -167,14 +168,16 @@ class ErrorModel:
         self,
         poses: Sequence[Matrix4],
         seeds: Sequence[int],
-        units_rng: np.random.Generator,
+        units_seed: int,
         kinect_params: KinectV2Params | None = None,
     ) -> list[SimulatedSensor]:
         """One sensor per pose (4×4 ``T_world_from_sensor``), noise seeded by ``seeds``.
 
         ``kinect_params``: the fixed Kinect units' parameters (and the base the random ones are
-        spread around); ``units_rng`` draws the random units (unused otherwise).
+        spread around); ``units_seed`` draws the random units, in order, on a stream of its own
+        (no other random number changes with ``random_sensors``).
         """
+        units_rng = np.random.default_rng([_UNITS_STREAM, units_seed])
         out: list[SimulatedSensor] = []
         for pose, seed in zip(poses, seeds, strict=True):
             if self.kind == "kinect":

@@ -138,7 +138,9 @@ def make_source(kind: str, options: dict[str, Any]) -> SkeletonSource:
     """Build a source.
 
     Options by kind (missing ones take defaults):
-        sim: ``performer``, ``pose`` (4×4), ``seed``, ``clock_offset_ns``; with ``scenario``
+        sim: ``performer``, ``pose`` (4×4), ``seed``, ``clock_offset_ns``, ``error_model``
+        (``"kinect"`` or ``"tracker"``), ``random_sensor`` (a unit drawn from the seed); with
+        ``scenario``
         ``"mutual"``: :func:`skelfuse.agent.sources.sim_mutual.mutual_source`'s options;
         replay: ``file``, ``sensor``, ``loop``, ``speed``;
         ntu: ``file``, ``pose``, ``loop``, ``start_unix_s``;
@@ -158,6 +160,7 @@ def make_source(kind: str, options: dict[str, Any]) -> SkeletonSource:
         return mutual_source(options)
     if kind == "sim":
         from skelfuse.agent.sim.performer import ProceduralPerformer
+        from skelfuse.agent.sim.sensor_units import ErrorModel
         from skelfuse.agent.sources.sim import SimSource
 
         if options.get("pose") is None:
@@ -169,6 +172,9 @@ def make_source(kind: str, options: dict[str, Any]) -> SkeletonSource:
             clock_offset_ns=int(options.get("clock_offset_ns", 0)),
             clock_drift_ppm=float(options.get("clock_drift_ppm", 0.0)),
             send_pose_hint=bool(options.get("send_pose_hint", True)),
+            error_model=ErrorModel(
+                options.get("error_model", "kinect"), bool(options.get("random_sensor", False))
+            ),
         )
     if kind == "replay":
         from skelfuse.agent.sources.replay import ReplaySource

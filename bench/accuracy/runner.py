@@ -26,8 +26,6 @@ from skelfuse.server.settings import FusionSettings, Settings
 FPS = 30.0
 NETWORK_DELAY_S = 0.002
 T0 = 1_800_000_000.0
-UNITS_STREAM = 0x5E_4507
-"""Mixed with a run's seed to draw its random sensor units (``--random-sensors``)."""
 FloatArray = npt.NDArray[np.float64]
 
 
@@ -98,7 +96,7 @@ class SimulatedRig:
         self.sensors = error_model.sensors(
             self.poses,
             [seed * 100 + k for k in range(len(self.poses))],
-            np.random.default_rng([UNITS_STREAM, seed]),
+            seed,
             params,
         )
         self.names = [f"sim-{k + 1}" for k in range(len(self.sensors))]

@@ -24,6 +24,9 @@ from skelfuse.agent.sim.sensor_units import (
     random_tracker_params,
 )
 from skelfuse.agent.sim.tracker_model import DepthTrackerParams, SimulatedDepthTracker, limb_swap
+from skelfuse.agent.sources.sim import SimSource
+from skelfuse.cli import build_parser
+from skelfuse.cli.agent import source_from_args
 from skelfuse.protocol.skeleton import JointId
 
 J = JointId
@@ -120,3 +123,17 @@ def test_the_oracle_puts_a_single_limb_swap_right_by_the_truth_permutation() -> 
     pose = np.eye(4)
     assert np.allclose(view_errors(reported, False, pose, truth, order), 0.0)
     assert view_errors(reported, False, pose, truth)[J.ANKLE_LEFT] > 0.1
+
+
+def test_the_live_sim_agent_can_run_the_tracker_model_or_a_random_unit() -> None:
+    base = ["agent", "--id", "sim-a", "--source", "sim", "--seed", "7"]
+    default = source_from_args(build_parser().parse_args(base))
+    tracker = source_from_args(build_parser().parse_args([*base, "--error-model", "tracker"]))
+    unit = source_from_args(build_parser().parse_args([*base, "--random-sensor"]))
+    assert isinstance(default, SimSource) and isinstance(tracker, SimSource)
+    assert isinstance(unit, SimSource)
+    assert type(default.sensor) is SimulatedKinect and default.sensor.params == KinectV2Params()
+    assert type(tracker.sensor) is SimulatedDepthTracker
+    assert type(unit.sensor) is SimulatedKinect and unit.sensor.params != KinectV2Params()
+    capture = tracker.capture_at(round(3.0e9))
+    assert capture.bodies, "the tracker reports the room's people"
