@@ -18,6 +18,9 @@ recordings (``shared/conventions.md`` §5). Each is a parameter of :class:`Kinec
 - Glitches: now and then a limb jumps by 15–40 cm for a few frames while still Tracked, and a
   body is occasionally lost for a moment and comes back under a new tracking id.
 
+The geometry (field of view, range, occlusion capsules, yaw to the sensor) is
+:mod:`agent.sim.sight`, shared with the other error model (:mod:`agent.sim.tracker_model`).
+
 Frames: input joints are in the world (+Y up, metres); output joints are in the sensor's camera
 frame (+X sensor-left, +Y up, +Z forward, metres), as the SDK reports them.
 """
@@ -26,11 +29,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Final
+from typing import Final, TypeVar
 
 import numpy as np
 import numpy.typing as npt
 
+from skelfuse.agent.sim.sight import TRUNK, facing_angle, in_view, sight_lines, trunk_visible
 from skelfuse.protocol.constants import MAX_BODIES
 from skelfuse.protocol.skeleton import JOINT_COUNT, MIRROR_PERMUTATION, JointId, TrackingState
 from skelfuse.protocol.transform import Matrix4, apply, invert
@@ -66,17 +70,6 @@ class KinectV2Params:
     dropout_s: tuple[float, float] = (0.2, 1.0)
 
 
-_TRUNK: Final = (
-    J.SPINE_BASE,
-    J.SPINE_MID,
-    J.NECK,
-    J.HEAD,
-    J.SPINE_SHOULDER,
-    J.HIP_LEFT,
-    J.HIP_RIGHT,
-    J.SHOULDER_LEFT,
-    J.SHOULDER_RIGHT,
-)
 _EXTREMITIES: Final = (
     J.HAND_LEFT,
     J.HAND_RIGHT,
@@ -96,35 +89,10 @@ _GLITCH_CHAINS: Final = (
     (J.WRIST_RIGHT, J.HAND_RIGHT, J.HAND_TIP_RIGHT, J.THUMB_RIGHT),
 )
 
-# Capsules (segment + radius) standing for body volume when deciding occlusion.
-_CAPSULES: Final = (
-    (J.SPINE_BASE, J.SPINE_SHOULDER, 0.13),
-    (J.NECK, J.HEAD, 0.10),
-    (J.SHOULDER_LEFT, J.ELBOW_LEFT, 0.05),
-    (J.ELBOW_LEFT, J.WRIST_LEFT, 0.04),
-    (J.SHOULDER_RIGHT, J.ELBOW_RIGHT, 0.05),
-    (J.ELBOW_RIGHT, J.WRIST_RIGHT, 0.04),
-    (J.HIP_LEFT, J.KNEE_LEFT, 0.07),
-    (J.KNEE_LEFT, J.ANKLE_LEFT, 0.05),
-    (J.HIP_RIGHT, J.KNEE_RIGHT, 0.07),
-    (J.KNEE_RIGHT, J.ANKLE_RIGHT, 0.05),
-)
-_CAPSULE_A: Final = np.array([c[0] for c in _CAPSULES])
-_CAPSULE_B: Final = np.array([c[1] for c in _CAPSULES])
-_CAPSULE_R: Final = np.array([c[2] for c in _CAPSULES])
-# A joint is never hidden by a capsule it belongs to (it is on that capsule's surface).
-_OWN_CAPSULE: Final = np.zeros((JOINT_COUNT, len(_CAPSULES)), dtype=bool)
-for _k, (_a, _b, _r) in enumerate(_CAPSULES):
-    _OWN_CAPSULE[_a, _k] = _OWN_CAPSULE[_b, _k] = True
-# Trunk joints sit on the trunk capsule's surface facing the sensor or on its axis; they are
-# hidden by one's own trunk only when seen from behind, which the mirror model covers.
-for _j in _TRUNK:
-    _OWN_CAPSULE[_j, 0] = True
-
 
 def _bias_scale(params: KinectV2Params) -> FloatArray:
     scale = np.full(JOINT_COUNT, params.bias_limb_m)
-    scale[list(_TRUNK)] = params.bias_trunk_m
+    scale[list(TRUNK)] = params.bias_trunk_m
     scale[list(_EXTREMITIES)] = params.bias_extremity_m
     return scale
 
@@ -145,7 +113,12 @@ class Observation:
     """One body as the sensor reports it (sensor frame, see module docstring).
 
     ``person`` is the ground-truth index of the person it came from (simulation only; never sent
-    on the wire), ``mirrored`` whether the sensor swapped left and right.
+    on the wire), ``mirrored`` whether the sensor swapped left and right for the whole body.
+    ``true_joints``, when set: (25,) the true joint each reported joint is (reported joint ``i``
+    shows true joint ``true_joints[i]``; a permutation covering whole-body mirrors and swaps of
+    single limbs), so ``put_right[true_joints] = joints_m`` puts every label right. None means
+    "identity, or the whole-body mirror when ``mirrored``" (the Kinect model swaps nothing
+    else).
     """
 
     tracking_id: int
@@ -153,6 +126,27 @@ class Observation:
     states: npt.NDArray[np.uint8]
     person: int
     mirrored: bool
+    true_joints: npt.NDArray[np.intp] | None = None
+
+    def labels_put_right(self) -> npt.NDArray[np.float32]:
+        """(25, 3) ``joints_m`` with every joint under its true label (sensor frame, metres)."""
+        return labels_put_right(self.joints_m, self.mirrored, self.true_joints)
+
+
+_Scalar = TypeVar("_Scalar", bound=np.generic)
+
+
+def labels_put_right(
+    joints: npt.NDArray[_Scalar], mirrored: bool, true_joints: npt.NDArray[np.intp] | None
+) -> npt.NDArray[_Scalar]:
+    """(25, 3) reported ``joints`` moved under their true labels (see :class:`Observation`)."""
+    if true_joints is not None:
+        out = np.empty_like(joints)
+        out[true_joints] = joints
+        return out
+    if mirrored:
+        return joints[list(MIRROR_PERMUTATION)]
+    return joints.copy()
 
 
 class SimulatedKinect:
@@ -172,8 +166,6 @@ class SimulatedKinect:
         self._dropout_until: dict[int, float] = {}
         self._last_t: float | None = None
         self._bias_scale = _bias_scale(self.params)
-        self._tan_h = math.tan(math.radians(self.params.fov_horizontal_deg / 2))
-        self._tan_v = math.tan(math.radians(self.params.fov_vertical_deg / 2))
 
     @property
     def position_m(self) -> FloatArray:
@@ -197,11 +189,13 @@ class SimulatedKinect:
         self._last_t = t_s
         persons_world = np.asarray(persons_world, dtype=np.float64)
         persons_sensor = apply(self._T_sensor_from_world, persons_world)
-        in_view = self._in_view(persons_sensor)
-        occluded = self._occluded(persons_sensor)
+        seen = in_view(
+            persons_sensor, p.fov_horizontal_deg, p.fov_vertical_deg, p.min_range_m, p.max_range_m
+        )
+        occluded, _ = sight_lines(persons_sensor)
         observations: list[Observation] = []
         for person in range(persons_world.shape[0]):
-            visible = self._trunk_visible(in_view[person])
+            visible = trunk_visible(seen[person])
             if not visible or self._dropped_out(person, t_s, dt):
                 self._bodies.pop(person, None)
                 continue
@@ -213,7 +207,7 @@ class SimulatedKinect:
                 self._bodies[person] = body
             observations.append(
                 self._report(
-                    person, body, persons_world[person], in_view[person], occluded[person], dt
+                    person, body, persons_world[person], seen[person], occluded[person], dt
                 )
             )
         return observations
@@ -228,43 +222,6 @@ class SimulatedKinect:
             inferred_error=self._rng.normal(size=(JOINT_COUNT, 3)) * p.inferred_error_m,
         )
 
-    def _in_view(self, persons_sensor: FloatArray) -> npt.NDArray[np.bool_]:
-        p = self.params
-        z = persons_sensor[..., 2]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            horizontal = np.abs(persons_sensor[..., 0]) <= z * self._tan_h
-            vertical = np.abs(persons_sensor[..., 1]) <= z * self._tan_v
-        distance = np.linalg.norm(persons_sensor, axis=-1)
-        result: npt.NDArray[np.bool_] = (
-            horizontal & vertical & (distance >= p.min_range_m) & (distance <= p.max_range_m)
-        )
-        return result
-
-    @staticmethod
-    def _trunk_visible(in_view: npt.NDArray[np.bool_]) -> bool:
-        trunk = in_view[[J.SPINE_BASE, J.SPINE_MID, J.SPINE_SHOULDER]]
-        return bool(trunk.sum() >= 2 and in_view.mean() >= 0.4)
-
-    def _occluded(self, persons_sensor: FloatArray) -> npt.NDArray[np.bool_]:
-        """(P, 25) True where the line of sight to a joint passes through a body capsule."""
-        n_persons = persons_sensor.shape[0]
-        targets = persons_sensor.reshape(-1, 3)  # (N, 3), sensor at the origin
-        cap_a = persons_sensor[:, _CAPSULE_A].reshape(-1, 3)  # (C, 3)
-        cap_b = persons_sensor[:, _CAPSULE_B].reshape(-1, 3)
-        radius = np.tile(_CAPSULE_R, n_persons)
-        # Shorten each sight line a little so a joint is not hidden by the flesh around it.
-        length = np.linalg.norm(targets, axis=1, keepdims=True)
-        ends = targets * np.clip(1.0 - 0.06 / np.maximum(length, 1e-6), 0.0, 1.0)
-        dist = _segment_segment_distance(ends, cap_a, cap_b)  # (N, C)
-        hidden = dist < radius[None, :]
-        own = np.zeros((n_persons * JOINT_COUNT, n_persons * len(_CAPSULES)), dtype=bool)
-        for person in range(n_persons):
-            rows = slice(person * JOINT_COUNT, (person + 1) * JOINT_COUNT)
-            cols = slice(person * len(_CAPSULES), (person + 1) * len(_CAPSULES))
-            own[rows, cols] = _OWN_CAPSULE
-        result: npt.NDArray[np.bool_] = (hidden & ~own).any(axis=1).reshape(n_persons, -1)
-        return result
-
     def _dropped_out(self, person: int, t_s: float, dt: float) -> bool:
         p = self.params
         until = self._dropout_until.get(person)
@@ -275,29 +232,18 @@ class SimulatedKinect:
             return True
         return False
 
-    def _facing_angle(self, joints_world: FloatArray) -> float:
-        """Signed yaw (radians) from the person's facing direction to the sensor, about +Y."""
-        left = (joints_world[J.SHOULDER_LEFT] - joints_world[J.SHOULDER_RIGHT]) + (
-            joints_world[J.HIP_LEFT] - joints_world[J.HIP_RIGHT]
-        )
-        facing = np.cross(left, [0.0, 1.0, 0.0])  # person's left × up = forward
-        to_sensor = self.position_m - joints_world[J.SPINE_BASE]
-        facing_angle = math.atan2(facing[0], facing[2])
-        sensor_angle = math.atan2(to_sensor[0], to_sensor[2])
-        return (sensor_angle - facing_angle + math.pi) % (2 * math.pi) - math.pi
-
     def _report(
         self,
         person: int,
         body: _TrackedBody,
         joints_world: FloatArray,
-        in_view: npt.NDArray[np.bool_],
+        joints_in_view: npt.NDArray[np.bool_],
         occluded: npt.NDArray[np.bool_],
         dt: float,
     ) -> Observation:
         p = self.params
         rng = self._rng
-        angle = self._facing_angle(joints_world)
+        angle = facing_angle(joints_world, self.position_m)
         threshold = math.radians(
             p.mirror_threshold_deg - (p.mirror_hysteresis_deg if body.mirrored else 0.0)
         )
@@ -327,7 +273,7 @@ class SimulatedKinect:
         sensor_points = apply(self._T_sensor_from_world, reported)
         # Mirrored labels move the in-view/occlusion flags with the joints they describe.
         order = list(MIRROR_PERMUTATION) if body.mirrored else list(range(JOINT_COUNT))
-        seen = in_view[order]
+        seen = joints_in_view[order]
         hidden = occluded[order]
         depth = np.maximum(sensor_points[:, 2], 0.0)
         jitter = (
@@ -368,31 +314,3 @@ class SimulatedKinect:
             body.glitch_frames_left = int(
                 self._rng.integers(p.glitch_frames[0], p.glitch_frames[1] + 1)
             )
-
-
-def _segment_segment_distance(ends: FloatArray, cap_a: FloatArray, cap_b: FloatArray) -> FloatArray:
-    """Distance between sight segments origin→``ends`` (N, 3) and capsule axes a→b (C, 3).
-
-    Returns (N, C) distances (the clamped closest-points method, vectorised).
-    """
-    d1 = ends[:, None, :]  # segment 1 is origin + s·d1, s in [0, 1]
-    d2 = (cap_b - cap_a)[None, :, :]
-    r = -cap_a[None, :, :]  # origin - a
-    a = np.sum(d1 * d1, axis=-1)
-    e = np.sum(d2 * d2, axis=-1)
-    f = np.sum(d2 * r, axis=-1)
-    c = np.sum(d1 * r, axis=-1)
-    b = np.sum(d1 * d2, axis=-1)
-    denom = a * e - b * b
-    with np.errstate(invalid="ignore", divide="ignore"):
-        s = np.where(denom > 1e-12, np.clip((b * f - c * e) / denom, 0.0, 1.0), 0.0)
-        t = np.where(e > 1e-12, (b * s + f) / e, 0.0)
-    t_clamped = np.clip(t, 0.0, 1.0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        s = np.where(
-            t != t_clamped, np.clip((t_clamped * b - c) / np.maximum(a, 1e-12), 0.0, 1.0), s
-        )
-    closest1 = s[..., None] * d1
-    closest2 = cap_a[None, :, :] + t_clamped[..., None] * d2
-    distance: FloatArray = np.linalg.norm(closest1 - closest2, axis=-1)
-    return distance

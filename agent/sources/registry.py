@@ -138,7 +138,9 @@ def make_source(kind: str, options: dict[str, Any]) -> SkeletonSource:
     """Build a source.
 
     Options by kind (missing ones take defaults):
-        sim: ``performer``, ``pose`` (4×4), ``seed``, ``clock_offset_ns``; with ``scenario``
+        sim: ``performer``, ``pose`` (4×4), ``seed``, ``clock_offset_ns``, ``error_model``
+        (``"kinect"`` or ``"tracker"``), ``random_sensor`` (a unit drawn from the seed); with
+        ``scenario``
         ``"mutual"``: :func:`skelfuse.agent.sources.sim_mutual.mutual_source`'s options;
         replay: ``file``, ``sensor``, ``loop``, ``speed``;
         ntu: ``file``, ``pose``, ``loop``, ``start_unix_s``;
@@ -157,19 +159,7 @@ def make_source(kind: str, options: dict[str, Any]) -> SkeletonSource:
 
         return mutual_source(options)
     if kind == "sim":
-        from skelfuse.agent.sim.performer import ProceduralPerformer
-        from skelfuse.agent.sources.sim import SimSource
-
-        if options.get("pose") is None:
-            raise SensorError("the sim source needs a pose")
-        return SimSource(
-            options.get("performer") or ProceduralPerformer(int(options.get("persons", 2))),
-            options["pose"],
-            seed=int(options.get("seed", 0)),
-            clock_offset_ns=int(options.get("clock_offset_ns", 0)),
-            clock_drift_ppm=float(options.get("clock_drift_ppm", 0.0)),
-            send_pose_hint=bool(options.get("send_pose_hint", True)),
-        )
+        return _sim_source(options)
     if kind == "replay":
         from skelfuse.agent.sources.replay import ReplaySource
 
@@ -233,4 +223,25 @@ def _mono_source(options: dict[str, Any]) -> SkeletonSource:
         loop=bool(options.get("loop", False)),
         speed=float(options.get("speed", 1.0)),
         start_unix_s=options.get("start_unix_s"),
+    )
+
+
+def _sim_source(options: dict[str, Any]) -> SkeletonSource:
+    """The ``sim`` source from :func:`make_source`'s options (see there)."""
+    from skelfuse.agent.sim.performer import ProceduralPerformer
+    from skelfuse.agent.sim.sensor_units import ErrorModel
+    from skelfuse.agent.sources.sim import SimSource
+
+    if options.get("pose") is None:
+        raise SensorError("the sim source needs a pose")
+    return SimSource(
+        options.get("performer") or ProceduralPerformer(int(options.get("persons", 2))),
+        options["pose"],
+        seed=int(options.get("seed", 0)),
+        clock_offset_ns=int(options.get("clock_offset_ns", 0)),
+        clock_drift_ppm=float(options.get("clock_drift_ppm", 0.0)),
+        send_pose_hint=bool(options.get("send_pose_hint", True)),
+        error_model=ErrorModel(
+            options.get("error_model", "kinect"), bool(options.get("random_sensor", False))
+        ),
     )

@@ -1,4 +1,5 @@
-"""The ``sim`` source: a virtual Kinect v2 watching virtual performers, paced in real time."""
+"""The ``sim`` source: a virtual sensor (the Kinect v2 model or the depth body tracker model)
+watching virtual performers, paced in real time."""
 
 from __future__ import annotations
 
@@ -10,9 +11,10 @@ import numpy as np
 
 from skelfuse.agent.sim.depth_camera import KINECT_V2_DEPTH
 from skelfuse.agent.sim.hands import simulated_hands
-from skelfuse.agent.sim.kinect_model import KinectV2Params, SimulatedKinect
+from skelfuse.agent.sim.kinect_model import KinectV2Params
 from skelfuse.agent.sim.performer import Performer
 from skelfuse.agent.sim.room import Room, capture_point_cloud, default_room
+from skelfuse.agent.sim.sensor_units import DEFAULT_ERROR_MODEL, ErrorModel, SimulatedSensor
 from skelfuse.agent.sources.base import Capture, wait_for_due
 from skelfuse.protocol.depth_cloud import decode_request, encode_reply
 from skelfuse.protocol.transform import Matrix4
@@ -25,7 +27,9 @@ class SimSource:
     ``clock_offset_ns`` and ``clock_drift_ppm`` make this "PC" clock wrong (to exercise the
     server's clock alignment): capture stamps and heartbeats use the wrong clock, the scene is
     rendered at the true time. ``hand_states`` adds made-up Kinect v2 hand states to each body
-    (:mod:`agent.sim.hands`; they change nothing else in the frames).
+    (:mod:`agent.sim.hands`; they change nothing else in the frames). ``error_model`` picks the
+    sensor's error model (default: the Kinect v2 model with ``params``; a random unit is drawn
+    from ``seed``).
     """
 
     def __init__(
@@ -34,6 +38,7 @@ class SimSource:
         T_world_from_sensor: Matrix4,
         *,
         params: KinectV2Params | None = None,
+        error_model: ErrorModel = DEFAULT_ERROR_MODEL,
         seed: int = 0,
         clock_offset_ns: int = 0,
         clock_drift_ppm: float = 0.0,
@@ -48,13 +53,13 @@ class SimSource:
         self._depth_rng = np.random.default_rng(seed + 7919)
         self._send_pose_hint = send_pose_hint
         self._hand_states = hand_states
-        self._kinect = SimulatedKinect(T_world_from_sensor, params, seed=seed)
+        self._sensor = error_model.sensors([T_world_from_sensor], [seed], seed, params)[0]
         self._clock_offset_ns = clock_offset_ns
         self._clock_drift = clock_drift_ppm * 1e-6
         self._wall_clock_ns = wall_clock_ns
         self._clock_epoch_ns = wall_clock_ns()
         self._sleep = sleep
-        self._period_ns = round(1e9 / self._kinect.params.fps)
+        self._period_ns = round(1e9 / self._sensor.params.fps)
         self._next_ns: int | None = None
 
     @property
@@ -63,11 +68,12 @@ class SimSource:
 
     @property
     def fps(self) -> float:
-        return self._kinect.params.fps
+        return self._sensor.params.fps
 
     @property
-    def kinect(self) -> SimulatedKinect:
-        return self._kinect
+    def sensor(self) -> SimulatedSensor:
+        """The simulated sensor's error model (its pose, parameters and processes)."""
+        return self._sensor
 
     def agent_clock_ns(self, true_ns: int | None = None) -> int:
         """This simulated PC's (wrong) wall clock at true time ``true_ns`` (default: now)."""
@@ -82,7 +88,7 @@ class SimSource:
     def pose_hint(self) -> tuple[Matrix4, str] | None:
         if not self._send_pose_hint:
             return None
-        return self._kinect.T_world_from_sensor.copy(), "sim_truth"
+        return self._sensor.T_world_from_sensor.copy(), "sim_truth"
 
     def request_handlers(self) -> dict[str, Callable[[dict[str, Any]], Any]]:
         """What the server may ask this sensor for (see docs/protocol.md, requests)."""
@@ -100,7 +106,7 @@ class SimSource:
         points = capture_point_cloud(
             self._room,
             persons,
-            self._kinect.T_world_from_sensor,
+            self._sensor.T_world_from_sensor,
             self._depth_rng,
             max_points=request.max_points,
         )
@@ -121,7 +127,7 @@ class SimSource:
     def capture_at(self, true_ns: int) -> Capture:
         """Render the frame captured at true time ``true_ns`` (no pacing)."""
         t_s = true_ns / 1e9
-        observations = self._kinect.observe(self._performer.joints_at(t_s), t_s)
+        observations = self._sensor.observe(self._performer.joints_at(t_s), t_s)
         bodies = tuple(
             Body(
                 o.tracking_id,
@@ -136,7 +142,7 @@ class SimSource:
         return Capture(
             t_capture_ns=self.agent_clock_ns(true_ns),
             bodies=bodies,
-            floor=self._kinect.floor_plane(),
+            floor=self._sensor.floor_plane(),
         )
 
     def next_capture(self, timeout_s: float) -> Capture | None:

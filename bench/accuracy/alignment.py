@@ -32,6 +32,7 @@ from bench.accuracy.runner import (
 )
 from bench.accuracy.scenarios import Scenario
 from skelfuse.agent.sim.kinect_model import KinectV2Params
+from skelfuse.agent.sim.sensor_units import DEFAULT_ERROR_MODEL, ErrorModel
 from skelfuse.fusion.engine import FusedFrame
 from skelfuse.server.hub import FusionHub
 from skelfuse.server.settings import FusionSettings
@@ -157,10 +158,11 @@ def run_alignment(
     params: KinectV2Params,
     jitter_ms: float = 0.0,
     policies: dict[str, FusionSettings] | None = None,
+    error_model: ErrorModel = DEFAULT_ERROR_MODEL,
 ) -> dict[str, Figures]:
     """One simulated capture fused under every policy; figures per policy (module docstring)."""
     policies = POLICIES if policies is None else policies
-    rig = SimulatedRig(scenario, seed, params)
+    rig = SimulatedRig(scenario, seed, params, error_model)
     hubs = {label: _new_hub(s, rig.names, rig.poses) for label, s in policies.items()}
     logs = {label: Log() for label in hubs}
     waits: dict[str, list[float]] = {label: [] for label in hubs}

@@ -37,7 +37,9 @@ subset, ``--json FILE`` raw results, ``--paper`` report A's own experiment only,
 ``--no-mirror-turns`` with ``mirror.unbiased_facing`` off and ``mirror.redecide_views = 1``,
 as before they became the defaults; ``--alignment`` the alignment policies side by side only:
 MPJPE against ``aligned`` and the alignment wait (aligned, phased, deadline 5/10/20 ms),
-``--jitter-ms`` adding delivery jitter).
+``--jitter-ms`` adding delivery jitter; ``--error-model tracker`` the depth body tracker's
+error model in place of the Kinect v2 model fusion was tuned on, ``--random-sensors`` every
+sensor a unit with random parameters: docs/simulator.md).
 
 Labels: the wrong-label rate (share of sensor × frame labelling decisions that disagree with the
 simulator's truth: ``FusedPerson.mirrored`` against ``Observation.mirrored``) and the longest
@@ -71,7 +73,9 @@ from bench.accuracy.report import (
 )
 from bench.accuracy.runner import run_once
 from bench.accuracy.scenarios import CMU_DIR, birth_scenarios, scenarios
+from bench.accuracy.sensor_flags import add_error_model_flags, error_model_from
 from skelfuse.agent.sim.kinect_model import KinectV2Params
+from skelfuse.agent.sim.sensor_units import DEFAULT_ERROR_MODEL, ErrorModel
 from skelfuse.fusion.settings import FusionSettings
 
 
@@ -79,16 +83,25 @@ def main(argv: list[str] | None = None) -> int:
     """Parse the command line, run what it asks for, print the tables; returns the exit status."""
     args = _parser().parse_args(argv)
     methods = _methods(args)
+    error_model = error_model_from(args)
     if args.oracle:
         oracle = {
-            sc.name: [run_oracle(sc, seed, KinectV2Params()) for seed in range(args.runs)]
+            sc.name: [
+                run_oracle(sc, seed, KinectV2Params(), error_model=error_model)
+                for seed in range(args.runs)
+            ]
             for sc in scenarios(args.quick)
         }
         print_oracle(oracle)
         return 0
     if args.alignment:
         return alignment_only(
-            args.quick, args.runs, args.jitter_ms, args.json, chosen_policies(args.policies)
+            args.quick,
+            args.runs,
+            args.jitter_ms,
+            args.json,
+            chosen_policies(args.policies),
+            error_model,
         )
 
     if not args.paper and not args.birth:
@@ -104,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
     if not (CMU_DIR / "scaled_131_01.bvh").is_file():
         print(f"\nnote: CMU data not found at {CMU_DIR}; procedural scenarios only")
     started = time.perf_counter()
-    results, groups = _run_scenarios(args.birth, args.quick, args.runs, methods)
+    results, groups = _run_scenarios(args.birth, args.quick, args.runs, methods, error_model)
     elapsed = time.perf_counter() - started
 
     summary = print_accuracy(results, groups, args.runs, elapsed)
@@ -144,6 +157,7 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--policies", default=None,
                         help="--alignment: comma-separated policy labels "
                              "(bench/accuracy/alignment.py ALL_POLICIES)")  # fmt: skip
+    add_error_model_flags(parser)
     return parser
 
 
@@ -164,7 +178,11 @@ def _methods(args: argparse.Namespace) -> dict[str, FusionSettings]:
 
 
 def _run_scenarios(
-    birth: bool, quick: bool, runs: int, methods: dict[str, FusionSettings]
+    birth: bool,
+    quick: bool,
+    runs: int,
+    methods: dict[str, FusionSettings],
+    error_model: ErrorModel = DEFAULT_ERROR_MODEL,
 ) -> tuple[dict[str, list[dict[str, dict[str, float]]]], dict[str, list[str]]]:
     """Every scenario (the birth ones with ``birth``) with ``runs`` noise seeds: per scenario,
     each seed's figures by method; and the scenarios' names by group."""
@@ -174,7 +192,10 @@ def _run_scenarios(
     for scenario in birth_scenarios(quick) if birth else scenarios(quick):
         groups.setdefault(scenario.group, []).append(scenario.name)
         t = time.perf_counter()
-        results[scenario.name] = [run_once(scenario, seed, params, methods) for seed in range(runs)]
+        results[scenario.name] = [
+            run_once(scenario, seed, params, methods, error_model=error_model)
+            for seed in range(runs)
+        ]
         print(f"  {scenario.name}: {time.perf_counter() - t:.0f} s", file=sys.stderr)
     return results, groups
 
@@ -185,6 +206,7 @@ def alignment_only(
     jitter_ms: float,
     json_path: Path | None,
     policies: dict[str, FusionSettings] | None = None,
+    error_model: ErrorModel = DEFAULT_ERROR_MODEL,
 ) -> int:
     """``--alignment``: every scenario under every alignment policy; prints the table."""
     results: dict[str, list[dict[str, dict[str, float]]]] = {}
@@ -193,7 +215,7 @@ def alignment_only(
         groups.setdefault(scenario.group, []).append(scenario.name)
         t = time.perf_counter()
         results[scenario.name] = [
-            run_alignment(scenario, seed, KinectV2Params(), jitter_ms, policies)
+            run_alignment(scenario, seed, KinectV2Params(), jitter_ms, policies, error_model)
             for seed in range(runs)
         ]
         print(f"  {scenario.name}: {time.perf_counter() - t:.0f} s", file=sys.stderr)

@@ -33,7 +33,9 @@ import numpy.typing as npt
 from bench.accuracy.metrics import Log
 from bench.accuracy.runner import T0, SimulatedRig, _new_hub, feed
 from bench.accuracy.scenarios import Scenario, scenarios
+from bench.accuracy.sensor_flags import add_error_model_flags, error_model_from
 from skelfuse.agent.sim.kinect_model import KinectV2Params
+from skelfuse.agent.sim.sensor_units import DEFAULT_ERROR_MODEL, ErrorModel
 from skelfuse.fusion.settings import SmoothingSettings
 from skelfuse.protocol.skeleton import JointId
 from skelfuse.server.settings import FusionSettings
@@ -106,11 +108,14 @@ def best_shift(errors: FloatArray) -> float:
 
 
 def run_lag(
-    scenario: Scenario, seed: int, methods: dict[str, FusionSettings]
+    scenario: Scenario,
+    seed: int,
+    methods: dict[str, FusionSettings],
+    error_model: ErrorModel = DEFAULT_ERROR_MODEL,
 ) -> dict[str, dict[str, float]]:
     """One simulated capture seen by every method (as ``runner.run_once``, without the
     single-sensor hubs); per method: lag per joint group (ms), MPJPE and jitter (mm)."""
-    rig = SimulatedRig(scenario, seed, KinectV2Params())
+    rig = SimulatedRig(scenario, seed, KinectV2Params(), error_model)
     hubs = {label: _new_hub(fusion, rig.names, rig.poses) for label, fusion in methods.items()}
     logs = {label: Log() for label in hubs}
     instants: dict[str, list[float]] = {label: [] for label in hubs}  # simulated s per frame
@@ -173,7 +178,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
     parser.add_argument("--runs", type=int, default=3, help="noise seeds per scenario")
     parser.add_argument("--quick", action="store_true", help="two scenarios, one seed")
+    add_error_model_flags(parser)
     args = parser.parse_args(argv)
+    error_model = error_model_from(args)
     runs = 1 if args.quick else args.runs
     wanted = SCENARIO_NAMES[1:3] if args.quick else SCENARIO_NAMES
     chosen = [s for s in scenarios(quick=False) if s.name in wanted]
@@ -181,7 +188,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     started = time.perf_counter()
     for scenario in chosen:
         t = time.perf_counter()
-        results[scenario.name] = [run_lag(scenario, seed, METHODS) for seed in range(runs)]
+        results[scenario.name] = [
+            run_lag(scenario, seed, METHODS, error_model) for seed in range(runs)
+        ]
         print(f"  {scenario.name}: {time.perf_counter() - t:.0f} s", file=sys.stderr)
     print_table(results, runs)
     print(f"\n{time.perf_counter() - started:.0f} s wall")

@@ -24,9 +24,10 @@ import numpy.typing as npt
 from bench.accuracy.metrics import Log
 from bench.accuracy.runner import FPS, T0, SimulatedRig, _new_hub, feed
 from bench.accuracy.scenarios import Scenario
-from skelfuse.agent.sim.kinect_model import KinectV2Params
+from skelfuse.agent.sim.kinect_model import KinectV2Params, labels_put_right
+from skelfuse.agent.sim.sensor_units import DEFAULT_ERROR_MODEL, ErrorModel
 from skelfuse.fusion.settings import LearningSettings
-from skelfuse.protocol.skeleton import MIRROR_PERMUTATION, JointId
+from skelfuse.protocol.skeleton import JointId
 from skelfuse.protocol.transform import apply
 from skelfuse.server.settings import FusionSettings
 
@@ -66,11 +67,12 @@ def view_errors(
     mirrored: bool,
     pose: FloatArray,
     truth: FloatArray,
+    true_joints: npt.NDArray[np.intp] | None = None,
 ) -> FloatArray:
-    """(25,) per-joint error (m, NaN: not reported) of one view with its labels put right."""
-    joints = np.asarray(joints_sensor, dtype=np.float64)
-    if mirrored:
-        joints = joints[list(MIRROR_PERMUTATION)]
+    """(25,) per-joint error (m, NaN: not reported) of one view with its labels put right:
+    by ``true_joints`` (the simulator's truth permutation, single-limb swaps included) when
+    given, else by the whole-body ``mirrored`` flag."""
+    joints = labels_put_right(np.asarray(joints_sensor, dtype=np.float64), mirrored, true_joints)
     return np.asarray(np.linalg.norm(apply(pose, joints) - truth, axis=1), dtype=np.float64)
 
 
@@ -87,12 +89,13 @@ def run_oracle(
     seed: int,
     params: KinectV2Params,
     methods: dict[str, FusionSettings] = ORACLE_METHODS,
+    error_model: ErrorModel = DEFAULT_ERROR_MODEL,
 ) -> dict[str, dict[str, float]]:
     """One simulated capture: MPJPE overall and per group (mm) per method and for the oracle.
 
     The oracle is sampled whenever the first method publishes a frame.
     """
-    rig = SimulatedRig(scenario, seed, params)
+    rig = SimulatedRig(scenario, seed, params, error_model)
     hubs = {label: _new_hub(fusion, rig.names, rig.poses) for label, fusion in methods.items()}
     first = next(iter(hubs))
     logs = {label: Log() for label in hubs}
@@ -101,10 +104,9 @@ def run_oracle(
     for capture in rig.captures():
         k = capture.sensor
         for o in capture.observations:
-            latest[(k, o.person)] = (
-                capture.t_capture,
-                view_errors(o.joints_m, o.mirrored, rig.poses[k], capture.truth[o.person]),
-            )
+            truth = capture.truth[o.person]
+            errors = view_errors(o.joints_m, o.mirrored, rig.poses[k], truth, o.true_joints)
+            latest[(k, o.person)] = (capture.t_capture, errors)
         for label, hub in hubs.items():
             fused = feed(hub, capture)
             if fused is None:

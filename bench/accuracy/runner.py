@@ -14,7 +14,8 @@ import numpy.typing as npt
 from bench.accuracy.methods import BASE
 from bench.accuracy.metrics import Log
 from bench.accuracy.scenarios import Scenario
-from skelfuse.agent.sim.kinect_model import KinectV2Params, Observation, SimulatedKinect
+from skelfuse.agent.sim.kinect_model import KinectV2Params, Observation
+from skelfuse.agent.sim.sensor_units import DEFAULT_ERROR_MODEL, ErrorModel
 from skelfuse.fusion.engine import FusedFrame
 from skelfuse.fusion.sensors import TimedFrame
 from skelfuse.protocol.transform import look_at_pose
@@ -71,34 +72,46 @@ class Capture:
 
 
 class SimulatedRig:
-    """The performers and simulated Kinects of one capture (one seed), and its frames in
+    """The performers and simulated sensors of one capture (one seed), and its frames in
     arrival order: what every benchmark feeds its hubs, so all compare the same frames.
 
     Each sensor starts at a random capture phase (plus the scenario's per-seed start delay).
+    ``error_model`` picks the sensors' error model (default: every sensor a Kinect v2 with
+    ``params``); random units are drawn from the run's seed (a stream of their own, so the
+    phases, performers and sensor noise seeds stay those of the default).
     """
 
-    def __init__(self, scenario: Scenario, seed: int, params: KinectV2Params) -> None:
+    def __init__(
+        self,
+        scenario: Scenario,
+        seed: int,
+        params: KinectV2Params,
+        error_model: ErrorModel = DEFAULT_ERROR_MODEL,
+    ) -> None:
         rng = np.random.default_rng(seed)
         self.performer, delays = scenario.performer, [0.0] * scenario.sensors
         if scenario.per_seed is not None:
             self.performer, delays = scenario.per_seed(np.random.default_rng(10_000 + seed))
         self.poses = sensor_poses(scenario.sensors)
-        self.kinects = [
-            SimulatedKinect(p, params, seed=seed * 100 + k) for k, p in enumerate(self.poses)
-        ]
-        self.names = [f"sim-{k + 1}" for k in range(len(self.kinects))]
+        self.sensors = error_model.sensors(
+            self.poses,
+            [seed * 100 + k for k in range(len(self.poses))],
+            seed,
+            params,
+        )
+        self.names = [f"sim-{k + 1}" for k in range(len(self.sensors))]
         events: list[tuple[float, int]] = []
-        for k in range(len(self.kinects)):
+        for k in range(len(self.sensors)):
             phase = rng.uniform(0, 1 / FPS) + delays[k]
             count = int((scenario.duration_s - delays[k]) * FPS)
             events += [(T0 + phase + n / FPS, k) for n in range(count)]
         self._events = sorted(events)
 
     def captures(self) -> Iterator[Capture]:
-        seqs = [0] * len(self.kinects)
+        seqs = [0] * len(self.sensors)
         for t_capture, k in self._events:
             truth = self.performer.joints_at(t_capture - T0)
-            observations = self.kinects[k].observe(truth, t_capture)
+            observations = self.sensors[k].observe(truth, t_capture)
             seqs[k] += 1
             bodies = tuple(Body(o.tracking_id, o.joints_m, o.states) for o in observations)
             message = encode(Frame(seqs[k], int(t_capture * 1e9), bodies))
@@ -118,9 +131,10 @@ def run_once(
     params: KinectV2Params,
     methods: dict[str, FusionSettings],
     on_hub: Callable[[str, FusionHub], None] | None = None,
+    error_model: ErrorModel = DEFAULT_ERROR_MODEL,
 ) -> dict[str, dict[str, float]]:
     """One simulated capture seen by every method; returns the metrics per method."""
-    rig = SimulatedRig(scenario, seed, params)
+    rig = SimulatedRig(scenario, seed, params, error_model)
     names, poses = rig.names, rig.poses
     hubs: dict[str, tuple[FusionHub, set[int]]] = {}
     for label, fusion in methods.items():
@@ -157,7 +171,10 @@ def label_decisions(
     """Per fused person, each view's (swapped back by fusion, mirrored by the simulator).
 
     The truth is that of the frame fusion took the view's labels from: the nearer of the two
-    frames around the fused instant (fusion.sensors.bodies_at).
+    frames around the fused instant (fusion.sensors.bodies_at). Fusion decides whole-body
+    swaps only, so the truth is ``Observation.mirrored``; a single limb the tracker model fitted
+    the wrong way round (``Observation.true_joints``) is no labelling decision of fusion's and
+    shows in the joint errors instead.
     """
     out: dict[int, list[tuple[bool, bool]]] = {}
     for person in fused.persons:

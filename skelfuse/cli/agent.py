@@ -72,6 +72,18 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         action="store_false",
         help="sim: do not tell the server the true pose (calibrate instead)",
     )
+    agent.add_argument(
+        "--error-model",
+        choices=("kinect", "tracker"),
+        default="kinect",
+        help="sim: the sensor's error model: the Kinect v2 model or the depth body tracker "
+        "(docs/simulator.md)",
+    )
+    agent.add_argument(
+        "--random-sensor",
+        action="store_true",
+        help="sim: a sensor unit with parameters drawn from the seed (docs/simulator.md)",
+    )
     agent.add_argument("--key", default=None, help="CurveZMQ: this agent's <id>.key_secret file")
     agent.add_argument(
         "--server-key", default=None, help="CurveZMQ: the server's public key file (server.key)"
@@ -209,9 +221,10 @@ def source_from_args(args: argparse.Namespace) -> SkeletonSource:
     """The source ``skelfuse agent --source KIND ...`` asks for.
 
     ``sim`` uses ``--pose`` (default :data:`SIM_DEFAULT_POSE`), ``--persons``, ``--seed``,
-    ``--clock-offset-ms``, ``--clock-drift-ppm`` (with ``--scenario mutual``: ``--wearer`` and
-    the options of :func:`~skelfuse.cli.agent_poses.mutual_options`); for the real sensors and
-    ``ntu``, ``--pose`` is announced as a manual pose hint only when given, since a real
+    ``--clock-offset-ms``, ``--clock-drift-ppm``, ``--error-model``, ``--random-sensor``
+    (with ``--scenario mutual``: ``--wearer`` and the options of
+    :func:`~skelfuse.cli.agent_poses.mutual_options`); for the real sensors and ``ntu``,
+    ``--pose`` is announced as a manual pose hint only when given, since a real
     sensor's pose is not known.
 
     Raises:
@@ -260,6 +273,8 @@ def source_from_args(args: argparse.Namespace) -> SkeletonSource:
             clock_offset_ns=int(args.clock_offset_ms * 1e6),
             clock_drift_ppm=float(args.clock_drift_ppm),
             send_pose_hint=args.pose_hint,
+            error_model=args.error_model,
+            random_sensor=args.random_sensor,
         )
     options.update(mutual_options(args))  # --scenario mutual: a head-mounted sim sensor
     try:
