@@ -47,7 +47,6 @@ RENAMED: dict[str, str] = {
     "rom_scale_deg": "weights.rom_scale_deg",
     "use_sensor_priors": "weights.sensor_priors",
     "view_lean_fraction": "weights.view_lean_fraction",
-    "view_jitter_per_m2": "weights.view_jitter_per_m2",
     "use_mirror_correction": "mirror.enabled",
     "mirror_geometry_weight_m": "mirror.geometry_weight_m",
     "mirror_hysteresis_m": "mirror.hysteresis_m",

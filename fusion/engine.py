@@ -218,6 +218,7 @@ def warm_up() -> None:
         filters,
         identity,
         labels,
+        limb_labels,
         mirror,
         rig_errors,
         view_factors,
@@ -226,7 +227,7 @@ def warm_up() -> None:
     )
 
     stages = (
-        anatomy, mirror, labels, confidence, view_factors, rig_errors,
+        anatomy, mirror, labels, limb_labels, confidence, view_factors, rig_errors,
         weigh, bone_fit, bones, identity, extrapolation, world_views,
         alignment, filters,
     )  # fmt: skip

@@ -183,6 +183,7 @@ class FusionPipeline:
                 s,
                 priors,
                 Learned(rows, self.errors.variance),
+                np.array([t.joints for t in tracks], dtype=np.float64),
             )
             self.errors.observe(
                 Observed(

@@ -264,7 +264,8 @@ def observe_loop(
                 if not math.isfinite(distance):
                     continue  # nobody else sees this joint: nothing to judge it against
                 expected = variances[k, j] + others
-                sample = min(distance, cap * expected) - others
+                share = variances[k, j] / expected  # of the residual, view k's (EM's E-step)
+                sample = share * share * min(distance, cap * expected) + share * others
                 r, a = rows[k], between[k]
                 after = (b + 4) % prior.shape[2]
                 scale = (1.0 - a) * prior[r, j, b] + a * prior[r, j, after]

@@ -136,6 +136,9 @@ class MirrorSettings:
     redecide_views: int = 2
     """An old person with at least this many views is turned over as a whole only when this
     many views doubt their labels (else those views alone); 1 always turns the whole person."""
+    limbs: bool = True
+    """Put right a single arm or leg pair a view reports left for right, by the other views
+    (or the track when at most two views see the person; fusion/limb_labels.py)."""
     unbiased_facing: bool = True
     """The labels' geometry term uses the person's facing with each view's turn towards its
     sensor taken out (``weights.view_lean_fraction``); off uses the fused skeleton's facing."""

@@ -59,6 +59,7 @@ from skelfuse.fusion.confidence import (
     range_of_motion_factors,
     sensor_terms,
 )
+from skelfuse.fusion.limb_labels import swap_limbs
 from skelfuse.fusion.mirror_scores import slots
 from skelfuse.fusion.priors import KINECT_V2, SensorPrior, prior_variances
 from skelfuse.fusion.rig_errors import robust_factors_loop, variance_at, view_bins_loop
@@ -109,6 +110,8 @@ _Body = tuple[
     tuple[tuple[IntArray, IntArray], tuple[IntArray, IntArray]],
 ]
 """The body terms' arguments of :func:`_weigh_loop` (its docstring)."""
+_Views = tuple[FloatArray, BoolArray, IntArray, FloatArray, FloatArray, tuple[bool, float, float]]
+"""The views' arguments of :func:`_weigh_loop` (its docstring)."""
 _NOT_USED: Final = np.ones((1, 1))
 """What the loop gets for a term that is off (it reads nothing of it; never written)."""
 
@@ -153,8 +156,10 @@ def weigh_and_fuse(
     settings: FusionSettings,
     priors: Sequence[SensorPrior] | None,
     learned: Learned,
+    track_joints: FloatArray,
 ) -> Weighed:
-    """Steps 5–6 (module docstring) for P persons' N views, labels corrected.
+    """Steps 5–6 (module docstring) for P persons' N views, whole views' labels corrected
+    (single limbs' are put right here, in place in ``batch``).
 
     Args:
         batch: the views, each person's consecutive.
@@ -169,6 +174,7 @@ def weigh_and_fuse(
         settings: which terms are on, and their scales.
         priors: (N,) each view's sensor prior, or None: the settings' values for every view.
         learned: each view's sensor's learned variances.
+        track_joints: (P, 25, 3) each person's track skeleton (read where ``fused_once``).
     """
     s = settings
     count, persons, size = len(batch.joints), len(batch.counts), batch.joints.shape[1]
@@ -182,34 +188,73 @@ def weigh_and_fuse(
         np.empty(count),
         np.empty((count, size)),
     )
-    terms, of_view = sensor_terms(s, priors, count)
-    if s.weights.range_of_motion and rom is None:
-        rom = range_of_motion_factors(batch.joints, s.weights.rom_scale_deg)
-    factors = rom if s.weights.range_of_motion else None
-    body: _Body = (
-        terms, plain(of_view, np.intp),
-        plain(references) if s.weights.bone_length else _NOT_USED,
-        _NOT_USED if factors is None else plain(factors),
-        (s.weights.bone_length, factors is not None), float(s.weights.bone_length_scale_m), _TABLES,
-    )  # fmt: skip
     views = (
         plain(track_facings), plain(np.asarray(fused_once, dtype=np.bool_), np.bool_),
         plain(learned.rows, np.intp), learned.variance, weight_scale(s),
         (bool(s.weights.view_bins), float(s.learning.far_m), float(s.learning.robust_dof)),
     )  # fmt: skip
     work = (np.empty((count, 3)), np.empty((count, 3)))
-    phases = (BODY, VIEWS, ROBUST, CONFIDENCE) if batch.depth_ratios is not None else (CONFIDENCE,)
-    phase = BODY
-    for stop in phases:
+    body = _body_terms(batch, rom, references, s, priors)
+    _run_phases(BODY, VIEWS, batch, body, views, out, work)
+    if s.mirror.limbs:  # one limb's labels swapped in a view: put right, weighed again
+        swapped = swap_limbs(
+            batch.joints, batch.states, out.weights, batch.starts,
+            (plain(track_joints), views[1]),
+        )  # fmt: skip
+        if swapped.any():
+            body = _body_terms(batch, None, references, s, priors)
+            _run_phases(BODY, VIEWS, batch, body, views, out, work)
+    _run_phases(ROBUST, CONFIDENCE, batch, body, views, out, work)
+    return out
+
+
+def _body_terms(
+    batch: ViewBatch,
+    rom: FloatArray | None,
+    references: FloatArray,
+    settings: FusionSettings,
+    priors: Sequence[SensorPrior] | None,
+) -> _Body:
+    """The body terms' arguments of :func:`_weigh_loop` (``rom`` None: computed here)."""
+    s = settings
+    terms, of_view = sensor_terms(s, priors, len(batch.joints))
+    if s.weights.range_of_motion and rom is None:
+        rom = range_of_motion_factors(batch.joints, s.weights.rom_scale_deg)
+    factors = rom if s.weights.range_of_motion else None
+    return (
+        terms, plain(of_view, np.intp),
+        plain(references) if s.weights.bone_length else _NOT_USED,
+        _NOT_USED if factors is None else plain(factors),
+        (s.weights.bone_length, factors is not None), float(s.weights.bone_length_scale_m), _TABLES,
+    )  # fmt: skip
+
+
+def _run_phases(
+    first: int,
+    last: int,
+    batch: ViewBatch,
+    body: _Body,
+    views: _Views,
+    out: Weighed,
+    work: tuple[FloatArray, FloatArray],
+) -> None:
+    """Phases ``first`` to ``last`` of :func:`_weigh_loop`, with a camera that guesses depth
+    fused along its rays after each fusion (:meth:`ViewBatch.fuse`)."""
+    stops = [p for p in (BODY, VIEWS, ROBUST) if first <= p <= last]
+    if batch.depth_ratios is None or not stops:
+        stops = [last]
+    elif last not in stops:
+        stops.append(last)
+    phase = first
+    for stop in stops:
         _weigh_loop(
             phase, stop, plain(batch.joints), plain(batch.states, np.uint8),
             plain(batch.sensors), (plain(batch.starts, np.intp), batch.widest), body, views,
             out, work,
         )  # fmt: skip
-        if stop != CONFIDENCE:  # a camera that guesses depth: its fusion along the ray
+        if batch.depth_ratios is not None and stop in (BODY, VIEWS, ROBUST):
             out.fused[:] = batch.fuse(out.weights)
         phase = stop + 1
-    return out
 
 
 def weight_scale(settings: FusionSettings) -> FloatArray:
@@ -238,9 +283,7 @@ def _weigh_loop(
     sensors: FloatArray,
     places: tuple[IntArray, int],
     body: _Body,
-    views: tuple[
-        FloatArray, BoolArray, IntArray, FloatArray, FloatArray, tuple[bool, float, float]
-    ],
+    views: _Views,
     out: tuple[
         FloatArray, FloatArray, FloatArray, FloatArray, BoolArray, IntArray, FloatArray, FloatArray
     ],

@@ -37,7 +37,7 @@ def test_a_file_overrides_only_what_it_names(tmp_path: Path) -> None:
         walk_check_s = 0          # an int where a float is expected
 
         [fusion.weights]
-        facing = false
+        view_bins = false
         state_weights = [0, 0.5, 1]
 
         [fusion.bones]
@@ -47,7 +47,7 @@ def test_a_file_overrides_only_what_it_names(tmp_path: Path) -> None:
     settings = load_fusion_settings(path)
     assert settings.smoothing.filter == "kalman"
     assert settings.mirror.walk_check_s == 0.0 and isinstance(settings.mirror.walk_check_s, float)
-    assert settings.weights.facing is False
+    assert settings.weights.view_bins is False
     assert settings.weights.state_weights == (0.0, 0.5, 1.0)
     assert settings.bones.lock_samples == 120
     defaults = FusionSettings()
@@ -82,7 +82,7 @@ def test_every_problem_is_reported_at_once_by_key() -> None:
                 "filtr": "kalman",
                 "smoothing": {"filter": "median", "one_euro_beta": -1, "walk_check_s": 1},
                 "mirror": {"walk_chek_s": 0.5},
-                "weights": {"facing": 1, "state_weights": [0, 2, 1], "view_error_m": [1.5]},
+                "weights": {"view_bins": 1, "state_weights": [0, 2, 1], "view_error_m": [1.5]},
                 "tracking": {"min_frames": 2.5},
                 "bones": 3,
             }
@@ -99,11 +99,11 @@ def test_every_problem_is_reported_at_once_by_key() -> None:
     assert "mirror.walk_chek_s: not a fusion setting (did you mean 'mirror.walk_check_s'?)" in (
         message
     )
-    assert "weights.facing: expected true or false, got 1" in message
+    assert "weights.view_bins: expected true or false, got 1" in message
+    assert "weights.view_error_m: removed: each sensor's error is learned" in message
     assert "smoothing.one_euro_beta: expected a finite number ≥ 0, got -1" in message
     assert "tracking.min_frames: expected a whole number ≥ 0, got 2.5" in message
     assert "weights.state_weights: each weight must be in [0, 1]" in message
-    assert "weights.view_error_m: expected a list of 3 numbers" in message
     assert "bones: expected a table ([fusion.bones]), got 3" in message
 
 
