@@ -60,6 +60,7 @@ from skelfuse.server.loop_lag import LoopLagCollector, LoopLagMonitor
 from skelfuse.server.metrics import SkelfuseCollector
 from skelfuse.server.outputs import Fanout, OutputsCollector, QueuedOutput, build_output
 from skelfuse.server.security import HttpGuard, origin_ok, token_ok
+from skelfuse.server.sensors_answer import SensorsAnswer, sensors_answer
 from skelfuse.server.settings import Settings
 from skelfuse.server.stage_timing import StageTimes, StageTimesCollector
 
@@ -287,12 +288,13 @@ def _add_status_routes(app: FastAPI) -> None:
         }
 
     @app.get("/api/sensors", tags=["status"])
-    async def sensors() -> dict[str, object]:
+    async def sensors() -> SensorsAnswer:
         hub = _hub_of(app)
-        return {
-            "sensors": hub.sensor_summary(time.monotonic()),
-            "rejected_unregistered": dict(hub.rejected_unregistered),
-        }
+        return sensors_answer(
+            hub.sensor_summary(time.monotonic()),
+            hub.pipeline.errors.summary(),
+            hub.rejected_unregistered,
+        )
 
     @app.get("/api/persons", tags=["status"])
     async def persons(query: Annotated[PersonsQuery, Query()]) -> dict[str, object]:

@@ -9,9 +9,10 @@ fusion loop calls :meth:`FusionHub.fuse_step`. Every method whose logic depends 
 time as an argument (``now_s``: wall clock, Unix seconds; ``now_mono``: monotonic seconds).
 
 State changes from outside go through methods: :meth:`FusionHub.use_calibration` (a committed,
-rolled back or imported calibration), :meth:`FusionHub.start_tap` / :meth:`FusionHub.stop_tap`
-(a recording), :meth:`FusionHub.attach_requests` (the server's requests to agents, whose
-responses the hub routes back).
+rolled back or imported calibration; a sensor whose pose it changes has its error learned
+afresh), :meth:`FusionHub.start_tap` / :meth:`FusionHub.stop_tap` (a recording),
+:meth:`FusionHub.attach_requests` (the server's requests to agents, whose responses the hub
+routes back).
 """
 
 from __future__ import annotations
@@ -20,6 +21,8 @@ import asyncio
 import logging
 import time
 from collections import Counter
+
+import numpy as np
 
 from skelfuse import __version__
 from skelfuse.calibration.store import Calibration
@@ -64,6 +67,20 @@ class FusionHub(FusionEngine):
         """Seconds of compute per fusion step."""
 
     # --- state set from outside --------------------------------------------------------------
+
+    def use_calibration(self, calibration: Calibration) -> None:
+        """:meth:`FusionEngine.use_calibration`; each sensor whose pose it changes starts its
+        learned error again from its prior (fusion/rig_errors.py): what fusion learned of a
+        sensor where it stood says little of it where it stands now."""
+        errors = self.pipeline.errors
+        before = {s: self.pose_of(s)[0] for s in errors.sensor_ids}
+        super().use_calibration(calibration)
+        for sensor_id, pose in before.items():
+            now = self.pose_of(sensor_id)[0]
+            if (pose is None) != (now is None) or (
+                pose is not None and now is not None and not np.array_equal(pose, now)
+            ):
+                errors.forget(sensor_id)
 
     def start_tap(self, tap: MessageTap) -> None:
         """Hand every accepted hello and frame to ``tap`` (a recording starts), replacing any."""

@@ -9,13 +9,14 @@ so a process that did not pin them (:mod:`skelfuse.blas`) shows it.
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
 from prometheus_client.registry import Collector
 from threadpoolctl import threadpool_info
 
+from skelfuse.fusion.rig_errors import SensorErrors
 from skelfuse.server.broadcast import Broadcaster
 from skelfuse.server.hub import FusionHub
 
@@ -30,6 +31,7 @@ class SkelfuseCollector(Collector):
         if self.hub.drift is not None:
             yield from _drift_metrics(self.hub)
         yield from _fusion_metrics(self.hub)
+        yield from learned_error_metrics(self.hub.pipeline.errors.summary())
         yield from _feed_metrics(self.broadcaster)
         yield blas_threads()
 
@@ -103,6 +105,28 @@ def _fusion_metrics(hub: FusionHub) -> Iterator[Metric]:
         )
         lag.add_metric([], hub.fusion_lag.median())
         yield lag
+
+
+def learned_error_metrics(errors: Mapping[str, SensorErrors]) -> Iterator[Metric]:
+    """Per sensor fusion has seen a person through: its learned RMS 3-D error (mm) per joint
+    group (trunk, arms, legs; the prior's until ``learned``) and the evidence behind it
+    (fusion/rig_errors.py; ``errors``: :meth:`RigErrors.summary`)."""
+    error = GaugeMetricFamily(
+        "skelfuse_sensor_learned_error_mm",
+        "RMS 3-D error of the sensor's joints as fusion learned it from the rig, per joint "
+        "group (the sensor type's prior until enough evidence)",
+        labels=["sensor", "group"],
+    )
+    samples = GaugeMetricFamily(
+        "skelfuse_sensor_learned_error_samples",
+        "Evidence behind the learned error: forgotten views of a joint per joint",
+        labels=["sensor"],
+    )
+    for sensor_id, learned in sorted(errors.items()):
+        for group, mm in learned.groups_mm.items():
+            error.add_metric([sensor_id, group], mm)
+        samples.add_metric([sensor_id], learned.samples)
+    yield from (error, samples)
 
 
 def _feed_metrics(broadcaster: Broadcaster) -> Iterator[Metric]:

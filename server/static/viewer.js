@@ -42,6 +42,8 @@ const HOOK = {
   gpuTextures: 0, // renderer.info.memory.textures
   sensorsListed: 0, // sensors in the last /api/sensors answer
   sensorsMoved: [], // ids the last /api/sensors answer flags "moved?" (drift detection)
+  learnedErrorCells: 0, // sensor rows whose learned-error cell shows numbers (learned_error set)
+  learnedErrorWorst: {}, // group (legs, arms, trunk) -> the sensor highlighted as worst in it
   // calibration panel
   calibrationVersion: null, // active calibration version (GET /api/calibration), null: none yet
   calibrationRunId: null, // the run the panel shows (the newest one), or null
@@ -1101,10 +1103,13 @@ function driftText(drift) {
 
 function renderSensorTable(list) {
   const rows = [];
+  const worst = worstLearned(list);
+  let learnedCells = 0;
   for (const s of list) {
     if (!s || typeof s.id !== 'string') continue;
     const tr = document.createElement('tr');
-    if (!s.connected) tr.className = 'disconnected';
+    tr.className = 'sensor';
+    if (!s.connected) tr.classList.add('disconnected');
     const sw = document.createElement('span');
     sw.className = 'swatch';
     sw.style.background = `#${(s.connected ? sensorColor(s.id) : GREY).getHexString()}`;
@@ -1136,7 +1141,9 @@ function renderSensorTable(list) {
       cell(Number.isFinite(s.bodies) ? String(s.bodies) : '–', 'num'),
       tdCal,
     );
-    rows.push(tr);
+    const learned = learnedErrorRow(s, worst);
+    if (hasLearnedError(s)) learnedCells++;
+    rows.push(tr, learned);
   }
   if (rows.length === 0) {
     const tr = document.createElement('tr');
@@ -1147,6 +1154,76 @@ function renderSensorTable(list) {
     rows.push(tr);
   }
   hudSensorRows.replaceChildren(...rows);
+  HOOK.learnedErrorCells = learnedCells;
+  HOOK.learnedErrorWorst = Object.fromEntries(worst);
+}
+
+// Each sensor's error as fusion learned it from the rig (fusion/rig_errors.py): the RMS 3-D
+// error of its leg, arm and trunk joints, so whoever sets up the rig sees which sensor to move.
+// Until the evidence outweighs the sensor type's prior the figures are the prior's (greyed).
+const LEARNED_GROUPS = ['legs', 'arms', 'trunk'];
+
+function hasLearnedError(s) {
+  const e = s && s.learned_error;
+  return Boolean(e) && LEARNED_GROUPS.every((g) => Number.isFinite(e[`${g}_mm`]));
+}
+
+// Per group, the connected sensor with the largest learned (not prior) error, when at least two
+// sensors have learned theirs: with one there is nothing to compare.
+function worstLearned(list) {
+  const learned = list.filter((s) => s && s.connected && hasLearnedError(s) && s.learned_error.learned === true);
+  const worst = new Map();
+  if (learned.length < 2) return worst;
+  for (const g of LEARNED_GROUPS) {
+    let top = learned[0];
+    for (const s of learned) if (s.learned_error[`${g}_mm`] > top.learned_error[`${g}_mm`]) top = s;
+    worst.set(g, top.id);
+  }
+  return worst;
+}
+
+function learnedErrorRow(s, worst) {
+  const tr = document.createElement('tr');
+  tr.className = 'learned';
+  if (!s.connected) tr.classList.add('disconnected');
+  const td = document.createElement('td');
+  td.colSpan = 5;
+  td.className = 'learned-error';
+  const label = document.createElement('span');
+  label.className = 'learned-label';
+  label.textContent = 'error ';
+  td.appendChild(label);
+  if (!hasLearnedError(s)) {
+    tr.classList.add('unseen');
+    td.append('– (no person seen yet)');
+    td.title = 'fusion learns each sensor\'s error once it sees a person through it';
+  } else {
+    const e = s.learned_error;
+    LEARNED_GROUPS.forEach((g, i) => {
+      if (i > 0) td.append(' · ');
+      const part = document.createElement('span');
+      part.className = 'learned-group';
+      part.dataset.group = g;
+      part.textContent = `${g} ${Math.round(e[`${g}_mm`])}`;
+      if (worst.get(g) === s.id) {
+        part.classList.add('worst');
+        part.title = `the largest ${g} error of the sensors: move or turn this one first`;
+      }
+      td.appendChild(part);
+    });
+    td.append(' mm');
+    if (e.learned !== true) {
+      tr.classList.add('prior');
+      td.append(' (prior)');
+    }
+    const samples = Number.isFinite(e.samples) ? Math.round(e.samples) : '?';
+    td.title =
+      `RMS 3-D error of this sensor's joints where it has been seeing them lately, learned by ` +
+      `fusion from the other sensors' views (${samples} views per joint)` +
+      (e.learned === true ? '' : '; too little evidence yet: the sensor type\'s prior');
+  }
+  tr.append(document.createElement('td'), td);
+  return tr;
 }
 
 function updateRate() {

@@ -201,7 +201,7 @@ def test_viewer_streams_and_draws_the_demo(viewer: ViewerPage, demo_stack: DemoS
     # The HUD says the same as the hook.
     page = viewer.page
     assert page.inner_text("#hud-conn") == "connected"
-    assert page.locator("#hud-sensor-rows tr:not(.empty)").count() == DEMO_SENSORS
+    assert page.locator("#hud-sensor-rows tr.sensor").count() == DEMO_SENSORS
     viewer.assert_no_errors()
 
 
@@ -767,6 +767,79 @@ def test_a_moved_sensor_is_flagged_with_a_resolve_button(
     finally:
         page.unroute("**/api/sensors", stub)
     viewer.wait_for(f"{HOOK}.sensorsMoved.length === 0", timeout_s=5)
+
+
+# --- learned error per sensor ------------------------------------------------------------------
+
+LEARNED_CELL = re.compile(r"error legs ([0-9]+) · arms ([0-9]+) · trunk ([0-9]+) mm( \(prior\))?$")
+
+
+def learned_cells(page: Page) -> dict[str, str]:
+    """Each sensor row's id and the text of the learned-error line under it."""
+    texts: dict[str, str] = page.evaluate(
+        """() => Object.fromEntries([...document.querySelectorAll('#hud-sensor-rows tr.sensor')]
+             .map((tr) => [tr.cells[1].textContent, tr.nextElementSibling.textContent.trim()]))"""
+    )
+    return texts
+
+
+def test_each_sensor_shows_its_learned_error(viewer: ViewerPage, demo_stack: DemoStack) -> None:
+    """Fusion of the demo's people learns every sensor's error (again after a commit moved
+    them): each row shows it per group, no longer the prior's."""
+    learned = (
+        f"{HOOK}.learnedErrorCells === {DEMO_SENSORS} && "
+        "document.querySelectorAll('#hud-sensor-rows tr.learned.prior').length === 0"
+    )
+    viewer.wait_for(learned, timeout_s=20)
+    cells = learned_cells(viewer.page)
+    api = {s["id"]: s["learned_error"] for s in demo_stack.get_json("/api/sensors")["sensors"]}
+    assert set(cells) == set(api), (cells, api)
+    for sensor_id, text in cells.items():
+        shown = LEARNED_CELL.match(text)
+        assert shown is not None and shown.group(4) is None, text
+        assert all(0 < int(mm) < 500 for mm in shown.groups()[:3]), text
+        assert api[sensor_id]["learned"] is True, api[sensor_id]
+    viewer.assert_no_errors()
+
+
+def test_the_worst_learned_sensor_per_group_is_highlighted_and_priors_greyed(
+    viewer: ViewerPage, demo_stack: DemoStack
+) -> None:
+    """With /api/sensors stubbed: the largest learned error per group is highlighted, a sensor
+    still on its prior is greyed with "(prior)" and never the worst, an unseen one says so."""
+    page = viewer.page
+    answer_json = demo_stack.get_json("/api/sensors")
+    a, b, c = (row["id"] for row in answer_json["sensors"][:DEMO_SENSORS])
+    errors = {
+        a: {"trunk_mm": 12.4, "arms_mm": 31.0, "legs_mm": 45.2, "samples": 420.0, "learned": True},
+        b: {"trunk_mm": 18.6, "arms_mm": 20.0, "legs_mm": 22.0, "samples": 390.0, "learned": True},
+        c: {"trunk_mm": 99.0, "arms_mm": 99.0, "legs_mm": 99.0, "samples": 12.0, "learned": False},
+    }  # fmt: skip
+    for row in answer_json["sensors"]:
+        row["learned_error"] = errors.get(row["id"])
+
+    def stub(route: Any) -> None:
+        route.fulfill(json=answer_json)
+
+    page.route("**/api/sensors", stub)
+    try:
+        viewer.wait_for(f"{HOOK}.learnedErrorWorst.trunk === '{b}'", timeout_s=5)
+        assert viewer.hook()["learnedErrorWorst"] == {"legs": a, "arms": a, "trunk": b}
+        cells = learned_cells(page)
+        assert cells[a] == "error legs 45 · arms 31 · trunk 12 mm", cells
+        assert cells[c] == "error legs 99 · arms 99 · trunk 99 mm (prior)", cells
+        worst = page.locator("#hud-sensor-rows tr.learned .worst")
+        assert worst.count() == 3
+        assert sorted(worst.all_inner_texts()) == ["arms 31", "legs 45", "trunk 19"]
+        assert page.locator("#hud-sensor-rows tr.learned.prior").count() == 1
+        # Fusion has not seen anyone through the first sensor: no figures, and no worst.
+        answer_json["sensors"][0]["learned_error"] = None
+        viewer.wait_for(f"{HOOK}.learnedErrorCells === {DEMO_SENSORS - 1}", timeout_s=5)
+        assert "no person seen yet" in learned_cells(page)[a]
+        assert viewer.hook()["learnedErrorWorst"] == {}  # one learned sensor: nothing to compare
+    finally:
+        page.unroute("**/api/sensors", stub)
+    viewer.wait_for(f"{HOOK}.learnedErrorCells === {DEMO_SENSORS}", timeout_s=5)
 
 
 # --- layout at 1280×800 -------------------------------------------------------------------------
