@@ -88,9 +88,10 @@ class LearningSettings:
     keeps rarely seen bins (backs, far views) nearer the sensor's overall level."""
     far_m: float = 2.5
     """Views of a person farther than this (metres, horizontal) are learned apart."""
-    cap: float = 16.0
-    """A residual counts at most this many times its expected square (a glitch or a wrong
-    label must not teach a sensor that it is bad)."""
+    cap: float = 4.0
+    """A residual counts at most this many times its expected square: what is learned is a
+    view's typical error, a glitch or a wrong label no more than a few times it (the Student-t
+    weighting deals with those frame by frame)."""
     robust_dof: float = 4.0
     """Degrees of freedom of the Student-t weighting of views far off the others (a glitch
     weighs less); 0 turns it off."""
