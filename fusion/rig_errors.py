@@ -33,7 +33,8 @@ sum is identifiable: the split stays where the priors put it until a third view 
 bin tells more.
 
 Each sensor keeps exponentially forgotten sums (time constant ``learning.forget_s``, counted
-only while the sensor sees someone: an empty room forgets nothing), at two levels:
+only while the sensor sees someone: an empty room forgets nothing; shorter in a sensor's first
+minute, when the samples taken with the prior's estimates must go quickly), at two levels:
 
 - per (sensor, joint), the residuals in units of the prior's variance of their bin, shrunk to
   1 (the prior) with ``learning.prior_samples`` pseudo-samples: how much better or worse than
@@ -61,7 +62,7 @@ import numpy as np
 import numpy.typing as npt
 
 from skelfuse.fusion.priors import KINECT_V2, SECTORS, SensorPrior, prior_variances
-from skelfuse.fusion.settings import FusionSettings, LearningSettings
+from skelfuse.fusion.settings import FusionSettings
 from skelfuse.jit import jit, jit_inline, plain
 from skelfuse.protocol.skeleton import JOINT_COUNT, JointId
 
@@ -139,6 +140,7 @@ class RigErrors:
         self._bin_sums = np.empty((0, 2, JOINT_COUNT, BINS))  # Σ y and Σ 1, forgotten
         self._level_sums = np.empty((0, 2, JOINT_COUNT))  # Σ y / prior and Σ 1, forgotten
         self._last_s = np.empty(0)
+        self._seen_s = np.empty(0)  # seconds each sensor has seen someone since its prior
 
     @property
     def sensor_ids(self) -> list[str]:
@@ -164,6 +166,7 @@ class RigErrors:
         self._bin_sums = np.concatenate([self._bin_sums, np.zeros((1, 2, JOINT_COUNT, BINS))])
         self._level_sums = np.concatenate([self._level_sums, np.zeros((1, 2, JOINT_COUNT))])
         self._last_s = np.append(self._last_s, math.nan)
+        self._seen_s = np.append(self._seen_s, 0.0)
 
     def forget(self, sensor_id: str, prior: SensorPrior | None = None) -> None:
         """Start ``sensor_id`` again from its prior (``prior``: a new one), e.g. once it is
@@ -178,6 +181,7 @@ class RigErrors:
         self._bin_sums[row] = 0.0
         self._level_sums[row] = 0.0
         self._last_s[row] = math.nan
+        self._seen_s[row] = 0.0
 
     def observe(self, batch: Observed, t_s: float) -> None:
         """Learn from one fusion step's views (module docstring; nothing with learning off).
@@ -189,21 +193,14 @@ class RigErrors:
         learning = self.settings.learning
         if not learning.enabled or len(batch.rows) == 0:
             return
-        seen = np.unique(batch.rows)
-        elapsed = t_s - self._last_s[seen]
-        elapsed = np.where(np.isfinite(elapsed), np.clip(elapsed, 0.0, 1.0), 0.0)
-        decay = np.ones(len(self._last_s))
-        decay[seen] = np.exp(-elapsed / learning.forget_s)
-        self._last_s[seen] = t_s
-        observe_loop(
-            plain(batch.joints), plain(batch.weights), plain(batch.variances),
+        learn_loop(
+            (plain(batch.joints), plain(batch.weights), plain(batch.variances)),
             (plain(batch.rows, np.intp), plain(batch.bins, np.intp), plain(batch.between)),
-            plain(batch.starts, np.intp), self.prior, decay, float(learning.cap),
-            (self._bin_sums, self._level_sums),
-        )  # fmt: skip
-        estimate_loop(
-            plain(seen, np.intp), self._bin_sums, self._level_sums, self.prior,
-            _shrinkage(learning), self.variance,
+            plain(batch.starts, np.intp),
+            (self.prior, self._bin_sums, self._level_sums, self._last_s, self._seen_s),
+            (float(t_s), float(learning.forget_s), float(learning.cap),
+             float(learning.prior_samples), float(learning.bin_samples)),
+            self.variance,
         )  # fmt: skip
 
     def summary(self) -> dict[str, SensorErrors]:
@@ -226,8 +223,45 @@ class RigErrors:
         return out
 
 
-def _shrinkage(learning: LearningSettings) -> tuple[float, float]:
-    return float(learning.prior_samples), float(learning.bin_samples)
+@jit
+def learn_loop(
+    views: tuple[FloatArray, FloatArray, FloatArray],
+    places: tuple[IntArray, IntArray, FloatArray],
+    starts: IntArray,
+    state: tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray],
+    settings: tuple[float, float, float, float, float],
+    variance: FloatArray,
+) -> None:
+    """:meth:`RigErrors.observe` in one call: forget each seen sensor's sums, add the step's
+    samples (:func:`observe_loop`), and estimate the seen sensors' variances again
+    (:func:`estimate_loop`). views: joints, weights, variances (:class:`Observed`); places:
+    rows, bins, between; state: the prior (R, 25, B), the bin and level sums, each sensor's
+    last instant and seconds seen; settings: the instant and ``learning``'s forget_s, cap,
+    prior_samples, bin_samples."""
+    rows = places[0]
+    prior, bin_sums, level_sums, last_s, seen_s = state
+    t_s, forget_s, cap, prior_samples, bin_samples = settings
+    seen = np.zeros(len(last_s), dtype=np.bool_)
+    for v in range(len(rows)):
+        seen[rows[v]] = True
+    decay = np.ones(len(last_s))
+    for r in range(len(last_s)):
+        if not seen[r]:
+            continue
+        elapsed = t_s - last_s[r]
+        elapsed = 0.0 if not math.isfinite(elapsed) else min(max(elapsed, 0.0), 1.0)
+        seen_s[r] += elapsed
+        # Early on, forget faster: a sample's value depends on the estimates when it was
+        # taken, and the first are the prior's; half the time seen so far (plus 2 s) until
+        # that reaches forget_s.
+        decay[r] = math.exp(-elapsed / min(forget_s, 2.0 + 0.5 * seen_s[r]))
+        last_s[r] = t_s
+    observe_loop(
+        views[0], views[1], views[2], places, starts, prior, decay, cap, (bin_sums, level_sums)
+    )
+    estimate_loop(
+        np.flatnonzero(seen), bin_sums, level_sums, prior, (prior_samples, bin_samples), variance
+    )
 
 
 @jit
@@ -366,7 +400,8 @@ def variance_at(table: FloatArray, row: int, joint: int, b: int, between: float)
     """The variance of ``table`` (R, 25, B) at ``b`` interpolated ``between`` of the way to the
     next sector's bin."""
     after = (b + 4) % table.shape[2]
-    return (1.0 - between) * table[row, joint, b] + between * table[row, joint, after]
+    value: float = (1.0 - between) * table[row, joint, b] + between * table[row, joint, after]
+    return value
 
 
 @jit
