@@ -1,0 +1,190 @@
+"""Lead / lag of the fused output, against the truth and against the views, per joint group.
+
+Two measures of the same shift (positive: the output behind the motion; negative: ahead):
+
+- **truth**: ``bench.accuracy.lag``'s best-fit shift against the simulator's performer;
+- **views**: ``bench.accuracy.view_shift``'s best-fit shift against the sensors' own reported
+  trajectories, each view at its capture time: no truth needed, so it also runs on a real
+  recording. On the simulator both are printed side by side, to check they agree.
+
+Scenarios: the simulator's CMU walks and the walking circle (``bench/accuracy/scenarios.py``;
+the same rig, wire bytes and production ``FusionHub`` in simulated time as the accuracy
+benchmark), and the real four-camera clip fused through the ``mono`` source's bodies
+(``bench/mono/clip_shift.py``: four ``rgb`` views of a real person, as recorded and with half
+the cameras staggered by half a period), views only. Settings: the defaults, ``filter = "none"``,
+the other alignment policies and late predictors (``--methods``).
+
+Run: ``python -m bench lead_lag`` (``--runs N`` seeds per simulated scenario, medians;
+``--quick`` one walk, one seed; ``--no-clip`` / ``--no-sim`` for one half).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import replace
+
+import numpy as np
+import numpy.typing as npt
+
+from bench.accuracy.lag import GROUPS, best_shift, shift_errors
+from bench.accuracy.runner import T0, SimulatedRig, _new_hub, feed
+from bench.accuracy.scenarios import Scenario, scenarios
+from bench.accuracy.view_shift import Take, shift_against_views, steady
+from skelfuse.agent.sim.kinect_model import KinectV2Params
+from skelfuse.fusion.settings import AlignmentSettings, SmoothingSettings
+from skelfuse.server.settings import FusionSettings
+
+FloatArray = npt.NDArray[np.float64]
+DEFAULT = FusionSettings()
+
+
+def _with(
+    alignment: AlignmentSettings | None = None, smoothing: SmoothingSettings | None = None
+) -> FusionSettings:
+    return replace(DEFAULT, alignment=alignment or DEFAULT.alignment,
+                   smoothing=smoothing or DEFAULT.smoothing)  # fmt: skip
+
+
+NO_FILTER = SmoothingSettings(filter="none")
+METHODS: dict[str, FusionSettings] = {
+    "default": DEFAULT,
+    "filter none": _with(smoothing=NO_FILTER),
+    "aligned": _with(alignment=AlignmentSettings(policy="aligned")),
+    "aligned, filter none": _with(AlignmentSettings(policy="aligned"), NO_FILTER),
+    "deadline, track": _with(alignment=replace(DEFAULT.alignment, predictor="track")),
+    "deadline, own": _with(alignment=replace(DEFAULT.alignment, predictor="own")),
+    "filter lead 0": _with(smoothing=replace(DEFAULT.smoothing, kalman_ca_predict_s=0.0)),
+}
+"""Every method the benchmark can run (``--methods`` picks some)."""
+SIM_SCENARIOS = ("CMU 131_01 start-walk-stop, heading 0°", "CMU 131_01 start-walk-stop, "
+                 "heading 120°", "CMU 02_01 walk, heading 60°", "walking a circle")  # fmt: skip
+
+
+def truth_shifts(take: Take, scenario_truth: SimulatedRig) -> dict[str, float]:
+    """Per joint group, the best-fit shift (ms) of the take's fused joints behind the truth
+    (``bench.accuracy.lag.shift_errors``, person 0 of the performer); and ``mpjpe_mm``."""
+    performer = scenario_truth.performer
+    kept = steady(take, np.asarray(take.fused_t))
+    times = np.asarray(take.fused_t)[kept] - T0
+    fused = np.stack(take.fused)[kept]
+    cache: dict[float, FloatArray] = {}
+
+    def truth_at(t: float) -> FloatArray:
+        key = round(t, 9)
+        if key not in cache:
+            cache[key] = performer.joints_at(t)[0]
+        return cache[key]
+
+    out: dict[str, float] = {}
+    for group, joints in GROUPS.items():
+        chosen = list(joints)
+
+        def truth_of(t: float, c: list[int] = chosen) -> FloatArray:
+            return truth_at(t)[c]
+
+        errors = shift_errors(times, fused[:, chosen], truth_of)
+        out[group] = best_shift(errors) * 1000
+    truth = np.stack([truth_at(float(t)) for t in times])
+    out["mpjpe_mm"] = float(np.nanmean(np.linalg.norm(fused - truth, axis=-1))) * 1000
+    return out
+
+
+def sim_takes(scenario: Scenario, seed: int, methods: dict[str, FusionSettings]
+              ) -> tuple[SimulatedRig, dict[str, Take]]:  # fmt: skip
+    """One simulated capture seen by every method: each hub's fused frames and views."""
+    rig = SimulatedRig(scenario, seed, KinectV2Params())
+    hubs = {label: _new_hub(fusion, rig.names, rig.poses) for label, fusion in methods.items()}
+    takes = {label: Take() for label in hubs}
+    for capture in rig.captures():
+        for label, hub in hubs.items():
+            fused = feed(hub, capture)
+            newest = hub.sensors[capture.name].frames[-1]
+            if newest.frame.seq == capture.seq:
+                takes[label].add_view(capture.name, newest.t_server_s, newest.frame,
+                                      rig.poses[capture.sensor])  # fmt: skip
+            if fused is not None:
+                takes[label].add_fused(fused)
+    return rig, takes
+
+
+def sim_rows(chosen: list[Scenario], runs: int, methods: dict[str, FusionSettings]
+             ) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
+    """Per scenario, per method: medians over ``runs`` seeds of the truth and views shifts."""
+    out: dict[str, dict[str, dict[str, float]]] = {}
+    for scenario in chosen:
+        started = time.perf_counter()
+        per_run: list[dict[str, dict[str, float]]] = []
+        for seed in range(runs):
+            rig, takes = sim_takes(scenario, seed, methods)
+            per_run.append({})
+            for label, take in takes.items():
+                truth = truth_shifts(take, rig)
+                views = shift_against_views(take)
+                row = {f"truth_{g}": v for g, v in truth.items()}
+                row |= {f"views_{g}": v for g, v in views.items()}
+                per_run[-1][label] = row
+        out[scenario.name] = {
+            label: {k: statistics.median(r[label][k] for r in per_run) for k in per_run[0][label]}
+            for label in methods
+        }
+        print(f"  {scenario.name}: {time.perf_counter() - started:.0f} s", file=sys.stderr)
+    return out
+
+
+def clip_rows(methods: dict[str, FusionSettings]) -> dict[str, dict[str, dict[str, float]]]:
+    """The real clip, per timing, per method: the views shifts."""
+    from bench.mono.clip_shift import TIMINGS, clip_take  # the clip's fixture and calibration
+
+    out: dict[str, dict[str, dict[str, float]]] = {}
+    for timing in TIMINGS:
+        rows: dict[str, dict[str, float]] = {}
+        for label, fusion in methods.items():
+            shifts = shift_against_views(clip_take(fusion, timing))
+            rows[label] = {f"views_{g}": v for g, v in shifts.items()}
+        out[f"real clip, 4 rgb views, {timing}"] = rows
+    return out
+
+
+def print_table(name: str, rows: dict[str, dict[str, float]], note: str) -> None:
+    """One scenario's table: per method, truth / views shift per group (ms), MPJPE (mm)."""
+    truth = "truth_trunk" in next(iter(rows.values()))
+    print(f"\n**{name}** ({note})\n")
+    head = " | ".join(f"{g} truth / views (ms)" if truth else f"{g} views (ms)" for g in GROUPS)
+    print(f"| method | {head} |" + (" MPJPE (mm) |" if truth else ""))
+    print("|---|" + "---:|" * (len(GROUPS) + truth))
+    for label, row in rows.items():
+
+        def cell(g: str, r: dict[str, float] = row) -> str:
+            views = f"{r[f'views_{g}']:.1f}"
+            return f"{r[f'truth_{g}']:.1f} / {views}" if truth else views
+
+        tail = f" {row['truth_mpjpe_mm']:.1f} |" if truth else ""
+        print(f"| {label} | " + " | ".join(cell(g) for g in GROUPS) + " |" + tail)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Parse the command line, run the scenarios, print the tables; returns the exit status."""
+    parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
+    parser.add_argument("--runs", type=int, default=2, help="noise seeds per simulated scenario")
+    parser.add_argument("--quick", action="store_true", help="one walk, one seed")
+    parser.add_argument("--no-clip", action="store_true", help="the simulator only")
+    parser.add_argument("--no-sim", action="store_true", help="the real clip only")
+    parser.add_argument("--methods", nargs="+", choices=list(METHODS), default=list(METHODS))
+    args = parser.parse_args(argv)
+    runs = 1 if args.quick else args.runs
+    methods = {label: METHODS[label] for label in args.methods}
+    started = time.perf_counter()
+    if not args.no_sim:
+        wanted = SIM_SCENARIOS[:1] if args.quick else SIM_SCENARIOS
+        chosen = [s for s in scenarios(quick=False) if s.name in wanted]
+        for name, rows in sim_rows(chosen, runs, methods).items():
+            print_table(name, rows, f"median of {runs} runs")
+    if not args.no_clip:
+        for name, rows in clip_rows(methods).items():
+            print_table(name, rows, "views only: no truth")
+    print(f"\n{time.perf_counter() - started:.0f} s wall")
+    return 0
