@@ -21,6 +21,7 @@ Run: ``python -m bench lead_lag`` (``--runs N`` seeds per simulated scenario, me
 from __future__ import annotations
 
 import argparse
+import math
 import statistics
 import sys
 import time
@@ -58,6 +59,7 @@ METHODS: dict[str, FusionSettings] = {
     "deadline, track": _with(alignment=replace(DEFAULT.alignment, predictor="track")),
     "deadline, own": _with(alignment=replace(DEFAULT.alignment, predictor="own")),
     "filter lead 0": _with(smoothing=replace(DEFAULT.smoothing, kalman_ca_predict_s=0.0)),
+    "filter jerk 10": _with(smoothing=replace(DEFAULT.smoothing, kalman_ca_jerk_std=10.0)),
 }
 """Every method the benchmark can run (``--methods`` picks some)."""
 SIM_SCENARIOS = ("CMU 131_01 start-walk-stop, heading 0°", "CMU 131_01 start-walk-stop, "
@@ -66,7 +68,8 @@ SIM_SCENARIOS = ("CMU 131_01 start-walk-stop, heading 0°", "CMU 131_01 start-wa
 
 def truth_shifts(take: Take, scenario_truth: SimulatedRig) -> dict[str, float]:
     """Per joint group, the best-fit shift (ms) of the take's fused joints behind the truth
-    (``bench.accuracy.lag.shift_errors``, person 0 of the performer); and ``mpjpe_mm``."""
+    (``bench.accuracy.lag.shift_errors``, person 0 of the performer); and ``mpjpe_mm``,
+    ``jitter_mm`` (the error's second difference, as the accuracy benchmark's)."""
     performer = scenario_truth.performer
     kept = steady(take, np.asarray(take.fused_t))
     times = np.asarray(take.fused_t)[kept] - T0
@@ -89,8 +92,25 @@ def truth_shifts(take: Take, scenario_truth: SimulatedRig) -> dict[str, float]:
         errors = shift_errors(times, fused[:, chosen], truth_of)
         out[group] = best_shift(errors) * 1000
     truth = np.stack([truth_at(float(t)) for t in times])
-    out["mpjpe_mm"] = float(np.nanmean(np.linalg.norm(fused - truth, axis=-1))) * 1000
+    error = fused - truth
+    out["mpjpe_mm"] = float(np.nanmean(np.linalg.norm(error, axis=-1))) * 1000
+    # As the accuracy benchmark's jitter: the error's second difference over consecutive steps.
+    second = np.linalg.norm(error[:-2] - 2 * error[1:-1] + error[2:], axis=-1)
+    out["jitter_mm"] = float(np.nanmean(second)) * 1000
     return out
+
+
+VIEWS_ROW = "the views themselves, behind the truth"
+"""The row of the views' own shift: truth ≈ views + this row, where the measure holds."""
+
+
+def views_behind_truth(take: Take, rig: SimulatedRig) -> dict[str, float]:
+    """Per joint group, how far (ms) the views are behind the truth: the views measure of a
+    "fused" output that is the truth itself at the take's instants, sign turned (the views'
+    errors that follow the motion, and the clock's one-way delay, read as such a shift)."""
+    truth = [rig.performer.joints_at(t - T0)[0] for t in take.fused_t]
+    exact = replace(take, fused=truth)
+    return {g: -v for g, v in shift_against_views(exact).items()}
 
 
 def sim_takes(scenario: Scenario, seed: int, methods: dict[str, FusionSettings]
@@ -127,9 +147,17 @@ def sim_rows(chosen: list[Scenario], runs: int, methods: dict[str, FusionSetting
                 row = {f"truth_{g}": v for g, v in truth.items()}
                 row |= {f"views_{g}": v for g, v in views.items()}
                 per_run[-1][label] = row
+            first = next(iter(takes.values()))
+            per_run[-1][VIEWS_ROW] = {
+                f"truth_{g}": v for g, v in views_behind_truth(first, rig).items()
+            }
+            per_run[-1][VIEWS_ROW] |= {f"views_{g}": math.nan for g in GROUPS} | {
+                "truth_mpjpe_mm": math.nan,
+                "truth_jitter_mm": math.nan,
+            }
         out[scenario.name] = {
             label: {k: statistics.median(r[label][k] for r in per_run) for k in per_run[0][label]}
-            for label in methods
+            for label in [*methods, VIEWS_ROW]
         }
         print(f"  {scenario.name}: {time.perf_counter() - started:.0f} s", file=sys.stderr)
     return out
@@ -154,15 +182,16 @@ def print_table(name: str, rows: dict[str, dict[str, float]], note: str) -> None
     truth = "truth_trunk" in next(iter(rows.values()))
     print(f"\n**{name}** ({note})\n")
     head = " | ".join(f"{g} truth / views (ms)" if truth else f"{g} views (ms)" for g in GROUPS)
-    print(f"| method | {head} |" + (" MPJPE (mm) |" if truth else ""))
-    print("|---|" + "---:|" * (len(GROUPS) + truth))
+    print(f"| method | {head} |" + (" MPJPE (mm) | jitter (mm) |" if truth else ""))
+    print("|---|" + "---:|" * (len(GROUPS) + 2 * truth))
     for label, row in rows.items():
 
         def cell(g: str, r: dict[str, float] = row) -> str:
-            views = f"{r[f'views_{g}']:.1f}"
+            views = f"{r[f'views_{g}']:.1f}".replace("nan", "–")
             return f"{r[f'truth_{g}']:.1f} / {views}" if truth else views
 
-        tail = f" {row['truth_mpjpe_mm']:.1f} |" if truth else ""
+        tail = f" {row['truth_mpjpe_mm']:.1f} | {row['truth_jitter_mm']:.1f} |" if truth else ""
+        tail = tail.replace("nan", "–")
         print(f"| {label} | " + " | ".join(cell(g) for g in GROUPS) + " |" + tail)
 
 

@@ -13,7 +13,8 @@ and right swapped back where fusion swapped them (``FusedPerson.mirrored``), and
 Tracked joints (an Inferred joint is the sensor's guess). A monocular camera's view (``rgb``) is
 compared across its lines of sight only: its depth is its weakest axis and its depth errors
 follow the pose, so they would read as a shift. Samples within half a second of a change of the
-person followed (a birth, a track reborn after a jump) are left out. Shifts are those of
+person followed (a birth, a track reborn) or of a jump of the person (a clip looping back to
+its start) are left out. Shifts are those of
 ``bench.accuracy.lag`` (a 2 ms grid, refined by a parabola), and only view samples whose every
 shifted instant lies inside the fused take count, so every shift is scored on the same samples.
 
@@ -31,7 +32,7 @@ import numpy.typing as npt
 
 from bench.accuracy.lag import GROUPS, SHIFTS_S, best_shift
 from skelfuse.fusion.engine import FusedFrame
-from skelfuse.protocol.skeleton import MIRROR_PERMUTATION, TrackingState
+from skelfuse.protocol.skeleton import MIRROR_PERMUTATION, JointId, TrackingState
 from skelfuse.protocol.transform import apply
 from skelfuse.protocol.wire import Frame
 
@@ -43,7 +44,9 @@ MONOCULAR = frozenset({"rgb"})
 """Sensor types whose depth is their weakest axis, and whose depth errors follow the pose (a
 monocular placement): compared across their lines of sight only."""
 SWITCH_MARGIN_S = 0.5
-"""Samples this close (seconds) to a change of the person followed are left out."""
+"""Samples this close (seconds) to a change of the person followed, or a jump, are left out."""
+JUMP_M = 0.3
+"""A SpineBase moving more than this in one step (metres; 9 m/s at 30 fps) has jumped."""
 
 
 @dataclass
@@ -99,13 +102,23 @@ class Take:
 
 def steady(take: Take, at: FloatArray, margin_s: float = SWITCH_MARGIN_S) -> npt.NDArray[np.bool_]:
     """Whether each instant ``at`` (M,) is at least ``margin_s`` from every change of the
-    person followed (a birth, a track lost and reborn after a jump): those stretches are a
-    person's start, not a delay."""
+    person followed (a birth, a track lost and reborn) and every jump of a view's or the
+    output's SpineBase by more than :data:`JUMP_M` in one step (a clip looping back to its
+    start): those stretches are a start, not a delay."""
     times, ids = np.asarray(take.fused_t), np.asarray(take.person)
-    changes = times[1:][ids[1:] != ids[:-1]]
-    if not len(changes):
+    changes = [times[1:][ids[1:] != ids[:-1]]]
+    tracks = [(times, np.stack(take.fused)[:, JointId.SPINE_BASE])] if take.fused else []
+    for frames in take.views.values():
+        for tracking_id in {i for _, bodies in frames for i in bodies}:
+            kept = [(t, b[tracking_id][JointId.SPINE_BASE]) for t, b in frames if tracking_id in b]
+            tracks.append((np.array([t for t, _ in kept]), np.stack([p for _, p in kept])))
+    for t, spine in tracks:
+        steps = np.linalg.norm(np.diff(spine, axis=0), axis=-1)
+        changes.append(t[1:][steps > JUMP_M])
+    every = np.concatenate(changes)
+    if not len(every):
         return np.ones(len(at), dtype=np.bool_)
-    return np.asarray(np.min(np.abs(at[:, None] - changes[None]), axis=1) > margin_s)
+    return np.asarray(np.min(np.abs(at[:, None] - every[None]), axis=1) > margin_s)
 
 
 def view_samples(take: Take) -> dict[str, tuple[FloatArray, FloatArray]]:
