@@ -19,7 +19,8 @@ the cameras staggered by half a period), views only. Settings: the defaults, ``f
 the other alignment policies and late predictors (``--methods``).
 
 Run: ``python -m bench lead_lag`` (``--runs N`` seeds per simulated scenario, medians;
-``--quick`` one walk, one seed; ``--no-clip`` / ``--no-sim`` for one half).
+``--quick`` one walk, one seed; ``--no-clip`` / ``--no-sim`` for one half; ``--sensor clean``
+a simulated sensor whose errors do not follow the pose, to check the views measure).
 """
 
 from __future__ import annotations
@@ -66,6 +67,14 @@ METHODS: dict[str, FusionSettings] = {
     "filter jerk 10": _with(smoothing=replace(DEFAULT.smoothing, kalman_ca_jerk_std=10.0)),
 }
 """Every method the benchmark can run (``--methods`` picks some)."""
+CLEAN_SENSOR = KinectV2Params(
+    facing_bias=0.0, bias_trunk_m=0.004, bias_limb_m=0.006, bias_extremity_m=0.01,
+    glitch_rate_hz=0.0, jitter_base_m=0.001, inferred_error_m=0.03,
+)  # fmt: skip
+"""``--sensor clean``: a simulated sensor without the facing bias (errors that turn with the
+person), with a third of the Kinect v2's slow bias and no glitches: where the views measure and
+the truth's should differ by the clock's one-way delay alone."""
+SENSORS = {"kinect_v2": KinectV2Params(), "clean": CLEAN_SENSOR}
 SIM_SCENARIOS = ("CMU 131_01 start-walk-stop, heading 0°", "CMU 131_01 start-walk-stop, "
                  "heading 120°", "CMU 02_01 walk, heading 60°", "walking a circle")  # fmt: skip
 
@@ -117,10 +126,11 @@ def views_behind_truth(take: Take, rig: SimulatedRig) -> dict[str, float]:
     return {g: -v for g, v in shift_against_views(exact).items()}
 
 
-def sim_takes(scenario: Scenario, seed: int, methods: dict[str, FusionSettings]
+def sim_takes(scenario: Scenario, seed: int, methods: dict[str, FusionSettings],
+              sensor: KinectV2Params = SENSORS["kinect_v2"]
               ) -> tuple[SimulatedRig, dict[str, Take]]:  # fmt: skip
     """One simulated capture seen by every method: each hub's fused frames and views."""
-    rig = SimulatedRig(scenario, seed, KinectV2Params())
+    rig = SimulatedRig(scenario, seed, sensor)
     hubs = {label: _new_hub(fusion, rig.names, rig.poses) for label, fusion in methods.items()}
     takes = {label: Take() for label in hubs}
     for capture in rig.captures():
@@ -135,7 +145,8 @@ def sim_takes(scenario: Scenario, seed: int, methods: dict[str, FusionSettings]
     return rig, takes
 
 
-def sim_rows(chosen: list[Scenario], runs: int, methods: dict[str, FusionSettings]
+def sim_rows(chosen: list[Scenario], runs: int, methods: dict[str, FusionSettings],
+             sensor: KinectV2Params = SENSORS["kinect_v2"]
              ) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
     """Per scenario, per method: medians over ``runs`` seeds of the truth and views shifts."""
     out: dict[str, dict[str, dict[str, float]]] = {}
@@ -143,7 +154,7 @@ def sim_rows(chosen: list[Scenario], runs: int, methods: dict[str, FusionSetting
         started = time.perf_counter()
         per_run: list[dict[str, dict[str, float]]] = []
         for seed in range(runs):
-            rig, takes = sim_takes(scenario, seed, methods)
+            rig, takes = sim_takes(scenario, seed, methods, sensor)
             per_run.append({})
             for label, take in takes.items():
                 truth = truth_shifts(take, rig)
@@ -207,6 +218,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--no-clip", action="store_true", help="the simulator only")
     parser.add_argument("--no-sim", action="store_true", help="the real clip only")
     parser.add_argument("--methods", nargs="+", choices=list(METHODS), default=list(METHODS))
+    parser.add_argument(
+        "--sensor",
+        choices=list(SENSORS),
+        default="kinect_v2",
+        help="the simulated sensor model (clean: errors that do not follow the pose)",
+    )
     args = parser.parse_args(argv)
     runs = 1 if args.quick else args.runs
     methods = {label: METHODS[label] for label in args.methods}
@@ -214,7 +231,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not args.no_sim:
         wanted = SIM_SCENARIOS[:1] if args.quick else SIM_SCENARIOS
         chosen = [s for s in scenarios(quick=False) if s.name in wanted]
-        for name, rows in sim_rows(chosen, runs, methods).items():
+        for name, rows in sim_rows(chosen, runs, methods, SENSORS[args.sensor]).items():
             print_table(name, rows, f"median of {runs} runs")
     if not args.no_clip:
         for name, rows in clip_rows(methods).items():
