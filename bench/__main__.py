@@ -17,6 +17,7 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     ),
     "alignment_waits": ("accuracy.alignment_waits", "the live rig's alignment wait per policy"),
     "lag": ("accuracy.lag", "lag of the fused output against the truth, per joint group"),
+    "lead_lag": ("accuracy.lead_lag", "lead / lag of the fused output against truth and views"),
     "calibration": ("calibration.methods", "how well each calibration method places sensors"),
     "drift": ("calibration.drift", "a bumped sensor flagged in time, nothing flagged otherwise"),
     "load": ("live.load", "the real server under N agents × 30 fps × B bodies and 21 clients"),
