@@ -148,11 +148,12 @@ def test_with_a_fixed_sensor_in_front_only_the_head_mounted_view_is_swapped() ->
         assert fused_person.mirrored == ("head",)
 
 
-def test_looking_from_the_space_origin_would_trust_the_back_view_as_a_front_view(
+def test_looking_from_the_space_origin_would_trust_the_back_view_more(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    # What the first test's last check guards against: the view's sensor at its space's origin.
-    front_view, _ = fused_run(behind=False)
+    # What the first test's last check guards against: the view's sensor at its space's origin
+    # (in front of the person, farther away) takes the back view for a front view.
+    placed_right, _ = fused_run()
 
     def origin(frames: object, t_s: float, world_from_space: Matrix4) -> npt.NDArray[np.float64]:
         return world_from_space[:3, 3].copy()
@@ -160,4 +161,4 @@ def test_looking_from_the_space_origin_would_trust_the_back_view_as_a_front_view
     monkeypatch.setattr(world_views, "world_position", origin)
     monkeypatch.setattr(extrapolation, "world_position", origin)
     fused, _ = fused_run()
-    assert trunk_confidence(fused) > 0.9 * trunk_confidence(front_view)
+    assert trunk_confidence(fused) > 1.15 * trunk_confidence(placed_right)
