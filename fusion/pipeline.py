@@ -174,6 +174,7 @@ class FusionPipeline:
             rows = self.errors.rows_of(
                 [v.sensor_id for v in batch.views], priors or [KINECT_V2] * len(batch.views)
             )
+            batch.depth_ratios = self.errors.depth_ratios(rows)
             weighed = weigh_and_fuse(
                 batch,
                 rom,
@@ -188,7 +189,7 @@ class FusionPipeline:
             self.errors.observe(
                 Observed(
                     batch.joints, weighed.weights, weighed.variances, rows, weighed.bins,
-                    weighed.between, batch.starts,
+                    weighed.between, batch.starts, batch.sensors,
                 ),
                 t_s,
             )  # fmt: skip

@@ -18,6 +18,12 @@ interpolated linearly in angle and its residual teaches both in proportion. The 
 bin is what self-occlusion by the trunk depends on: the left knee seen from the person's right
 is a different bin from the left knee seen from the left.
 
+Each sensor also learns how much larger its noise is along its viewing rays than across them
+(a time-of-flight depth error, a camera's distance from the body's apparent size): the
+residuals' squares along and across the ray, pooled over its joints, from its type's
+``depth_noise_ratio``. Fusion then weighs its joints per axis (the ray weighting of
+:mod:`skelfuse.fusion.view_factors`) when the ratio is at least :data:`MIN_DEPTH_RATIO`.
+
 How (leave-one-out residuals)
 -----------------------------
 After each fusion step, view k's joint is compared with the weighted mean ``m₋ₖ`` of the
@@ -75,6 +81,9 @@ BINS: Final = SECTORS * 4
 the index."""
 MIN_VARIANCE: Final = 0.005**2
 """The least variance (m²) a view's joint is given: 5 mm, a depth sensor's jitter at best."""
+MIN_DEPTH_RATIO: Final = 1.15
+"""A sensor whose learned noise along its rays is less than this times that across is fused as
+isotropic."""
 GROUPS: Final[Mapping[str, tuple[int, ...]]] = {
     "trunk": (J.SPINE_BASE, J.SPINE_MID, J.NECK, J.HEAD, J.SPINE_SHOULDER, J.SHOULDER_LEFT,
               J.SHOULDER_RIGHT, J.HIP_LEFT, J.HIP_RIGHT),
@@ -114,7 +123,8 @@ class Observed(NamedTuple):
     final fusion weights; variances: (N, 25) the variances they were weighed by (m²); rows:
     (N,) each view's sensor row (:meth:`RigErrors.rows_of`); bins: (N, 25) each joint's bin
     (:func:`view_bins_loop`, −1: none); between: (N,) how far each view is towards the next
-    sector's bin; starts: (P + 1,) each person's first view, then N.
+    sector's bin; starts: (P + 1,) each person's first view, then N; sensors: (N, 3) where
+    each view's sensor stands (metres, world; NaN: unknown).
     """
 
     joints: FloatArray
@@ -124,6 +134,7 @@ class Observed(NamedTuple):
     bins: IntArray
     between: FloatArray
     starts: IntArray
+    sensors: FloatArray
 
 
 class RigErrors:
@@ -139,6 +150,10 @@ class RigErrors:
         """(R, 25, B) the current estimates, m² (what fusion weighs by)."""
         self._bin_sums = np.empty((0, 2, JOINT_COUNT, BINS))  # Σ y and Σ 1, forgotten
         self._level_sums = np.empty((0, 2, JOINT_COUNT))  # Σ y / prior and Σ 1, forgotten
+        self._ray_sums = np.empty((0, 2))  # Σ along² / E and Σ across² / 2E, forgotten
+        self._prior_ratio = np.empty(0)
+        self.depth_ratio = np.empty(0)
+        """(R,) each sensor's noise along its viewing ray over that across it (≥ 1)."""
         self._last_s = np.empty(0)
         self._seen_s = np.empty(0)  # seconds each sensor has seen someone since its prior
 
@@ -165,8 +180,21 @@ class RigErrors:
         self.variance = np.concatenate([self.variance, table])
         self._bin_sums = np.concatenate([self._bin_sums, np.zeros((1, 2, JOINT_COUNT, BINS))])
         self._level_sums = np.concatenate([self._level_sums, np.zeros((1, 2, JOINT_COUNT))])
+        self._ray_sums = np.concatenate([self._ray_sums, np.zeros((1, 2))])
+        self._prior_ratio = np.append(self._prior_ratio, prior.depth_noise_ratio)
+        self.depth_ratio = np.append(self.depth_ratio, prior.depth_noise_ratio)
         self._last_s = np.append(self._last_s, math.nan)
         self._seen_s = np.append(self._seen_s, 0.0)
+
+    def depth_ratios(self, rows: IntArray) -> FloatArray | None:
+        """(N,) each view's learned depth ratio (its sensor's, by ``rows``), or None when every
+        one is below :data:`MIN_DEPTH_RATIO` (fused as isotropic: the per-axis fusion is not
+        worth its cost below it)."""
+        ratios = self.depth_ratio[rows]
+        if not (ratios >= MIN_DEPTH_RATIO).any():
+            return None
+        stretched: FloatArray = np.where(ratios >= MIN_DEPTH_RATIO, ratios, 1.0)
+        return stretched
 
     def forget(self, sensor_id: str, prior: SensorPrior | None = None) -> None:
         """Start ``sensor_id`` again from its prior (``prior``: a new one), e.g. once it is
@@ -177,9 +205,12 @@ class RigErrors:
         if prior is not None:
             self._priors[row] = prior
             self.prior[row] = prior_variances(prior, self.settings)
+            self._prior_ratio[row] = prior.depth_noise_ratio
         self.variance[row] = self.prior[row]
+        self.depth_ratio[row] = self._prior_ratio[row]
         self._bin_sums[row] = 0.0
         self._level_sums[row] = 0.0
+        self._ray_sums[row] = 0.0
         self._last_s[row] = math.nan
         self._seen_s[row] = 0.0
 
@@ -194,13 +225,15 @@ class RigErrors:
         if not learning.enabled or len(batch.rows) == 0:
             return
         learn_loop(
-            (plain(batch.joints), plain(batch.weights), plain(batch.variances)),
+            (plain(batch.joints), plain(batch.weights), plain(batch.variances),
+             plain(batch.sensors)),
             (plain(batch.rows, np.intp), plain(batch.bins, np.intp), plain(batch.between)),
             plain(batch.starts, np.intp),
-            (self.prior, self._bin_sums, self._level_sums, self._last_s, self._seen_s),
+            (self.prior, self._bin_sums, self._level_sums, self._ray_sums, self._last_s,
+             self._seen_s, self._prior_ratio),
             (float(t_s), float(learning.forget_s), float(learning.cap),
              float(learning.prior_samples), float(learning.bin_samples)),
-            self.variance,
+            (self.variance, self.depth_ratio),
         )  # fmt: skip
 
     def summary(self) -> dict[str, SensorErrors]:
@@ -225,21 +258,24 @@ class RigErrors:
 
 @jit
 def learn_loop(
-    views: tuple[FloatArray, FloatArray, FloatArray],
+    views: tuple[FloatArray, FloatArray, FloatArray, FloatArray],
     places: tuple[IntArray, IntArray, FloatArray],
     starts: IntArray,
-    state: tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray],
+    state: tuple[
+        FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray
+    ],
     settings: tuple[float, float, float, float, float],
-    variance: FloatArray,
+    out: tuple[FloatArray, FloatArray],
 ) -> None:
     """:meth:`RigErrors.observe` in one call: forget each seen sensor's sums, add the step's
-    samples (:func:`observe_loop`), and estimate the seen sensors' variances again
-    (:func:`estimate_loop`). views: joints, weights, variances (:class:`Observed`); places:
-    rows, bins, between; state: the prior (R, 25, B), the bin and level sums, each sensor's
-    last instant and seconds seen; settings: the instant and ``learning``'s forget_s, cap,
-    prior_samples, bin_samples."""
+    samples (:func:`observe_loop`), and estimate the seen sensors' variances and depth ratios
+    again (:func:`estimate_loop`). views: joints, weights, variances, sensors
+    (:class:`Observed`); places: rows, bins, between; state: the prior (R, 25, B), the bin,
+    level and ray sums, each sensor's last instant, seconds seen and prior depth ratio;
+    settings: the instant and ``learning``'s forget_s, cap, prior_samples, bin_samples; out:
+    the variances (R, 25, B) and depth ratios (R,)."""
     rows = places[0]
-    prior, bin_sums, level_sums, last_s, seen_s = state
+    prior, bin_sums, level_sums, ray_sums, last_s, seen_s, prior_ratio = state
     t_s, forget_s, cap, prior_samples, bin_samples = settings
     seen = np.zeros(len(last_s), dtype=np.bool_)
     for v in range(len(rows)):
@@ -256,37 +292,40 @@ def learn_loop(
         # that reaches forget_s.
         decay[r] = math.exp(-elapsed / min(forget_s, 2.0 + 0.5 * seen_s[r]))
         last_s[r] = t_s
-    observe_loop(
-        views[0], views[1], views[2], places, starts, prior, decay, cap, (bin_sums, level_sums)
-    )
-    estimate_loop(
-        np.flatnonzero(seen), bin_sums, level_sums, prior, (prior_samples, bin_samples), variance
-    )
+    observe_loop(views, places, starts, prior, decay, cap, (bin_sums, level_sums, ray_sums))
+    rows_seen = np.flatnonzero(seen)
+    estimate_loop(rows_seen, bin_sums, level_sums, prior, (prior_samples, bin_samples), out[0])
+    for r in rows_seen:  # the prior's ratio as prior_samples samples of it
+        ratio2 = prior_ratio[r] * prior_ratio[r]
+        weight = prior_samples / (2.0 + ratio2)
+        value = (ray_sums[r, 0] + weight * ratio2) / (ray_sums[r, 1] + weight)
+        out[1][r] = math.sqrt(max(value, 1.0))
 
 
 @jit
 def observe_loop(
-    joints: FloatArray,
-    weights: FloatArray,
-    variances: FloatArray,
+    views: tuple[FloatArray, FloatArray, FloatArray, FloatArray],
     places: tuple[IntArray, IntArray, FloatArray],
     starts: IntArray,
     prior: FloatArray,
     decay: FloatArray,
     cap: float,
-    sums: tuple[FloatArray, FloatArray],
+    sums: tuple[FloatArray, FloatArray, FloatArray],
 ) -> None:
     """Forget each seen sensor's sums by ``decay`` (R,), then add each view's leave-one-out
-    residual samples (module docstring) to ``sums``: per (row, Σy | Σ1, joint, bin) and per
-    (row, Σy/prior | Σ1, joint). variances: (N, 25) each view's joints' as fused; places:
-    each view's row (N,), its joints' bins (N, 25) and how far it is towards the next
-    sector's (N,)."""
+    residual samples (module docstring) to ``sums``: per (row, Σy | Σ1, joint, bin), per
+    (row, Σy/prior | Σ1, joint), and per row the residual's squares along and across the
+    view's ray over their expected share. views: joints, weights, variances (N, 25) as fused,
+    sensors; places: each view's row (N,), its joints' bins (N, 25) and how far it is towards
+    the next sector's (N,)."""
+    joints, weights, variances, sensors = views
     rows, bins, between = places
-    bin_sums, level_sums = sums
+    bin_sums, level_sums, ray_sums = sums
     for r in range(len(decay)):
         if decay[r] != 1.0:
             bin_sums[r] *= decay[r]
             level_sums[r] *= decay[r]
+            ray_sums[r] *= decay[r]
     for p in range(len(starts) - 1):
         lo, hi = starts[p], starts[p + 1]
         for k in range(lo, hi):
@@ -294,7 +333,8 @@ def observe_loop(
                 b = bins[k, j]
                 if b < 0 or not weights[k, j] > 0.0:
                     continue
-                others, distance = _left_out(joints, weights, variances, lo, hi, k, j)
+                others, residual = _left_out(joints, weights, variances, lo, hi, k, j)
+                distance = residual[0] ** 2 + residual[1] ** 2 + residual[2] ** 2
                 if not math.isfinite(distance):
                     continue  # nobody else sees this joint: nothing to judge it against
                 expected = variances[k, j] + others
@@ -309,14 +349,39 @@ def observe_loop(
                 bin_sums[r, 1, j, after] += a
                 level_sums[r, 0, j] += sample / scale
                 level_sums[r, 1, j] += 1.0
+                _add_ray_sample(
+                    joints[k, j], sensors[k], residual, share, expected, cap, ray_sums[r]
+                )
+
+
+@jit_inline
+def _add_ray_sample(
+    point: FloatArray,
+    sensor: FloatArray,
+    residual: tuple[float, float, float],
+    share: float,
+    expected: float,
+    cap: float,
+    sums: FloatArray,
+) -> None:
+    """Add a residual's square along the ray from ``sensor`` to ``point`` and its mean
+    square per axis across it, each over ``expected`` and weighed by the view's ``share``."""
+    d0, d1, d2 = point[0] - sensor[0], point[1] - sensor[1], point[2] - sensor[2]
+    length = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+    if not (length > 0.0 and math.isfinite(length)):
+        return
+    along = (residual[0] * d0 + residual[1] * d1 + residual[2] * d2) / length
+    total = residual[0] ** 2 + residual[1] ** 2 + residual[2] ** 2
+    sums[0] += share * min(along * along / expected, cap)
+    sums[1] += share * min(0.5 * (total - along * along) / expected, cap)
 
 
 @jit_inline
 def _left_out(
     joints: FloatArray, weights: FloatArray, variances: FloatArray, lo: int, hi: int, k: int, j: int
-) -> tuple[float, float]:
+) -> tuple[float, tuple[float, float, float]]:
     """The variance (m²) of the weighted mean of views ``lo``..``hi`` but ``k`` of joint ``j``,
-    and view k's squared distance to it; (NaN, NaN) when no other view has the joint."""
+    and view k's residual to it (m); NaN when no other view has the joint."""
     total = spread = m0 = m1 = m2 = 0.0
     for i in range(lo, hi):
         w = weights[i, j]
@@ -330,9 +395,8 @@ def _left_out(
         m2 += w * y[2]
     x = joints[k, j]
     if total <= 0.0 or not math.isfinite(x[0] + x[1] + x[2]):
-        return math.nan, math.nan
-    d0, d1, d2 = x[0] - m0 / total, x[1] - m1 / total, x[2] - m2 / total
-    return spread / (total * total), d0 * d0 + d1 * d1 + d2 * d2
+        return math.nan, (math.nan, math.nan, math.nan)
+    return spread / (total * total), (x[0] - m0 / total, x[1] - m1 / total, x[2] - m2 / total)
 
 
 @jit
@@ -424,7 +488,8 @@ def robust_factors_loop(
                 out[k, j] = 1.0
                 if not weights[k, j] > 0.0:
                     continue
-                others, distance = _left_out(joints, weights, variances, lo, hi, k, j)
+                others, residual = _left_out(joints, weights, variances, lo, hi, k, j)
+                distance = residual[0] ** 2 + residual[1] ** 2 + residual[2] ** 2
                 if math.isfinite(distance):
                     expected = variances[k, j] + others
                     out[k, j] = (dof + 3.0) / (dof + distance / expected)
@@ -442,5 +507,5 @@ def warm_up() -> None:
     )
     starts = np.array([0, 2], dtype=np.intp)
     ones = np.ones((2, JOINT_COUNT))
-    errors.observe(Observed(views, ones, ones, rows, bins, between, starts), 0.0)
+    errors.observe(Observed(views, ones, ones, rows, bins, between, starts, np.ones((2, 3))), 0.0)
     robust_factors_loop(views, ones, ones, starts, 4.0, np.empty((2, JOINT_COUNT)))

@@ -644,7 +644,10 @@ class ViewBatch:
         if self.depth_ratios is None:
             return fused
         sensors, ratios = self.pad(self.sensors, np.nan), self.pad(self.depth_ratios, 1.0)
-        return ray_weighted_mean(joints, padded, sensors, ratios, fused)
+        # A weight is the inverse of a view's 3-D variance; across the ray, per axis, its
+        # variance is that over (2 + ratio²), i.e. its precision (2 + ratio²) / 3 times more.
+        across = padded * ((2.0 + ratios**2) / 3.0)[:, :, None]
+        return ray_weighted_mean(joints, across, sensors, ratios, fused)
 
     def body_positions(self, fused: FloatArray) -> FloatArray:
         """(P, 3) where each person stands: fused SpineBase, else the mean of the views'."""

@@ -41,7 +41,7 @@ def _step(
     errors.observe(
         Observed(
             joints, 1.0 / variances, variances, rows, bins, np.zeros(len(sensors)),
-            np.array([0, len(sensors)], dtype=np.intp),
+            np.array([0, len(sensors)], dtype=np.intp), np.ones((len(sensors), 3)),
         ),
         t_s,
     )  # fmt: skip
@@ -102,7 +102,7 @@ def _step_with(
     errors.observe(
         Observed(
             joints, 1.0 / variances, variances, rows, bins, np.zeros(len(sensors)),
-            np.array([0, len(sensors)], dtype=np.intp),
+            np.array([0, len(sensors)], dtype=np.intp), np.ones((len(sensors), 3)),
         ),
         t_s,
     )  # fmt: skip
@@ -135,7 +135,7 @@ def test_a_view_alone_is_never_judged_and_a_glitch_teaches_little() -> None:
     bins = np.full((3, JOINT_COUNT), FRONT, dtype=np.intp)
     errors.observe(
         Observed(joints, 1 / variances, variances, rows, bins, np.zeros(3),
-                 np.array([0, 3], dtype=np.intp)),
+                 np.array([0, 3], dtype=np.intp), np.ones((3, 3))),
         30.0,
     )  # fmt: skip
     assert _learned_m(errors, "s0") < 1.1 * settled  # the cap: at most 4× its expected square
