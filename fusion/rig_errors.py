@@ -14,7 +14,7 @@ the person (:data:`~skelfuse.fusion.priors.SECTORS` directions 45° apart, from 
 the person's left: a side view sees the near limbs and guesses the far ones), the joint's
 tracking state (Tracked; Inferred), and the distance (nearer or farther than
 ``learning.far_m``). A view between two directions is between their bins: its variance is
-interpolated linearly in angle and its residual teaches both in proportion. The joint's own
+interpolated geometrically in angle and its residual teaches both in proportion. The joint's own
 bin is what self-occlusion by the trunk depends on: the left knee seen from the person's right
 is a different bin from the left knee seen from the left.
 
@@ -462,9 +462,13 @@ def view_bins_loop(
 @jit_inline
 def variance_at(table: FloatArray, row: int, joint: int, b: int, between: float) -> float:
     """The variance of ``table`` (R, 25, B) at ``b`` interpolated ``between`` of the way to the
-    next sector's bin."""
+    next sector's bin, geometrically: between a good direction and a bad one the error grows
+    by a factor per degree rather than by millimetres."""
     after = (b + 4) % table.shape[2]
-    value: float = (1.0 - between) * table[row, joint, b] + between * table[row, joint, after]
+    low, high = table[row, joint, b], table[row, joint, after]
+    if between == 0.0 or low == high:
+        return low
+    value: float = low ** (1.0 - between) * high**between
     return value
 
 
