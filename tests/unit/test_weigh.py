@@ -20,6 +20,7 @@ import pytest
 from skelfuse.fusion import weigh
 from skelfuse.fusion.anatomy import facing_directions
 from skelfuse.fusion.confidence import body_weights
+from skelfuse.fusion.limb_labels import LIMBS, swap_limbs
 from skelfuse.fusion.priors import KINECT_V2, SECTORS, SensorPrior, prior_variances, priors_of
 from skelfuse.fusion.rig_errors import BINS
 from skelfuse.fusion.settings import FusionSettings, LearningSettings, WeightSettings
@@ -114,6 +115,35 @@ def _robust(batch: ViewBatch, weights: np.ndarray, variances: np.ndarray, dof: f
     return out
 
 
+def _weighed_by_views(
+    batch: ViewBatch,
+    rom: np.ndarray | None,
+    references: np.ndarray,
+    track_facings: np.ndarray,
+    once: np.ndarray,
+    settings: FusionSettings,
+    priors: Sequence[SensorPrior] | None,
+    learned: Learned,
+) -> tuple[np.ndarray, ...]:
+    """The body terms, the first fusion, the facing, the bins and the learned variances."""
+    s = settings
+    known = references[batch.person_of] if np.isfinite(references).any() else None
+    weights = body_weights(batch.joints, batch.states, known, rom, s, priors)
+    fused = batch.fuse(weights)
+    facing = np.where(once[:, None], track_facings, facing_directions(fused))[batch.person_of]
+    stands = batch.body_positions(fused)[batch.person_of]
+    cosines = facing_cosines(facing, stands, batch.sensors)
+    bins, between = _bins(facing, stands, batch, s)
+    table = learned.variance[learned.rows[:, None], np.arange(25)]  # (N, 25, B)
+    at = np.take_along_axis(table, np.maximum(bins, 0)[..., None], axis=2)[..., 0]
+    after = np.take_along_axis(table, ((np.maximum(bins, 0) + 4) % BINS)[..., None], 2)[..., 0]
+    a = between[:, None]
+    geometric = np.where((a == 0) | (at == after), at, at ** (1 - a) * after**a)
+    variances = np.where(bins >= 0, geometric, np.inf)
+    weights = np.where(bins >= 0, weights * weight_scale(s) / variances, 0.0)
+    return weights, batch.fuse(weights), cosines, bins, between, variances
+
+
 def _term_by_term(
     batch: ViewBatch,
     rom: np.ndarray,
@@ -123,23 +153,16 @@ def _term_by_term(
     settings: FusionSettings,
     priors: Sequence[SensorPrior] | None,
     learned: Learned,
+    track_joints: np.ndarray,
 ) -> weigh.Weighed:
     """Steps 5–6 as the stages called one after the other (the reference)."""
     s = settings
-    known = references[batch.person_of] if np.isfinite(references).any() else None
-    weights = body_weights(batch.joints, batch.states, known, rom, s, priors)
-    fused = batch.fuse(weights)
     once = np.array(fused_once, dtype=bool)
-    facing = np.where(once[:, None], track_facings, facing_directions(fused))[batch.person_of]
-    stands = batch.body_positions(fused)[batch.person_of]
-    cosines = facing_cosines(facing, stands, batch.sensors)
-    bins, between = _bins(facing, stands, batch, s)
-    table = learned.variance[learned.rows[:, None], np.arange(25)]  # (N, 25, B)
-    at = np.take_along_axis(table, np.maximum(bins, 0)[..., None], axis=2)[..., 0]
-    after = np.take_along_axis(table, ((np.maximum(bins, 0) + 4) % BINS)[..., None], 2)[..., 0]
-    variances = np.where(bins >= 0, (1 - between[:, None]) * at + between[:, None] * after, np.inf)
-    weights = np.where(bins >= 0, weights * weight_scale(s) / variances, 0.0)
-    fused = batch.fuse(weights)
+    args = (references, track_facings, once, s, priors, learned)
+    weights, fused, cosines, bins, between, variances = _weighed_by_views(batch, rom, *args)
+    swapped = swap_limbs(batch.joints, batch.states, weights, batch.starts, (track_joints, once))
+    if swapped.any():
+        weights, fused, cosines, bins, between, variances = _weighed_by_views(batch, None, *args)
     if s.learning.robust_dof > 0:
         weights = weights * _robust(batch, weights, variances, s.learning.robust_dof)
         fused = batch.fuse(weights)
@@ -160,7 +183,10 @@ def _both(
         use = settings.weights.sensor_priors
         priors = priors_of([v.sensor_type for v in own.views]) if use else None
         learned = _learned(seed, own)
-        results.append(run(own, rom, references, facings, fused_once, settings, priors, learned))
+        tracks = own.joints[own.starts[:-1]].copy()  # each person's first view as its track
+        results.append(
+            run(own, rom, references, facings, fused_once, settings, priors, learned, tracks)
+        )
     return results[0], results[1]
 
 
@@ -233,3 +259,28 @@ def test_every_setting_gives_the_stages_results(
     got, expected = _both(batch, fused_once, settings, 3)
     _close(got, expected)
     assert np.isfinite(got.fused).any(), case
+
+
+def test_a_view_with_its_arms_swapped_is_put_right_within_the_step() -> None:
+    rng = np.random.default_rng(5)
+    body = _views(0)[0]
+    body[:, :] = np.linspace([0.0, 0.1, 2.0], [0.0, 1.7, 2.0], 25)  # a column, arms apart:
+    body[LIMBS[0]] += (0.4, 0.0, 0.0)
+    body[LIMBS[1]] -= (0.4, 0.0, 0.0)
+    views = [body + rng.normal(0.0, 0.01, body.shape) for _ in range(3)]
+    truth = views[2].copy()
+    left, right = LIMBS[0], LIMBS[1]
+    views[2][left], views[2][right] = truth[right], truth[left]
+    states = np.full(25, 2, np.uint8)
+    sensors = [np.array([0.0, 1.0, 5.0]), np.array([4.0, 1.0, 0.0]), np.array([-4.0, 1.0, 0.0])]
+    batch = ViewBatch.of(
+        [[View(f"s{k}", k, views[k], states.copy(), sensors[k]) for k in range(3)]]
+    )
+    learned = Learned(
+        np.zeros(3, dtype=np.intp), prior_variances(KINECT_V2, FusionSettings())[None]
+    )
+    weigh.weigh_and_fuse(
+        batch, None, np.full((1, 24), np.nan), np.full((1, 3), np.nan), [False],
+        FusionSettings(), None, learned, np.zeros((1, 25, 3)),
+    )  # fmt: skip
+    np.testing.assert_allclose(batch.joints[2], truth, atol=1e-12)
