@@ -81,7 +81,7 @@ BINS: Final = SECTORS * 4
 the index."""
 MIN_VARIANCE: Final = 0.005**2
 """The least variance (m²) a view's joint is given: 5 mm, a depth sensor's jitter at best."""
-MIN_DEPTH_RATIO: Final = 1.15
+MIN_DEPTH_RATIO: Final = 1.3
 """A sensor whose learned noise along its rays is less than this times that across is fused as
 isotropic."""
 GROUPS: Final[Mapping[str, tuple[int, ...]]] = {

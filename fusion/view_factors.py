@@ -32,7 +32,6 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from skelfuse.fusion.points import finite_points
 from skelfuse.fusion.priors import PRIORS
 from skelfuse.jit import jit, plain
 
@@ -127,31 +126,71 @@ def ray_weighted_mean(
     if not (np.isfinite(ratios).all() and (ratios >= 1.0).all()):
         raise ValueError(f"depth noise ratios must be finite and >= 1, got {ratios}")
     out = np.full(joints.shape[0:1] + joints.shape[2:], np.nan) if fused is None else fused.copy()
-    persons = np.flatnonzero((ratios != 1.0).any(axis=1)) if fused is not None else None
-    if persons is not None and len(persons) == 0:
-        return out
-    pick = slice(None) if persons is None else persons
-    x, w, s, r = joints[pick], weights[pick], sensors[pick], ratios[pick]
-    usable = finite_points(x) & (w > 0)
-    w = np.where(usable, w, 0.0)
-    x = np.where(usable[..., None], x, 0.0)
-    ray = x - s[:, :, None, :]
-    length = np.linalg.norm(ray, axis=-1, keepdims=True)
-    known = np.isfinite(length) & (length > 0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        d = np.where(known, ray / length, 0.0)  # (P, S, J, 3) unit rays, 0 where unknown
-    shrink = (1.0 / r**2 - 1.0)[:, :, None] * w  # (P, S, J): w·(1/ratio² − 1), <= 0
-    total = w.sum(axis=1)  # (P, J)
-    info = total[..., None, None] * np.eye(3) + np.einsum("psj,psja,psjb->pjab", shrink, d, d)
-    along = (d * x).sum(axis=-1)  # (P, S, J) each view's position along its own ray
-    rhs = (w[..., None] * x).sum(axis=1) + (shrink[..., None] * d * along[..., None]).sum(axis=1)
-    seen = total > 0
-    result = np.full(rhs.shape, np.nan)
-    result[seen] = np.linalg.solve(info[seen], rhs[seen][..., None])[..., 0]
-    out[pick] = result
+    ray_loop(plain(joints), plain(weights), plain(sensors), plain(ratios), fused is None, out)
     return out
 
 
+@jit
+def ray_loop(
+    joints: FloatArray,
+    weights: FloatArray,
+    sensors: FloatArray,
+    ratios: FloatArray,
+    every: bool,
+    out: FloatArray,
+) -> None:
+    """Fill ``out`` (P, J, 3) with :func:`ray_weighted_mean` for the persons with a ratio other
+    than 1 (``every``: for every person): per joint the symmetric information matrix
+    ``Σ w·(I + (1/ratio² − 1)·d·dᵀ)`` and its right side, solved by Cramer's rule (NaN where
+    no view counts)."""
+    for p in range(joints.shape[0]):
+        stretched = every
+        for s in range(joints.shape[1]):
+            stretched = stretched or ratios[p, s] != 1.0
+        if not stretched:
+            continue
+        for j in range(joints.shape[2]):
+            a00 = a01 = a02 = a11 = a12 = a22 = b0 = b1 = b2 = 0.0
+            for s in range(joints.shape[1]):
+                w = weights[p, s, j]
+                x0, x1, x2 = joints[p, s, j, 0], joints[p, s, j, 1], joints[p, s, j, 2]
+                if not (w > 0.0 and math.isfinite(x0 + x1 + x2)):
+                    continue
+                d0, d1, d2 = x0 - sensors[p, s, 0], x1 - sensors[p, s, 1], x2 - sensors[p, s, 2]
+                length = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+                shrink = 0.0  # no ray known: the same in every direction
+                if length > 0.0 and math.isfinite(length):
+                    shrink = w * (1.0 / (ratios[p, s] * ratios[p, s]) - 1.0)
+                    d0, d1, d2 = d0 / length, d1 / length, d2 / length
+                else:
+                    d0 = d1 = d2 = 0.0
+                along = shrink * (d0 * x0 + d1 * x1 + d2 * x2)
+                a00 += w + shrink * d0 * d0
+                a11 += w + shrink * d1 * d1
+                a22 += w + shrink * d2 * d2
+                a01 += shrink * d0 * d1
+                a02 += shrink * d0 * d2
+                a12 += shrink * d1 * d2
+                b0 += w * x0 + along * d0
+                b1 += w * x1 + along * d1
+                b2 += w * x2 + along * d2
+            c00 = a11 * a22 - a12 * a12  # the cofactors of the symmetric matrix
+            c01 = a02 * a12 - a01 * a22
+            c02 = a01 * a12 - a02 * a11
+            det = a00 * c00 + a01 * c01 + a02 * c02
+            if not det > 0.0:
+                out[p, j, 0] = out[p, j, 1] = out[p, j, 2] = math.nan
+                continue
+            c11 = a00 * a22 - a02 * a02
+            c12 = a01 * a02 - a00 * a12
+            c22 = a00 * a11 - a01 * a01
+            out[p, j, 0] = (c00 * b0 + c01 * b1 + c02 * b2) / det
+            out[p, j, 1] = (c01 * b0 + c11 * b1 + c12 * b2) / det
+            out[p, j, 2] = (c02 * b0 + c12 * b1 + c22 * b2) / det
+
+
 def warm_up() -> None:
-    """Compile (or load from numba's cache) this module's loop now."""
+    """Compile (or load from numba's cache) this module's loops now."""
     facing_cosines(np.array([1.0, 0.0, 0.0]), np.zeros(3), np.ones((2, 3)))
+    ray_weighted_mean(np.ones((1, 2, 25, 3)), np.ones((1, 2, 25)), np.zeros((1, 2, 3)),
+                      np.full((1, 2), 2.0))  # fmt: skip

@@ -81,8 +81,11 @@ def test_the_view_batch_stretches_rgb_views_only() -> None:
     batch = ViewBatch.of([[camera, kinect]])
     r = RGB_MONO.depth_noise_ratio
     fused = batch.fuse(weights)[0]
-    np.testing.assert_allclose(fused[:, 2], TRUTH[2] + 0.3 / r**2 / (1 / r**2 + 1), atol=1e-12)
-    np.testing.assert_allclose(fused[:, 0], 0.025, atol=1e-12)
+    # A weight is a 3-D precision: across its ray the camera's is (2 + r²) / 3 times more.
+    across = (2 + r**2) / 3
+    along = across / r**2
+    np.testing.assert_allclose(fused[:, 2], TRUTH[2] + 0.3 * along / (along + 1), atol=1e-12)
+    np.testing.assert_allclose(fused[:, 0], 0.05 / (across + 1), atol=1e-12)
     kinects = ViewBatch.of([[View("k2", 1, camera.joints_world, states, CAMERA), kinect]])
     assert kinects.depth_ratios is None
     assert np.array_equal(
