@@ -295,7 +295,8 @@ def learn_loop(
     observe_loop(views, places, starts, prior, decay, cap, (bin_sums, level_sums, ray_sums))
     rows_seen = np.flatnonzero(seen)
     estimate_loop(rows_seen, bin_sums, level_sums, prior, (prior_samples, bin_samples), out[0])
-    for r in rows_seen:  # the prior's ratio as prior_samples samples of it
+    for row in rows_seen:  # the prior's ratio as prior_samples samples of it
+        r = int(row)
         ratio2 = prior_ratio[r] * prior_ratio[r]
         weight = prior_samples / (2.0 + ratio2)
         value = (ray_sums[r, 0] + weight * ratio2) / (ray_sums[r, 1] + weight)
@@ -465,7 +466,8 @@ def variance_at(table: FloatArray, row: int, joint: int, b: int, between: float)
     next sector's bin, geometrically: between a good direction and a bad one the error grows
     by a factor per degree rather than by millimetres."""
     after = (b + 4) % table.shape[2]
-    low, high = table[row, joint, b], table[row, joint, after]
+    low: float = table[row, joint, b]
+    high: float = table[row, joint, after]
     if between == 0.0 or low == high:
         return low
     value: float = low ** (1.0 - between) * high**between

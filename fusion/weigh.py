@@ -20,8 +20,9 @@ compiled with numba (:func:`_weigh_loop`) running the stages' own loops in order
 :func:`~skelfuse.fusion.rig_errors.view_bins_loop`,
 :func:`~skelfuse.fusion.rig_errors.robust_factors_loop` and
 :func:`~skelfuse.fusion.confidence.confidence_loop`. The loop runs in phases (:data:`BODY` …
-:data:`CONFIDENCE`); the ray weighting of a camera that guesses depth is numpy code of its
-own stage and runs after each fusion when a person has such a view (:meth:`ViewBatch.fuse`).
+:data:`CONFIDENCE`); each fusion of a person with a view whose noise is larger along its ray
+is weighed per axis (:func:`~skelfuse.fusion.view_factors.ray_loop`), and the loop stops after
+the learned weighting for the single-limb labels (:mod:`skelfuse.fusion.limb_labels`).
 :func:`warm_up` compiles the loop (or loads numba's cache) at start, so no frame waits for a
 compilation.
 
@@ -64,7 +65,12 @@ from skelfuse.fusion.mirror_scores import slots
 from skelfuse.fusion.priors import KINECT_V2, SensorPrior, prior_variances
 from skelfuse.fusion.rig_errors import robust_factors_loop, variance_at, view_bins_loop
 from skelfuse.fusion.settings import FusionSettings
-from skelfuse.fusion.view_factors import cosines_loop, depth_noise_ratios, ray_weighted_mean
+from skelfuse.fusion.view_factors import (
+    cosines_loop,
+    depth_noise_ratios,
+    ray_loop,
+    ray_weighted_mean,
+)
 from skelfuse.fusion.views import View
 from skelfuse.jit import jit, plain
 
@@ -193,9 +199,22 @@ def weigh_and_fuse(
         plain(learned.rows, np.intp), learned.variance, weight_scale(s),
         (bool(s.weights.view_bins), float(s.learning.far_m), float(s.learning.robust_dof)),
     )  # fmt: skip
+    stretched = batch.depth_ratios is not None
+    rays = (
+        plain(batch.depth_ratios) if batch.depth_ratios is not None else np.ones(count),
+        stretched,
+    )
     work = (np.empty((count, 3)), np.empty((count, 3)))
+
+    def run(first: int, last: int, body: _Body) -> None:
+        _weigh_loop(
+            first, last, plain(batch.joints), plain(batch.states, np.uint8),
+            plain(batch.sensors), (plain(batch.starts, np.intp), batch.widest), body, views,
+            rays, out, work,
+        )  # fmt: skip
+
     body = _body_terms(batch, rom, references, s, priors)
-    _run_phases(BODY, VIEWS, batch, body, views, out, work)
+    run(BODY, VIEWS, body)
     if s.mirror.limbs:  # one limb's labels swapped in a view: put right, weighed again
         swapped = swap_limbs(
             batch.joints, batch.states, out.weights, batch.starts,
@@ -203,8 +222,8 @@ def weigh_and_fuse(
         )  # fmt: skip
         if swapped.any():
             body = _body_terms(batch, None, references, s, priors)
-            _run_phases(BODY, VIEWS, batch, body, views, out, work)
-    _run_phases(ROBUST, CONFIDENCE, batch, body, views, out, work)
+            run(BODY, VIEWS, body)
+    run(ROBUST, CONFIDENCE, body)
     return out
 
 
@@ -227,34 +246,6 @@ def _body_terms(
         _NOT_USED if factors is None else plain(factors),
         (s.weights.bone_length, factors is not None), float(s.weights.bone_length_scale_m), _TABLES,
     )  # fmt: skip
-
-
-def _run_phases(
-    first: int,
-    last: int,
-    batch: ViewBatch,
-    body: _Body,
-    views: _Views,
-    out: Weighed,
-    work: tuple[FloatArray, FloatArray],
-) -> None:
-    """Phases ``first`` to ``last`` of :func:`_weigh_loop`, with a camera that guesses depth
-    fused along its rays after each fusion (:meth:`ViewBatch.fuse`)."""
-    stops = [p for p in (BODY, VIEWS, ROBUST) if first <= p <= last]
-    if batch.depth_ratios is None or not stops:
-        stops = [last]
-    elif last not in stops:
-        stops.append(last)
-    phase = first
-    for stop in stops:
-        _weigh_loop(
-            phase, stop, plain(batch.joints), plain(batch.states, np.uint8),
-            plain(batch.sensors), (plain(batch.starts, np.intp), batch.widest), body, views,
-            out, work,
-        )  # fmt: skip
-        if batch.depth_ratios is not None and stop in (BODY, VIEWS, ROBUST):
-            out.fused[:] = batch.fuse(out.weights)
-        phase = stop + 1
 
 
 def weight_scale(settings: FusionSettings) -> FloatArray:
@@ -284,6 +275,7 @@ def _weigh_loop(
     places: tuple[IntArray, int],
     body: _Body,
     views: _Views,
+    rays: tuple[FloatArray, bool],
     out: tuple[
         FloatArray, FloatArray, FloatArray, FloatArray, BoolArray, IntArray, FloatArray, FloatArray
     ],
@@ -297,7 +289,8 @@ def _weigh_loop(
     terms is on, the bone-length scale; views: the track facings (P, 3), whether each person
     was fused before (P,), each view's learned-variance row (N,), the variances (R, 25, B),
     :func:`weight_scale` (25,), whether views are binned by where they stand, the far
-    distance and the Student-t degrees of freedom (0: no robust pass); out: weights, fused,
+    distance and the Student-t degrees of freedom (0: no robust pass); rays: each view's depth
+    ratio (N,) and whether any is not 1 (then fused along the rays); out: weights, fused,
     cosines, confidence, carried, bins, between, variances (:class:`Weighed`); work: where
     each view's person stands (N, 3), its facing (N, 3).
     """
@@ -307,9 +300,10 @@ def _weigh_loop(
     facings, once, rows, table, scale, (binned, far_m, dof) = views
     padded = np.empty((len(starts) - 1, widest, joints.shape[1], 3))
     padded_weights = np.empty(padded.shape[:3])
+    along = (sensors, rays[0], rays[1])
     if first <= BODY <= last:
         _body_phase(joints, states, starts, body, weights)
-        _fuse(joints, weights, starts, padded, padded_weights, fused)
+        _fuse(joints, weights, starts, (padded, padded_weights), along, fused)
     if first <= FACING <= last:
         _facing_phase(joints, sensors, starts, facings, once, fused, stands, facing_of, cosines)
     if first <= VIEWS <= last:
@@ -322,14 +316,14 @@ def _weigh_loop(
                     continue
                 variances[v, j] = variance_at(table, rows[v], j, b, between[v])
                 weights[v, j] = weights[v, j] * scale[j] / variances[v, j]
-        _fuse(joints, weights, starts, padded, padded_weights, fused)
+        _fuse(joints, weights, starts, (padded, padded_weights), along, fused)
     if first <= ROBUST <= last and dof > 0.0:
         factors = np.empty(weights.shape)
         robust_factors_loop(joints, weights, variances, starts, dof, factors)
         for v in range(len(rows)):
             for j in range(weights.shape[1]):
                 weights[v, j] = weights[v, j] * factors[v, j]
-        _fuse(joints, weights, starts, padded, padded_weights, fused)
+        _fuse(joints, weights, starts, (padded, padded_weights), along, fused)
     if first <= CONFIDENCE <= last:
         _pad(joints, weights, starts, padded, padded_weights)
         confidence_loop(padded, padded_weights, MIN_SHARE, confidence, carried)
@@ -387,13 +381,30 @@ def _fuse(
     joints: FloatArray,
     weights: FloatArray,
     starts: IntArray,
-    padded: FloatArray,
-    padded_weights: FloatArray,
+    pads: tuple[FloatArray, FloatArray],
+    rays: tuple[FloatArray, FloatArray, bool],
     fused: FloatArray,
 ) -> None:
-    """Each person's weighted mean (P, 25, 3) of its views under ``weights``."""
+    """Each person's weighted mean (P, 25, 3) of its views under ``weights``; persons with a
+    view whose noise is larger along its ray (``rays``: each view's sensor (N, 3), its ratio
+    (N,), whether any is not 1) fused along the rays (``ViewBatch.fuse``)."""
+    padded, padded_weights = pads
     _pad(joints, weights, starts, padded, padded_weights)
     weighted_loop(padded, padded_weights, fused)
+    sensors, ratios, stretched = rays
+    if not stretched:
+        return
+    persons, widest = padded.shape[0], padded.shape[1]
+    padded_sensors = np.full((persons, widest, 3), math.nan)
+    padded_ratios = np.ones((persons, widest))
+    for p in range(persons):
+        for s in range(starts[p + 1] - starts[p]):
+            padded_sensors[p, s] = sensors[starts[p] + s]
+            padded_ratios[p, s] = ratios[starts[p] + s]
+            across = (2.0 + ratios[starts[p] + s] ** 2) / 3.0  # a 3-D precision, across the ray
+            for j in range(padded.shape[2]):
+                padded_weights[p, s, j] *= across
+    ray_loop(padded, padded_weights, padded_sensors, padded_ratios, False, fused)
 
 
 @jit
@@ -455,7 +466,7 @@ def warm_up() -> None:
         (terms, of_view, np.ones((1, 24)), np.ones((2, 25)), (True, True), 0.05, _TABLES),
         (np.ones((1, 3)), np.zeros(1, dtype=np.bool_), np.zeros(2, dtype=np.intp), table,
          weight_scale(settings), (True, 2.5, 4.0)),
-        out, (np.empty((2, 3)), np.empty((2, 3))),
+        (np.full(2, 2.0), True), out, (np.empty((2, 3)), np.empty((2, 3))),
     )  # fmt: skip
     weighted_mean(np.zeros((1, 2, 25, 3)), np.ones((1, 2, 25)))
 
@@ -582,7 +593,8 @@ class ViewBatch:
     person_of, slot_of (N,) and starts (P + 1,) are shared read-only arrays.
     Per-person sums use (P, widest, ...) blocks padded after the real views (:meth:`pad`).
     depth_ratios: (N,) each view's noise along its sensor's ray over across it, None when all
-    are 1 (fusion/view_factors.py: only ``rgb`` views have more).
+    are 1: from the sensor types' priors here (only ``rgb`` has more); the pipeline sets each
+    sensor's learned ratio (fusion/rig_errors.py).
     """
 
     views: list[View]
