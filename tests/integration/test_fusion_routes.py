@@ -102,6 +102,6 @@ def test_fusion_settings_in_use_are_shown(server_factory: Callable[..., LiveServ
     assert shown["smoothing"]["filter"] == "kalman"
     assert shown["mirror"]["walk_check_s"] == 0.0
     assert shown["weights"]["state_weights"] == [0, 0.5, 1]
-    assert shown["weights"]["facing"] is True and shown["alignment"]["policy"] == "deadline"
+    assert shown["learning"]["enabled"] is True and shown["alignment"]["policy"] == "deadline"
     assert set(shown) == set(FusionSettings.__dataclass_fields__)
     assert set(shown["mirror"]) == set(MirrorSettings.__dataclass_fields__)
