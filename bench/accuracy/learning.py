@@ -47,13 +47,13 @@ from bench.accuracy.learning_runs import (
     PRIORS,
     TRUTH_WINDOW_S,
     Move,
+    SensorMove,
     Take,
     run_move,
     run_take,
 )
 from bench.accuracy.oracle import GROUPS
 from bench.accuracy.scenarios import Scenario, scenarios
-from bench.calibration.drift import Bump
 from skelfuse.agent.sim.sensor_units import ErrorModel
 
 COLUMNS = ("all", *GROUPS)
@@ -68,7 +68,7 @@ MODELS: dict[str, ErrorModel] = {
 }  # fmt: skip
 """Error model name → the simulator's error model."""
 MOVE_SCENARIO = "walking a circle"
-MOVE_BUMP = Bump(sensor=1, yaw_deg=5.0, shift_mm=100.0, at_s=30.0)
+MOVE_BUMP = SensorMove(sensor=1, yaw_deg=5.0, shift_mm=100.0, at_s=30.0)
 
 
 def take_scenarios(quick: bool, take_s: float) -> list[Scenario]:
@@ -99,6 +99,8 @@ def _med(takes: Sequence[Take], value: Callable[[Take], float]) -> float:
 
 def print_oracle_table(takes: Sequence[Take]) -> None:
     """Table 1: fused / oracle MPJPE per group, learned and priors."""
+    if not takes:
+        return
     print(f"\n## Fused MPJPE / hindsight oracle (median over seeds; target ≤ {ORACLE_TARGET})\n")
     head = " / ".join(COLUMNS)
     print(f"| error model | scenario | oracle mm {head} | learned ÷ oracle | priors ÷ oracle |")
@@ -121,6 +123,8 @@ def _best_single_legs(take: Take) -> float:
 
 def print_targets_table(takes: Sequence[Take]) -> None:
     """Table 2: trunk against the plain mean, legs against the best single view, labels."""
+    if not takes:
+        return
     print("\n## Learned fusion against the plain mean and the best single sensor (mm, median)\n")
     print(f"Targets: fused trunk ≤ plain mean's; fused legs ≤ {LEGS_TARGET}× the best single "
           f"sensor's over the take; wrong labels ≤ {WRONG_LABELS_TARGET:.0%}.\n")  # fmt: skip
@@ -145,6 +149,8 @@ def _rho(value: float) -> str:
 
 def print_spearman_table(takes: Sequence[Take]) -> None:
     """Table 3: learned against true error, rank correlation (random units only)."""
+    if not any(t.model.endswith("random units") for t in takes):
+        return
     print(f"\n## Learned error against the views' true error: Spearman ρ after the take, over "
           f"its last {TRUTH_WINDOW_S:.0f} s (random units; median over seeds, range in "
           f"brackets; target ≥ {SPEARMAN_TARGET})\n")  # fmt: skip
@@ -164,13 +170,14 @@ def print_spearman_table(takes: Sequence[Take]) -> None:
         print(f"| {model} | every take | {_rho(_median(pooled))} |" + " |" * len(GROUPS))
 
 
-def print_move_tables(moves: Sequence[Move], bump: Bump) -> None:
+def print_move_tables(moves: Sequence[Move], bump: SensorMove) -> None:
     """Table 4: the moved sensor's learned error, and fused MPJPE per window."""
     if not moves:
         return
-    print(f"\n## Re-learning a moved sensor: {moves[0].moved} turns {bump.yaw_deg:g}° and shifts "
-          f"{bump.shift_mm:g} mm at {bump.at_s:g} s, fusion keeps its old pose (fixed units; "
-          f"median over {len({m.seed for m in moves})} seed(s))\n")  # fmt: skip
+    seeds = len({m.seed for m in moves})
+    print(f"\n## Re-learning a moved sensor: {moves[0].moved} turns {bump.yaw_deg:g}° about "
+          f"the vertical and shifts {bump.shift_mm:g} mm at {bump.at_s:g} s, fusion keeps its "
+          f"old pose (fixed units; median over {seeds} seed(s))\n")  # fmt: skip
     print("| error model | group | learned before (mm) | learned at the end | true, old pose, "
           "at the end | true, true pose, before / end | 90 % of the way after | ≥ 0.9× end "
           "after |")  # fmt: skip
@@ -204,7 +211,9 @@ def print_move_tables(moves: Sequence[Move], bump: Bump) -> None:
 
 def run_all(chosen: Sequence[Scenario], models: dict[str, ErrorModel], runs: int) -> list[Take]:
     """Every take: scenario × error model × seed (progress on stderr)."""
-    takes = []
+    takes: list[Take] = []
+    if runs <= 0:
+        return takes
     for label, model in models.items():
         for scenario in chosen:
             started = time.perf_counter()
@@ -214,7 +223,7 @@ def run_all(chosen: Sequence[Scenario], models: dict[str, ErrorModel], runs: int
     return takes
 
 
-def run_moves(move_s: float, runs: int, bump: Bump = MOVE_BUMP) -> list[Move]:
+def run_moves(move_s: float, runs: int, bump: SensorMove = MOVE_BUMP) -> list[Move]:
     """The move takes, both error models at fixed units, ``runs`` seeds each."""
     base = next(s for s in scenarios(True) if s.name == MOVE_SCENARIO)
     scenario = replace(base, duration_s=move_s)
@@ -229,7 +238,8 @@ def run_moves(move_s: float, runs: int, bump: Bump = MOVE_BUMP) -> list[Move]:
 def main(argv: Sequence[str] | None = None) -> int:
     """Parse the command line, run the takes, print the tables; returns the exit status."""
     parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
-    parser.add_argument("--runs", type=int, default=3, help="seeds per scenario and model")
+    parser.add_argument("--runs", type=int, default=3, help="seeds per scenario and model (0: "
+                        "the move takes only)")  # fmt: skip
     parser.add_argument("--quick", action="store_true", help="walking a circle only")
     parser.add_argument("--take-s", type=float, default=30.0, help="seconds per take")
     parser.add_argument("--move-s", type=float, default=60.0, help="seconds of a move take")

@@ -24,11 +24,10 @@ from bench.accuracy.metrics import Log
 from bench.accuracy.oracle import GROUPS, best_view, group_mpjpe, view_errors
 from bench.accuracy.runner import FPS, T0, Capture, SimulatedRig, _new_hub, feed, label_decisions
 from bench.accuracy.scenarios import Scenario
-from bench.calibration.drift import Bump, bumped_pose
 from skelfuse.agent.sim.kinect_model import KinectV2Params, Observation
 from skelfuse.agent.sim.sensor_units import ErrorModel, SensorParams, SimulatedSensor
 from skelfuse.fusion.settings import LearningSettings
-from skelfuse.protocol.transform import apply, invert
+from skelfuse.protocol.transform import apply, axis_rotation, invert
 from skelfuse.server.hub import FusionHub
 from skelfuse.server.settings import FusionSettings
 
@@ -63,13 +62,34 @@ def spearman(a: Sequence[float], b: Sequence[float]) -> float:
     return float(np.corrcoef(rx, ry)[0, 1])
 
 
+@dataclass(frozen=True, slots=True)
+class SensorMove:
+    """Sensor ``sensor`` (index) turns ``yaw_deg`` about the vertical through it and shifts
+    ``shift_mm`` along its own +X made level, ``at_s`` seconds into the take."""
+
+    sensor: int
+    yaw_deg: float
+    shift_mm: float
+    at_s: float
+
+    def pose_after(self, pose: FloatArray) -> FloatArray:
+        """(4, 4) ``T_world_from_sensor`` after the move, from ``pose`` before it."""
+        out = np.array(pose, dtype=np.float64)
+        out[:3, :3] = axis_rotation("y", math.radians(self.yaw_deg)) @ out[:3, :3]
+        level_x = np.array([pose[0, 0], 0.0, pose[2, 0]])
+        out[:3, 3] += level_x / np.linalg.norm(level_x) * self.shift_mm / 1000.0
+        return out
+
+
 class MovableSensor:
     """A simulated sensor that can be moved mid-take without the simulator knowing.
 
     Before :meth:`move_to` it is ``inner``; after, it reports what ``inner`` would see if it
     stood at the new pose: the world is moved by ``T_old · T_new⁻¹`` before ``inner`` sees it,
     so its sensor-frame joints are those of a sensor at ``T_new`` (its own error processes
-    carry on). ``T_world_from_sensor`` is the true pose (the new one after a move).
+    carry on). Exact for a move that keeps the vertical (:class:`SensorMove`): the simulator's
+    processes about the world's vertical (facing bias, floor) then see the same world.
+    ``T_world_from_sensor`` is the true pose (the new one after a move).
     """
 
     def __init__(self, inner: SimulatedSensor) -> None:
@@ -259,7 +279,7 @@ class Move:
 
 
 def run_move(
-    scenario: Scenario, seed: int, model: ErrorModel, label: str, bump: Bump,
+    scenario: Scenario, seed: int, model: ErrorModel, label: str, bump: SensorMove,
     window_s: float = 5.0,
 ) -> Move:  # fmt: skip
     """One take of ``scenario`` in which sensor ``bump.sensor`` is moved by ``bump`` at
@@ -275,7 +295,7 @@ def run_move(
     for capture in rig.captures():
         t = capture.t_capture - T0
         if t >= bump.at_s and not moved.moved:
-            moved.move_to(bumped_pose(rig.poses[bump.sensor], bump))
+            moved.move_to(bump.pose_after(rig.poses[bump.sensor]))
         for when, lo, hi in (("before", bump.at_s - 10, bump.at_s),
                              ("after", scenario.duration_s - 10, math.inf)):  # fmt: skip
             if lo <= t < hi:
