@@ -16,6 +16,10 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
         "how far late views are carried, with jitter",
     ),
     "alignment_waits": ("accuracy.alignment_waits", "the live rig's alignment wait per policy"),
+    "learning": (
+        "accuracy.learning",
+        "errors learned from the rig: fused vs the oracle, learned vs true error, a moved sensor",
+    ),
     "lag": ("accuracy.lag", "lag of the fused output against the truth, per joint group"),
     "lead_lag": ("accuracy.lead_lag", "lead / lag of the fused output against truth and views"),
     "calibration": ("calibration.methods", "how well each calibration method places sensors"),
