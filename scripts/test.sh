@@ -58,6 +58,7 @@ NUMBA_DISABLE_JIT=1 "$VENV/bin/python" -m pytest -q -p no:cacheprovider \
   tests/unit/test_measured_motion.py tests/unit/test_to_world.py \
   tests/unit/test_alignment_replay.py tests/unit/test_filters_ca.py tests/unit/test_weigh.py \
   tests/unit/test_label_scores.py tests/unit/test_bone_observation.py \
+  tests/unit/test_rig_errors.py tests/unit/test_limb_labels.py tests/unit/test_ray_weighting.py \
   tests/unit/test_golden_replay.py \
   --deselect tests/unit/test_filters_ca.py::test_the_warm_up_compiles_the_loop_for_every_step \
   --deselect tests/unit/test_bone_fit_bits.py::test_the_projection_compiles_once_whatever_arrays_it_is_given
