@@ -60,7 +60,7 @@ from skelfuse.fusion.confidence import (
     range_of_motion_factors,
     sensor_terms,
 )
-from skelfuse.fusion.limb_labels import swap_limbs
+from skelfuse.fusion.limb_labels import LIMBS, limb_swap_loop
 from skelfuse.fusion.mirror_scores import slots
 from skelfuse.fusion.priors import KINECT_V2, SensorPrior, prior_variances
 from skelfuse.fusion.rig_errors import robust_factors_loop, variance_at, view_bins_loop
@@ -206,24 +206,12 @@ def weigh_and_fuse(
     )
     work = (np.empty((count, 3)), np.empty((count, 3)))
 
-    def run(first: int, last: int, body: _Body) -> None:
-        _weigh_loop(
-            first, last, plain(batch.joints), plain(batch.states, np.uint8),
-            plain(batch.sensors), (plain(batch.starts, np.intp), batch.widest), body, views,
-            rays, out, work,
-        )  # fmt: skip
-
-    body = _body_terms(batch, rom, references, s, priors)
-    run(BODY, VIEWS, body)
-    if s.mirror.limbs:  # one limb's labels swapped in a view: put right, weighed again
-        swapped = swap_limbs(
-            batch.joints, batch.states, out.weights, batch.starts,
-            (plain(track_joints), views[1]),
-        )  # fmt: skip
-        if swapped.any():
-            body = _body_terms(batch, None, references, s, priors)
-            run(BODY, VIEWS, body)
-    run(ROBUST, CONFIDENCE, body)
+    _weigh_loop(
+        BODY, CONFIDENCE, plain(batch.joints), plain(batch.states, np.uint8),
+        plain(batch.sensors), (plain(batch.starts, np.intp), batch.widest),
+        _body_terms(batch, rom, references, s, priors), views, rays,
+        (plain(track_joints), bool(s.mirror.limbs)), out, work,
+    )  # fmt: skip
     return out
 
 
@@ -276,6 +264,7 @@ def _weigh_loop(
     body: _Body,
     views: _Views,
     rays: tuple[FloatArray, bool],
+    limbs: tuple[FloatArray, bool],
     out: tuple[
         FloatArray, FloatArray, FloatArray, FloatArray, BoolArray, IntArray, FloatArray, FloatArray
     ],
@@ -290,7 +279,9 @@ def _weigh_loop(
     was fused before (P,), each view's learned-variance row (N,), the variances (R, 25, B),
     :func:`weight_scale` (25,), whether views are binned by where they stand, the far
     distance and the Student-t degrees of freedom (0: no robust pass); rays: each view's depth
-    ratio (N,) and whether any is not 1 (then fused along the rays); out: weights, fused,
+    ratio (N,) and whether any is not 1 (then fused along the rays); limbs: each person's
+    track skeleton (P, 25, 3) and whether single limbs' labels are checked (after the learned
+    weighting; the step's first phases again if one is swapped); out: weights, fused,
     cosines, confidence, carried, bins, between, variances (:class:`Weighed`); work: where
     each view's person stands (N, 3), its facing (N, 3).
     """
@@ -301,22 +292,23 @@ def _weigh_loop(
     padded = np.empty((len(starts) - 1, widest, joints.shape[1], 3))
     padded_weights = np.empty(padded.shape[:3])
     along = (sensors, rays[0], rays[1])
-    if first <= BODY <= last:
-        _body_phase(joints, states, starts, body, weights)
-        _fuse(joints, weights, starts, (padded, padded_weights), along, fused)
-    if first <= FACING <= last:
-        _facing_phase(joints, sensors, starts, facings, once, fused, stands, facing_of, cosines)
-    if first <= VIEWS <= last:
-        view_bins_loop(facing_of, stands, sensors, states, (binned, far_m), (bins, between))
-        for v in range(len(rows)):
-            for j in range(weights.shape[1]):
-                b = bins[v, j]
-                if b < 0:
-                    variances[v, j], weights[v, j] = math.inf, 0.0
-                    continue
-                variances[v, j] = variance_at(table, rows[v], j, b, between[v])
-                weights[v, j] = weights[v, j] * scale[j] / variances[v, j]
-        _fuse(joints, weights, starts, (padded, padded_weights), along, fused)
+    learned = (rows, table, scale, binned, far_m)
+    swapped = np.zeros((len(rows), 2), dtype=np.bool_)
+    for again in range(2):  # again: a limb's labels were put right, so weighed again
+        if again and not swapped.any():
+            break
+        if again or first <= BODY <= last:
+            _body_phase(joints, states, starts, body, weights)
+            _fuse(joints, weights, starts, (padded, padded_weights), along, fused)
+        if again or first <= FACING <= last:
+            _facing_phase(joints, sensors, starts, facings, once, fused, stands, facing_of, cosines)
+        if again or first <= VIEWS <= last:
+            _views_phase(
+                facing_of, stands, sensors, states, learned, (bins, between), variances, weights
+            )
+            _fuse(joints, weights, starts, (padded, padded_weights), along, fused)
+            if not again and limbs[1]:
+                limb_swap_loop(joints, states, weights, starts, limbs[0], once, LIMBS, swapped)
     if first <= ROBUST <= last and dof > 0.0:
         factors = np.empty(weights.shape)
         robust_factors_loop(joints, weights, variances, starts, dof, factors)
@@ -327,6 +319,33 @@ def _weigh_loop(
     if first <= CONFIDENCE <= last:
         _pad(joints, weights, starts, padded, padded_weights)
         confidence_loop(padded, padded_weights, MIN_SHARE, confidence, carried)
+
+
+@jit
+def _views_phase(
+    facing_of: FloatArray,
+    stands: FloatArray,
+    sensors: FloatArray,
+    states: npt.NDArray[np.uint8],
+    learned: tuple[IntArray, FloatArray, FloatArray, bool, float],
+    places: tuple[IntArray, FloatArray],
+    variances: FloatArray,
+    weights: FloatArray,
+) -> None:
+    """Each view's joints' bins (``places``: bins, between) and learned variances, and the
+    weights over them (in place). learned: each view's row, the table (R, 25, B), the weight
+    scale (25,), whether views are binned by where they stand, the far distance."""
+    rows, table, scale, binned, far_m = learned
+    bins, between = places
+    view_bins_loop(facing_of, stands, sensors, states, (binned, far_m), (bins, between))
+    for v in range(len(rows)):
+        for j in range(weights.shape[1]):
+            b = bins[v, j]
+            if b < 0:
+                variances[v, j], weights[v, j] = math.inf, 0.0
+                continue
+            variances[v, j] = variance_at(table, rows[v], j, b, between[v])
+            weights[v, j] = weights[v, j] * scale[j] / variances[v, j]
 
 
 @jit
@@ -466,7 +485,8 @@ def warm_up() -> None:
         (terms, of_view, np.ones((1, 24)), np.ones((2, 25)), (True, True), 0.05, _TABLES),
         (np.ones((1, 3)), np.zeros(1, dtype=np.bool_), np.zeros(2, dtype=np.intp), table,
          weight_scale(settings), (True, 2.5, 4.0)),
-        (np.full(2, 2.0), True), out, (np.empty((2, 3)), np.empty((2, 3))),
+        (np.full(2, 2.0), True), (np.zeros((1, 25, 3)), True), out,
+        (np.empty((2, 3)), np.empty((2, 3))),
     )  # fmt: skip
     weighted_mean(np.zeros((1, 2, 25, 3)), np.ones((1, 2, 25)))
 

@@ -161,8 +161,8 @@ def _term_by_term(
     args = (references, track_facings, once, s, priors, learned)
     weights, fused, cosines, bins, between, variances = _weighed_by_views(batch, rom, *args)
     swapped = swap_limbs(batch.joints, batch.states, weights, batch.starts, (track_joints, once))
-    if swapped.any():
-        weights, fused, cosines, bins, between, variances = _weighed_by_views(batch, None, *args)
+    if swapped.any():  # weighed again, the range-of-motion factors as they were
+        weights, fused, cosines, bins, between, variances = _weighed_by_views(batch, rom, *args)
     if s.learning.robust_dof > 0:
         weights = weights * _robust(batch, weights, variances, s.learning.robust_dof)
         fused = batch.fuse(weights)
