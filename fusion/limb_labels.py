@@ -30,6 +30,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
+from skelfuse.fusion.rig_errors import left_out
 from skelfuse.jit import jit, plain
 from skelfuse.protocol.skeleton import JointId
 
@@ -105,8 +106,10 @@ def limb_swap_loop(
                     chain = left if side == 0 else right
                     for i in range(len(chain)):
                         j = chain[i]
-                        if j >= 0:
-                            _left_out_mean(joints, weights, lo, hi, k, j, others[side, i])
+                        if j >= 0:  # the others' mean: the view less its residual to it
+                            residual = left_out(joints, weights, weights, lo, hi, k, j)[1]
+                            for c in range(3):
+                                others[side, i, c] = joints[k, j, c] - residual[c]
                             tracked_limbs[side, i] = track[p, j]
                 swap = _swapped(joints[k], left, right, others)
                 if tracked[p]:
@@ -120,28 +123,6 @@ def limb_swap_loop(
                         for c in range(3):
                             joints[k, a, c], joints[k, b, c] = joints[k, b, c], joints[k, a, c]
                         states[k, a], states[k, b] = states[k, b], states[k, a]
-
-
-@jit
-def _left_out_mean(
-    joints: FloatArray, weights: FloatArray, lo: int, hi: int, k: int, j: int, out: FloatArray
-) -> None:
-    """Fill ``out`` (3,) with the weighted mean of joint ``j`` of views ``lo``..``hi`` but
-    ``k`` (NaN where none of them has it)."""
-    total = m0 = m1 = m2 = 0.0
-    for i in range(lo, hi):
-        w = weights[i, j]
-        y = joints[i, j]
-        if i == k or not w > 0.0 or not math.isfinite(y[0] + y[1] + y[2]):
-            continue
-        total += w
-        m0 += w * y[0]
-        m1 += w * y[1]
-        m2 += w * y[2]
-    if total > 0.0:
-        out[0], out[1], out[2] = m0 / total, m1 / total, m2 / total
-    else:
-        out[0] = out[1] = out[2] = math.nan
 
 
 @jit

@@ -334,7 +334,7 @@ def observe_loop(
                 b = bins[k, j]
                 if b < 0 or not weights[k, j] > 0.0:
                     continue
-                others, residual = _left_out(joints, weights, variances, lo, hi, k, j)
+                others, residual = left_out(joints, weights, variances, lo, hi, k, j)
                 distance = residual[0] ** 2 + residual[1] ** 2 + residual[2] ** 2
                 if not math.isfinite(distance):
                     continue  # nobody else sees this joint: nothing to judge it against
@@ -378,7 +378,7 @@ def _add_ray_sample(
 
 
 @jit_inline
-def _left_out(
+def left_out(
     joints: FloatArray, weights: FloatArray, variances: FloatArray, lo: int, hi: int, k: int, j: int
 ) -> tuple[float, tuple[float, float, float]]:
     """The variance (m²) of the weighted mean of views ``lo``..``hi`` but ``k`` of joint ``j``,
@@ -494,7 +494,7 @@ def robust_factors_loop(
                 out[k, j] = 1.0
                 if not weights[k, j] > 0.0:
                     continue
-                others, residual = _left_out(joints, weights, variances, lo, hi, k, j)
+                others, residual = left_out(joints, weights, variances, lo, hi, k, j)
                 distance = residual[0] ** 2 + residual[1] ** 2 + residual[2] ** 2
                 if math.isfinite(distance):
                     expected = variances[k, j] + others

@@ -36,19 +36,11 @@ from bench.accuracy.scenarios import Scenario, scenarios
 from bench.accuracy.sensor_flags import add_error_model_flags, error_model_from
 from skelfuse.agent.sim.kinect_model import KinectV2Params
 from skelfuse.agent.sim.sensor_units import DEFAULT_ERROR_MODEL, ErrorModel
+from skelfuse.fusion.rig_errors import GROUPS
 from skelfuse.fusion.settings import SmoothingSettings
-from skelfuse.protocol.skeleton import JointId
 from skelfuse.server.settings import FusionSettings
 
 FloatArray = npt.NDArray[np.float64]
-J = JointId
-GROUPS: dict[str, tuple[int, ...]] = {
-    "trunk": (J.SPINE_BASE, J.SPINE_MID, J.NECK, J.HEAD, J.SPINE_SHOULDER, J.SHOULDER_LEFT,
-              J.SHOULDER_RIGHT, J.HIP_LEFT, J.HIP_RIGHT),
-    "arms": (J.ELBOW_LEFT, J.WRIST_LEFT, J.HAND_LEFT, J.HAND_TIP_LEFT, J.THUMB_LEFT, J.ELBOW_RIGHT,
-             J.WRIST_RIGHT, J.HAND_RIGHT, J.HAND_TIP_RIGHT, J.THUMB_RIGHT),
-    "legs": (J.KNEE_LEFT, J.ANKLE_LEFT, J.FOOT_LEFT, J.KNEE_RIGHT, J.ANKLE_RIGHT, J.FOOT_RIGHT),
-}  # fmt: skip
 SHIFTS_S = np.arange(-0.060, 0.0601, 0.002)
 """Shifts tried (s); the fit is refined between grid points."""
 

@@ -36,11 +36,12 @@ from dataclasses import replace
 import numpy as np
 import numpy.typing as npt
 
-from bench.accuracy.lag import GROUPS, best_shift, shift_errors
+from bench.accuracy.lag import best_shift, shift_errors
 from bench.accuracy.runner import T0, SimulatedRig, _new_hub, feed
 from bench.accuracy.scenarios import Scenario, scenarios
 from bench.accuracy.view_shift import Take, shift_against_views, steady
 from skelfuse.agent.sim.kinect_model import KinectV2Params
+from skelfuse.fusion.rig_errors import GROUPS
 from skelfuse.fusion.settings import AlignmentSettings, SmoothingSettings
 from skelfuse.server.settings import FusionSettings
 

@@ -53,9 +53,9 @@ from bench.accuracy.learning_runs import (
     run_move,
     run_take,
 )
-from bench.accuracy.oracle import GROUPS
 from bench.accuracy.scenarios import Scenario, scenarios
 from skelfuse.agent.sim.sensor_units import ErrorModel
+from skelfuse.fusion.rig_errors import GROUPS
 
 COLUMNS = ("all", *GROUPS)
 ORACLE_TARGET = 0.9

@@ -21,11 +21,12 @@ from scipy.stats import rankdata
 
 from bench.accuracy.methods import BASE, METHODS
 from bench.accuracy.metrics import Log
-from bench.accuracy.oracle import GROUPS, best_view, group_mpjpe, view_errors
+from bench.accuracy.oracle import best_view, group_mpjpe, view_errors
 from bench.accuracy.runner import FPS, T0, Capture, SimulatedRig, _new_hub, feed, label_decisions
 from bench.accuracy.scenarios import Scenario
 from skelfuse.agent.sim.kinect_model import KinectV2Params, Observation
 from skelfuse.agent.sim.sensor_units import ErrorModel, SensorParams, SimulatedSensor
+from skelfuse.fusion.rig_errors import GROUPS
 from skelfuse.fusion.settings import LearningSettings
 from skelfuse.protocol.transform import apply, axis_rotation, invert
 from skelfuse.server.hub import FusionHub

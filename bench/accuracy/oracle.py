@@ -26,22 +26,14 @@ from bench.accuracy.runner import FPS, T0, SimulatedRig, _new_hub, feed
 from bench.accuracy.scenarios import Scenario
 from skelfuse.agent.sim.kinect_model import KinectV2Params, labels_put_right
 from skelfuse.agent.sim.sensor_units import DEFAULT_ERROR_MODEL, ErrorModel
+from skelfuse.fusion.rig_errors import GROUPS
 from skelfuse.fusion.settings import LearningSettings
-from skelfuse.protocol.skeleton import JointId
 from skelfuse.protocol.transform import apply
 from skelfuse.server.settings import FusionSettings
 
-J = JointId
 FloatArray = npt.NDArray[np.float64]
 MIN_JOINTS: Final = 23
 """Joints (of 25) a view must report to be the oracle's choice."""
-GROUPS: Final[dict[str, tuple[int, ...]]] = {
-    "trunk": (J.SPINE_BASE, J.SPINE_MID, J.NECK, J.HEAD, J.SPINE_SHOULDER, J.SHOULDER_LEFT,
-              J.SHOULDER_RIGHT, J.HIP_LEFT, J.HIP_RIGHT),
-    "arms": (J.ELBOW_LEFT, J.WRIST_LEFT, J.HAND_LEFT, J.HAND_TIP_LEFT, J.THUMB_LEFT,
-             J.ELBOW_RIGHT, J.WRIST_RIGHT, J.HAND_RIGHT, J.HAND_TIP_RIGHT, J.THUMB_RIGHT),
-    "legs": (J.KNEE_LEFT, J.ANKLE_LEFT, J.FOOT_LEFT, J.KNEE_RIGHT, J.ANKLE_RIGHT, J.FOOT_RIGHT),
-}  # fmt: skip
 ORACLE = "hindsight oracle (best correct single view per frame)"
 ORACLE_METHODS: Final[dict[str, FusionSettings]] = {
     "full (defaults)": FusionSettings(),

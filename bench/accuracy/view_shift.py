@@ -30,8 +30,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from bench.accuracy.lag import GROUPS, SHIFTS_S, best_shift
+from bench.accuracy.lag import SHIFTS_S, best_shift
 from skelfuse.fusion.engine import FusedFrame
+from skelfuse.fusion.rig_errors import GROUPS
 from skelfuse.protocol.skeleton import MIRROR_PERMUTATION, JointId, TrackingState
 from skelfuse.protocol.transform import apply
 from skelfuse.protocol.wire import Frame

@@ -23,12 +23,12 @@ from bench.accuracy.learning_runs import (
     run_take,
     spearman,
 )
-from bench.accuracy.oracle import GROUPS
 from bench.accuracy.scenarios import Scenario
 from skelfuse.agent.sim.kinect_model import SimulatedKinect
 from skelfuse.agent.sim.performer import ProceduralPerformer
 from skelfuse.agent.sim.scenarios import Segment
 from skelfuse.agent.sim.sensor_units import ErrorModel
+from skelfuse.fusion.rig_errors import GROUPS
 from skelfuse.protocol.transform import look_at_pose
 
 WALK = Scenario("walk", Segment(ProceduralPerformer(1), 0.0, 3.0), 3.0, 3, "walk")

@@ -28,10 +28,12 @@ def _step(
     sigmas_m: list[float],
     t_s: float,
     rng: np.random.Generator,
+    priors: list[SensorPrior] | None = None,
 ) -> None:
-    """One fusion step of one person seen by ``sensors``, each view off the truth by Gaussian
-    noise of ``sigma`` per axis, all in front and near, weighed by the current estimates."""
-    rows = errors.rows_of(sensors, [KINECT_V2] * len(sensors))
+    """One fusion step of one person seen by ``sensors`` (of ``priors``, default Kinect v2's),
+    each view off the truth by Gaussian noise of ``sigma`` per axis, all in front and near,
+    weighed by the current estimates."""
+    rows = errors.rows_of(sensors, priors or [KINECT_V2] * len(sensors))
     joints = (
         TRUTH[None]
         + rng.normal(size=(len(sensors), JOINT_COUNT, 3)) * np.array(sigmas_m)[:, None, None]
@@ -81,31 +83,10 @@ def test_two_views_keep_their_priors_split_and_learn_the_sum() -> None:
     errors.rows_of(["a", "b"], [KINECT_V2, better])
     rng = np.random.default_rng(3)
     for n in range(900):  # both really as good: 2 cm per axis
-        _step_with(errors, ["a", "b"], [KINECT_V2, better], 0.02, n / 30, rng)
+        _step(errors, ["a", "b"], [0.02, 0.02], n / 30, rng, [KINECT_V2, better])
     a, b = _learned_m(errors, "a"), _learned_m(errors, "b")
     assert a**2 + b**2 == pytest.approx(2 * 3 * 0.02**2, rel=0.2)  # the sum is what shows
     assert a / b == pytest.approx(2.0, rel=0.15)  # the split stays the priors'
-
-
-def _step_with(
-    errors: RigErrors,
-    sensors: list[str],
-    priors: list[SensorPrior],
-    sigma_m: float,
-    t_s: float,
-    rng: np.random.Generator,
-) -> None:
-    rows = errors.rows_of(sensors, priors)
-    joints = TRUTH[None] + rng.normal(size=(len(sensors), JOINT_COUNT, 3)) * sigma_m
-    bins = np.full((len(sensors), JOINT_COUNT), FRONT, dtype=np.intp)
-    variances = errors.variance[rows][:, :, FRONT]
-    errors.observe(
-        Observed(
-            joints, 1.0 / variances, variances, rows, bins, np.zeros(len(sensors)),
-            np.array([0, len(sensors)], dtype=np.intp), np.ones((len(sensors), 3)),
-        ),
-        t_s,
-    )  # fmt: skip
 
 
 def test_a_sensor_that_degrades_is_relearned_and_an_empty_room_forgets_nothing() -> None:
